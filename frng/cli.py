@@ -1,0 +1,66 @@
+"""The ``frng`` command line: one subcommand per pipeline stage.
+
+Each stage lives in its own module, which provides two functions::
+
+    def configure(parser: argparse.ArgumentParser) -> None   # add arguments (or sub-subcommands)
+    def run(args: argparse.Namespace) -> int | None           # do the work
+
+Modules are imported lazily so that ``frng --help`` stays fast (no torch/bpy import).
+Snakemake rules call these subcommands; users can call them directly too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# name -> (module, one-line help). Order is the pipeline order.
+STAGES: dict[str, tuple[str, str]] = {
+    "config": ("frng.config", "validate a config file and print it with defaults filled in"),
+    "envmaps": ("frng.data.envmaps", "collect, bake and rotate the environment maps (train/test split)"),
+    "curate": ("frng.data.curate", "render one object's views x lights + G-buffers with Blender Cycles"),
+    "dataset": ("frng.data.preview", "inspect the curated dataset (contact sheets)"),
+    "bench": ("frng.bench", "benchmarks: rasterizer, shading, relighting"),
+}
+
+
+class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
+    pass
+
+
+def _top_parser() -> argparse.ArgumentParser:
+    lines = [f"  {name:<16}{help_}" for name, (_, help_) in STAGES.items()]
+    return argparse.ArgumentParser(
+        prog="frng",
+        formatter_class=_Formatter,
+        description="F-RNG pipeline stages (each is called by a Snakemake rule).\n\nstages:\n"
+        + "\n".join(lines)
+        + "\n\nRun `frng <stage> --help` for a stage's options.",
+    )
+
+
+def stage_parser(name: str) -> argparse.ArgumentParser:
+    """Build the argument parser of one stage (imports its module)."""
+    module_name, help_ = STAGES[name]
+    module = importlib.import_module(module_name)
+    parser = argparse.ArgumentParser(prog=f"frng {name}", description=help_, formatter_class=_Formatter)
+    module.configure(parser)
+    parser.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help") or argv[0] not in STAGES:
+        parser = _top_parser()
+        parser.add_argument("stage", choices=list(STAGES), help="pipeline stage")
+        if argv and argv[0] not in ("-h", "--help"):
+            parser.error(f"unknown stage {argv[0]!r}; choose from {', '.join(STAGES)}")
+        parser.print_help()
+        sys.exit(0 if argv else 2)
+    parser = stage_parser(argv[0])
+    args = parser.parse_args(argv[1:])
+    run = getattr(args, "_run")
+    code = run(args)
+    sys.exit(int(code or 0))
