@@ -1,0 +1,331 @@
+"""Objects: import users'/pybullet meshes, build primitives and procedural shapes, normalise.
+
+Every builder returns one mesh object in world Z-up, normalised so its vertices fit the sphere of radius
+``radius`` (1 by default) at the origin: centre = bounding-box centre, scale = radius / max vertex distance.
+:func:`load` also returns ``file_to_world`` (4, 4): world point = file_to_world @ (file point, 1), for tests
+and users who need to locate their own mesh's features in the renders.
+
+Meshes without UVs get a spherical projection UV map so image textures work on every object.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import bpy
+import numpy as np
+from mathutils import Matrix
+
+from frng.blender import scene as bscene
+
+Y_UP_TO_Z_UP = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], dtype=np.float64)  # +90 deg about X
+
+
+class MeshError(RuntimeError):
+    """A mesh failed to load or is degenerate; the message names the file/object."""
+
+
+# -- helpers --------------------------------------------------------------------------------------------
+
+def vertices(obj: bpy.types.Object) -> np.ndarray:
+    """Vertex positions (N, 3) in the object's local frame."""
+    me = obj.data
+    co = np.empty(len(me.vertices) * 3, dtype=np.float64)
+    me.vertices.foreach_get("co", co)
+    return co.reshape(-1, 3)
+
+
+def normalisation(points: np.ndarray, radius: float = 1.0) -> np.ndarray:
+    """(4, 4) that moves the bounding-box centre of ``points`` (N, 3) to the origin and scales them into ``radius``."""
+    centre = 0.5 * (points.min(0) + points.max(0))
+    r = float(np.linalg.norm(points - centre, axis=1).max())
+    if not np.isfinite(r) or r <= 1e-12:
+        raise MeshError("mesh is degenerate (all vertices at one point)")
+    m = np.eye(4)
+    m[:3, :3] *= radius / r
+    m[:3, 3] = -centre * radius / r
+    return m
+
+
+def transform_mesh(obj: bpy.types.Object, m: np.ndarray) -> None:
+    obj.data.transform(Matrix(np.asarray(m).tolist()))
+    obj.data.update()
+
+
+def ensure_uvs(obj: bpy.types.Object) -> bool:
+    """Give a mesh without UVs a spherical projection UV map; returns True if it already had UVs."""
+    me = obj.data
+    if len(me.uv_layers):
+        return True
+    uv = me.uv_layers.new(name="UVMap")
+    n = len(me.loops)
+    vidx = np.empty(n, dtype=np.int64)
+    me.loops.foreach_get("vertex_index", vidx)
+    p = vertices(obj)[vidx]
+    r = np.linalg.norm(p, axis=1) + 1e-12
+    uvs = np.stack([0.5 + np.arctan2(p[:, 1], p[:, 0]) / (2 * math.pi), 1.0 - np.arccos(np.clip(p[:, 2] / r, -1, 1)) / math.pi], 1)
+    uv.data.foreach_set("uv", uvs.astype(np.float32).ravel())
+    return False
+
+
+def _mesh_object(name: str, verts: np.ndarray, faces: list) -> bpy.types.Object:
+    me = bpy.data.meshes.new(name)
+    me.from_pydata([tuple(v) for v in np.asarray(verts, dtype=np.float64)], [], faces)
+    me.validate()
+    me.update()
+    obj = bpy.data.objects.new(name, me)
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def _shade_smooth(obj: bpy.types.Object, smooth: bool = True) -> None:
+    vals = np.full(len(obj.data.polygons), smooth, dtype=bool)
+    obj.data.polygons.foreach_set("use_smooth", vals)
+
+
+def _select_only(objs) -> None:
+    for o in bpy.context.scene.objects:
+        o.select_set(False)
+    for o in objs:
+        o.select_set(True)
+    bpy.context.view_layer.objects.active = objs[0]
+
+
+# -- file import ----------------------------------------------------------------------------------------
+
+def import_file(path: str | Path) -> bpy.types.Object:
+    """Import OBJ/PLY/STL/glTF/GLB as ONE mesh object with transforms applied, coordinates as in the file.
+
+    (glTF: the importer's Y-up -> Z-up conversion is undone so that all formats behave alike.)
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise MeshError(f"{path}: mesh file does not exist")
+    suffix = path.suffix.lower()
+    before = set(bpy.context.scene.objects)
+    try:
+        with bscene.quiet():
+            if suffix == ".obj":
+                bpy.ops.wm.obj_import(filepath=str(path), forward_axis="Y", up_axis="Z")
+            elif suffix == ".ply":
+                bpy.ops.wm.ply_import(filepath=str(path), forward_axis="Y", up_axis="Z")
+            elif suffix == ".stl":
+                bpy.ops.wm.stl_import(filepath=str(path), forward_axis="Y", up_axis="Z")
+            elif suffix in (".gltf", ".glb"):
+                bpy.ops.import_scene.gltf(filepath=str(path))
+            else:
+                raise MeshError(f"{path}: unsupported mesh format {suffix} (use OBJ, PLY, STL, glTF/GLB)")
+    except RuntimeError as e:
+        raise MeshError(f"{path}: Blender failed to import the mesh ({str(e).strip()})") from e
+    new = [o for o in bpy.context.scene.objects if o not in before]
+    meshes = [o for o in new if o.type == "MESH" and len(o.data.polygons) > 0]
+    if not meshes:
+        raise MeshError(f"{path}: the file contains no mesh with faces")
+    # bake every object's world transform (incl. parents) into its vertices, then join
+    for o in meshes:
+        if o.data.users > 1:
+            o.data = o.data.copy()
+        o.data.transform(o.matrix_world)
+    for o in new:
+        if o not in meshes:
+            bpy.data.objects.remove(o, do_unlink=True)
+    for o in meshes:
+        o.parent = None
+        o.matrix_world = Matrix.Identity(4)
+    if len(meshes) > 1:
+        _select_only(meshes)
+        bpy.ops.object.join()
+    obj = bpy.context.view_layer.objects.active if len(meshes) > 1 else meshes[0]
+    if suffix in (".gltf", ".glb"):
+        transform_mesh(obj, np.linalg.inv(Y_UP_TO_Z_UP))
+    obj.name = "frng_object"
+    obj.data.materials.clear()
+    return obj
+
+
+# -- primitives and procedural shapes --------------------------------------------------------------------
+
+def primitive(kind: str, rng: np.random.Generator) -> tuple[bpy.types.Object, dict]:
+    """A Blender primitive with a random anisotropic scale and orientation. Returns (object, parameters)."""
+    ops = {
+        "cube": lambda: bpy.ops.mesh.primitive_cube_add(calc_uvs=True),
+        "uv_sphere": lambda: bpy.ops.mesh.primitive_uv_sphere_add(segments=48, ring_count=24, calc_uvs=True),
+        "ico_sphere": lambda: bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=2, calc_uvs=True),
+        "cylinder": lambda: bpy.ops.mesh.primitive_cylinder_add(vertices=48, calc_uvs=True),
+        "cone": lambda: bpy.ops.mesh.primitive_cone_add(vertices=48, calc_uvs=True),
+        "torus": lambda: bpy.ops.mesh.primitive_torus_add(major_segments=64, minor_segments=24,
+                                                          minor_radius=float(rng.uniform(0.15, 0.4))),
+        "monkey": lambda: bpy.ops.mesh.primitive_monkey_add(calc_uvs=True),
+    }
+    if kind not in ops:
+        raise MeshError(f"unknown primitive {kind!r}")
+    ops[kind]()
+    obj = bpy.context.active_object
+    scale = rng.uniform(0.6, 1.4, 3)
+    euler = rng.uniform(-math.pi, math.pi, 3) if kind not in ("monkey",) else np.array([0.0, 0.0, rng.uniform(-math.pi, math.pi)])
+    m = Matrix.LocRotScale(None, __import__("mathutils").Euler(euler.tolist()), scale.tolist())
+    obj.data.transform(m)
+    _shade_smooth(obj, kind not in ("cube",))
+    if kind == "monkey":
+        mod = obj.modifiers.new("subsurf", "SUBSURF")
+        mod.levels = mod.render_levels = 1
+    return obj, {"kind": kind, "scale": scale.round(4).tolist(), "euler": euler.round(4).tolist()}
+
+
+def _grid_faces(nu: int, nv: int, wrap_u: bool = True) -> list:
+    faces = []
+    for j in range(nv - 1):
+        for i in range(nu if wrap_u else nu - 1):
+            a, b = j * nu + i, j * nu + (i + 1) % nu
+            faces.append((a, b, b + nu, a + nu))
+    return faces
+
+
+def _cap(verts: list, faces: list, ring: range, point) -> None:
+    c = len(verts)
+    verts.append(point)
+    idx = list(ring)
+    for i in range(len(idx)):
+        faces.append((idx[i], idx[(i + 1) % len(idx)], c))
+
+
+def procedural(kind: str, rng: np.random.Generator) -> tuple[bpy.types.Object, dict]:
+    """A procedurally built shape (numpy geometry). Returns (object, parameters)."""
+    if kind == "superquadric":
+        e1, e2 = rng.uniform(0.3, 2.0, 2)
+        axes = rng.uniform(0.5, 1.0, 3)
+        nu, nv = 48, 25
+        u = np.linspace(-math.pi, math.pi, nu, endpoint=False)
+        v = np.linspace(-math.pi / 2, math.pi / 2, nv)[1:-1]
+        sp = lambda x, e: np.sign(x) * np.abs(x) ** e  # noqa: E731
+        U, V = np.meshgrid(u, v)
+        verts = np.stack([axes[0] * sp(np.cos(V), e1) * sp(np.cos(U), e2), axes[1] * sp(np.cos(V), e1) * sp(np.sin(U), e2),
+                          axes[2] * sp(np.sin(V), e1)], -1).reshape(-1, 3).tolist()
+        faces = _grid_faces(nu, nv - 2)
+        n = len(verts)
+        _cap(verts, faces, range(nu - 1, -1, -1), (0, 0, -axes[2]))
+        _cap(verts, faces, range(n - nu, n), (0, 0, axes[2]))
+        params = {"e1": e1, "e2": e2, "axes": axes.tolist()}
+        smooth = True
+    elif kind == "lathe":
+        nu, nv = 48, 40
+        z = np.linspace(-1, 1, nv)
+        k = rng.uniform(1, 4, 3)
+        ph = rng.uniform(0, 2 * math.pi, 3)
+        amp = rng.uniform(0.05, 0.25, 3)
+        r = 0.45 + sum(a * np.sin(kk * z * math.pi / 2 + p) for a, kk, p in zip(amp, k, ph))
+        r = np.clip(r, 0.08, 1.0)
+        u = np.linspace(0, 2 * math.pi, nu, endpoint=False)
+        verts = np.stack([r[:, None] * np.cos(u), r[:, None] * np.sin(u), np.broadcast_to(z[:, None], (nv, nu))], -1)
+        verts = verts.reshape(-1, 3).tolist()
+        faces = _grid_faces(nu, nv)
+        n = len(verts)
+        _cap(verts, faces, range(nu - 1, -1, -1), (0, 0, -1))
+        _cap(verts, faces, range(n - nu, n), (0, 0, 1))
+        params = {"freq": k.tolist(), "phase": ph.tolist(), "amp": amp.tolist()}
+        smooth = True
+    elif kind in ("blob", "cluster"):
+        bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=4)
+        base = bpy.context.active_object
+        p = vertices(base)
+        bpy.data.objects.remove(base, do_unlink=True)
+        faces = None
+        if kind == "blob":
+            d = np.ones(len(p))
+            freqs = rng.normal(0, 2.0, (6, 3))
+            phases = rng.uniform(0, 2 * math.pi, 6)
+            amps = rng.uniform(0.05, 0.2, 6)
+            for f, ph_, a in zip(freqs, phases, amps):
+                d += a * np.sin(p @ f + ph_)
+            verts_all = [p * d[:, None]]
+            params = {"freqs": freqs.round(4).tolist(), "amps": amps.round(4).tolist()}
+        else:
+            n_parts = int(rng.integers(3, 6))
+            centres = rng.uniform(-0.6, 0.6, (n_parts, 3))
+            radii = rng.uniform(0.25, 0.55, (n_parts, 3))
+            verts_all = [c + p * r for c, r in zip(centres, radii)]
+            params = {"centres": centres.round(4).tolist(), "radii": radii.round(4).tolist()}
+        # rebuild faces of the ico sphere for each part
+        bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=4)
+        tmp = bpy.context.active_object
+        tri = [tuple(poly.vertices) for poly in tmp.data.polygons]
+        bpy.data.objects.remove(tmp, do_unlink=True)
+        verts, faces = [], []
+        for part in verts_all:
+            off = len(verts)
+            verts.extend(part.tolist())
+            faces.extend(tuple(i + off for i in t) for t in tri)
+        smooth = True
+    elif kind == "twisted_box":
+        n = 24
+        twist = rng.uniform(-math.pi, math.pi)
+        taper = rng.uniform(0.3, 1.0)
+        hx, hy = rng.uniform(0.3, 0.7, 2)
+        z = np.linspace(-1, 1, n)
+        corners = np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]])
+        rings = []
+        for zz in z:
+            a = twist * (zz + 1) / 2
+            s = 1.0 + (taper - 1.0) * (zz + 1) / 2
+            R = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+            xy = (corners * s) @ R.T
+            rings.append(np.c_[xy, np.full(4, zz)])
+        verts = np.concatenate(rings).tolist()
+        faces = _grid_faces(4, n)
+        faces.append((3, 2, 1, 0))
+        m = len(verts)
+        faces.append((m - 4, m - 3, m - 2, m - 1))
+        params = {"twist": twist, "taper": taper, "half_extent": [hx, hy]}
+        smooth = False
+    else:
+        raise MeshError(f"unknown procedural shape {kind!r}")
+    obj = _mesh_object(f"frng_{kind}", np.asarray(verts), faces)
+    _shade_smooth(obj, smooth)
+    if kind in ("twisted_box", "lathe", "superquadric", "cluster"):
+        euler = rng.uniform(-math.pi, math.pi, 3)
+        obj.data.transform(Matrix.LocRotScale(None, __import__("mathutils").Euler(euler.tolist()), None))
+        params["euler"] = euler.round(4).tolist()
+    params = {"kind": kind, **{k: (round(float(v), 4) if isinstance(v, (float, np.floating)) else v) for k, v in params.items()}}
+    return obj, params
+
+
+# -- the object of a dataset entry ------------------------------------------------------------------------
+
+def load(spec, rng: np.random.Generator, pybullet_dir: Path | None, radius: float = 1.0) -> tuple[bpy.types.Object, dict]:
+    """Build the object of a :class:`frng.data.catalog.ObjectSpec`, Z-up, normalised into ``radius``.
+
+    Returns (object, info); info has ``file_to_world`` (4x4 list, file points -> world) for file meshes,
+    ``params`` for generated shapes, ``had_uvs``, ``vertices`` and ``faces`` counts.
+    """
+    info: dict = {}
+    if spec.source in ("pybullet", "user"):
+        path = Path(pybullet_dir) / spec.mesh if spec.source == "pybullet" else Path(spec.mesh)
+        try:
+            obj = import_file(path)
+        except MeshError as e:
+            raise MeshError(f"object {spec.id}: {e}") from e
+        pre = np.diag(list(spec.prescale) + [1.0])
+        up = Y_UP_TO_Z_UP if spec.up == "y" else np.eye(4)
+        m = up @ pre
+        transform_mesh(obj, m)
+    elif spec.source == "primitives":
+        obj, info["params"] = primitive(spec.mesh, rng)
+        m = np.eye(4)
+    elif spec.source == "procedural":
+        obj, info["params"] = procedural(spec.mesh, rng)
+        m = np.eye(4)
+    else:
+        raise MeshError(f"object {spec.id}: unknown source {spec.source!r}")
+    try:
+        norm = normalisation(vertices(obj), radius)
+    except MeshError as e:
+        raise MeshError(f"object {spec.id} ({spec.mesh}): {e}") from e
+    transform_mesh(obj, norm)
+    info["file_to_world"] = (norm @ m).tolist()
+    info["radius"] = radius
+    info["had_uvs"] = ensure_uvs(obj)
+    info["vertices"] = len(obj.data.vertices)
+    info["faces"] = len(obj.data.polygons)
+    obj.name = "frng_object"
+    return obj, info

@@ -1,0 +1,208 @@
+"""Stage ``frng curate``: ONE Blender process renders ONE object's whole set.
+
+For object ``{obj}`` (``--object``) it writes ``{results}/objects/{obj}/``:
+
+    inputs/{light}/{view}.exr    input views (in_00 ..) under each input light: RGBA float32, linear,
+                                 premultiplied alpha (alpha = coverage = object mask)
+    targets/{light}/{view}.exr   target views (tgt_000 ..) under each target light, same format
+    gbuffer/{view}.exr           one G-buffer per view (input and target views), light independent
+    meta.json                    cameras, lights, material, mesh source, licence, seed, render times
+
+G-buffer EXR channels (float32, same size as the renders; see config/README.md):
+
+    A                    coverage (alpha of the render)
+    normal.X/Y/Z         world-space unit normal (Z up); 0 where A == 0
+    depth.Z              distance along the camera's optical axis (OpenCV camera z), world units; 0 where A == 0
+    albedo.R/G/B         linear base colour (texture value where textured; hair colour on fur strands)
+    roughness.Y          Principled roughness in [0, 1]
+    metallic.Y           Principled metallic in [0, 1]
+
+Normals, albedo, roughness and metallic are divided by A (un-premultiplied) where A > 0, so edge pixels hold
+the surface's value, not a blend with the empty background.
+
+Everything is written into ``objects/.tmp-{obj}-*`` and renamed to ``objects/{obj}`` at the end, so a failed
+job (mesh that does not load, empty render, corrupt env map) leaves nothing that looks valid.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from frng import config as frng_config
+from frng import envmap, io
+from frng.data import catalog, rig
+from frng.data.envmaps import read_index
+
+GBUFFER_CHANNELS = ("A", "normal.X", "normal.Y", "normal.Z", "depth.Z", "albedo.R", "albedo.G", "albedo.B",
+                    "roughness.Y", "metallic.Y")
+META_VERSION = 1
+
+
+class CurationError(RuntimeError):
+    """Curation of one object failed; the message names the object and file."""
+
+
+def gbuffer_from_passes(passes: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Rendered passes -> G-buffer channel planes (H, W) named as in :data:`GBUFFER_CHANNELS`."""
+    a = passes["rgba"][..., 3]
+    hit = a > 1e-4
+    inv = np.where(hit, 1.0 / np.maximum(a, 1e-4), 0.0).astype(np.float32)[..., None]
+    normal = passes["normal"] * inv
+    length = np.linalg.norm(normal, axis=-1, keepdims=True)
+    normal = np.where(length > 1e-6, normal / np.maximum(length, 1e-6), 0.0)
+    depth = np.where(hit & (passes["depth"][..., 0] < 1e9), passes["depth"][..., 0], 0.0)
+    albedo = np.clip(passes["albedo"] * inv, 0.0, None)
+    rough = np.clip(passes["roughness"][..., 0] * inv[..., 0], 0.0, 1.0)
+    metal = np.clip(passes["metallic"][..., 0] * inv[..., 0], 0.0, 1.0)
+    planes = {"A": a, "normal.X": normal[..., 0], "normal.Y": normal[..., 1], "normal.Z": normal[..., 2],
+              "depth.Z": depth, "albedo.R": albedo[..., 0], "albedo.G": albedo[..., 1], "albedo.B": albedo[..., 2],
+              "roughness.Y": rough, "metallic.Y": metal}
+    return {k: planes[k].astype(np.float32) for k in GBUFFER_CHANNELS}
+
+
+def check_envmaps(spec: catalog.ObjectSpec, env_dir: Path) -> dict[str, dict]:
+    """Every light of the object exists, is readable and is in the index; returns index records by name."""
+    index = read_index(env_dir / "index.json")
+    records = {m["name"]: m for m in index["maps"]}
+    out = {}
+    for light in dict.fromkeys(spec.input_lights + spec.target_lights):
+        if light not in records:
+            raise CurationError(f"object {spec.id}: light {light!r} is not in {env_dir / 'index.json'}; "
+                                "re-run `frng envmaps` with the same config")
+        try:
+            envmap.read(env_dir / f"{light}.exr")  # raises naming the file if missing/corrupt
+        except envmap.EnvMapError as e:
+            raise CurationError(f"object {spec.id}: {e}") from e
+        out[light] = records[light]
+    return out
+
+
+def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print) -> Path:
+    """Render object ``oid`` into ``out_root/oid`` (atomically). Returns the final folder."""
+    import bpy  # noqa: F401  (fail early, clearly, if bpy is missing)
+
+    from frng.blender import materials, objects
+    from frng.blender import scene as bscene
+    from frng.blender import world
+
+    cat = catalog.plan(config)
+    spec = cat.object(oid)
+    render = config["render"]
+    lights = check_envmaps(spec, env_dir)
+    rng = np.random.default_rng(spec.seed)
+    rig_rng, shape_rng, mat_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(spec.seed).spawn(3))
+    inputs, targets = rig.object_views(rig_rng, render)
+
+    out_root.mkdir(parents=True, exist_ok=True)
+    final = out_root / oid
+    tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{oid}-", dir=out_root))
+    t_start = time.perf_counter()
+    try:
+        scene = bscene.new_scene(render["resolution"], render["spp"], render["threads"], spec.seed)
+        bscene.enable_gbuffer_passes(scene)
+        cam = bscene.add_camera(scene, render["fov_deg"])
+        mat = materials.sample(mat_rng, spec.material, render["fur_strands"])
+        radius = 1.0 - mat["hair"]["length"] if "hair" in mat else 1.0  # fur stays inside the unit sphere
+        pybullet_dir = catalog.pybullet_data_dir() if spec.source == "pybullet" else None
+        try:
+            obj, shape = objects.load(spec, shape_rng, pybullet_dir, radius)
+        except objects.MeshError as e:
+            raise CurationError(str(e)) from e
+        materials.apply(obj, mat, spec.seed)
+        log(f"[{oid}] {spec.source}:{spec.mesh} material={spec.material} split={spec.split} "
+            f"{shape['vertices']} verts; {len(inputs)} input views x {len(spec.input_lights)} lights, "
+            f"{len(targets)} target views x {len(spec.target_lights)} lights at {render['resolution']} px, "
+            f"{render['spp']} spp")
+
+        raw = tmp / "raw.exr"
+        times: dict[str, dict[str, float]] = {}
+        done_gbuffer: set[str] = set()
+        n_total = len(inputs) * len(spec.input_lights) + len(targets) * len(spec.target_lights)
+        n_done = 0
+        for kind, views, light_names in (("inputs", inputs, spec.input_lights), ("targets", targets, spec.target_lights)):
+            for light in light_names:
+                world.set_envmap(scene, env_dir / f"{light}.exr", sample_map_resolution=max(64, config["envmaps"]["width"]))
+                for view in views:
+                    bscene.set_camera_pose(cam, view.c2w)
+                    dt = bscene.render_to(scene, raw)
+                    passes = bscene.read_passes(raw)
+                    rgba = passes["rgba"]
+                    if not np.isfinite(rgba).all():
+                        raise CurationError(f"object {oid}: {kind}/{light}/{view.name} has NaN/Inf pixels")
+                    if rgba[..., 3].max() <= 0.0:
+                        raise CurationError(f"object {oid} ({spec.source}:{spec.mesh}): {kind}/{light}/{view.name} "
+                                            "rendered empty (all alpha 0)")
+                    io.write_exr(tmp / kind / light / f"{view.name}.exr", rgba, ["R", "G", "B", "A"])
+                    if view.name not in done_gbuffer:
+                        io.write_exr(tmp / "gbuffer" / f"{view.name}.exr", gbuffer_from_passes(passes))
+                        done_gbuffer.add(view.name)
+                    times.setdefault(light, {})[view.name] = round(dt, 4)
+                    n_done += 1
+                    log(f"[{oid}] {n_done:4d}/{n_total} {kind}/{light}/{view.name} "
+                        f"render {dt:.3f} s  coverage {rgba[..., 3].mean():.3f}")
+        raw.unlink(missing_ok=True)
+        for f in tmp.glob("raw*"):
+            f.unlink()
+
+        meta = {
+            "version": META_VERSION,
+            "id": oid,
+            "split": spec.split,
+            "seed": spec.seed,
+            "source": spec.source,
+            "mesh": spec.mesh,
+            "licence": spec.licence,
+            "up_axis": spec.up,
+            "shape": shape,
+            "material_class": spec.material,
+            "material": mat,
+            "render": {k: render[k] for k in ("resolution", "spp", "camera_distance", "fov_deg", "threads")}
+                      | {"engine": "CYCLES", "device": "CPU", "blender": __import__("bpy").app.version_string},
+            "input_lights": list(spec.input_lights),
+            "target_lights": list(spec.target_lights),
+            "lights": {name: {k: rec[k] for k in ("base", "source", "split", "rotation_deg", "licence", "scale")}
+                       | {"file": f"envmaps/{name}.exr"} for name, rec in lights.items()},
+            "views": {"inputs": [v.to_dict() for v in inputs], "targets": [v.to_dict() for v in targets]},
+            "gbuffer_channels": list(GBUFFER_CHANNELS),
+            "render_seconds": times,
+            "total_seconds": round(time.perf_counter() - t_start, 3),
+        }
+        io.write_json(tmp / "meta.json", meta)
+        if final.exists():
+            shutil.rmtree(final)
+        tmp.rename(final)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return final
+
+
+# -- CLI ---------------------------------------------------------------------------------------------------
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    frng_config.add_config_argument(parser)
+    parser.add_argument("--object", required=True, help="object id from the dataset plan (obj_0000, user_<stem>, ...)")
+    parser.add_argument("--envmaps", help="prepared env-map folder (default: {results}/envmaps)")
+    parser.add_argument("--out", help="objects folder (default: {results}/objects)")
+
+
+def run(args: argparse.Namespace) -> int:
+    config = frng_config.load(args.config)
+    results = Path(config["results"])
+    env_dir = Path(args.envmaps) if args.envmaps else results / "envmaps"
+    out = Path(args.out) if args.out else results / "objects"
+    t0 = time.perf_counter()
+    try:
+        final = curate(config, args.object, env_dir, out, log=lambda m: print(m, flush=True))
+    except (CurationError, catalog.CatalogError, envmap.EnvMapError, io.ImageError) as e:
+        print(f"frng curate: error: {e}", file=sys.stderr, flush=True)
+        return 1
+    print(f"[{args.object}] done: {final} in {time.perf_counter() - t0:.1f} s", flush=True)
+    return 0
