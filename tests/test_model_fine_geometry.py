@@ -8,7 +8,8 @@ import torch.nn.functional as F
 from frng import camera
 from frng.gaussians import GaussianDecodeConfig, pixel_gaussians
 from frng.model.fine_geometry import (
-    FineGeoDetokenizer, FineGeometry, FineGeometryConfig, bilinear_tokens, fine_gaussian_uv, fine_positions,
+    FineGeoDetokenizer, FineGeometry, FineGeometryConfig, bilinear_tokens, fine_gaussian_uv, fine_keep_mask,
+    fine_positions,
 )
 from frng.model.saliency import select_top_k
 from frng.model.tokenizers import PRIOR_CHANNELS, PriorTokenizer, patchify, stack_priors, unpatchify
@@ -143,3 +144,13 @@ def test_prior_tokenizer_and_patchify_roundtrip():
     assert tok(x[None]).shape == (1, V, 2, 3, 32)  # batch dim in front
     with pytest.raises(KeyError):
         stack_priors({"normal": priors["normal"]})
+
+
+def test_fine_keep_mask_follows_pixel_mask():
+    idx = torch.tensor([[0, 5], [3, 6]])  # 4x4 patch grid on 32x32 views
+    uv = fine_gaussian_uv(idx, 4, 8, 2)
+    mask = torch.zeros(2, 32, 32, dtype=torch.bool)
+    mask[:, :, 12:] = True  # right part of the image is foreground
+    keep = fine_keep_mask(uv, mask).reshape(2, 8, 64)
+    assert torch.equal(keep, (uv[..., 0] >= 12))
+    assert not keep[0, :4].any() and keep[1, :4].all()  # patch 0 (cols 0-7) out, patch 3 (cols 24-31) in

@@ -29,7 +29,9 @@ One object has V input views of H x W pixels; patch size p (8); patch grid h = H
   (:func:`.materialformer.to_sequence` / :func:`.materialformer.split_sequence`); every token -> p*p Gaussians
   (MatDetokenizer output ``(B, L, p*p, F)``). Coarse per-Gaussian features map to the pixel order of the coarse
   Gaussians with :func:`.materialformer.coarse_features_to_pixels`; fine ones reshape to (V*M*p*p, F) directly.
-- Final object = ``Gaussians.cat([coarse, fine])`` with features ``cat([coarse_feats (V*H*W, F), fine_feats])``.
+- Final object = ``Gaussians.cat([coarse, fine])`` with features ``cat([coarse_feats (V*H*W, F), fine_feats])``;
+  background Gaussians can be dropped with the input alpha (coarse: per pixel, as the backbone's ``keep``;
+  fine: :func:`.fine_geometry.fine_keep_mask`).
 
 Ablations: ``no-fine`` -> skip :class:`.fine_geometry.FineGeometry` (L = V*h*w); ``no-idm`` -> build every module
 with ``prior_dim = 0`` (no prior parameters; passing priors raises); ``no-ind`` -> lambda_c = lambda_kld = 0;
@@ -44,6 +46,7 @@ from frng.model.fine_geometry import (
     FineGeometryOutput,
     bilinear_tokens,
     fine_gaussian_uv,
+    fine_keep_mask,
     fine_positions,
 )
 from frng.model.light_independence import LightIndependenceConfig, LightIndependenceLoss, light_independence_loss
@@ -64,7 +67,7 @@ __all__ = [
     "FineGeoDetokenizer", "FineGeometry", "FineGeometryConfig", "FineGeometryOutput", "GaussianDecodeConfig",
     "Gaussians", "LightIndependenceConfig", "LightIndependenceLoss", "MatDetokenizer", "MaterialFormer",
     "MaterialFormerConfig", "MaterialHead", "PRIOR_CHANNELS", "PriorTokenizer", "SaliencyConfig", "bilinear_tokens",
-    "coarse_features_to_pixels", "decode", "decode_pbr", "decode_raw", "fine_gaussian_uv", "fine_positions",
+    "coarse_features_to_pixels", "decode", "decode_pbr", "decode_raw", "fine_gaussian_uv", "fine_keep_mask", "fine_positions",
     "light_independence_loss", "patch_scores", "patchify", "pixel_gaussians", "saliency_map", "salient_patches",
     "select_top_k", "split_sequence", "stack_priors", "to_sequence", "unpatchify",
 ]

@@ -129,6 +129,20 @@ def fine_gaussian_uv(patch_idx: torch.Tensor, w: int, patch: int, s: int, dtype=
     return uv.reshape(V, n * s * s, p * p, 2)
 
 
+def fine_keep_mask(uv: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Foreground test for fine Gaussians, the analogue of the backbone's per-pixel ``keep`` (input alpha > 0.5).
+
+    uv: (V, M, P, 2) sub-pixel positions (x, y); mask: (V, H, W) bool or [0, 1] alpha.
+    Returns (V*M*P,) bool: the mask value of the pixel containing each Gaussian's sub-pixel position.
+    """
+    V, H, W = mask.shape
+    m = mask if mask.dtype == torch.bool else mask > 0.5
+    x = uv[..., 0].floor().long().clamp(0, W - 1)
+    y = uv[..., 1].floor().long().clamp(0, H - 1)
+    v = torch.arange(V, device=uv.device).view(V, 1, 1).expand_as(x)
+    return m[v, y, x].reshape(-1)
+
+
 class FineGeoDetokenizer(nn.Module):
     """[LN(T_fine-geo) (+) LN(T_fine-prior)] -> Linear -> p*p raw Gaussian parameters per fine token.
 
@@ -230,5 +244,5 @@ class FineGeometry(nn.Module):
 
 __all__ = [
     "FineGeoDetokenizer", "FineGeometry", "FineGeometryConfig", "FineGeometryOutput", "bilinear_tokens",
-    "fine_gaussian_uv", "fine_positions",
+    "fine_gaussian_uv", "fine_keep_mask", "fine_positions",
 ]
