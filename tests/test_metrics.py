@@ -1,0 +1,124 @@
+"""frng.metrics: PSNR/SSIM/LPIPS definitions, the aligned and plain protocols, masking, aggregation."""
+
+import math
+
+import numpy as np
+import pytest
+from skimage.metrics import structural_similarity
+
+from frng import metrics as M
+from frng.io import composite, srgb_encode
+
+
+def _scene(size=48, seed=0):
+    """A linear premultiplied RGBA ground truth: textured disc on a transparent background."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[:size, :size]
+    alpha = (((yy - size / 2) ** 2 + (xx - size / 2) ** 2) < (size / 3) ** 2).astype(np.float32)
+    rgb = (0.2 + 0.6 * rng.random((size, size, 3))).astype(np.float32) * alpha[..., None]
+    return np.concatenate([rgb, alpha[..., None]], axis=-1)
+
+
+def test_psnr_known_mse():
+    a = np.zeros((16, 16, 3))
+    b = np.full((16, 16, 3), 0.1)  # MSE 0.01 -> 20 dB
+    assert M.psnr(a, b) == pytest.approx(20.0, abs=1e-9)
+    mask = np.zeros((16, 16), bool)
+    mask[:4] = True
+    b2 = b.copy()
+    b2[~mask] = 0.9  # outside the mask: ignored
+    assert M.psnr(a, b2, mask) == pytest.approx(20.0, abs=1e-9)
+
+
+def test_psnr_identical():
+    a = np.random.default_rng(0).random((8, 8, 3))
+    assert M.psnr(a, a) == 100.0
+    assert math.isinf(M.psnr(a, a, cap_db=None))
+
+
+def test_aligned_recovers_global_scale_plain_does_not():
+    gt = _scene()
+    pred = gt.copy()
+    pred[..., :3] *= np.array([0.5, 0.7, 1.3], np.float32)  # a per-channel colour scale (light ambiguity)
+    aligned = M.evaluate_pair(pred, gt, protocol="aligned")
+    plain = M.evaluate_pair(pred, gt, protocol="plain")
+    assert aligned["psnr"] > 60 and aligned["ssim"] > 0.999 and aligned["lpips"] < 1e-3
+    assert [aligned[f"scale_{c}"] for c in "rgb"] == pytest.approx([2.0, 1 / 0.7, 1 / 1.3], rel=1e-5)
+    assert plain["psnr"] < 25 and plain["lpips"] > 0.01
+    assert plain["scale_r"] == 1.0
+    assert M.evaluate_pair(gt, gt)["psnr"] == 100.0
+
+
+def test_aligned_masking_ignores_background():
+    gt = _scene()
+    pred = gt.copy()
+    fg = gt[..., 3] > 0.5
+    # An opaque green floater everywhere outside the object: only the background is wrong.
+    pred[~fg] = np.array([0.0, 0.5, 0.0, 1.0], np.float32)
+    aligned = M.evaluate_pair(pred, gt, protocol="aligned")
+    plain = M.evaluate_pair(pred, gt, protocol="plain")
+    assert aligned["psnr"] == 100.0  # PSNR sees foreground pixels only
+    # SSIM is averaged over foreground pixels, but windows near the silhouette still overlap the background
+    assert aligned["ssim"] > plain["ssim"] + 0.1
+    assert plain["psnr"] < 15
+    # an explicit mask is honoured
+    mask = np.zeros_like(fg)
+    mask[:5, :5] = True
+    assert M.evaluate_pair(pred, gt, mask=mask, protocol="aligned")["psnr"] < 15
+    with pytest.raises(ValueError, match="empty"):
+        M.evaluate_pair(pred, gt, mask=np.zeros_like(fg), protocol="aligned")
+
+
+def test_ssim_matches_skimage_and_encoding():
+    gt = _scene(seed=1)
+    pred = np.clip(gt + np.random.default_rng(2).normal(0, 0.05, gt.shape).astype(np.float32), 0, 1)
+    pred[..., 3] = gt[..., 3]
+    p = srgb_encode(composite(pred, (1, 1, 1)))
+    g = srgb_encode(composite(gt, (1, 1, 1)))
+    ref = structural_similarity(p.astype(np.float64), g.astype(np.float64), data_range=1.0, channel_axis=-1,
+                                gaussian_weights=True, sigma=1.5, use_sample_covariance=False)
+    out = M.evaluate_pair(pred, gt, protocol="plain")
+    assert out["ssim"] == pytest.approx(ref, abs=1e-9)
+    assert out["psnr"] == pytest.approx(-10 * np.log10(np.mean((p.astype(np.float64) - g) ** 2)), abs=1e-6)
+    p2, g2, mask, _ = M.prepare(pred, gt, protocol="aligned")
+    _, smap = structural_similarity(p2.astype(np.float64), g2.astype(np.float64), data_range=1.0,
+                                    channel_axis=-1, gaussian_weights=True, sigma=1.5,
+                                    use_sample_covariance=False, full=True)
+    assert M.evaluate_pair(pred, gt)["ssim"] == pytest.approx(smap.mean(-1)[mask].mean(), abs=1e-9)
+
+
+def test_bad_inputs():
+    gt = _scene()
+    with pytest.raises(ValueError, match="shapes differ"):
+        M.evaluate_pair(gt[:40], gt)
+    with pytest.raises(ValueError, match="protocol"):
+        M.evaluate_pair(gt, gt, protocol="scaled")
+    bad = gt.copy()
+    bad[0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        M.evaluate_pair(bad, gt)
+
+
+def test_rows_csv_aggregate(tmp_path):
+    gt = _scene()
+    rows = []
+    for variant, noise in (("full", 0.01), ("no_priors", 0.1)):
+        for view in range(2):
+            rng = np.random.default_rng(view)
+            pred = gt.copy()
+            pred[..., :3] = np.clip(pred[..., :3] + rng.normal(0, noise, gt[..., :3].shape), 0, None) * gt[..., 3:]
+            rows.append({"dataset": "synthetic", "variant": variant, "view": view,
+                         **M.evaluate_pair(pred, gt)})
+    df = M.to_frame(rows)
+    path = M.write_csv(df, tmp_path / "metrics" / "per_image.csv")
+    back = M.read_csv(path)
+    assert len(back) == 4 and set(M.METRICS) <= set(back.columns)
+    agg = M.aggregate(back, ["dataset", "variant"])
+    assert list(agg["variant"]) == ["full", "no_priors"] and list(agg["n"]) == [2, 2]
+    assert agg.loc[0, "psnr"] == pytest.approx(back["psnr"][:2].mean())
+    assert agg.loc[0, "psnr"] > agg.loc[1, "psnr"] and agg.loc[0, "lpips"] < agg.loc[1, "lpips"]
+    assert (agg["protocol"] == "aligned").all()
+    mixed = back.copy()
+    mixed.loc[0, "protocol"] = "plain"
+    with pytest.raises(ValueError, match="mix protocols"):
+        M.aggregate(mixed, ["variant"])
