@@ -1,0 +1,467 @@
+"""The relightable asset: an object reconstructed once by F-RNG, saved so it can be relit without the model.
+
+An asset is a folder with three files::
+
+    {asset}/gaussians.ply         3DGS-style binary little-endian PLY, one vertex per Gaussian
+    {asset}/decoder.safetensors   the universal neural appearance decoder's weights (a torch state_dict)
+    {asset}/asset.json            format version, feature dim, decoder architecture, object id, provenance
+
+``gaussians.ply`` properties (all ``float``, i.e. float32, in this order)::
+
+    x y z                  centre (world units; world Z up, object in the unit sphere)
+    nx ny nz               zeros (3DGS writes them; viewers ignore them)
+    f_dc_0 f_dc_1 f_dc_2   SH degree-0 coefficients of a display preview colour:
+                           f_dc = (srgb_encode(preview_linear) - 0.5) / SH_C0, so 3DGS viewers (which show
+                           0.5 + SH_C0 * f_dc as display RGB) show it; grey when no preview is given
+    opacity                logit(opacity)                   (3DGS stores pre-sigmoid opacity)
+    scale_0 scale_1 scale_2  log(scale)                     (3DGS stores log standard deviations)
+    rot_0 rot_1 rot_2 rot_3  unit quaternion (w, x, y, z)   (3DGS's and gsplat's order)
+    feat_0 ... feat_{C-1}  the per-Gaussian neural material features F-RNG's decoder reads
+
+Standard 3DGS viewers load it as a degree-0 splat (no ``f_rest_*``) and ignore the ``feat_*`` properties.
+Round trip: positions, rotations and features come back bit-exact; opacities and scales go through float64
+logit/log and come back to float32 precision (relative error ~1e-7, what a float32 logit/log can hold).
+
+``asset.json`` (version :data:`FORMAT_VERSION`)::
+
+    {"format": "frng-asset", "version": 1, "num_gaussians": N, "feature_dim": C,
+     "ply": "gaussians.ply", "decoder_weights": "decoder.safetensors",
+     "ply_properties": [...],                       # the property names in order
+     "decoder": {"width": 256, "depth": 4, "input_encoding": "...", ...},   # architecture, caller-given
+     "object_id": "...", "source_views": [...],     # what it was reconstructed from
+     "created": {"utc": "...", "frng_version": "..."},
+     "conventions": {...},                          # units, axes, colour space, activations
+     ...any extra keys from the caller's meta}
+
+Writes are atomic: everything goes to a hidden temporary folder beside the target, which is renamed into
+place only once all three files are complete. Reading validates and raises :class:`AssetError` naming the
+file and field at fault.
+"""
+
+from __future__ import annotations
+
+import datetime
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+import torch
+
+from frng.gaussians import Gaussians
+from frng.io import atomic_path, read_json, srgb_decode, srgb_encode, write_json
+
+FORMAT = "frng-asset"
+FORMAT_VERSION = 1
+PLY_FILE = "gaussians.ply"
+DECODER_FILE = "decoder.safetensors"
+META_FILE = "asset.json"
+SH_C0 = 0.28209479177387814  # degree-0 real spherical harmonic, 1 / (2 sqrt(pi))
+
+BASE_PROPERTIES = (
+    "x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
+    "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3",
+)
+REQUIRED_DECODER_KEYS = ("width", "depth", "input_encoding")
+CONVENTIONS = {
+    "world": "right-handed, Z up, object normalised into the unit sphere at the origin",
+    "units": "world units (object radius 1)",
+    "colour": "linear scene-referred RGB (the decoder's output); f_dc_* is an sRGB display preview only",
+    "cameras": "OpenCV (x right, y down, z forward), 4x4 camera-to-world + fx, fy, cx, cy in pixels",
+    "quaternion": "rot_0..3 = (w, x, y, z), unit norm",
+    "opacity": "PLY stores logit(opacity); opacity = sigmoid(value)",
+    "scale": "PLY stores log(scale); scale = exp(value) (standard deviations along the rotated axes)",
+}
+
+
+class AssetError(ValueError):
+    """An asset or PLY file is missing, malformed or inconsistent. The message names the file (and field)."""
+
+
+# -- PLY ------------------------------------------------------------------------------------------
+
+_PLY_TYPES = {  # PLY type name -> numpy dtype (without byte order)
+    "char": "i1", "uchar": "u1", "short": "i2", "ushort": "u2", "int": "i4", "uint": "u4",
+    "float": "f4", "double": "f8",
+    "int8": "i1", "uint8": "u1", "int16": "i2", "uint16": "u2", "int32": "i4", "uint32": "u4",
+    "float32": "f4", "float64": "f8",
+}
+_NP_TO_PLY = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int", "u4": "uint",
+              "f4": "float", "f8": "double"}
+
+
+def write_ply(
+    path: str | os.PathLike,
+    fields: Mapping[str, np.ndarray],
+    element: str = "vertex",
+    comments: Sequence[str] = (),
+) -> None:
+    """Write one PLY element with scalar properties as binary little-endian, atomically.
+
+    fields: name -> (N,) array, in property order; all the same N. Supported dtypes: int8/16/32, uint8/16/32,
+    float32, float64 (each keeps its type; convert to float32 first for 3DGS viewers).
+    comments: header comment lines (no newlines).
+    """
+    if not fields:
+        raise ValueError(f"{path}: write_ply needs at least one field")
+    arrays = {}
+    n = None
+    for name, arr in fields.items():
+        arr = np.asarray(arr)
+        if arr.ndim != 1:
+            raise ValueError(f"{path}: field {name!r} must be 1-D (N,), got shape {arr.shape}")
+        if n is None:
+            n = arr.shape[0]
+        if arr.shape[0] != n:
+            raise ValueError(f"{path}: field {name!r} has {arr.shape[0]} rows, expected {n}")
+        code = arr.dtype.str[1:]
+        if code not in _NP_TO_PLY:
+            raise ValueError(f"{path}: field {name!r} has unsupported dtype {arr.dtype}")
+        if not name or any(c.isspace() for c in name):
+            raise ValueError(f"{path}: invalid property name {name!r}")
+        arrays[name] = arr
+    for c in comments:
+        if "\n" in c or "\r" in c:
+            raise ValueError(f"{path}: PLY comments cannot contain newlines: {c!r}")
+
+    dtype = np.dtype([(name, "<" + arr.dtype.str[1:]) for name, arr in arrays.items()])
+    table = np.empty(n, dtype=dtype)
+    for name, arr in arrays.items():
+        table[name] = arr
+    header = ["ply", "format binary_little_endian 1.0"]
+    header += [f"comment {c}" for c in comments]
+    header.append(f"element {element} {n}")
+    header += [f"property {_NP_TO_PLY[arr.dtype.str[1:]]} {name}" for name, arr in arrays.items()]
+    header.append("end_header")
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            f.write(("\n".join(header) + "\n").encode("ascii"))
+            f.write(table.tobytes())
+
+
+def read_ply_header(path: str | os.PathLike) -> dict:
+    """Parse a PLY header. Returns {"format", "comments", "elements": [(name, count, [(prop, ply_type)])],
+    "header_bytes"}. List properties are rejected (Gaussian splat files have none)."""
+    path = Path(path)
+    if not path.exists():
+        raise AssetError(f"{path}: file does not exist")
+    with open(path, "rb") as f:
+        first = f.readline()
+        if first.rstrip(b"\r\n") != b"ply":
+            raise AssetError(f"{path}: not a PLY file (first line {first[:20]!r})")
+        fmt, comments, elements = None, [], []
+        while True:
+            raw = f.readline()
+            if not raw:
+                raise AssetError(f"{path}: PLY header has no end_header line")
+            line = raw.decode("ascii", errors="replace").strip()
+            words = line.split()
+            if not words:
+                continue
+            if words[0] == "end_header":
+                break
+            if words[0] == "format":
+                if len(words) != 3 or words[1] not in ("binary_little_endian", "binary_big_endian", "ascii"):
+                    raise AssetError(f"{path}: unsupported PLY format line {line!r}")
+                fmt = words[1]
+            elif words[0] in ("comment", "obj_info"):
+                comments.append(line.partition(" ")[2])
+            elif words[0] == "element":
+                if len(words) != 3 or not words[2].isdigit():
+                    raise AssetError(f"{path}: malformed PLY element line {line!r}")
+                elements.append((words[1], int(words[2]), []))
+            elif words[0] == "property":
+                if not elements:
+                    raise AssetError(f"{path}: PLY property before any element: {line!r}")
+                if len(words) >= 2 and words[1] == "list":
+                    raise AssetError(f"{path}: PLY list properties are not supported ({line!r})")
+                if len(words) != 3 or words[1] not in _PLY_TYPES:
+                    raise AssetError(f"{path}: malformed PLY property line {line!r}")
+                elements[-1][2].append((words[2], words[1]))
+            else:
+                raise AssetError(f"{path}: unknown PLY header line {line!r}")
+        header_bytes = f.tell()
+    if fmt is None:
+        raise AssetError(f"{path}: PLY header has no format line")
+    return {"format": fmt, "comments": comments, "elements": elements, "header_bytes": header_bytes}
+
+
+def read_ply(path: str | os.PathLike, element: str = "vertex") -> dict[str, np.ndarray]:
+    """Read one element of a PLY (binary either endianness, or ascii) -> name -> (N,) array, header order.
+
+    Values keep their stored type (converted to native byte order). Raises :class:`AssetError` naming the
+    file if it is missing, truncated or malformed.
+    """
+    path = Path(path)
+    header = read_ply_header(path)
+    fmt = header["format"]
+    order = "<" if fmt == "binary_little_endian" else ">"
+    dtypes = [np.dtype([(p, order + _PLY_TYPES[t]) for p, t in props]) for _, _, props in header["elements"]]
+    names = [e[0] for e in header["elements"]]
+    if element not in names:
+        raise AssetError(f"{path}: PLY has no element {element!r} (has {names})")
+    with open(path, "rb") as f:
+        f.seek(header["header_bytes"])
+        if fmt == "ascii":
+            tokens = f.read().split()
+            pos = 0
+            for (name, count, props), dt in zip(header["elements"], dtypes):
+                k = count * len(props)
+                if pos + k > len(tokens):
+                    raise AssetError(f"{path}: ascii PLY truncated in element {name!r}")
+                if name == element:
+                    vals = np.array(tokens[pos:pos + k], dtype=np.float64).reshape(count, len(props))
+                    return {p: vals[:, i].astype(dt[p].newbyteorder("=")) for i, (p, _) in enumerate(props)}
+                pos += k
+        data = f.read()
+    offset = 0
+    for (name, count, props), dt in zip(header["elements"], dtypes):
+        nbytes = count * dt.itemsize
+        if offset + nbytes > len(data):
+            raise AssetError(f"{path}: PLY truncated: element {name!r} needs {nbytes} bytes at offset "
+                             f"{offset}, file has {len(data) - offset} left")
+        if name == element:
+            table = np.frombuffer(data, dtype=dt, count=count, offset=offset)
+            return {p: table[p].astype(dt[p].newbyteorder("="), copy=True) for p, _ in props}
+        offset += nbytes
+    raise AssertionError("unreachable")
+
+
+# -- Gaussians <-> 3DGS PLY fields ----------------------------------------------------------------
+
+def _np(x, name: str) -> np.ndarray:
+    if isinstance(x, torch.Tensor):
+        x = x.detach().cpu().numpy()
+    return np.asarray(x)
+
+
+def gaussians_to_ply_fields(
+    gaussians: Gaussians,
+    features: np.ndarray | torch.Tensor,
+    preview_rgb: np.ndarray | torch.Tensor | None = None,
+) -> dict[str, np.ndarray]:
+    """Gaussians + features (N, C) [+ preview colour (N, 3), linear [0, 1]] -> 3DGS PLY fields (float32).
+
+    Activations are undone in float64: opacity -> logit, scale -> log. Opacities are clipped to
+    [1e-7, 1 - 1e-7] first so the logit is finite.
+    """
+    means = _np(gaussians.means, "means").astype(np.float64)
+    n = means.shape[0]
+    quats = _np(gaussians.quats, "quats")
+    scales = _np(gaussians.scales, "scales").astype(np.float64)
+    opac = _np(gaussians.opacities, "opacities").astype(np.float64).reshape(-1)
+    feats = _np(features, "features")
+    if feats.ndim != 2 or feats.shape[0] != n:
+        raise ValueError(f"features must be (N={n}, C), got {feats.shape}")
+    if np.any(scales <= 0):
+        raise ValueError("scales must be positive (the PLY stores log(scale))")
+    opac = np.clip(opac, 1e-7, 1.0 - 1e-7)
+    if preview_rgb is None:
+        dc = np.zeros((n, 3))
+    else:
+        rgb = _np(preview_rgb, "preview_rgb").astype(np.float32)
+        if rgb.shape != (n, 3):
+            raise ValueError(f"preview_rgb must be (N={n}, 3), got {rgb.shape}")
+        dc = (srgb_encode(rgb).astype(np.float64) - 0.5) / SH_C0
+    f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
+    out = {"x": f32(means[:, 0]), "y": f32(means[:, 1]), "z": f32(means[:, 2])}
+    for k in ("nx", "ny", "nz"):
+        out[k] = np.zeros(n, np.float32)
+    for i in range(3):
+        out[f"f_dc_{i}"] = f32(dc[:, i])
+    out["opacity"] = f32(np.log(opac) - np.log1p(-opac))
+    for i in range(3):
+        out[f"scale_{i}"] = f32(np.log(scales[:, i]))
+    for i in range(4):
+        out[f"rot_{i}"] = f32(quats[:, i])
+    for i in range(feats.shape[1]):
+        out[f"feat_{i}"] = f32(feats[:, i])
+    return out
+
+
+def ply_fields_to_gaussians(
+    fields: Mapping[str, np.ndarray], source: str = "PLY",
+) -> tuple[Gaussians, torch.Tensor, torch.Tensor]:
+    """3DGS PLY fields -> (Gaussians with features set, features (N, C), preview_rgb (N, 3) linear).
+
+    Activations are applied in float64 then cast to float32: opacity = sigmoid, scale = exp. Features are the
+    ``feat_0..feat_{C-1}`` properties (C may be 0). Raises :class:`AssetError` naming ``source`` and the field
+    for a missing property, a gap in the feat_ numbering or a non-finite value.
+    """
+    missing = [k for k in BASE_PROPERTIES if k not in fields]
+    if missing:
+        raise AssetError(f"{source}: missing PLY properties {missing}")
+    feat_names = sorted((k for k in fields if k.startswith("feat_")), key=lambda k: int(k[5:]) if k[5:].isdigit() else -1)
+    expected = [f"feat_{i}" for i in range(len(feat_names))]
+    if feat_names != expected:
+        raise AssetError(f"{source}: feature properties must be feat_0..feat_{len(feat_names) - 1}, got {feat_names}")
+    for k in list(BASE_PROPERTIES) + feat_names:
+        bad = ~np.isfinite(fields[k])
+        if bad.any():
+            raise AssetError(f"{source}: field {k!r} has {int(bad.sum())} non-finite value(s) "
+                             f"(first at row {int(np.argmax(bad))})")
+    col = lambda *names: np.stack([np.asarray(fields[k], np.float64) for k in names], axis=1)  # noqa: E731
+    t32 = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))  # noqa: E731
+    n = len(fields["x"])
+    means = col("x", "y", "z")
+    quats = col("rot_0", "rot_1", "rot_2", "rot_3")
+    scales = np.exp(col("scale_0", "scale_1", "scale_2"))
+    opac = 1.0 / (1.0 + np.exp(-np.asarray(fields["opacity"], np.float64)))
+    feats = col(*feat_names) if feat_names else np.zeros((n, 0))
+    preview = srgb_decode(np.clip(0.5 + SH_C0 * col("f_dc_0", "f_dc_1", "f_dc_2"), 0.0, 1.0).astype(np.float32))
+    features = t32(feats)
+    g = Gaussians(t32(means), t32(quats), t32(scales), t32(opac), features)
+    return g, features, t32(preview)
+
+
+# -- asset folder ---------------------------------------------------------------------------------
+
+def save_asset(
+    folder: str | os.PathLike,
+    gaussians: Gaussians,
+    features: np.ndarray | torch.Tensor | None,
+    decoder_state: Mapping[str, torch.Tensor],
+    meta: Mapping,
+    preview_rgb: np.ndarray | torch.Tensor | None = None,
+    overwrite: bool = True,
+) -> Path:
+    """Save a relightable asset folder atomically. Returns the folder path.
+
+    gaussians: N Gaussians (means (N, 3), quats (N, 4) (w, x, y, z), scales (N, 3) > 0, opacities (N,) in (0, 1)).
+    features: (N, C) neural features; None -> ``gaussians.features`` reshaped to (N, -1).
+    decoder_state: the decoder's ``state_dict()`` (tensors; saved with safetensors, so copies are made
+    contiguous and un-shared).
+    meta: must contain ``object_id`` (str) and ``decoder`` (dict with at least width, depth, input_encoding);
+    ``source_views`` (list) is recommended; any other JSON-serialisable keys are kept in asset.json.
+    preview_rgb: optional (N, 3) linear [0, 1] colour (e.g. albedo) shown by 3DGS viewers via f_dc_*.
+    overwrite: replace an existing folder (old one removed only after the new one is in place).
+    """
+    from safetensors.torch import save_file
+
+    folder = Path(folder)
+    if features is None:
+        if gaussians.features is None:
+            raise ValueError("save_asset: no features given and gaussians.features is None")
+        features = gaussians.features.reshape(len(gaussians), -1)
+    if "object_id" not in meta:
+        raise ValueError("save_asset: meta needs 'object_id'")
+    dec = meta.get("decoder")
+    if not isinstance(dec, Mapping) or any(k not in dec for k in REQUIRED_DECODER_KEYS):
+        raise ValueError(f"save_asset: meta['decoder'] must be a dict with {list(REQUIRED_DECODER_KEYS)}, got {dec!r}")
+    if folder.exists() and not overwrite:
+        raise FileExistsError(f"{folder} exists (overwrite=False)")
+
+    fields = gaussians_to_ply_fields(gaussians, features, preview_rgb)
+    for k, v in fields.items():
+        if not np.isfinite(v).all():
+            raise ValueError(f"save_asset: field {k!r} has non-finite values; nothing written")
+    state = {}
+    for k, v in decoder_state.items():
+        if not isinstance(v, torch.Tensor):
+            raise ValueError(f"save_asset: decoder_state[{k!r}] is {type(v).__name__}, not a tensor")
+        state[k] = v.detach().cpu().contiguous().clone()
+    n, c = len(fields["x"]), len(fields) - len(BASE_PROPERTIES)
+    info = {
+        "format": FORMAT,
+        "version": FORMAT_VERSION,
+        "num_gaussians": n,
+        "feature_dim": c,
+        "ply": PLY_FILE,
+        "decoder_weights": DECODER_FILE,
+        "ply_properties": list(fields),
+        "decoder": dict(dec),
+        "object_id": str(meta["object_id"]),
+        "source_views": list(meta.get("source_views", [])),
+        "created": {"utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+                    "frng_version": _frng_version(), **dict(meta.get("created", {}))},
+        "conventions": {**CONVENTIONS, **dict(meta.get("conventions", {}))},
+    }
+    info.update({k: v for k, v in meta.items() if k not in info})
+
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{folder.name}-", dir=folder.parent))
+    try:
+        write_ply(tmp / PLY_FILE, fields, comments=[f"{FORMAT} v{FORMAT_VERSION} object {info['object_id']}",
+                                                    "3DGS layout: opacity=logit, scale=log, rot=(w,x,y,z); feat_* = F-RNG features"])
+        save_file(state, str(tmp / DECODER_FILE), metadata={"format": FORMAT, "version": str(FORMAT_VERSION)})
+        write_json(tmp / META_FILE, info)
+        if folder.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".old-{folder.name}-", dir=folder.parent))
+            os.replace(folder, old / folder.name)
+            os.replace(tmp, folder)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, folder)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return folder
+
+
+def load_asset(folder: str | os.PathLike) -> tuple[Gaussians, torch.Tensor, dict[str, torch.Tensor], dict]:
+    """Load and validate an asset folder.
+
+    Returns (gaussians, features, decoder_state, meta): Gaussians (float32, CPU, ``features`` set to the same
+    (N, C) tensor), features (N, C), the decoder's state_dict, and asset.json as a dict (plus
+    ``meta["preview_rgb"]``: (N, 3) linear preview colour tensor decoded from f_dc_*).
+    Raises :class:`AssetError` naming the file/field for a missing file, wrong format or version, a count
+    mismatch between asset.json and the PLY, or non-finite values.
+    """
+    from safetensors import SafetensorError
+    from safetensors.torch import load_file
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise AssetError(f"{folder}: asset folder does not exist")
+    meta_path, ply_path, dec_path = folder / META_FILE, folder / PLY_FILE, folder / DECODER_FILE
+    for p in (meta_path, ply_path, dec_path):
+        if not p.exists():
+            raise AssetError(f"{p}: missing file (an asset folder holds {META_FILE}, {PLY_FILE}, {DECODER_FILE})")
+    try:
+        meta = read_json(meta_path)
+    except ValueError as e:
+        raise AssetError(str(e)) from e
+    if meta.get("format") != FORMAT:
+        raise AssetError(f"{meta_path}: field 'format' is {meta.get('format')!r}, expected {FORMAT!r}")
+    if meta.get("version") != FORMAT_VERSION:
+        raise AssetError(f"{meta_path}: field 'version' is {meta.get('version')!r}; this frng reads version "
+                         f"{FORMAT_VERSION}")
+    for k in ("num_gaussians", "feature_dim", "decoder", "object_id"):
+        if k not in meta:
+            raise AssetError(f"{meta_path}: missing field {k!r}")
+
+    fields = read_ply(ply_path)
+    n = len(fields["x"]) if "x" in fields else len(next(iter(fields.values()), []))
+    if n != meta["num_gaussians"]:
+        raise AssetError(f"{ply_path}: has {n} vertices but {meta_path.name} field 'num_gaussians' says "
+                         f"{meta['num_gaussians']}")
+    c = sum(k.startswith("feat_") for k in fields)
+    if c != meta["feature_dim"]:
+        raise AssetError(f"{ply_path}: has {c} feat_* properties but {meta_path.name} field 'feature_dim' says "
+                         f"{meta['feature_dim']}")
+    gaussians, features, preview = ply_fields_to_gaussians(fields, source=str(ply_path))
+
+    try:
+        state = load_file(str(dec_path))
+    except (SafetensorError, OSError, ValueError) as e:
+        raise AssetError(f"{dec_path}: cannot read safetensors ({e})") from e
+    for k, v in state.items():
+        if v.is_floating_point() and not torch.isfinite(v).all():
+            raise AssetError(f"{dec_path}: tensor {k!r} has non-finite values")
+    meta["preview_rgb"] = preview
+    return gaussians, features, state, meta
+
+
+def _frng_version() -> str:
+    from frng import __version__
+
+    return __version__
+
+
+__all__ = [
+    "AssetError", "BASE_PROPERTIES", "FORMAT", "FORMAT_VERSION", "SH_C0",
+    "gaussians_to_ply_fields", "load_asset", "ply_fields_to_gaussians", "read_ply", "read_ply_header",
+    "save_asset", "write_ply",
+]
