@@ -1,0 +1,171 @@
+"""End to end on a real one-node SLURM cluster (munge + slurmctld + slurmd on 127.0.0.1) via Snakemake's slurm
+executor and profiles/slurm-ci.
+
+- test_interrupted_run_resumes: a per-object job is scancel'ed mid-way; nothing that looks complete is left, and
+  the rerun finishes the remaining object without redoing the finished ones (a tiny self-contained workflow,
+  tests/slurm_toy/Snakefile, with the pipeline's shape: per-object jobs, then a table over all objects).
+- test_smoke_workflow_on_slurm: the real workflow on config/smoke.yaml; every `rule all` target comes out.
+
+The cluster is installed from Debian's packages when missing (apt-get, bounded) and skipped, with the reason,
+where that cannot happen (not root, no apt-get, no network, ports taken). Daemons are stopped by PID at the end.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from slurm_cluster import Cluster, Unavailable, ensure_installed
+
+ROOT = Path(__file__).resolve().parent.parent
+SNAKEMAKE = str(Path(sys.executable).parent / "snakemake")
+PROFILE = str(ROOT / "profiles" / "slurm-ci")
+TOY = str(ROOT / "tests" / "slurm_toy" / "Snakefile")
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    if os.environ.get("FRNG_SKIP_SLURM"):
+        pytest.skip("FRNG_SKIP_SLURM is set")
+    try:
+        ensure_installed(timeout_s=300)
+    except Unavailable as e:
+        print(f"SKIP SLURM tests: {e}")
+        pytest.skip(f"SLURM unavailable: {e}")
+    c = Cluster()
+    try:
+        c.start()
+    except Unavailable as e:
+        c.stop()
+        print(f"SKIP SLURM tests: {e}")
+        pytest.skip(f"SLURM unavailable: {e}")
+    except BaseException:
+        c.stop()
+        raise
+    try:
+        yield c
+    finally:
+        c.stop()
+
+
+def _snakemake(*args: str, workdir: Path | None = None, snakefile: str = TOY) -> list[str]:
+    cmd = [SNAKEMAKE, "--snakefile", snakefile, "--profile", PROFILE]
+    if workdir is not None:
+        cmd += ["--directory", str(workdir)]
+    return cmd + list(args)
+
+
+def _run(cmd: list[str], timeout: float, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    try:
+        return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired as e:
+        # snakemake's own SIGTERM handling cancels its SLURM jobs; the fixture cancels the rest
+        pytest.fail(f"snakemake did not finish within {timeout} s:\n{(e.stderr or b'')[-4000:]!r}")
+
+
+def _tail(r: subprocess.CompletedProcess | str, n: int = 4000) -> str:
+    text = r if isinstance(r, str) else (r.stdout or "") + (r.stderr or "")
+    return text[-n:]
+
+
+def _wait(pred, timeout: float, what: str, proc: subprocess.Popen | None = None):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        got = pred()
+        if got:
+            return got
+        if proc is not None and proc.poll() is not None:
+            pytest.fail(f"snakemake exited ({proc.returncode}) while waiting for {what}")
+        time.sleep(0.5)
+    pytest.fail(f"timed out after {timeout} s waiting for {what}")
+
+
+def test_interrupted_run_resumes(cluster, tmp_path):
+    wd = tmp_path / "toy"
+    objs = ["a", "b", "c"]
+    cfg = ["--config", f"objects={json.dumps(objs)}", "slow=c"]
+    log = (tmp_path / "run1.log").open("w")
+    run1 = subprocess.Popen(_snakemake(*cfg, "slow_s=300", workdir=wd), cwd=ROOT, stdout=log,
+                            stderr=subprocess.STDOUT, text=True)
+    try:
+        done = lambda o: (wd / "objects" / o / "meta.json").exists()  # noqa: E731
+        # c's job is mid-way: its first file is written, the job still runs
+        _wait(lambda: done("a") and done("b") and (wd / "objects/c/image.txt").exists(), 240,
+              "a and b to finish and c to start", run1)
+        c_log = wd / "logs" / "curate" / "c.log"
+        job = _wait(lambda: c_log.exists() and c_log.read_text().split()[-1:], 30, "c's SLURM job id")[0]
+        running = {j["id"]: j["state"] for j in cluster.jobs()}
+        assert running.get(job) == "RUNNING", (job, running)
+        subprocess.run(["scancel", job], check=True, timeout=20)
+        rc1 = run1.wait(timeout=240)
+    finally:
+        if run1.poll() is None:
+            run1.terminate()
+            run1.wait(timeout=60)
+        log.close()
+    out1 = (tmp_path / "run1.log").read_text()
+    assert rc1 != 0, _tail(out1)
+    # no output that looks complete: the killed job's outputs are removed (or at least its last file never written)
+    assert not (wd / "objects/c/meta.json").exists(), _tail(out1)
+    assert not (wd / "tables/summary.csv").exists()
+    finished = {p: p.stat().st_mtime_ns for o in ("a", "b") for p in (wd / "objects" / o).iterdir()}
+    assert len(finished) == 4
+
+    # rerun: only c (and the table) are redone
+    r = _run(_snakemake(*cfg, "slow_s=0", workdir=wd), timeout=240)
+    assert r.returncode == 0, _tail(r)
+    assert {p: p.stat().st_mtime_ns for p in finished} == finished, "finished objects were redone"
+    meta = json.loads((wd / "objects/c/meta.json").read_text())
+    assert meta["object"] == "c" and meta["job"] not in ("none", job)  # ran again, inside a new SLURM job
+    assert (wd / "tables/summary.csv").read_text().split() == ["object", *objs]
+    assert "curate" in r.stderr and "wildcards: obj=a" not in r.stderr
+    # and a third run has nothing to do
+    r = _run(_snakemake(*cfg, "slow_s=0", "-n", workdir=wd), timeout=60)
+    assert r.returncode == 0 and "Nothing to be done" in (r.stdout + r.stderr), _tail(r)
+
+
+# --- the real workflow ---------------------------------------------------------------------------------------
+
+SMOKE = ["--snakefile", str(ROOT / "workflow" / "Snakefile"), "--configfile", str(ROOT / "config" / "smoke.yaml")]
+
+
+def _targets(results: Path) -> list[Path]:
+    """Files `rule all` asks for, from snakemake itself (the DAG's summary of a dry run)."""
+    r = subprocess.run([SNAKEMAKE, *SMOKE, "--config", f"results={results}", "--summary", "--cores", "1"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    if r.returncode:
+        return []
+    rows = [line.split("\t") for line in r.stdout.splitlines()[1:] if "\t" in line]
+    return [Path(row[0]) if Path(row[0]).is_absolute() else ROOT / row[0] for row in rows]
+
+
+def test_smoke_workflow_on_slurm(cluster, tmp_path):
+    results = tmp_path / "results"
+    plan = subprocess.run([SNAKEMAKE, *SMOKE, "--config", f"results={results}", "-n", "-q", "rules"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=120)
+    if plan.returncode:
+        pytest.skip(f"the smoke workflow does not plan yet: {_tail(plan, 300)}")
+    targets = _targets(results)
+    assert targets, "snakemake listed no targets for the smoke workflow"
+
+    r = _run([SNAKEMAKE, *SMOKE, "--profile", PROFILE, "--config", f"results={results}"], timeout=480)
+    assert r.returncode == 0, _tail(r)
+    missing = [str(t) for t in targets if not t.exists()]
+    assert not missing, f"targets not made: {missing[:10]}"
+    # the curated dataset came out, per object
+    metas = list((results / "objects").glob("*/meta.json"))
+    assert metas, "no curated object"
+    # TODO(evaluation rules): once rules/evaluate.smk writes the tables, assert on them here, e.g.
+    #   tables = list((results / "tables").glob("*.csv")); assert tables and all(t.stat().st_size for t in tables)
+    # (the generic `targets` check above already covers them once `rule all` lists them).
+    again = subprocess.run([SNAKEMAKE, *SMOKE, "--config", f"results={results}", "-n", "--cores", "1"],
+                           cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert "Nothing to be done" in again.stdout + again.stderr, _tail(again)
