@@ -19,6 +19,27 @@ Relighting with the backbone = one full denoising pass per new light (the paper'
 
 Image conventions: views are premultiplied linear RGB (composited on black), mapped to [-1, 1] with
 :func:`frng.priors.diffusion.to_diffusion_space` before tokenization.
+
+Rendering (x0-hat). Geometry: :func:`frng.gaussians.pixel_gaussians` decodes the GeoDetokenizer's raw 9-vectors
+along the input pixel rays (RelitLRM's constants, ``near``/``far`` from the config). Gaussians of input pixels
+outside the object mask (input alpha < 0.5) are not rendered (``keep`` mask: the inputs are RGBA and the mask is
+known at inference too; this halves the rasterization cost and removes background floaters). Colour: the SH
+coefficients of a Gaussian are evaluated per rendering camera in the direction from the camera centre to the
+Gaussian's mean (:func:`frng.priors.sh.eval_sh`, real SH as in 3DGS), ``colour = max(SH(dir) + 0.5, 0)`` in the
+DIFFUSION (gamma 1/2.2) space, rasterized over black: ``x0_hat = 2 * render - 1``; linear RGB = render^2.2.
+
+Denoising cameras (RelitLRM leaves them open):
+- training: up to ``den_views`` cameras at which the target light's clean images exist (the target views of a
+  target light, or the input views when the target light is one of the object's input lights, which includes
+  re-rendering the input light itself); the loss is on all of that light's available views (denoising +
+  supervision views);
+- inference: the caller's cameras; by default (:meth:`RelitLRMBackbone.relight`) the first ``den_views`` input
+  cameras, which every object has (an input view's pose is on the same sphere as the target views, so it is
+  in the training distribution). The final Gaussians can then be rendered at any camera.
+
+Classifier-free guidance: light tokens are zeroed with probability ``cond_drop`` in training; at inference the
+guided SH is ``sh_u + guidance * (sh_c - sh_u)`` (the render is linear in SH up to the clamp, so this is the
+same as mixing x0-hats); guidance 1.0 runs only the conditional pass.
 """
 
 from __future__ import annotations
@@ -29,9 +50,12 @@ import torch
 from torch import nn
 
 from frng import camera
+from frng.gaussians import GaussianDecodeConfig, Gaussians, pixel_gaussians
 from frng.nn import PatchDetokenizer, PatchTokenizer, Transformer, timestep_embedding
 from frng.priors.diffusion import NoiseSchedule, from_diffusion_space, to_diffusion_space
 from frng.priors.envenc import EnvTokenizer
+from frng.priors.sh import eval_sh
+from frng.render import rasterize
 
 GEO_CHANNELS = 9  # distance 1, scale 3, rotation 4, opacity 1 (RelitLRM's split)
 
@@ -51,8 +75,10 @@ class BackboneConfig:
     near: float = 1.0
     far: float = 4.5
     denoise_steps: int = 5
+    den_views: int = 4
     guidance: float = 1.0
     cond_drop: float = 0.1
+    max_radius_px: float = 16.0
 
     @classmethod
     def from_dict(cls, d: dict) -> "BackboneConfig":
@@ -91,8 +117,9 @@ class RelitLRMBackbone(nn.Module):
     def _view_input(self, rgb: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor) -> torch.Tensor:
         """(B, V, H, W, 3) linear RGB + cameras -> (B, V, H, W, 9) = diffusion-space RGB (+) Pluecker rays."""
         B, V, H, W, _ = rgb.shape
-        o, d = camera.pixel_rays(c2w.reshape(B * V, 4, 4), intr.reshape(B * V, 4), H, W)
-        rays = camera.plucker(o, d).reshape(B, V, H, W, 6)
+        with torch.autocast(device_type=rgb.device.type, enabled=False):  # ray geometry in fp32
+            o, d = camera.pixel_rays(c2w.reshape(B * V, 4, 4).float(), intr.reshape(B * V, 4).float(), H, W)
+            rays = camera.plucker(o, d).reshape(B, V, H, W, 6)
         return torch.cat([rgb if rgb.dtype != torch.bool else rgb.float(), rays], dim=-1)
 
     def encode_geometry(self, images: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor):
@@ -139,6 +166,128 @@ class RelitLRMBackbone(nn.Module):
         sh = self.app_detokenizer(t_app)  # (B, V, H, W, 3K)
         B = sh.shape[0]
         return sh.reshape(B, -1, self.cfg.sh_coeffs, 3)
+
+    # -- Gaussians and rendering -----------------------------------------------------------------------
+
+    def decode_config(self) -> GaussianDecodeConfig:
+        return GaussianDecodeConfig(near=self.cfg.near, far=self.cfg.far)
+
+    def gaussians(self, raw: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor) -> Gaussians:
+        """One object's raw params (V, H, W, 9) on its input cameras (V, 4, 4), (V, 4) -> N = V*H*W Gaussians."""
+        return pixel_gaussians(raw, c2w, intr, self.decode_config())
+
+    def render(
+        self,
+        gauss: Gaussians,
+        sh: torch.Tensor,
+        c2w: torch.Tensor,
+        intr: torch.Tensor,
+        height: int,
+        width: int,
+        keep: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Render Gaussians with SH colour at cameras c2w (Vr, 4, 4), intr (Vr, 4).
+
+        sh: (N, K, 3); keep: (N,) bool (None = all). Returns diffusion-space-gamma RGB in [0, inf) (Vr, H, W, 3)
+        premultiplied over black, alpha (Vr, H, W, 1) and alpha-weighted depth (Vr, H, W, 1).
+        ``x0_hat = 2 * rgb - 1``; linear RGB = rgb.clamp(0, 1) ** 2.2."""
+        if keep is not None:
+            gauss, sh = gauss[keep], sh[keep]
+        centres = c2w[:, :3, 3].float()
+        dirs = gauss.means[None] - centres[:, None]  # (Vr, N, 3)
+        dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-8)
+        colours = (eval_sh(sh.float()[None], dirs) + 0.5).clamp_min(0.0)  # (Vr, N, 3)
+        return rasterize(
+            gauss.means, gauss.quats, gauss.scales, gauss.opacities, colours, c2w.float(), intr.float(),
+            height, width, max_radius_px=self.cfg.max_radius_px,
+        )
+
+    # -- denoising (DDIM with x0 prediction, classifier-free guidance) -------------------------------------
+
+    def guided_sh(self, t_geo, env, x_t, den_c2w, den_intr, t: torch.Tensor, guidance: float):
+        """SH (B, N, K, 3) and conditional T_app (B, V, h, w, D) of one DiT step with guidance (see module doc)."""
+        t_app = self.appearance_tokens(t_geo, env, x_t, den_c2w, den_intr, t)
+        sh = self.sh_coefficients(t_app)
+        if guidance != 1.0 and env is not None:
+            sh_u = self.sh_coefficients(self.appearance_tokens(t_geo, None, x_t, den_c2w, den_intr, t))
+            sh = sh_u + guidance * (sh - sh_u)
+        return sh, t_app
+
+    @torch.no_grad()
+    def denoise(
+        self,
+        t_geo: torch.Tensor,
+        gauss: Gaussians,
+        keep: torch.Tensor | None,
+        env: torch.Tensor | None,
+        den_c2w: torch.Tensor,
+        den_intr: torch.Tensor,
+        height: int,
+        width: int,
+        steps: int | None = None,
+        guidance: float | None = None,
+        generator: torch.Generator | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """One full DDIM pass for one object under one light (the backbone's relighting).
+
+        t_geo (1, V, h, w, D); gauss: the object's N Gaussians; env (1, He, We, 3) or None; den_c2w (Vd, 4, 4),
+        den_intr (Vd, 4). Returns the final SH (N, K, 3) and the final step's conditional T_app (1, V, h, w, D).
+        """
+        steps = steps or self.cfg.denoise_steps
+        guidance = self.cfg.guidance if guidance is None else guidance
+        Vd = den_c2w.shape[0]
+        x = torch.randn(1, Vd, height, width, 3, generator=generator, device=t_geo.device)
+        ts = self.schedule.ddim_timesteps(steps)
+        sh = t_app = None
+        for i, t in enumerate(ts):
+            tt = torch.full((1,), t, device=t_geo.device, dtype=torch.long)
+            sh, t_app = self.guided_sh(t_geo, env, x, den_c2w[None], den_intr[None], tt, guidance)
+            if i + 1 < len(ts):
+                rgb, _, _ = self.render(gauss, sh[0], den_c2w, den_intr, height, width, keep)
+                x0 = (2.0 * rgb - 1.0).clamp(-1.0, 1.0)[None]
+                x = self.schedule.ddim_step(x, x0, t, ts[i + 1])
+        return sh[0].float(), t_app
+
+    @torch.no_grad()
+    def reconstruct(self, images: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor):
+        """Geometry of one object from V input views: images (V, H, W, 3) linear premultiplied, alpha
+        (V, H, W, 1), c2w (V, 4, 4), intr (V, 4). Returns (t_geo (1, V, h, w, D), raw (V, H, W, 9),
+        Gaussians (N = V*H*W), keep (N,) bool = input alpha >= 0.5)."""
+        t_geo, raw = self.encode_geometry(images[None], c2w[None], intr[None])
+        gauss = self.gaussians(raw[0], c2w, intr)
+        return t_geo, raw[0], gauss, (alpha.reshape(-1) >= 0.5)
+
+    @torch.no_grad()
+    def relight(
+        self,
+        images: torch.Tensor,
+        alpha: torch.Tensor,
+        c2w: torch.Tensor,
+        intr: torch.Tensor,
+        envs: list[torch.Tensor],
+        out_c2w: torch.Tensor,
+        out_intr: torch.Tensor,
+        den_c2w: torch.Tensor | None = None,
+        den_intr: torch.Tensor | None = None,
+        seed: int = 0,
+    ) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """The baseline relighting: geometry once, then one full denoising pass per light.
+
+        images (V, H, W, 3), alpha (V, H, W, 1), c2w (V, 4, 4), intr (V, 4): the input views; envs: HDR maps
+        (He, We, 3) each; out_c2w (Vo, 4, 4), out_intr (Vo, 4): cameras to render. Denoising cameras default to
+        the first ``den_views`` input cameras. Returns per light (linear premultiplied RGB (Vo, H, W, 3),
+        alpha (Vo, H, W, 1)); the DDIM noise is seeded per light index from ``seed``."""
+        H, W = images.shape[1:3]
+        if den_c2w is None:
+            den_c2w, den_intr = c2w[: self.cfg.den_views], intr[: self.cfg.den_views]
+        t_geo, _, gauss, keep = self.reconstruct(images, alpha, c2w, intr)
+        out = []
+        for i, env in enumerate(envs):
+            g = torch.Generator(device=images.device).manual_seed(seed + i)
+            sh, _ = self.denoise(t_geo, gauss, keep, env[None], den_c2w, den_intr, H, W, generator=g)
+            rgb, a, _ = self.render(gauss, sh, out_c2w, out_intr, H, W, keep)
+            out.append((rgb.clamp(0.0, 1.0) ** 2.2, a))
+        return out
 
 
 def build(cfg: dict | BackboneConfig) -> RelitLRMBackbone:

@@ -1,0 +1,251 @@
+"""Stage ``frng backbone-train``: train the RelitLRM-style backbone on the training split, then freeze it.
+
+One step = one training object (``backbone.train.batch`` objects accumulated):
+
+1. input light A (random input light) and input views: with probability 1/2 the 6 rig views, else a random
+   subset of 2..all input views (rig + extras), so that any V in 2..10 works at inference;
+2. target light B, uniformly over the object's target lights and input lights (B = A is the reconstruction case);
+   its available views are the target views (target light) or all input views (input light);
+3. geometry: T_geo, raw params -> per-pixel Gaussians (input pixels with alpha >= 0.5 are rendered);
+4. diffusion: t ~ U{0..999}; the clean images of B at ``den_views`` random views of B (the denoising cameras),
+   gamma-encoded to [-1, 1], noised to x_t; light tokens of B's env map, zeroed with probability ``cond_drop``;
+   one DiT pass -> T_app -> SH;
+5. x0-prediction through rendering: render at the denoising views plus up to 2 more views of B (supervision
+   views) and compare with the clean images in gamma space:
+   ``L = |rgb - rgb*|^2 + lambda_alpha |a - a*|^2 + lambda_per * LPIPS-vgg(rgb, rgb*) [after perceptual_after
+   steps] + lambda_depth * depth``, where ``depth`` is the foreground L1 between each input pixel's Gaussian
+   distance along its ray and the G-buffer's (normalised by far - near): a training aid from the training
+   split's G-buffers only.
+
+Nothing from test objects or test lights is read: objects come from the training split, lights from those
+objects' own (training-pool) lights.
+
+Outputs in ``--out`` (default ``{results}/backbone``): ``model.pt`` (frozen weights + config + sha256 recorded by
+caches), ``checkpoint.pt`` (resume), ``loss.csv``, ``loss.png``, ``train.json`` (steps, wall time, device).
+Rerunning the command after an interruption resumes from the last checkpoint.
+"""
+
+from __future__ import annotations
+
+import argparse
+import random
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from tqdm import tqdm
+
+from frng import config as frng_config
+from frng import io
+from frng.priors import backbone as bb
+from frng.priors import training as tr
+from frng.priors.data import PriorObject, Views
+from frng.priors.diffusion import to_diffusion_space
+
+
+@dataclass
+class BackboneTrainConfig:
+    """``backbone.train`` config section."""
+
+    steps: int = 600
+    batch: int = 1
+    lr: float = 4e-4
+    warmup: int = 50
+    weight_decay: float = 0.05
+    grad_clip: float = 1.0
+    lambda_alpha: float = 1.0
+    lambda_depth: float = 0.5
+    lambda_per: float = 0.5
+    perceptual_after: int = 200
+    perceptual_net: str = "vgg"
+    supervision_views: int = 2
+    bf16: bool = True
+    checkpoint_every: int = 50
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "BackboneTrainConfig":
+        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+
+
+def backbone_config(config: dict) -> bb.BackboneConfig:
+    """The backbone architecture from a validated pipeline config (patch size from ``model.patch_size``)."""
+    d = {k: v for k, v in config["backbone"].items() if k not in ("train", "kind")}
+    d["patch"] = config["model"]["patch_size"]
+    return bb.BackboneConfig.from_dict(d)
+
+
+def _gamma(rgb: torch.Tensor) -> torch.Tensor:
+    return (to_diffusion_space(rgb) + 1.0) / 2.0
+
+
+def ray_distance_target(obj_gbuffer_depth: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor) -> torch.Tensor:
+    """Camera-z depth (V, H, W, 1) -> distance along each pixel's unit ray (V, H, W, 1)."""
+    from frng import camera
+
+    V, H, W, _ = obj_gbuffer_depth.shape
+    _, d = camera.pixel_rays(c2w, intr, H, W)
+    cos = (d * c2w[:, None, None, :3, 2]).sum(-1, keepdim=True)  # ray direction . camera forward
+    return obj_gbuffer_depth / cos.clamp_min(1e-6)
+
+
+def sample_views(obj: PriorObject, rng: random.Random) -> tuple[str, list[int]]:
+    """Input light and input view indices of one training sample (see the module docstring)."""
+    light = rng.choice(obj.input_lights)
+    n = len(obj.inputs[light])
+    if rng.random() < 0.5 or n <= 2:
+        return light, list(range(min(obj.rig_views, n)))
+    k = rng.randint(2, n)
+    return light, sorted(rng.sample(range(n), k))
+
+
+def step_loss(model: bb.RelitLRMBackbone, obj: PriorObject, tcfg: BackboneTrainConfig, step: int,
+              rng: random.Random, device: torch.device, perceptual=None) -> dict[str, torch.Tensor]:
+    """Losses of one training sample (see the module docstring)."""
+    cfg = model.cfg
+    light_a, idx = sample_views(obj, rng)
+    inp = obj.inputs[light_a].select(idx)
+    choices = [("t", l) for l in obj.target_lights] + [("i", l) for l in obj.input_lights]
+    kind, light_b = rng.choice(choices)
+    avail: Views = obj.targets[light_b] if kind == "t" else obj.inputs[light_b]
+    order = list(range(len(avail)))
+    rng.shuffle(order)
+    n_den = min(cfg.den_views, len(avail))
+    den = avail.select(order[:n_den])
+    sup = avail.select(order[: n_den + tcfg.supervision_views])
+
+    rgb_in, a_in = inp.rgb.to(device), inp.alpha.to(device)
+    c2w_in, intr_in = inp.c2w.to(device), inp.intr.to(device)
+    H, W = rgb_in.shape[1:3]
+    with tr.autocast(device, tcfg.bf16):
+        t_geo, raw = model.encode_geometry(rgb_in[None], c2w_in[None], intr_in[None])
+    raw = raw[0].float()
+    gauss = model.gaussians(raw, c2w_in, intr_in)
+    keep = a_in.reshape(-1) >= 0.5
+
+    t = torch.randint(0, model.schedule.steps, (1,), device=device)
+    x0 = to_diffusion_space(den.rgb.to(device))[None]
+    x_t = model.schedule.q_sample(x0, t, torch.randn_like(x0))
+    env = None if rng.random() < cfg.cond_drop else obj.envs[light_b].to(device)[None]
+    with tr.autocast(device, tcfg.bf16):
+        t_app = model.appearance_tokens(t_geo, env, x_t, den.c2w.to(device)[None], den.intr.to(device)[None], t)
+        sh = model.sh_coefficients(t_app)[0].float()
+    rgb, alpha, _ = model.render(gauss, sh, sup.c2w.to(device), sup.intr.to(device), H, W, keep)
+    tgt = _gamma(sup.rgb.to(device))
+    losses = {
+        "l2": F.mse_loss(rgb, tgt),
+        "alpha": F.mse_loss(alpha, sup.alpha.to(device)),
+    }
+    total = losses["l2"] + tcfg.lambda_alpha * losses["alpha"]
+    if obj.gbuffer is not None and tcfg.lambda_depth > 0:
+        gb = obj.gbuffer.select(torch.as_tensor(idx))
+        fg = (gb.mask.to(device) > 0.5).float()
+        dist_t = ray_distance_target(gb.depth.to(device), c2w_in, intr_in)
+        w = torch.sigmoid(raw[..., 0:1])
+        dist_p = cfg.near * (1 - w) + cfg.far * w
+        losses["depth"] = ((dist_p - dist_t).abs() * fg).sum() / fg.sum().clamp_min(1.0) / (cfg.far - cfg.near)
+        total = total + tcfg.lambda_depth * losses["depth"]
+    if perceptual is not None and step >= tcfg.perceptual_after and tcfg.lambda_per > 0:
+        p = rgb.clamp(0, 1).permute(0, 3, 1, 2)
+        q = tgt.permute(0, 3, 1, 2)
+        losses["perceptual"] = perceptual(p, q)
+        total = total + tcfg.lambda_per * losses["perceptual"]
+    losses["total"] = total
+    return losses
+
+
+LOSS_NAMES = ["total", "l2", "alpha", "depth", "perceptual"]
+
+
+def train(config: dict, objects: list[PriorObject], out: Path, steps: int | None = None,
+          stop_after: int | None = None) -> Path:
+    """Train (or resume) the backbone on ``objects`` (training split only); returns the model path.
+
+    ``stop_after``: stop (after checkpointing) once this many steps have run in this call -- for tests of
+    resumption. ``steps`` overrides ``backbone.train.steps``."""
+    if any(o.split != "train" for o in objects):
+        raise ValueError("backbone-train must only see training objects")
+    if not objects:
+        raise ValueError("backbone-train: no training objects")
+    tcfg = BackboneTrainConfig.from_dict(config["backbone"].get("train", {}))
+    total = steps or tcfg.steps
+    cfg = backbone_config(config)
+    device = tr.resolve_device(config.get("device", "auto"))
+    tr.seed_everything(config["seed"])
+    model = bb.RelitLRMBackbone(cfg).to(device)
+    opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, betas=(0.9, 0.95), weight_decay=tcfg.weight_decay)
+    fingerprint = {"arch": cfg.to_dict(), "train": asdict(tcfg), "steps": total, "seed": config["seed"],
+                   "objects": sorted(o.id for o in objects)}
+    out.mkdir(parents=True, exist_ok=True)
+    ckpt = tr.Checkpointer(out, tcfg.checkpoint_every)
+    state = ckpt.load(model, opt, fingerprint)
+    start = state["step"] if state else 0
+    rng = random.Random(config["seed"])
+    if state:
+        rng.setstate(state["sample_rng"])
+    log = tr.LossLog(out, LOSS_NAMES)
+    log.truncate(start)
+    timer = tr.Timer(state["elapsed"] if state else 0.0)
+    perceptual = None
+    if tcfg.lambda_per > 0 and tcfg.perceptual_after < total:
+        from frng.perceptual import PerceptualLoss
+
+        perceptual = PerceptualLoss("lpips", net=tcfg.perceptual_net, srgb=False,
+                                    autocast_bf16=tcfg.bf16 and device.type == "cpu").to(device)
+    model.train()
+    bar = tqdm(range(start, total), initial=start, total=total, desc="backbone", dynamic_ncols=True)
+    ran = 0
+    for step in bar:
+        for g in opt.param_groups:
+            g["lr"] = tr.cosine_lr(step, total, tcfg.lr, tcfg.warmup)
+        opt.zero_grad(set_to_none=True)
+        acc: dict[str, float] = {}
+        for _ in range(tcfg.batch):
+            obj = objects[rng.randrange(len(objects))]
+            losses = step_loss(model, obj, tcfg, step, rng, device, perceptual)
+            (losses["total"] / tcfg.batch).backward()
+            for k, v in losses.items():
+                acc[k] = acc.get(k, 0.0) + float(v) / tcfg.batch
+        gnorm = torch.nn.utils.clip_grad_norm_(model.parameters(), tcfg.grad_clip)
+        if torch.isfinite(gnorm):
+            opt.step()
+        log.append(step + 1, timer.elapsed(), acc)
+        bar.set_postfix(loss=f"{acc['total']:.4f}", l2=f"{acc['l2']:.4f}")
+        ran += 1
+        if ckpt.due(step + 1, total):
+            ckpt.save(step + 1, model, opt, fingerprint, {"sample_rng": rng.getstate(), "elapsed": timer.elapsed()})
+            log.plot("backbone training loss")
+        if stop_after is not None and ran >= stop_after and step + 1 < total:
+            ckpt.save(step + 1, model, opt, fingerprint, {"sample_rng": rng.getstate(), "elapsed": timer.elapsed()})
+            return out / "checkpoint.pt"
+    bar.close()
+    log.plot("backbone training loss")
+    path = out / "model.pt"
+    tr.save_torch({"kind": config["backbone"].get("kind", "relitlrm"), "config": cfg.to_dict(),
+                   "state_dict": model.state_dict(), "steps": total}, path)
+    io.write_json(out / "train.json", {"steps": total, "wall_s": round(timer.elapsed(), 1), "device": str(device),
+                                       "objects": len(objects), "bf16": tcfg.bf16,
+                                       "parameters": sum(p.numel() for p in model.parameters())})
+    return path
+
+
+# -- CLI ------------------------------------------------------------------------------------------------
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    frng_config.add_config_argument(parser)
+    parser.add_argument("--out", help="output folder (default {results}/backbone)")
+    parser.add_argument("--steps", type=int, help="override backbone.train.steps")
+
+
+def run(args: argparse.Namespace) -> int:
+    from frng.priors.dataset import load_split
+
+    config = frng_config.load(args.config)
+    out = Path(args.out or Path(config["results"], "backbone"))
+    t0 = time.time()
+    objects = load_split(config, "train")
+    print(f"backbone-train: {len(objects)} training objects loaded in {time.time() - t0:.1f}s")
+    path = train(config, objects, out, steps=args.steps)
+    print(f"backbone-train: wrote {path}")
+    return 0
