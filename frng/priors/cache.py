@@ -1,0 +1,234 @@
+"""Per-object caches of the frozen priors: what F-RNG training reads instead of running them.
+
+Stages (one job per object): ``frng backbone-cache --object OBJ`` -> ``{results}/backbone/cache/{obj}.safetensors``
+and ``frng idm-priors --object OBJ`` -> ``{results}/priors/idm/{obj}.safetensors``.
+
+Backbone cache schema (safetensors; version :data:`BACKBONE_CACHE_VERSION`)
+--------------------------------------------------------------------------------
+String metadata: ``version``, ``backbone_sha256`` (sha256 of the ``model.pt`` it was made with), ``object``,
+``input_light`` (the object's first input light), ``lights`` (JSON list: index j -> light name; j = 0 is the input
+light, j >= 1 extra TRAINING lights drawn from the training env-map pool with a seed derived from ``seed`` and the
+object id), ``view_counts`` (JSON list of the V cached), ``view_names`` (JSON: V -> names of the input views used,
+the first V input views: rig order, then extras), ``sh_degree``, ``patch``, ``width``, ``near``, ``far``,
+``resolution``. Tensors (float32 unless noted), for every cached V:
+
+=============================== =============== ===============================================================
+key                             shape           meaning
+=============================== =============== ===============================================================
+``v{V}.t_geo``                  (V, h, w, D)    geometry tokens T_geo (h = w = resolution / patch)
+``v{V}.raw``                    (V, H, W, 9)    GeoDetokenizer output (decode with frng.gaussians.pixel_gaussians)
+``v{V}.means`` / ``quats`` /    (N, 3)/(N, 4)/  decoded per-pixel Gaussians, N = V*H*W in (view, row, col)
+``scales`` / ``opacities``      (N, 3)/(N,)     order (quats (w, x, y, z), scales = std devs)
+``v{V}.keep``                   (N,) uint8      1 where the input pixel is foreground (alpha >= 0.5)
+``v{V}.c2w`` / ``v{V}.intr``    (V, 4, 4)/(V,4) the input cameras
+``v{V}.light{j}.t_app``         (V, h, w, D)    appearance tokens T_app of the final DDIM step under light j
+``v{V}.light{j}.sh``            (N, K, 3)       final SH coefficients (K = (sh_degree + 1)^2) under light j
+=============================== =============== ===============================================================
+
+Training objects cache V = 6 (the rig); test objects also the number-of-views sweep (2, 4, 6, 8, 10 where the
+object has that many input views). The DDIM noise is seeded from ``seed``, the object and the light.
+
+IDM priors schema (version :data:`IDM_CACHE_VERSION`)
+-----------------------------------------------------
+Metadata: ``version``, ``idm_kind``, ``idm_sha256`` (learned: the model file's hash, else ``""``), ``object``,
+``light`` (the input light the views were rendered under), ``view_names`` (JSON list). Tensors: one per pass of
+:mod:`frng.priors.intrinsics` (``normal``, ``depth``, ``albedo``, ``roughness``, ``metallic``, ``mask``), each
+(V, H, W, C) for ALL input views (rig + extras) in order.
+
+Stale caches: :func:`load_backbone_cache` / :func:`load_idm_priors` compare the recorded hash (and version) with
+the current model file and raise :class:`StaleCacheError` on mismatch; they are never silently reused.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from frng import config as frng_config
+from frng import envmap, io
+from frng.data import catalog
+from frng.priors import build_idm, load_backbone
+from frng.priors import training as tr
+from frng.priors.intrinsics import IntrinsicPriors
+
+BACKBONE_CACHE_VERSION = "1"
+IDM_CACHE_VERSION = "1"
+SWEEP_VIEWS = (2, 4, 6, 8, 10)
+
+
+class StaleCacheError(RuntimeError):
+    """A cache was made with another model (or an older cache version); re-run the cache rule."""
+
+
+def _save(tensors: dict[str, torch.Tensor], meta: dict[str, str], path: Path) -> None:
+    from safetensors.torch import save_file
+
+    with io.atomic_path(path) as tmp:
+        save_file({k: v.contiguous() for k, v in tensors.items()}, str(tmp), metadata=meta)
+
+
+def _load(path: Path) -> tuple[dict[str, torch.Tensor], dict[str, str]]:
+    from safetensors import safe_open
+
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: cache file does not exist")
+    with safe_open(str(path), framework="pt") as f:
+        return {k: f.get_tensor(k) for k in f.keys()}, dict(f.metadata() or {})
+
+
+def extra_training_lights(config: dict, oid: str, exclude: str, count: int) -> list[str]:
+    """``count`` random training env maps (not ``exclude``), seeded by the config seed and the object id."""
+    pool = sorted(e.name for e in catalog.plan(config).envmaps if e.split == "train" and e.name != exclude)
+    if len(pool) < count:
+        raise ValueError(f"only {len(pool)} training env maps besides {exclude}; need {count} extra lights")
+    rng = catalog.rng_for(config["seed"], "cache-lights", oid)
+    return [pool[i] for i in rng.choice(len(pool), count, replace=False)]
+
+
+def view_counts(split: str, n_views: int) -> list[int]:
+    vs = [6] if split == "train" else [v for v in SWEEP_VIEWS if v <= n_views]
+    return sorted(set(v for v in vs if v <= n_views))
+
+
+# -- backbone cache ------------------------------------------------------------------------------------
+
+def make_backbone_cache(config: dict, oid: str, model_path: Path, out: Path, device="cpu") -> Path:
+    from frng.priors.dataset import load_object
+
+    model = load_backbone(model_path, device)
+    sha = tr.file_sha256(model_path)
+    obj = load_object(config, oid, with_targets=False, with_gbuffer=False)
+    light_in = obj.input_lights[0]
+    lights = [light_in] + extra_training_lights(config, oid, light_in, config["backbone"]["cache_extra_lights"])
+    envs = {l: torch.from_numpy(envmap.read(Path(config["results"], "envmaps", f"{l}.exr"))) for l in lights}
+    views = obj.inputs[light_in]
+    H, W = views.rgb.shape[1:3]
+    tensors: dict[str, torch.Tensor] = {}
+    vcounts = view_counts(obj.split, len(views))
+    names = {}
+    for V in vcounts:
+        v = views.select(range(V))
+        names[V] = v.names
+        rgb, a, c2w, intr = (x.to(device) for x in (v.rgb, v.alpha, v.c2w, v.intr))
+        t_geo, raw, gauss, keep = model.reconstruct(rgb, a, c2w, intr)
+        p = f"v{V}."
+        tensors.update({p + "t_geo": t_geo[0].float(), p + "raw": raw.float(), p + "means": gauss.means,
+                        p + "quats": gauss.quats, p + "scales": gauss.scales, p + "opacities": gauss.opacities,
+                        p + "keep": keep.to(torch.uint8), p + "c2w": v.c2w, p + "intr": v.intr})
+        nd = model.cfg.den_views
+        for j, light in enumerate(lights):
+            g = torch.Generator(device=device).manual_seed(catalog.derive_seed(config["seed"], "cache", oid, light))
+            sh, t_app = model.denoise(t_geo, gauss, keep, envs[light].to(device)[None], c2w[:nd], intr[:nd], H, W,
+                                      generator=g)
+            tensors[f"{p}light{j}.t_app"] = t_app[0].float()
+            tensors[f"{p}light{j}.sh"] = sh.float()
+    tensors = {k: t.detach().cpu() for k, t in tensors.items()}
+    c = model.cfg
+    meta = {"version": BACKBONE_CACHE_VERSION, "backbone_sha256": sha, "object": oid, "input_light": light_in,
+            "lights": json.dumps(lights), "view_counts": json.dumps(vcounts),
+            "view_names": json.dumps({str(k): n for k, n in names.items()}), "sh_degree": str(c.sh_degree),
+            "patch": str(c.patch), "width": str(c.width), "near": str(c.near), "far": str(c.far),
+            "resolution": str(H)}
+    _save(tensors, meta, out)
+    return out
+
+
+@dataclass
+class BackboneCache:
+    """A loaded backbone cache; ``tensors`` keyed as in the module docstring, ``meta`` decoded."""
+
+    tensors: dict[str, torch.Tensor]
+    meta: dict
+    lights: list[str]
+
+    def views(self, V: int) -> dict[str, torch.Tensor]:
+        """All tensors of the V-view entry with the ``v{V}.`` prefix stripped."""
+        p = f"v{V}."
+        out = {k[len(p):]: t for k, t in self.tensors.items() if k.startswith(p)}
+        if not out:
+            raise KeyError(f"cache of {self.meta['object']} has no {V}-view entry (has {self.meta['view_counts']})")
+        return out
+
+
+def load_backbone_cache(path: str | Path, model_path: str | Path) -> BackboneCache:
+    """Load a backbone cache, refusing it when it was made with another backbone file (or cache version)."""
+    tensors, meta = _load(Path(path))
+    if meta.get("version") != BACKBONE_CACHE_VERSION:
+        raise StaleCacheError(f"{path}: cache version {meta.get('version')!r}, expected {BACKBONE_CACHE_VERSION}")
+    sha = tr.file_sha256(model_path)
+    if meta.get("backbone_sha256") != sha:
+        raise StaleCacheError(f"{path}: made with backbone {meta.get('backbone_sha256', '?')[:12]}, but {model_path} "
+                              f"is {sha[:12]}; re-run `frng backbone-cache`")
+    decoded = dict(meta)
+    for k in ("lights", "view_counts", "view_names"):
+        decoded[k] = json.loads(meta[k])
+    return BackboneCache(tensors, decoded, decoded["lights"])
+
+
+# -- IDM priors ------------------------------------------------------------------------------------------
+
+def make_idm_priors(config: dict, oid: str, out: Path, device="cpu", kind: str | None = None) -> Path:
+    from frng.priors.dataset import load_object
+
+    idm = build_idm(config, device, kind)
+    obj = load_object(config, oid, with_targets=False, with_gbuffer=idm.kind == "oracle")
+    light = obj.input_lights[0]
+    views = obj.inputs[light]
+    pri = idm.priors(oid, views, obj.gbuffer)
+    sha = tr.file_sha256(idm.model_path) if idm.kind == "learned" else ""
+    meta = {"version": IDM_CACHE_VERSION, "idm_kind": idm.kind, "idm_sha256": sha, "object": oid, "light": light,
+            "view_names": json.dumps(views.names)}
+    _save({k: v.float().cpu() for k, v in pri.as_dict().items()}, meta, out)
+    return out
+
+
+def load_idm_priors(path: str | Path, model_path: str | Path | None = None) -> tuple[IntrinsicPriors, dict]:
+    """Load IDM priors (+ metadata). For learned priors pass the IDM ``model_path``: a hash mismatch is refused."""
+    tensors, meta = _load(Path(path))
+    if meta.get("version") != IDM_CACHE_VERSION:
+        raise StaleCacheError(f"{path}: IDM cache version {meta.get('version')!r}, expected {IDM_CACHE_VERSION}")
+    if meta.get("idm_kind") == "learned" and model_path is not None:
+        sha = tr.file_sha256(model_path)
+        if meta.get("idm_sha256") != sha:
+            raise StaleCacheError(f"{path}: made with another IDM model than {model_path}; re-run `frng idm-priors`")
+    meta = dict(meta)
+    meta["view_names"] = json.loads(meta["view_names"])
+    return IntrinsicPriors.from_dict(tensors), meta
+
+
+# -- CLI -----------------------------------------------------------------------------------------------------
+
+def configure_backbone(parser: argparse.ArgumentParser) -> None:
+    frng_config.add_config_argument(parser)
+    parser.add_argument("--object", required=True)
+    parser.add_argument("--model", help="backbone model file (default {results}/backbone/model.pt)")
+    parser.add_argument("--out", help="cache file (default {results}/backbone/cache/{obj}.safetensors)")
+
+
+def run_backbone(args: argparse.Namespace) -> int:
+    config = frng_config.load(args.config)
+    res = Path(config["results"])
+    model = Path(args.model or res / "backbone" / "model.pt")
+    out = Path(args.out or res / "backbone" / "cache" / f"{args.object}.safetensors")
+    device = tr.resolve_device(config["device"])
+    print(f"backbone-cache: wrote {make_backbone_cache(config, args.object, model, out, device)}")
+    return 0
+
+
+def configure_idm(parser: argparse.ArgumentParser) -> None:
+    frng_config.add_config_argument(parser)
+    parser.add_argument("--object", required=True)
+    parser.add_argument("--kind", help="override idm.kind")
+    parser.add_argument("--out", help="priors file (default {results}/priors/idm/{obj}.safetensors)")
+
+
+def run_idm(args: argparse.Namespace) -> int:
+    config = frng_config.load(args.config)
+    out = Path(args.out or Path(config["results"], "priors", "idm", f"{args.object}.safetensors"))
+    device = tr.resolve_device(config["device"])
+    print(f"idm-priors: wrote {make_idm_priors(config, args.object, out, device, args.kind)}")
+    return 0
