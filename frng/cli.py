@@ -22,6 +22,11 @@ STAGES: dict[str, tuple[str, str]] = {
     "curate": ("frng.data.curate", "render one object's views x lights + G-buffers with Blender Cycles"),
     "dataset": ("frng.data.preview", "inspect the curated dataset (contact sheets)"),
     "bench": ("frng.bench", "benchmarks: rasterizer, shading, relighting"),
+    "backbone-train": ("frng.priors.backbone_train", "train the RelitLRM-style backbone (training split), then freeze"),
+    "idm-train": ("frng.priors.idm_train", "train the learned IDM on the training split's G-buffers"),
+    "backbone-cache": ("frng.priors.backbone_cache", "cache one object's backbone tokens + Gaussians"),
+    "idm-priors": ("frng.priors.idm_priors", "write one object's IDM priors for its input views"),
+    "eval-backbone": ("frng.priors.evaluate", "backbone NVS/relighting and IDM accuracy vs trivial baselines"),
 }
 
 
