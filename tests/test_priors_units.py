@@ -1,0 +1,168 @@
+"""Unit tests of the priors that need no curated data: frozen loading, DiffusionRenderer adapter, SH, IDM, DDIM."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from frng import camera, io
+from frng.priors import BACKBONES, IDMS, build_idm, freeze, load_backbone
+from frng.priors import backbone as bb
+from frng.priors import training as tr
+from frng.priors.diffusion_renderer import DiffusionRendererError, read_priors
+from frng.priors.idm import IDMConfig, LearnedIDM, idm_loss
+from frng.priors.sh import eval_sh
+
+TINY = {"width": 32, "heads": 2, "geo_depth": 1, "app_depth": 1, "env_height": 8, "sh_degree": 1, "den_views": 2}
+
+
+def _rig(V=3, H=16):
+    c2w = torch.stack([torch.tensor(camera.look_at(camera.spherical_to_cartesian(a, 15, 2.6)), dtype=torch.float32)
+                       for a in np.linspace(0, 360, V, endpoint=False)])
+    intr = torch.tensor(camera.intrinsics_from_fov(50, H, H), dtype=torch.float32).expand(V, 4).clone()
+    return c2w, intr
+
+
+@pytest.fixture(scope="module")
+def tiny_backbone_file(tmp_path_factory):
+    torch.manual_seed(0)
+    m = bb.build(TINY)
+    path = tmp_path_factory.mktemp("bb") / "model.pt"
+    tr.save_torch({"kind": "relitlrm", "config": m.cfg.to_dict(), "state_dict": m.state_dict(), "steps": 0}, path)
+    return path
+
+
+def test_registry_names():
+    assert "relitlrm" in BACKBONES
+    assert {"learned", "oracle", "diffusion-renderer"} <= set(IDMS)
+    with pytest.raises(KeyError, match="unknown IDM kind"):
+        build_idm({"idm": {"kind": "nope"}}, kind="nope")
+
+
+def test_frozen_backbone_cannot_be_updated(tiny_backbone_file):
+    model = load_backbone(tiny_backbone_file)
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    assert not model.training and all(not p.requires_grad for p in model.parameters())
+    # F-RNG-side code: a trainable head on top of the frozen tokens, optimiser over EVERYTHING it can reach
+    head = torch.nn.Linear(model.cfg.width, 3)
+    parent = torch.nn.ModuleDict({"backbone": model, "head": head})
+    parent.train()  # must not switch the frozen prior back to training mode
+    assert not model.training
+    opt = torch.optim.AdamW([p for p in parent.parameters() if p.requires_grad], lr=1.0)
+    c2w, intr = _rig()
+    imgs = torch.rand(1, 3, 16, 16, 3)
+    t_geo, raw = model.encode_geometry(imgs, c2w[None], intr[None])
+    loss = head(t_geo).square().mean() + raw.square().mean()
+    loss.backward()
+    opt.step()
+    assert all(p.grad is None for p in model.parameters())
+    assert head.weight.grad is not None
+    for k, v in model.state_dict().items():
+        assert torch.equal(v, before[k]), k
+    # even an optimiser handed the frozen parameters directly cannot move them (no gradients exist)
+    opt2 = torch.optim.SGD(model.parameters(), lr=1.0)
+    opt2.step()
+    for k, v in model.state_dict().items():
+        assert torch.equal(v, before[k]), k
+
+
+def test_relight_variable_views_and_guidance(tiny_backbone_file):
+    model = load_backbone(tiny_backbone_file)
+    for V in (2, 5):
+        c2w, intr = _rig(V)
+        imgs, alpha = torch.rand(V, 16, 16, 3) * 0.5, torch.ones(V, 16, 16, 1)
+        out = model.relight(imgs, alpha, c2w, intr, [torch.rand(8, 16, 3)], c2w[:1], intr[:1])
+        rgb, a = out[0]
+        assert rgb.shape == (1, 16, 16, 3) and a.shape == (1, 16, 16, 1)
+        assert torch.isfinite(rgb).all() and rgb.min() >= 0
+    model.cfg.guidance = 3.0
+    out2 = model.relight(imgs, alpha, c2w, intr, [torch.rand(8, 16, 3)], c2w[:1], intr[:1])
+    assert torch.isfinite(out2[0][0]).all()
+
+
+def test_sh_degree0_and_1_match_closed_form():
+    d = torch.nn.functional.normalize(torch.randn(10, 3), dim=-1)
+    sh = torch.zeros(10, 4, 3)
+    sh[:, 0] = 1.0
+    assert torch.allclose(eval_sh(sh, d), torch.full((10, 3), 0.28209479177387814))
+    sh = torch.zeros(10, 4, 1)
+    sh[:, 2] = 1.0  # l=1, m=0 -> C1 * z
+    assert torch.allclose(eval_sh(sh, d)[:, 0], 0.4886025119029199 * d[:, 2], atol=1e-6)
+
+
+def test_learned_idm_shapes_and_loss_decreases():
+    torch.manual_seed(0)
+    m = LearnedIDM(IDMConfig(width=32, heads=2, depth=1, pixel_features=8))
+    c2w, intr = _rig(2)
+    imgs, alpha = torch.rand(1, 2, 16, 16, 3), torch.ones(1, 2, 16, 16, 1)
+    n = torch.nn.functional.normalize(torch.randn(1, 2, 16, 16, 3), dim=-1)
+    tgt = {"normal": n, "depth": torch.full((1, 2, 16, 16, 1), 2.5), "albedo": torch.full((1, 2, 16, 16, 3), 0.3),
+           "roughness": torch.full((1, 2, 16, 16, 1), 0.7), "metallic": torch.zeros(1, 2, 16, 16, 1),
+           "mask": alpha}
+    opt = torch.optim.Adam(m.parameters(), 3e-3)
+    first = None
+    for _ in range(30):
+        loss = idm_loss(m, m(imgs, alpha, c2w[None], intr[None]), alpha, c2w[None], tgt)["total"]
+        first = first if first is not None else float(loss.detach())
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert float(loss) < 0.7 * first
+    pri = m.predict(imgs[0], alpha[0], c2w, intr)
+    assert pri.normal.shape == (2, 16, 16, 3)
+    assert torch.allclose(pri.normal.norm(dim=-1), torch.ones(2, 16, 16), atol=1e-4)
+
+
+# -- DiffusionRenderer adapter on fixture files in its exact layout ---------------------------------------
+
+def _write_dr(folder, V, H, W, normal_cam):
+    folder.mkdir(parents=True, exist_ok=True)
+    for f in range(V):
+        base = folder / f"0000.{f:04d}"
+        io.write_png(f"{base}.basecolor.png", np.full((H, W, 3), 0.5, np.float32))
+        io.write_png(f"{base}.metallic.png", np.full((H, W, 3), 1.0, np.float32))
+        io.write_png(f"{base}.roughness.png", np.full((H, W), 0.25, np.float32)[..., None].repeat(3, -1))
+        io.write_png(f"{base}.normal.png", np.broadcast_to((normal_cam + 1) / 2, (H, W, 3)).astype(np.float32))
+        io.write_png(f"{base}.depth.png", np.full((H, W, 3), 0.0, np.float32))
+
+
+def test_diffusion_renderer_reader(tmp_path):
+    V, H = 2, 16
+    c2w, _ = _rig(V, H)
+    _write_dr(tmp_path / "obj", V, 2 * H, 2 * H, np.array([0.0, 0.0, 1.0]))  # OpenGL: facing the viewer
+    alpha = torch.ones(V, H, H, 1)
+    pri = read_priors(tmp_path / "obj", c2w, alpha, near=1.0, far=4.0)
+    assert pri.albedo.shape == (V, H, H, 3)
+    assert torch.allclose(pri.albedo, torch.full_like(pri.albedo, float(io.srgb_decode(np.float32(128 / 255)))),
+                          atol=1e-3)
+    assert torch.allclose(pri.metallic, torch.ones_like(pri.metallic), atol=1e-3)
+    assert torch.allclose(pri.roughness, torch.full_like(pri.roughness, 64 / 255), atol=1e-3)
+    assert torch.allclose(pri.depth, torch.ones_like(pri.depth))
+    # a normal facing the viewer is minus the camera's optical axis in world space
+    facing = -c2w[:, None, None, :3, 2].expand(V, H, H, 3)
+    assert torch.allclose(pri.normal, facing, atol=0.02)
+
+
+def test_diffusion_renderer_errors_name_file_and_pass(tmp_path):
+    V, H = 2, 8
+    c2w, _ = _rig(V, H)
+    alpha = torch.ones(V, H, H, 1)
+    _write_dr(tmp_path / "a", V, H, H, np.array([0.0, 0.0, 1.0]))
+    (tmp_path / "a" / "0000.0001.roughness.png").unlink()
+    with pytest.raises(DiffusionRendererError, match=r"0000\.0001\.roughness\.png.*'roughness'"):
+        read_priors(tmp_path / "a", c2w, alpha, 1.0, 4.0)
+    _write_dr(tmp_path / "b", V, H, H, np.array([0.0, 0.0, 1.0]))
+    (tmp_path / "b" / "0000.0000.normal.png").write_bytes(b"not a png")
+    with pytest.raises(DiffusionRendererError, match=r"0000\.0000\.normal\.png.*'normal'"):
+        read_priors(tmp_path / "b", c2w, alpha, 1.0, 4.0)
+    with pytest.raises(DiffusionRendererError, match="need one per input view"):
+        read_priors(tmp_path / "b", *_rig(3, H)[:1], torch.ones(3, H, H, 1), 1.0, 4.0)
+
+
+def test_ddim_timesteps_and_identity():
+    s = bb.NoiseSchedule()
+    assert s.ddim_timesteps(5) == [999, 799, 599, 399, 199]
+    x0 = torch.rand(2, 3)
+    assert torch.allclose(s.ddim_step(x0, x0, 999, None), x0)
+    assert math.isclose(float(s.alpha_bar[0]), 1 - 0.00085, rel_tol=1e-5)
