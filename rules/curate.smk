@@ -1,0 +1,57 @@
+# Curation: ONE Blender process per object renders its input views x input lights, target views x target
+# lights and the G-buffers (frng/data/curate.py); then one job draws a contact sheet per object.
+OBJECT_IDS = CATALOG.object_ids
+_RENDER = config["render"]
+
+
+rule curate:
+    input:
+        unpack(lambda wildcards: frng_catalog.curate_inputs(config, CATALOG.object(wildcards.obj))),
+    output:
+        res("objects/{obj}/meta.json"),
+    params:
+        spec=lambda wildcards: json.dumps(CATALOG.object(wildcards.obj).to_dict(), sort_keys=True),
+        render=json.dumps(_RENDER, sort_keys=True),
+        envmaps=lambda wildcards, input: os.path.dirname(input.index),
+        objects=lambda wildcards, output: os.path.dirname(os.path.dirname(output[0])),
+        py=PY,
+        config=CONFIG_FILE,
+    log:
+        res("logs/curate/{obj}.log"),
+    wildcard_constraints:
+        obj=r"[a-z0-9_]+",
+    conda:
+        "../envs/blender.yaml"
+    threads: _RENDER["threads"]
+    resources:
+        mem_mb=2500,
+        runtime=lambda wildcards: frng_catalog.curate_minutes(config, CATALOG.object(wildcards.obj)),
+    shell:
+        "{params.py} -m frng curate --config {params.config} --object {wildcards.obj} "
+        "--envmaps {params.envmaps} --out {params.objects} > {log} 2>&1"
+
+
+rule dataset_preview:
+    message:
+        "Contact sheets of {n} objects".format(n=len(OBJECT_IDS))
+    input:
+        expand(res("objects/{obj}/meta.json"), obj=OBJECT_IDS),
+    output:
+        expand(res("previews/{obj}.png"), obj=OBJECT_IDS),
+    params:
+        out=lambda wildcards, output: os.path.dirname(output[0]),
+        py=PY,
+        config=CONFIG_FILE,
+    log:
+        res("logs/dataset_preview.log"),
+    conda:
+        "../envs/blender.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=5 + len(OBJECT_IDS) // 20,
+    shell:
+        "{params.py} -m frng dataset preview --config {params.config} --out {params.out} > {log} 2>&1"
+
+
+add_targets(*expand(res("objects/{obj}/meta.json"), obj=OBJECT_IDS), *expand(res("previews/{obj}.png"), obj=OBJECT_IDS))
