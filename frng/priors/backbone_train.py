@@ -206,7 +206,7 @@ def train(config: dict, objects: list[PriorObject], out: Path, steps: int | None
             losses = step_loss(model, obj, tcfg, step, rng, device, perceptual)
             (losses["total"] / tcfg.batch).backward()
             for k, v in losses.items():
-                acc[k] = acc.get(k, 0.0) + float(v) / tcfg.batch
+                acc[k] = acc.get(k, 0.0) + float(v.detach()) / tcfg.batch
         gnorm = torch.nn.utils.clip_grad_norm_(model.parameters(), tcfg.grad_clip)
         if torch.isfinite(gnorm):
             opt.step()

@@ -96,7 +96,7 @@ def train(config: dict, objects: list[PriorObject], out: Path, steps: int | None
         losses["total"].backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
         opt.step()
-        vals = {k: float(x) for k, x in losses.items()}
+        vals = {k: float(x.detach()) for k, x in losses.items()}
         log.append(step + 1, timer.elapsed(), vals)
         bar.set_postfix(loss=f"{vals['total']:.4f}")
         ran += 1

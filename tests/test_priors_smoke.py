@@ -1,0 +1,118 @@
+"""Smoke-tier integration of the priors on real curated data (Blender smoke dataset, tiny models):
+kill + resume of training, caches with stale-hash refusal, and models beating trivial baselines."""
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+
+from frng import config as frng_config
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory):
+    pytest.importorskip("bpy")
+    d = tmp_path_factory.mktemp("priors_smoke")
+    cfg = yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text())
+    cfg["results"] = str(d / "results")
+    path = d / "smoke.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    config = frng_config.load(path)
+    py = [sys.executable, "-m", "frng"]
+    subprocess.run(py + ["envmaps", "--config", str(path)], check=True, cwd=d, capture_output=True)
+    from frng.data import catalog
+
+    for oid in catalog.plan(config).object_ids:
+        subprocess.run(py + ["curate", "--config", str(path), "--object", oid], check=True, cwd=d,
+                       capture_output=True)
+    return path, config
+
+
+def _rows(p):
+    with open(p) as f:
+        return list(csv.DictReader(f))
+
+
+def test_idm_train_killed_then_resumed(smoke):
+    path, config = smoke
+    out = Path(config["results"]) / "idm"
+    cmd = [sys.executable, "-m", "frng", "idm-train", "--config", str(path), "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    ckpt = out / "checkpoint.pt"
+    deadline = time.time() + 120
+    while not ckpt.exists() and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert ckpt.exists() and not (out / "model.pt").exists()
+    saved = torch.load(ckpt, weights_only=False)["step"]
+    steps_total = config["idm"]["train"]["steps"]
+    assert 0 < saved < steps_total
+    subprocess.run(cmd, check=True, capture_output=True)
+    assert (out / "model.pt").exists() and (out / "loss.png").exists()
+    rows = _rows(out / "loss.csv")
+    assert [int(r["step"]) for r in rows] == list(range(1, steps_total + 1))  # resumed, not restarted
+
+
+def test_backbone_resume_cache_and_stale(smoke):
+    from frng.priors import backbone_train, cache
+    from frng.priors.dataset import load_split
+
+    _, config = smoke
+    res = Path(config["results"])
+    objs = load_split(config, "train")
+    out = res / "backbone"
+    backbone_train.train(config, objs, out, stop_after=5)
+    assert torch.load(out / "checkpoint.pt", weights_only=False)["step"] == 5
+    model = backbone_train.train(config, objs, out)  # resumes at 5
+    rows = _rows(out / "loss.csv")
+    assert [int(r["step"]) for r in rows] == list(range(1, config["backbone"]["train"]["steps"] + 1))
+    test_id = cache.catalog.plan(config).split("test")[0]
+    p = cache.make_backbone_cache(config, test_id, model, res / "backbone" / "cache" / f"{test_id}.safetensors")
+    c = cache.load_backbone_cache(p, model)
+    assert len(c.lights) == 2 and c.lights[0] == c.meta["input_light"]
+    train_lights = {e.name for e in cache.catalog.plan(config).envmaps if e.split == "train"}
+    assert c.lights[1] in train_lights
+    v6 = c.views(6)
+    assert v6["t_geo"].shape[0] == 6 and v6["light1.sh"].shape[0] == v6["means"].shape[0]
+    assert 2 in c.meta["view_counts"]
+    # a changed backbone file makes the cache stale
+    other = res / "other.pt"
+    state = torch.load(model, weights_only=False)
+    state["steps"] = -1
+    torch.save(state, other)
+    with pytest.raises(cache.StaleCacheError):
+        cache.load_backbone_cache(p, other)
+
+
+def test_priors_beat_trivial_baselines(smoke):
+    """Runs after the two tests above (same module): eval-backbone on the smoke test object."""
+    from frng.priors import build_idm, evaluate, load_backbone
+    from frng.priors.dataset import load_split
+
+    _, config = smoke
+    res = Path(config["results"])
+    assert (res / "backbone" / "model.pt").exists() and (res / "idm" / "model.pt").exists()
+    train_objs, test = load_split(config, "train"), load_split(config, "test")
+    rows = evaluate.eval_backbone(config, load_backbone(res / "backbone" / "model.pt"), test,
+                                  evaluate.mean_image(train_objs))
+
+    def mean(method, key):
+        v = [r[key] for r in rows if r["method"] == method]
+        return sum(v) / len(v)
+
+    assert mean("backbone", "psnr") > mean("mean-image", "psnr") + 1.0
+    idm_rows = evaluate.eval_idm(config, build_idm(config), test, train_objs)
+    learned = [r for r in idm_rows if r["method"] == "idm-learned"]
+    const = [r for r in idm_rows if r["method"] == "constant"]
+    assert sum(r["albedo_psnr"] for r in learned) > sum(r["albedo_psnr"] for r in const) + 0.2 * len(learned)
+    assert sum(r["normal_deg"] for r in learned) < sum(r["normal_deg"] for r in const)
