@@ -1,0 +1,120 @@
+"""Paper-scale DAG: `snakemake -n` on config/paper.yaml plans quickly and has the job counts the config implies.
+
+Granularity (README "Running on a cluster"): one job per object for Blender curation and every per-object model
+stage, one job per model variant for training, a handful of single jobs (env maps, previews, tables, figures).
+At 1000 objects that is a few thousand jobs, which Snakemake plans in seconds; per-(object, light) jobs would be
+~100k and take minutes just to plan (../shared/notes/slurm.md).
+
+To cover a new rule, add a row to EXPECTED: rule name -> function of the filled-in config giving its job count.
+Rows for rules the workflow does not have yet are harmless; a rule the workflow has but EXPECTED lacks fails the
+test (so every rule's count is pinned down).
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from frng import config as frng_config
+
+ROOT = Path(__file__).resolve().parent.parent
+SNAKEMAKE = str(Path(sys.executable).parent / "snakemake")
+PAPER = ROOT / "config" / "paper.yaml"
+PLAN_LIMIT_S = 20
+
+
+def n_objects(c: dict) -> int:
+    return c["objects"]["count"] + len(c["objects"].get("extra", []))
+
+
+def n_test_objects(c: dict) -> int:
+    return c["objects"]["test_count"] + sum(e["split"] == "test" for e in c["objects"].get("extra", []))
+
+
+# rule -> expected number of jobs, from the config. Later stages: fill in as their rules land, e.g.
+#   "train": lambda c: len(variants(c)), "relight": lambda c: len(variants(c)) * n_test_objects(c),
+#   "evaluate": lambda c: len(variants(c)), "tables": lambda c: 1, "figures": lambda c: 1,
+EXPECTED = {
+    "all": lambda c: 1,
+    "envmaps": lambda c: 1,  # one job bakes/rotates every map (seconds)
+    "curate": n_objects,  # one Blender process per object renders all its views x lights
+    "dataset_preview": lambda c: 1,  # one contact-sheet job over all objects
+    "backbone_train": lambda c: 1,  # trained once on the training split, then frozen
+    "idm_train": lambda c: int(c["idm"]["kind"] == "learned"),  # only the learned IDM is trained
+    "backbone_cache": n_objects,  # tokens per object
+    "idm_priors": n_objects,  # IDM passes per object
+    "eval_backbone": lambda c: 1,
+}
+
+
+def _child_cpu() -> float:
+    import resource
+
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
+def _plan(configfile: Path, results: Path) -> tuple[dict[str, int], float, str]:
+    cmd = [SNAKEMAKE, "--snakefile", str(ROOT / "workflow" / "Snakefile"), "--configfile", str(configfile),
+           "--config", f"results={results}", "-n", "-q", "rules", "--cores", "1"]
+    t0, c0 = time.monotonic(), _child_cpu()
+    r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    wall, cpu = time.monotonic() - t0, _child_cpu() - c0
+    # the limit is on CPU time: CI machines are shared (2 cores), so wall time measures the neighbours too
+    elapsed = cpu
+    print(f"snakemake -n: {wall:.1f} s wall, {cpu:.1f} s CPU")
+    out = r.stdout + r.stderr
+    assert r.returncode == 0, out[-3000:]
+    counts = {}
+    table = out.split("job count", 1)[-1] if "job count" in out else out
+    for line in table.splitlines():
+        m = re.match(r"^(\w+)\s+(\d+)\s*$", line)
+        if m and m.group(1) != "total":
+            counts[m.group(1)] = int(m.group(2))
+    assert counts, f"no job-count table in:\n{out[-3000:]}"
+    return counts, elapsed, out
+
+
+@pytest.fixture(scope="module")
+def paper_plan(tmp_path_factory):
+    config = frng_config.load(PAPER)
+    counts, elapsed, out = _plan(PAPER, tmp_path_factory.mktemp("paper") / "results")
+    print(f"\npaper DAG planned in {elapsed:.1f} s CPU; jobs per rule: {counts}")
+    return config, counts, elapsed
+
+
+def test_paper_dag_plans_fast(paper_plan):
+    config, counts, elapsed = paper_plan
+    assert elapsed < PLAN_LIMIT_S, f"paper DAG took {elapsed:.1f} s (CPU) to plan ({sum(counts.values())} jobs)"
+
+
+def test_paper_dag_job_counts_match_config(paper_plan):
+    config, counts, _ = paper_plan
+    unknown = sorted(set(counts) - set(EXPECTED))
+    assert not unknown, f"rules without an expected job count (add them to EXPECTED): {unknown}"
+    wrong = {rule: (counts[rule], EXPECTED[rule](config)) for rule in counts if counts[rule] != EXPECTED[rule](config)}
+    assert not wrong, f"rule: (planned, expected from config): {wrong}"
+    # paper scale stays at per-object granularity: thousands of jobs, not 100k
+    assert sum(counts.values()) < 20_000
+
+
+def test_slurm_profile_resolves(tmp_path):
+    """profiles/slurm parses, takes the partition from FRNG_SLURM_PARTITION and gives rules their set-resources
+    (planned on the toy workflow with the real rule names `curate`/`tables`; no cluster needed for -n)."""
+    import os
+
+    env = {**os.environ, "FRNG_SLURM_PARTITION": "mypart", "FRNG_SLURM_ACCOUNT": "myacct"}
+    r = subprocess.run([SNAKEMAKE, "--snakefile", str(ROOT / "tests" / "slurm_toy" / "Snakefile"), "--directory",
+                        str(tmp_path), "--profile", str(ROOT / "profiles" / "slurm"), "-n"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=120, env=env)
+    out = r.stdout + r.stderr
+    assert r.returncode == 0, out[-3000:]
+    jobs = {m.group(1): m.group(2) for m in re.finditer(r"(?ms)^rule (\w+):.*?^\s+resources: ([^\n]+)", out)}
+    assert "slurm_partition=mypart" in jobs["curate"] and "slurm_account=myacct" in jobs["curate"]
+    assert "cpus_per_task=8" in jobs["curate"] and "mem_mb=16000" in jobs["curate"]
+    assert "cpus_per_task=1" in jobs["tables"]
