@@ -1,0 +1,124 @@
+"""EWA projection of 3D Gaussians into pinhole cameras (the shared front end of the PyTorch backend).
+
+Conventions: OpenCV cameras (``frng.camera``), quaternions ``(w, x, y, z)`` (gsplat / 3DGS order, need not be
+unit: they are normalised here), ``scales`` are standard deviations along the rotated axes (not log-scales).
+
+The 2D covariance is ``J W Sigma W^T J^T + eps2d * I`` (Zwicker et al. 2002, 3DGS) with the Jacobian's
+``x/z, y/z`` clamped to 1.3 x the half field of view (as 3DGS/gsplat do) so that Gaussians far outside the
+frustum cannot blow up. The footprint is the exact axis-aligned box of the 3-sigma ellipse; when it is larger
+than ``max_radius_px`` the 2D covariance is shrunk (differentiably) so that it fits: this bounds the cost of
+the tile binning however large the scales get.
+
+NaN safety: everything that could divide by zero (Gaussians behind the camera, zero scales, zero quaternions)
+is computed from sanitised inputs and masked by ``valid``; masked entries carry finite values and zero
+gradients.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+SIGMA_CUTOFF = 3.0  # footprint = 3-sigma ellipse; alpha is zero outside it
+ALPHA_MIN = 1.0 / 255.0  # contributions below this are skipped (as 3DGS / gsplat)
+ALPHA_MAX = 0.99  # per-Gaussian alpha clamp (keeps 1 - alpha > 0: transmittance stays invertible)
+
+
+def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
+    """(..., 4) quaternions (w, x, y, z), any norm -> (..., 3, 3) rotation matrices (zero quaternion -> identity)."""
+    q = quats / torch.sqrt((quats * quats).sum(-1, keepdim=True) + 1e-12)
+    w, x, y, z = q.unbind(-1)
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        ],
+        dim=-1,
+    ).reshape(q.shape[:-1] + (3, 3))
+
+
+def covariance_3d(quats: torch.Tensor, scales: torch.Tensor) -> torch.Tensor:
+    """World covariances (N, 3, 3) = R S S^T R^T from quaternions (N, 4) and scales (N, 3) (clamped >= 0)."""
+    R = quat_to_rotmat(quats)
+    M = R * scales.clamp(min=0.0)[..., None, :]
+    return M @ M.transpose(-1, -2)
+
+
+@dataclass
+class Projected:
+    """Per (view, Gaussian) screen-space quantities, each with leading dims (V, N)."""
+
+    mean2d: torch.Tensor  # (V, N, 2) pixel coordinates
+    conic: torch.Tensor  # (V, N, 3) inverse 2D covariance (a, b, c): sigma = a dx^2 / 2 + b dx dy + c dy^2 / 2
+    depth: torch.Tensor  # (V, N) camera z
+    extent: torch.Tensor  # (V, N, 2) half-widths (rx, ry) of the 3-sigma box in pixels (no grad)
+    valid: torch.Tensor  # (V, N) bool: in front of the near plane and overlapping the image
+
+
+def project_gaussians(
+    means: torch.Tensor,
+    quats: torch.Tensor,
+    scales: torch.Tensor,
+    c2w: torch.Tensor,
+    intrinsics: torch.Tensor,
+    height: int,
+    width: int,
+    near: float = 0.01,
+    far: float = 1e10,
+    eps2d: float = 0.3,
+    max_radius_px: float | None = None,
+    opacities: torch.Tensor | None = None,
+) -> Projected:
+    """EWA-project N Gaussians into V cameras. Shapes as in :func:`frng.render.rasterize`.
+
+    With ``opacities`` (N,) the box is opacity-aware: alpha = o exp(-m^2 / 2) drops below 1/255 beyond
+    m = sqrt(2 ln(255 o)) sigmas, so the box shrinks to min(3, m) sigmas (same image, fewer tile pairs), and
+    Gaussians with o < 1/255 are dropped."""
+    V = c2w.shape[0]
+    w2c = torch.linalg.inv(c2w)
+    Rw = w2c[:, :3, :3]  # (V, 3, 3)
+    p = torch.einsum("vij,nj->vni", Rw, means) + w2c[:, None, :3, 3]  # (V, N, 3)
+    z = p[..., 2]
+    in_depth = (z > near) & (z < far)
+    zs = torch.where(in_depth, z, torch.ones_like(z))  # sanitised: no division by ~0 anywhere
+    fx, fy, cx, cy = (intrinsics[:, i, None] for i in range(4))  # (V, 1)
+    x, y = p[..., 0], p[..., 1]
+    mean2d = torch.stack([fx * x / zs + cx, fy * y / zs + cy], dim=-1)
+
+    # Jacobian of the perspective projection, with x/z and y/z clamped to 1.3 x the half field of view
+    lim_x = 1.3 * (0.5 * width / fx)
+    lim_y = 1.3 * (0.5 * height / fy)
+    tx = torch.maximum(torch.minimum(x / zs, lim_x), -lim_x) * zs
+    ty = torch.maximum(torch.minimum(y / zs, lim_y), -lim_y) * zs
+    zero = torch.zeros_like(zs)
+    J = torch.stack(
+        [fx / zs, zero, -fx * tx / (zs * zs), zero, fy / zs, -fy * ty / (zs * zs)], dim=-1
+    ).reshape(V, -1, 2, 3)
+    cov3 = covariance_3d(quats, scales)  # (N, 3, 3)
+    cov_cam = torch.einsum("vij,njk,vlk->vnil", Rw, cov3, Rw)  # (V, N, 3, 3)
+    cov2 = J @ cov_cam @ J.transpose(-1, -2)  # (V, N, 2, 2)
+    a = cov2[..., 0, 0] + eps2d
+    b = cov2[..., 0, 1]
+    c = cov2[..., 1, 1] + eps2d
+    if max_radius_px is not None:  # shrink footprints larger than the cap (keeps shape, bounds cost)
+        r2 = SIGMA_CUTOFF**2 * torch.maximum(a, c)
+        s = torch.clamp(max_radius_px**2 / r2.clamp(min=1e-12), max=1.0)
+        a, b, c = a * s, b * s, c * s
+    det = (a * c - b * b).clamp(min=1e-12)  # >= eps2d^2 in exact arithmetic
+    conic = torch.stack([c / det, -b / det, a / det], dim=-1)
+    with torch.no_grad():
+        k = torch.full_like(z, SIGMA_CUTOFF)
+        if opacities is not None:
+            o = opacities.detach().clamp(min=1e-12) * 255.0
+            k = torch.minimum(k, torch.sqrt(2.0 * torch.log(o).clamp(min=0.0))[None])
+        extent = k[..., None] * torch.sqrt(torch.stack([a, c], dim=-1))
+        m = mean2d.detach()
+        on_image = (
+            (m[..., 0] + extent[..., 0] > 0) & (m[..., 0] - extent[..., 0] < width)
+            & (m[..., 1] + extent[..., 1] > 0) & (m[..., 1] - extent[..., 1] < height)
+        )
+        finite = torch.isfinite(m).all(-1) & torch.isfinite(conic.detach()).all(-1)
+        valid = in_depth & on_image & finite & (k > 0)
+    return Projected(mean2d=mean2d, conic=conic, depth=z, extent=extent, valid=valid)
