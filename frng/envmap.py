@@ -17,7 +17,9 @@ Maps are linear HDR float32 RGB with ``width == 2 * height``. ``E(direction)`` i
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -128,3 +130,134 @@ def luminance(rgb: np.ndarray | torch.Tensor):
     """Rec. 709 luminance of linear RGB (..., 3)."""
     w = (0.2126, 0.7152, 0.0722)
     return rgb[..., 0] * w[0] + rgb[..., 1] * w[1] + rgb[..., 2] * w[2]
+
+
+# -- importance sampling and SH projection (rendering core; see frng/render/shading.py) ------------------------
+#
+# The map is piecewise constant over its pixels. The sampler picks pixel (row, col) with probability
+# P = w / sum(w), w = luminance x solid angle (luminance x sin(theta) up to the exact band integral), through a
+# marginal CDF over rows and a conditional CDF over columns, then a point uniform in solid angle inside the
+# pixel (uniform in azimuth and in cos(polar angle)). The pdf in solid-angle measure is therefore P / Omega_pixel,
+# proportional to luminance: for a grey map L / pdf is the same for every sample (zero-variance integral).
+
+
+class EnvSamples(NamedTuple):
+    """A fixed set of K light samples shared by all pixels of an image."""
+
+    dirs: torch.Tensor  # (K, 3) unit world directions the light arrives from
+    pdf: torch.Tensor  # (K,) solid-angle pdf
+    radiance: torch.Tensor  # (K, 3) map value in that direction
+
+
+@dataclass(frozen=True)
+class EnvSampler:
+    """Marginal/conditional CDFs of an equirect map (build with :func:`importance_sampler`)."""
+
+    image: torch.Tensor  # (H, W, 3)
+    pmf: torch.Tensor  # (H, W) pixel probabilities, sum 1
+    row_cdf: torch.Tensor  # (H + 1,)
+    col_cdf: torch.Tensor  # (H, W + 1), each row normalised
+    solid_angle: torch.Tensor  # (H, W)
+
+
+def importance_sampler(image, floor: float = 1e-3) -> EnvSampler:
+    """Sampler for an (H, W, 3) map (numpy or torch). ``floor`` x mean luminance is added to every pixel's
+    luminance so that dark pixels keep a non-zero pdf (estimates stay unbiased for any integrand)."""
+    img = torch.as_tensor(np.asarray(image) if not isinstance(image, torch.Tensor) else image)
+    img = img[..., :3].to(torch.float64)
+    H, W = img.shape[:2]
+    omega = pixel_solid_angles(H, W, device=img.device, dtype=torch.float64)
+    lum = luminance(img.clamp(min=0.0))
+    mean = (lum * omega).sum() / (4 * math.pi)
+    lum = lum + (floor * mean if mean > 0 else 1.0)
+    w = lum * omega
+    pmf = w / w.sum()
+    p_row = pmf.sum(1)
+    row_cdf = torch.cat([p_row.new_zeros(1), torch.cumsum(p_row, 0)])
+    row_cdf = row_cdf / row_cdf[-1]
+    col_cdf = torch.cat([pmf.new_zeros(H, 1), torch.cumsum(pmf, 1)], 1)
+    col_cdf = col_cdf / col_cdf[:, -1:]
+    return EnvSampler(image=img, pmf=pmf, row_cdf=row_cdf, col_cdf=col_cdf, solid_angle=omega)
+
+
+def unit_square_samples(n: int, method: str = "sobol", seed: int = 0, device=None) -> torch.Tensor:
+    """(n, 2) points in [0, 1)^2: ``random`` (iid), ``stratified`` (Latin hypercube: each axis split in n
+    strata, one jittered point per stratum) or ``sobol`` (scrambled Sobol' low-discrepancy)."""
+    g = torch.Generator().manual_seed(seed)
+    if method == "random":
+        u = torch.rand(n, 2, generator=g, dtype=torch.float64)
+    elif method == "stratified":
+        strata = torch.stack([torch.randperm(n, generator=g) for _ in range(2)], 1).to(torch.float64)
+        u = (strata + torch.rand(n, 2, generator=g, dtype=torch.float64)) / n
+    elif method == "sobol":
+        u = torch.quasirandom.SobolEngine(2, scramble=True, seed=seed).draw(n, dtype=torch.float64)
+    else:
+        raise ValueError(f"unknown sampling method {method!r} (random, stratified, sobol)")
+    return u.clamp(0.0, 1.0 - 1e-12).to(device)
+
+
+def sample(sampler: EnvSampler, n: int, method: str = "sobol", seed: int = 0) -> EnvSamples:
+    """Draw n light directions by importance (one fixed set for a whole image). Float64 on the map's device."""
+    H, W = sampler.pmf.shape
+    u = unit_square_samples(n, method, seed, device=sampler.pmf.device)
+    row = (torch.searchsorted(sampler.row_cdf, u[:, 0].contiguous(), right=True) - 1).clamp(0, H - 1)
+    r0, r1 = sampler.row_cdf[row], sampler.row_cdf[row + 1]
+    t_row = ((u[:, 0] - r0) / (r1 - r0).clamp(min=1e-300)).clamp(0.0, 1.0)
+    cdf = sampler.col_cdf[row]  # (n, W + 1)
+    col = (torch.searchsorted(cdf, u[:, 1:2].contiguous(), right=True).squeeze(1) - 1).clamp(0, W - 1)
+    c0, c1 = cdf.gather(1, col[:, None])[:, 0], cdf.gather(1, col[:, None] + 1)[:, 0]
+    t_col = ((u[:, 1] - c0) / (c1 - c0).clamp(min=1e-300)).clamp(0.0, 1.0)
+    # uniform in solid angle inside the pixel: azimuth linear in u, cos(polar) linear across the band
+    uu = (col + t_col) / W
+    cos0, cos1 = torch.cos(math.pi * row / H), torch.cos(math.pi * (row + 1) / H)
+    z = cos0 + t_row * (cos1 - cos0)
+    s = torch.sqrt((1 - z * z).clamp(min=0.0))
+    phi = math.pi * (1.0 - 2.0 * uu)
+    dirs = torch.stack([s * torch.cos(phi), s * torch.sin(phi), z], -1)
+    pdf = sampler.pmf[row, col] / sampler.solid_angle[row, col]
+    return EnvSamples(dirs=dirs, pdf=pdf, radiance=sampler.image[row, col])
+
+
+def _pixel_of(dirs: torch.Tensor, H: int, W: int) -> tuple[torch.Tensor, torch.Tensor]:
+    u, v = dir_to_uv(dirs)
+    return (v * H).long().clamp(0, H - 1), (u * W).long().clamp(0, W - 1)
+
+
+def pdf(sampler: EnvSampler, dirs: torch.Tensor) -> torch.Tensor:
+    """Solid-angle pdf (...) of :func:`sample` at unit directions (..., 3)."""
+    row, col = _pixel_of(dirs.to(sampler.pmf.dtype), *sampler.pmf.shape)
+    return sampler.pmf[row, col] / sampler.solid_angle[row, col]
+
+
+def lookup(image: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
+    """Radiance (..., 3) of an (H, W, 3) map arriving from unit directions (..., 3) (nearest pixel: the map is
+    treated as piecewise constant, consistently with the sampler)."""
+    row, col = _pixel_of(dirs, image.shape[0], image.shape[1])
+    return image[row, col]
+
+
+# Ramamoorthi & Hanrahan (2001): clamped-cosine convolution weights per band (l = 0, 1, 2)
+SH_IRRADIANCE_BANDS = (math.pi, 2.0 * math.pi / 3.0, math.pi / 4.0)
+
+
+def sh_project(image, degree: int = 2) -> torch.Tensor:
+    """Project an (H, W, 3) map onto real SH (``frng.render.sh`` basis): coefficients ((degree + 1)^2, 3),
+    c_lm = sum over pixels of L Y_lm Omega (exact pixel solid angles)."""
+    from frng.render.sh import sh_basis
+
+    img = torch.as_tensor(np.asarray(image) if not isinstance(image, torch.Tensor) else image)[..., :3].double()
+    H, W = img.shape[:2]
+    d = pixel_directions(H, W, device=img.device, dtype=torch.float64)
+    omega = pixel_solid_angles(H, W, device=img.device, dtype=torch.float64)
+    Y = sh_basis(degree, d)  # (H, W, K)
+    return torch.einsum("hwk,hwc->kc", Y * omega[..., None], img)
+
+
+def sh_irradiance(coeffs: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
+    """Irradiance E(n) = int L(w) max(0, n.w) dw (..., 3) from degree-2 SH coefficients (9, 3) of L, at unit
+    normals (..., 3). Exact for maps band-limited to l <= 2; a Lambertian surface of albedo a reflects a E / pi."""
+    from frng.render.sh import sh_basis
+
+    Y = sh_basis(2, normals.to(coeffs.dtype))
+    band = coeffs.new_tensor([SH_IRRADIANCE_BANDS[0]] + [SH_IRRADIANCE_BANDS[1]] * 3 + [SH_IRRADIANCE_BANDS[2]] * 5)
+    return (Y * band)[..., None].mul(coeffs[:9]).sum(-2)

@@ -182,7 +182,6 @@ class _CompositeTiles(torch.autograd.Function):
             if gT is None:
                 gT = torch.zeros(origin.shape[0], pix.shape[0], dtype=T_in.dtype, device=T_in.device)
             gT[active] = d_T_in
-        ctx.saved = None
         return d_params, d_f, None, None, None, None, None, None, None
 
 

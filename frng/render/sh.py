@@ -1,0 +1,56 @@
+"""Real spherical harmonics up to degree 3 (the standard 3DGS / gsplat basis and constants).
+
+Basis order ``l = 0..3, m = -l..l`` (index ``l^2 + l + m``), with the sign convention of the 3DGS reference
+code (``Y_1,-1 = -C1 y``, ``Y_1,0 = C1 z``, ``Y_1,1 = -C1 x``, ...). The basis is orthonormal on the sphere,
+so projecting a function with ``sh_basis`` and evaluating with :func:`eval_sh` round-trips band-limited
+signals (tested).
+"""
+
+from __future__ import annotations
+
+import torch
+
+C0 = 0.28209479177387814
+C1 = 0.4886025119029199
+C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
+C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154, -0.4570457994644658,
+      1.445305721320277, -0.5900435899266435)
+
+
+def num_coeffs(degree: int) -> int:
+    return (degree + 1) ** 2
+
+
+def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
+    """Real SH basis (..., (degree + 1)^2) at unit directions (..., 3); degree 0..3."""
+    if not 0 <= degree <= 3:
+        raise ValueError(f"SH degree must be 0..3, got {degree}")
+    x, y, z = dirs.unbind(-1)
+    out = [torch.full_like(x, C0)]
+    if degree >= 1:
+        out += [-C1 * y, C1 * z, -C1 * x]
+    if degree >= 2:
+        xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
+        out += [C2[0] * xy, C2[1] * yz, C2[2] * (2 * zz - xx - yy), C2[3] * xz, C2[4] * (xx - yy)]
+    if degree >= 3:
+        out += [
+            C3[0] * y * (3 * xx - yy),
+            C3[1] * xy * z,
+            C3[2] * y * (4 * zz - xx - yy),
+            C3[3] * z * (2 * zz - 3 * xx - 3 * yy),
+            C3[4] * x * (4 * zz - xx - yy),
+            C3[5] * z * (xx - yy),
+            C3[6] * x * (xx - 3 * yy),
+        ]
+    return torch.stack(out, dim=-1)
+
+
+def eval_sh(degree: int, coeffs: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
+    """Evaluate SH functions: coeffs (..., K, C) with K >= (degree + 1)^2, dirs (..., 3) unit -> (..., C).
+
+    For 3DGS-style radiance use ``eval_sh(d, sh, view_dirs) + 0.5`` (the 3DGS DC offset is the caller's choice).
+    Leading dims broadcast, e.g. coeffs (N, 16, 3) with dirs (V, N, 3) -> (V, N, 3).
+    """
+    basis = sh_basis(degree, dirs)  # (..., K')
+    k = basis.shape[-1]
+    return (basis[..., None] * coeffs[..., :k, :]).sum(-2)
