@@ -14,7 +14,7 @@ def _map(H=32, seed=0):
     g = torch.Generator().manual_seed(seed)
     img = torch.rand(H, 2 * H, 3, generator=g, dtype=torch.float64) ** 4 * 3.0
     img[3, 7] = torch.tensor([200.0, 150.0, 100.0], dtype=torch.float64)  # a sun
-    img[H - 5 :, :] = 0.0  # black ground
+    img[H - max(1, H // 8) :, :] = 0.0  # black ground
     return img
 
 
