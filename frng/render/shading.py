@@ -94,8 +94,9 @@ def ggx_reflectance(albedo, roughness, metallic, normal, wo, wi) -> torch.Tensor
     """Cook-Torrance BRDF x cosine, (P, K, 3): Lambert + GGX (Trowbridge-Reitz) D, separable Smith G, Schlick F.
 
     albedo (P, 3), roughness (P, 1) (perceptual; alpha = roughness^2, clamped >= 1e-3), metallic (P, 1),
-    normal (P, 3) unit, wo (P, 3), wi (K, 3). F0 = lerp(0.04, albedo, metallic); diffuse = (1 - F)(1 - metallic)
-    albedo / pi. Zero below either horizon.
+    normal (P, 3) unit, wo (P, 3), wi (K, 3). F0 = lerp(0.04, albedo, metallic); diffuse = (1 - F(n.w_o))
+    (1 - metallic) albedo / pi (weighting by F(n.w_o) rather than F(w_o.h) keeps a white dielectric's
+    furnace albedo <= 1 at grazing angles). Zero below either horizon.
     """
     n = normal[:, None, :]
     v = wo[:, None, :]
@@ -118,7 +119,8 @@ def ggx_reflectance(albedo, roughness, metallic, normal, wo, wi) -> torch.Tensor
     F0 = 0.04 * (1.0 - m) + albedo[:, None, :] * m
     F = F0 + (1.0 - F0) * (1.0 - vh) ** 5
     spec = D * G * F / (4.0 * nl_c * nv_c)
-    diff = (1.0 - F) * (1.0 - m) * albedo[:, None, :] / math.pi
+    F_v = F0 + (1.0 - F0) * (1.0 - nv.clamp(0.0, 1.0)) ** 5  # diffuse gets what the view-side Fresnel lets in
+    diff = (1.0 - F_v) * (1.0 - m) * albedo[:, None, :] / math.pi
     visible = ((nl > 0) & (nv > 0)).to(spec.dtype)
     return (diff + spec) * nl_c * visible
 
