@@ -43,6 +43,10 @@ class ShadingConfig:
     alpha_eps: float = 1e-3
     chunk_pixels: int = 4096
 
+    def __post_init__(self):
+        if self.spp_grad > self.spp_train:
+            raise ValueError(f"shading.spp_grad ({self.spp_grad}) exceeds shading.spp_train ({self.spp_train})")
+
     @classmethod
     def from_config(cls, config: dict) -> "ShadingConfig":
         section = dict(config.get("shading", {}))
