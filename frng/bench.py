@@ -1,0 +1,25 @@
+"""``frng bench <name>``: benchmarks (not timed tests). Each benchmark is a module with
+``configure(parser)`` and ``run(args)``, registered in :data:`BENCHES` (add yours with one line)."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+# name -> (module, one-line help)
+BENCHES: dict[str, tuple[str, str]] = {
+    "render": ("frng.render.bench", "rasterizer fwd/fwd+bwd and deferred-shading cost at 32/64/128 px"),
+}
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="bench", required=True, metavar="BENCH")
+    for name, (module_name, help_) in BENCHES.items():
+        p = sub.add_parser(name, help=help_, description=help_)
+        module = importlib.import_module(module_name)
+        module.configure(p)
+        p.set_defaults(_bench_run=module.run)
+
+
+def run(args: argparse.Namespace) -> int | None:
+    return args._bench_run(args)
