@@ -9,7 +9,7 @@ import torch
 from frng import camera, io
 from frng.priors import BACKBONES, IDMS, build_idm, freeze, load_backbone
 from frng.priors import backbone as bb
-from frng.priors import training as tr
+from frng import training as tr
 from frng.priors.diffusion_renderer import DiffusionRendererError, read_priors
 from frng.priors.idm import IDMConfig, LearnedIDM, idm_loss
 from frng.priors.sh import eval_sh

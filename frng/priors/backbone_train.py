@@ -40,7 +40,7 @@ from tqdm import tqdm
 from frng import config as frng_config
 from frng import io
 from frng.priors import backbone as bb
-from frng.priors import training as tr
+from frng import training as tr
 from frng.priors.data import PriorObject, Views
 from frng.priors.diffusion import to_diffusion_space
 

@@ -52,7 +52,7 @@ from frng import config as frng_config
 from frng import envmap, io
 from frng.data import catalog
 from frng.priors import build_idm, load_backbone
-from frng.priors import training as tr
+from frng import training as tr
 from frng.priors.intrinsics import IntrinsicPriors
 
 BACKBONE_CACHE_VERSION = "1"

@@ -29,7 +29,7 @@ import torch
 
 from frng import config as frng_config
 from frng.priors import build_idm, load_backbone
-from frng.priors import training as tr
+from frng import training as tr
 from frng.priors.data import PriorObject
 from frng.priors.intrinsics import IntrinsicPriors
 

@@ -22,7 +22,7 @@ from tqdm import tqdm
 from frng import config as frng_config
 from frng import io
 from frng.priors import idm as idm_mod
-from frng.priors import training as tr
+from frng import training as tr
 from frng.priors.backbone_train import sample_views
 from frng.priors.data import PriorObject
 

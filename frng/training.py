@@ -1,4 +1,4 @@
-"""Training plumbing shared by the prior trainers (``frng backbone-train``, ``frng idm-train``).
+"""Training plumbing shared by the training stages (``frng backbone-train``, ``frng idm-train``, ``frng train``).
 
 - :func:`resolve_device` -- ``auto`` = CUDA when present, else CPU.
 - :func:`autocast` -- bf16 autocast context (CPU AMX or CUDA) or a no-op.

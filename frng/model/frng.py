@@ -1,0 +1,381 @@
+"""The composed F-RNG model (paper Sec. 4, Fig. 2): frozen priors in, relightable neural Gaussians out.
+
+For one object with V input views (backbone cache entry, IDM priors, input images) under input light ``light``::
+
+    S_final, top-K patches j     = Saliency(images)                                   supplement, "Saliency map"
+    T_prior                      = Tokenizer(Patchify(n, a, r, m))                     Sec. 4.1, T_prior eq.
+    G_coarse                     = the backbone's per-pixel Gaussians (cached GeoDetokenizer output, frozen)
+    T_fine-geo/prior/app, G_fine = Bilinear(...)_j, FineGeoDetokenizer(T_fine-geo | T_fine-prior)   Sec. 4.1
+    T_mat                        = MaterialFormer(T_geo (+) T_app | T_prior)  over coarse + fine tokens  Sec. 4.2.1
+    G_mat                        = MatDetokenizer(T_mat)  -> per-Gaussian neural features (or Cook-Torrance params)
+    L_o(p)                       = 1/K sum_k Theta(f(p), w_o, w_k) L(w_k) / pdf(w_k)   Sec. 4.3 + supplement,
+                                   deferred shading of the rasterized feature map (:mod:`frng.render.shading`)
+
+Token layout and Gaussian order follow the contract in :mod:`frng.model` (coarse tokens, then fine tokens; coarse
+Gaussians in (view, row, col) order, fine ones in (view, fine token, y*p + x) order). Background Gaussians are
+dropped: coarse ones with the cache's ``keep`` (input alpha >= 0.5), fine ones with :func:`fine_keep_mask`.
+
+Variants (:func:`variant_config`): ``full``; ``no-fine`` (no FineGeometry, coarse tokens only); ``no-idm``
+(``prior_dim = 0``: no tokenizer, no prior parameters anywhere; ``reconstruct`` refuses priors); ``no-ind``
+(lambda_c = lambda_KLD = 0, training only); ``no-neural`` (MaterialFormer head ``pbr`` -> Cook-Torrance per
+Gaussian, rendered with the GGX shader through the same deferred pipeline); ``k{P}`` (top-K = P% of the patches).
+
+The frozen backbone is not part of this module: only its GeoDetokenizer weights are copied once into the
+FineGeoDetokenizer at construction (:meth:`FRNG.from_backbone`); its outputs come from the cache, without gradients.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from frng import envmap
+from frng.gaussians import GaussianDecodeConfig, Gaussians
+from frng.model.fine_geometry import FineGeometry, FineGeometryConfig, fine_keep_mask
+from frng.model.light_independence import LightIndependenceConfig
+from frng.model.materialformer import (
+    MaterialFormerConfig,
+    MaterialHead,
+    coarse_features_to_pixels,
+    decode_pbr,
+    split_sequence,
+    to_sequence,
+)
+from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, select_top_k
+from frng.model.tokenizers import PriorTokenizer, stack_priors
+from frng.render import RasterConfig, rasterize
+from frng.render.shading import NeuralDecoder, ShadingConfig, deferred_shade, ggx_reflectance
+
+BASE_VARIANTS = ("full", "no-fine", "no-idm", "no-ind", "no-neural")
+MODEL_KIND = "frng"
+
+
+@dataclass
+class FRNGConfig:
+    """Architecture of one F-RNG variant (everything needed to rebuild it from ``model.pt``)."""
+
+    patch: int = 8
+    geo_dim: int = 256  # the backbone's token width (T_geo and T_app)
+    prior_dim: int = 64  # 0 = no-idm
+    fine: bool = True  # latent-interpolated fine geometry on/off (no-fine)
+    top_k: float = 0.02  # K as a fraction of patches per view (paper 2%)
+    upsample: int = 2  # fine tokens per selected patch = upsample^2
+    hidden: int = 256  # MaterialFormer width (paper 1024)
+    depth: int = 4  # MaterialFormer layers (paper 4)
+    heads: int = 4
+    feature_dim: int = 16  # neural material features per Gaussian
+    head: str = "neural"  # "neural" | "pbr" (no-neural)
+    decoder_width: int = 64  # universal decoder (paper 4 x 256)
+    decoder_depth: int = 3
+    dir_freqs: int = 0
+    near: float = 1.0  # the backbone's ray-distance bounds (Gaussian decoding)
+    far: float = 4.5
+    max_radius_px: float | None = 12.0  # footprint cap at render time (the backbone's, unless raster sets one)
+    saliency: dict = field(default_factory=dict)  # SaliencyConfig fields (top_k is taken from ``top_k``)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "FRNGConfig":
+        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @property
+    def uses_priors(self) -> bool:
+        return self.prior_dim > 0
+
+    def saliency_config(self) -> SaliencyConfig:
+        return SaliencyConfig.from_dict({**self.saliency, "top_k": self.top_k})
+
+    def materialformer_config(self) -> MaterialFormerConfig:
+        return MaterialFormerConfig(geo_dim=self.geo_dim, app_dim=self.geo_dim, prior_dim=self.prior_dim,
+                                    hidden=self.hidden, depth=self.depth, heads=self.heads, patch=self.patch,
+                                    feature_dim=self.feature_dim, head=self.head)
+
+
+@dataclass
+class Reconstruction:
+    """One object's relightable asset.
+
+    gaussians: N kept Gaussians (coarse then fine), ``features`` set to the per-Gaussian payload;
+    features: (N, F) neural material features (``head='neural'``) or None;
+    pbr: {"albedo" (N, 3), "roughness" (N, 1), "metallic" (N, 1), "normal" (N, 3)} (``head='pbr'``) or None;
+    patch_idx: (V, n) selected salient patches (flat ``row * w + col``; n = 0 columns for no-fine);
+    saliency: (V, H, W) S_final of the input views; num_coarse: how many of the N Gaussians are coarse;
+    t_mat: (1, L, hidden) material tokens (kept for the light-independence loss; None at inference).
+    """
+
+    gaussians: Gaussians
+    features: torch.Tensor | None
+    pbr: dict | None
+    patch_idx: torch.Tensor
+    saliency: torch.Tensor
+    num_coarse: int
+    t_mat: torch.Tensor | None = None
+
+
+class FRNG(nn.Module):
+    """F-RNG's trainable networks: PriorTokenizer, FineGeometry, MaterialHead, universal decoder.
+
+    See the module docstring for the data flow; :meth:`reconstruct` and :meth:`render` are the public API.
+    """
+
+    def __init__(self, cfg: FRNGConfig, raster: RasterConfig | None = None, shading: ShadingConfig | None = None):
+        super().__init__()
+        self.cfg = cfg
+        self.raster_cfg = raster or RasterConfig()
+        self.shading_cfg = shading or ShadingConfig()
+        self.tokenizer = PriorTokenizer(cfg.prior_dim, cfg.patch) if cfg.uses_priors else None
+        decode = GaussianDecodeConfig(near=cfg.near, far=cfg.far)
+        self.fine = FineGeometry(FineGeometryConfig(upsample=cfg.upsample, patch=cfg.patch, geo_dim=cfg.geo_dim,
+                                                    prior_dim=cfg.prior_dim), decode) if cfg.fine else None
+        self.material = MaterialHead(cfg.materialformer_config())
+        self.decoder = NeuralDecoder(cfg.feature_dim, cfg.decoder_width, cfg.decoder_depth, cfg.dir_freqs) \
+            if cfg.head == "neural" else None
+
+    # -- construction / files ------------------------------------------------------------------------------
+
+    @classmethod
+    def from_backbone(cls, cfg: FRNGConfig, backbone: nn.Module, raster: RasterConfig | None = None,
+                      shading: ShadingConfig | None = None) -> "FRNG":
+        """A fresh model whose FineGeoDetokenizer starts as the frozen backbone's GeoDetokenizer (weights copied,
+        nothing shared: the backbone gets no gradient)."""
+        model = cls(cfg, raster, shading)
+        if model.fine is not None:
+            model.fine.detokenizer.init_from(backbone.geo_detokenizer)
+        return model
+
+    def save(self, path: str | Path, extra: dict | None = None) -> None:
+        """``model.pt``: {"kind": "frng", "config", "raster", "shading", "state_dict", **extra} (atomic write)."""
+        from frng.training import save_torch
+
+        state = {"kind": MODEL_KIND, "config": self.cfg.to_dict(), "raster": asdict(self.raster_cfg),
+                 "shading": asdict(self.shading_cfg), "state_dict": self.state_dict()}
+        state.update(extra or {})
+        save_torch(state, path)
+
+    @classmethod
+    def load(cls, path: str | Path, device: torch.device | str = "cpu") -> "FRNG":
+        """Load ``results/models/{variant}/model.pt`` in eval mode on ``device``."""
+        state = torch.load(path, map_location="cpu", weights_only=False)
+        if state.get("kind") != MODEL_KIND:
+            raise ValueError(f"{path}: not an F-RNG model file (kind {state.get('kind')!r})")
+        model = cls(FRNGConfig.from_dict(state["config"]), RasterConfig(**state.get("raster", {})),
+                    ShadingConfig(**state.get("shading", {})))
+        model.load_state_dict(state["state_dict"])
+        model.meta = {k: v for k, v in state.items() if k not in ("state_dict",)}
+        return model.to(device).eval()
+
+    def decoder_meta(self) -> dict:
+        """Decoder architecture for the asset format (:mod:`frng.asset`): width, depth, input_encoding."""
+        enc = "raw" if self.cfg.dir_freqs == 0 else f"raw+sincos{self.cfg.dir_freqs}"
+        return {"width": self.cfg.decoder_width, "depth": self.cfg.decoder_depth,
+                "input_encoding": f"[feature({self.cfg.feature_dim}), {enc}(w_o world), {enc}(w_i world)]",
+                "dir_freqs": self.cfg.dir_freqs, "feature_dim": self.cfg.feature_dim, "output": "softplus RGB x cos",
+                "head": self.cfg.head}
+
+    @property
+    def device(self) -> torch.device:
+        return next(self.parameters()).device
+
+    # -- reconstruction -----------------------------------------------------------------------------------
+
+    def select_patches(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """images (V, H, W, 4) -> (patch_idx (V, n), S_final (V, H, W)); n = 0 when fine geometry is off."""
+        sal = saliency_map(images, None, self.cfg.saliency_config())
+        if self.fine is None:
+            return torch.zeros(images.shape[0], 0, dtype=torch.long, device=images.device), sal
+        return select_top_k(patch_scores(sal, self.cfg.patch), self.cfg.top_k), sal
+
+    def prior_tokens(self, priors, V: int) -> torch.Tensor | None:
+        """IntrinsicPriors (>= V views; the first V are used, matching the cache's view order) -> (V, h, w, Dp)."""
+        if self.tokenizer is None:
+            if priors is not None:
+                raise ValueError("this F-RNG variant has no prior path (no-idm) but was given IDM priors")
+            return None
+        if priors is None:
+            raise ValueError("this F-RNG variant needs IDM priors")
+        d = {k: v[:V].to(self.device).float() for k, v in priors.as_dict().items()}
+        return self.tokenizer(stack_priors(d))
+
+    def reconstruct(self, backbone_views: dict, light: int | list[int], priors=None, images: torch.Tensor = None,
+                    keep_tokens: bool = False) -> Reconstruction | list[Reconstruction]:
+        """Build the relightable asset of one object.
+
+        backbone_views: ``BackboneCache.views(V)`` (t_geo (V, h, w, D), means/quats/scales/opacities/keep (N = V*H*W),
+        c2w (V, 4, 4), intr (V, 4), light{j}.t_app (V, h, w, D)); light: cache light index (0 = input light), or a
+        list of indices -> one Reconstruction per light, sharing geometry (one batched MaterialFormer pass);
+        priors: IntrinsicPriors of the input views (first V used) or None (required None for no-idm);
+        images: (V, H, W, 4) input RGBA (linear premultiplied) under the input light, for the saliency map and
+        the fine keep mask. keep_tokens: also return T_mat (1, L, hidden) for L_ind.
+        """
+        dev = self.device
+        lights = [light] if isinstance(light, int) else list(light)
+        bv = {k: v.to(dev) for k, v in backbone_views.items()}
+        t_geo = bv["t_geo"].float()
+        V, h, w, _ = t_geo.shape
+        c2w, intr = bv["c2w"].float(), bv["intr"].float()
+        images = images.to(dev).float()
+        patch_idx, sal = self.select_patches(images)
+        t_prior = self.prior_tokens(priors, V)
+        coarse = Gaussians(bv["means"].float(), bv["quats"].float(), bv["scales"].float(), bv["opacities"].float())
+        keep_c = bv["keep"].bool()
+        apps = torch.stack([bv[f"light{j}.t_app"].float() for j in lights])  # (B, V, h, w, D)
+        B = len(lights)
+        if self.fine is not None:
+            fine = self.fine(t_geo, patch_idx, c2w, intr, t_prior)
+            keep_f = fine_keep_mask(fine.uv, images[..., 3])
+            geo_seq = to_sequence(t_geo, fine.t_geo)
+            app_seq = torch.cat([to_sequence(a, self.fine.interpolate(a, patch_idx)) for a in apps])
+            prior_seq = None if t_prior is None else to_sequence(t_prior, fine.t_prior)
+        else:
+            fine, keep_f = None, None
+            geo_seq, app_seq = to_sequence(t_geo), torch.cat([to_sequence(a) for a in apps])
+            prior_seq = None if t_prior is None else to_sequence(t_prior)
+        geo_seq = geo_seq.expand(B, -1, -1)
+        prior_seq = None if prior_seq is None else prior_seq.expand(B, -1, -1)
+        t_mat, g_mat = self.material(geo_seq, app_seq, prior_seq)  # (B, L, hid), (B, L, P, C)
+        g_coarse, g_fine = split_sequence(g_mat.float(), V, h, w)
+        out = []
+        for b in range(B):
+            feats = [coarse_features_to_pixels(g_coarse[b], self.cfg.patch).reshape(-1, g_mat.shape[-1])[keep_c]]
+            parts = [coarse[keep_c]]
+            if fine is not None:
+                feats.append(g_fine[b].reshape(-1, g_mat.shape[-1])[keep_f])
+                parts.append(fine.gaussians[keep_f])
+            raw = torch.cat(feats)
+            gauss = Gaussians.cat(parts)
+            if self.cfg.head == "neural":
+                feat, pbr = raw, None
+            else:
+                pbr = decode_pbr(raw)
+                feat = None
+                raw = torch.cat([pbr["albedo"], pbr["roughness"], pbr["metallic"], pbr["normal"]], -1)
+            out.append(Reconstruction(gauss.with_features(raw), feat, pbr, patch_idx, sal, int(keep_c.sum()),
+                                      t_mat[b : b + 1] if keep_tokens else None))
+        return out[0] if isinstance(light, int) else out
+
+    # -- rendering --------------------------------------------------------------------------------------------
+
+    def light_samples(self, env: torch.Tensor, spp: int, generator: torch.Generator | None = None):
+        """Importance samples of an (He, We, 3) env map (one set for the whole image), on the model's device."""
+        seed = 0 if generator is None else int(torch.randint(0, 2**31 - 1, (1,), generator=generator))
+        sampler = envmap.importance_sampler(env.detach().to(self.device))
+        return envmap.sample(sampler, spp, self.shading_cfg.sampling, seed)
+
+    def render(self, rec: Reconstruction, env: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, height: int,
+               width: int, spp: int | None = None, generator: torch.Generator | None = None,
+               spp_grad: int | None = None) -> torch.Tensor:
+        """Render a Reconstruction under an env map (He, We, 3) at cameras c2w (Vt, 4, 4), intr (Vt, 4).
+
+        Deferred shading: rasterize the per-Gaussian payload, then per foreground pixel a Monte-Carlo estimate
+        with ``spp`` importance samples of ``env`` (default ``shading.spp_infer``; ``spp_grad`` of them carry
+        gradients during training). Neural head: the universal decoder; pbr head: GGX. ``generator`` seeds the
+        sample set (None: seed 0). Returns RGBA (Vt, H, W, 4), linear, premultiplied over black.
+        """
+        dev = self.device
+        spp = spp or self.shading_cfg.spp_infer
+        samples = self.light_samples(env, spp, generator)
+        g = rec.gaussians
+        rc = self.raster_cfg
+        radius = rc.max_radius_px if rc.max_radius_px is not None else self.cfg.max_radius_px
+        kw = {**rc.kwargs(), "max_radius_px": radius}
+        c2w, intr = c2w.to(dev).float(), intr.to(dev).float()
+        maps, alpha, _ = rasterize(g.means, g.quats, g.scales, g.opacities, g.features.float(), c2w, intr,
+                                   height, width, **kw)
+        sc = self.shading_cfg
+        if self.cfg.head == "neural":
+            rgb = deferred_shade(self.decoder, [maps], alpha, c2w, intr, samples, spp_grad, sc.alpha_eps,
+                                 chunk=sc.chunk_pixels)
+        else:
+            split = [maps[..., 0:3], maps[..., 3:4], maps[..., 4:5], maps[..., 5:8]]
+            rgb = deferred_shade(_ggx_unit_normal, split, alpha, c2w, intr, samples, spp_grad, sc.alpha_eps,
+                                 chunk=sc.chunk_pixels)
+        return torch.cat([rgb, alpha], -1)
+
+
+def _ggx_unit_normal(albedo, roughness, metallic, normal, wo, wi):
+    """GGX on blended (un-premultiplied) maps: the blended normal is re-normalised first."""
+    n = normal / normal.norm(dim=-1, keepdim=True).clamp_min(1e-8)
+    return ggx_reflectance(albedo.clamp(0, 1), roughness.clamp(0.02, 1), metallic.clamp(0, 1), n, wo, wi)
+
+
+# -- variants from the pipeline config --------------------------------------------------------------------------
+
+def k_variant(percent: float) -> str:
+    """Name of the K-sweep variant for K = ``percent`` % (1 -> "k1", 0.5 -> "k0.5")."""
+    return f"k{percent:g}"
+
+
+def all_variants(config: dict) -> list[str]:
+    """Every variant the config asks for: ``frng.variants`` then the K sweep (``frng.k_sweep``, percent)."""
+    f = config["frng"]
+    out = list(f["variants"])
+    out += [k_variant(p) for p in f["k_sweep"] if k_variant(p) not in out]
+    return out
+
+
+def canonical_variant(config: dict, name: str) -> str:
+    """The variant whose training produces ``name``'s model: the K-sweep entry equal to the full model's K is the
+    full model itself (``k2`` -> ``full`` with the paper's K = 2%), so it is not trained twice."""
+    if name.startswith("k") and float(name[1:]) == float(config["frng"]["top_k_percent"]):
+        return "full"
+    return name
+
+
+def trained_variants(config: dict) -> list[str]:
+    """The variants that get a ``train`` job (aliases resolved, order kept, duplicates dropped)."""
+    return list(dict.fromkeys(canonical_variant(config, v) for v in all_variants(config)))
+
+
+def variant_config(config: dict, name: str, backbone_cfg: dict | None = None) -> tuple[FRNGConfig, LightIndependenceConfig]:
+    """(architecture, L_ind weights) of a variant from a validated pipeline config.
+
+    ``backbone_cfg``: the frozen backbone's architecture dict (its ``model.pt`` ``config``); the token width and
+    near/far/max_radius_px come from it (default: the config's ``backbone`` section).
+    """
+    f = config["frng"]
+    bb = backbone_cfg or config["backbone"]
+    cfg = FRNGConfig(
+        patch=config["model"]["patch_size"], geo_dim=bb["width"], prior_dim=f["prior_dim"], fine=True,
+        top_k=f["top_k_percent"] / 100.0, upsample=f["upsample"], hidden=f["hidden"], depth=f["depth"],
+        heads=f["heads"], feature_dim=f["feature_dim"], head="neural",
+        decoder_width=config["shading"]["decoder_width"], decoder_depth=config["shading"]["decoder_depth"],
+        dir_freqs=config["shading"]["dir_freqs"], near=bb.get("near", 1.0), far=bb.get("far", 4.5),
+        max_radius_px=bb.get("max_radius_px", 12.0), saliency=dict(f.get("saliency", {})),
+    )
+    loss = config["train"]["loss"]
+    ind = LightIndependenceConfig(lambda_c=loss["lambda_c"], lambda_kld=loss["lambda_kld"],
+                                  temperature=loss.get("temperature", 1.0))
+    name = canonical_variant(config, name)
+    if name == "full":
+        pass
+    elif name == "no-fine":
+        cfg = replace(cfg, fine=False)
+    elif name == "no-idm":
+        cfg = replace(cfg, prior_dim=0)
+    elif name == "no-ind":
+        ind = replace(ind, lambda_c=0.0, lambda_kld=0.0)
+    elif name == "no-neural":
+        cfg = replace(cfg, head="pbr")
+    elif name.startswith("k"):
+        try:
+            pct = float(name[1:])
+        except ValueError:
+            raise ValueError(f"unknown F-RNG variant {name!r}") from None
+        if not (0 < pct <= 100) or not math.isfinite(pct):
+            raise ValueError(f"K-sweep variant {name!r}: K must be in (0, 100] percent")
+        cfg = replace(cfg, top_k=pct / 100.0)
+    else:
+        raise ValueError(f"unknown F-RNG variant {name!r}; known: {', '.join(BASE_VARIANTS)}, k<percent>")
+    return cfg, ind
+
+
+__all__ = [
+    "BASE_VARIANTS", "FRNG", "FRNGConfig", "Reconstruction", "all_variants", "canonical_variant", "k_variant",
+    "trained_variants", "variant_config",
+]
