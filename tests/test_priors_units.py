@@ -12,7 +12,7 @@ from frng.priors import backbone as bb
 from frng import training as tr
 from frng.priors.diffusion_renderer import DiffusionRendererError, read_priors
 from frng.priors.idm import IDMConfig, LearnedIDM, idm_loss
-from frng.priors.sh import eval_sh
+from frng.render.sh import eval_sh
 
 TINY = {"width": 32, "heads": 2, "geo_depth": 1, "app_depth": 1, "env_height": 8, "sh_degree": 1, "den_views": 2}
 
@@ -85,10 +85,10 @@ def test_sh_degree0_and_1_match_closed_form():
     d = torch.nn.functional.normalize(torch.randn(10, 3), dim=-1)
     sh = torch.zeros(10, 4, 3)
     sh[:, 0] = 1.0
-    assert torch.allclose(eval_sh(sh, d), torch.full((10, 3), 0.28209479177387814))
+    assert torch.allclose(eval_sh(1, sh, d), torch.full((10, 3), 0.28209479177387814))
     sh = torch.zeros(10, 4, 1)
     sh[:, 2] = 1.0  # l=1, m=0 -> C1 * z
-    assert torch.allclose(eval_sh(sh, d)[:, 0], 0.4886025119029199 * d[:, 2], atol=1e-6)
+    assert torch.allclose(eval_sh(1, sh, d)[:, 0], 0.4886025119029199 * d[:, 2], atol=1e-6)
 
 
 def test_learned_idm_shapes_and_loss_decreases():

@@ -25,7 +25,7 @@ along the input pixel rays (RelitLRM's constants, ``near``/``far`` from the conf
 outside the object mask (input alpha < 0.5) are not rendered (``keep`` mask: the inputs are RGBA and the mask is
 known at inference too; this halves the rasterization cost and removes background floaters). Colour: the SH
 coefficients of a Gaussian are evaluated per rendering camera in the direction from the camera centre to the
-Gaussian's mean (:func:`frng.priors.sh.eval_sh`, real SH as in 3DGS), ``colour = max(SH(dir) + 0.5, 0)`` in the
+Gaussian's mean (:func:`frng.render.sh.eval_sh`, real SH as in 3DGS), ``colour = max(SH(dir) + 0.5, 0)`` in the
 DIFFUSION (gamma 1/2.2) space, rasterized over black: ``x0_hat = 2 * render - 1``; linear RGB = render^2.2.
 
 Denoising cameras (RelitLRM leaves them open):
@@ -54,7 +54,7 @@ from frng.gaussians import GaussianDecodeConfig, Gaussians, pixel_gaussians
 from frng.nn import PatchDetokenizer, PatchTokenizer, Transformer, timestep_embedding
 from frng.priors.diffusion import NoiseSchedule, from_diffusion_space, to_diffusion_space
 from frng.priors.envenc import EnvTokenizer
-from frng.priors.sh import eval_sh
+from frng.render.sh import eval_sh
 from frng.render import rasterize
 
 GEO_CHANNELS = 9  # distance 1, scale 3, rotation 4, opacity 1 (RelitLRM's split)
@@ -196,7 +196,7 @@ class RelitLRMBackbone(nn.Module):
         centres = c2w[:, :3, 3].float()
         dirs = gauss.means[None] - centres[:, None]  # (Vr, N, 3)
         dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-8)
-        colours = (eval_sh(sh.float()[None], dirs) + 0.5).clamp_min(0.0)  # (Vr, N, 3)
+        colours = (eval_sh(self.cfg.sh_degree, sh.float()[None], dirs) + 0.5).clamp_min(0.0)  # (Vr, N, 3)
         return rasterize(
             gauss.means, gauss.quats, gauss.scales, gauss.opacities, colours, c2w.float(), intr.float(),
             height, width, max_radius_px=self.cfg.max_radius_px,

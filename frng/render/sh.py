@@ -1,4 +1,5 @@
-"""Real spherical harmonics up to degree 3 (the standard 3DGS / gsplat basis and constants).
+"""Real spherical harmonics up to degree 4 (the standard 3DGS / gsplat basis and constants; degree 4 is
+RelitLRM's SH order, which stock 3DGS rasterizers stop short of).
 
 Basis order ``l = 0..3, m = -l..l`` (index ``l^2 + l + m``), with the sign convention of the 3DGS reference
 code (``Y_1,-1 = -C1 y``, ``Y_1,0 = C1 z``, ``Y_1,1 = -C1 x``, ...). The basis is orthonormal on the sphere,
@@ -15,6 +16,8 @@ C1 = 0.4886025119029199
 C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
 C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154, -0.4570457994644658,
       1.445305721320277, -0.5900435899266435)
+C4 = (2.5033429417967046, -1.7701307697799304, 0.9461746957575601, -0.6690465435572892, 0.10578554691520431,
+      -0.6690465435572892, 0.47308734787878004, -1.7701307697799304, 0.6258357354491761)
 
 
 def num_coeffs(degree: int) -> int:
@@ -22,9 +25,9 @@ def num_coeffs(degree: int) -> int:
 
 
 def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
-    """Real SH basis (..., (degree + 1)^2) at unit directions (..., 3); degree 0..3."""
-    if not 0 <= degree <= 3:
-        raise ValueError(f"SH degree must be 0..3, got {degree}")
+    """Real SH basis (..., (degree + 1)^2) at unit directions (..., 3); degree 0..4."""
+    if not 0 <= degree <= 4:
+        raise ValueError(f"SH degree must be 0..4, got {degree}")
     x, y, z = dirs.unbind(-1)
     out = [torch.full_like(x, C0)]
     if degree >= 1:
@@ -41,6 +44,18 @@ def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
             C3[4] * x * (4 * zz - xx - yy),
             C3[5] * z * (xx - yy),
             C3[6] * x * (xx - 3 * yy),
+        ]
+    if degree >= 4:
+        out += [
+            C4[0] * xy * (xx - yy),
+            C4[1] * yz * (3 * xx - yy),
+            C4[2] * xy * (7 * zz - 1),
+            C4[3] * yz * (7 * zz - 3),
+            C4[4] * (zz * (35 * zz - 30) + 3),
+            C4[5] * xz * (7 * zz - 3),
+            C4[6] * (xx - yy) * (7 * zz - 1),
+            C4[7] * xz * (xx - 3 * yy),
+            C4[8] * (xx * (xx - 3 * yy) - yy * (3 * xx - yy)),
         ]
     return torch.stack(out, dim=-1)
 
