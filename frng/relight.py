@@ -1,0 +1,364 @@
+"""Stage ``frng relight --object OBJ``: relight one held-out object with every F-RNG run and with the backbone.
+
+What one job does (one test object, all runs, so the paper-scale DAG stays at one job per test object):
+
+1. validates the inputs before anything is written: the object's meta.json, every input view EXR (present,
+   readable, RGBA, ``render.resolution`` square), every target light's env map (present, readable, 2:1).
+   Any problem raises :class:`RelightError` naming the file; no output folder is touched;
+2. per input-view count V (6, and the #views sweep 2, 4, 8, 10 where the object has them), LIVE backbone
+   geometry + appearance under the object's input light (the same seeded DDIM pass the cache stage runs, so
+   tokens match the training distribution) and live IDM priors -- timed;
+3. per run (:func:`runs`): load ``{results}/models/{variant}/model.pt``, reconstruct once (timed), render the
+   reconstruction under every target light at every target view (timed per light);
+4. the baseline: the backbone relit under each target light (one full DDIM pass per light, then rendering the
+   target views; timed per light), at the same views and resolution;
+5. writes, per run, ``{results}/relight/{run}/{obj}/{light}/{view}.exr`` (linear premultiplied RGBA) and
+   ``run.json``; the full run also keeps its relightable asset (``asset/``, :mod:`frng.asset`) and its
+   saliency (``saliency.npz``: ``saliency`` (V, H, W), ``patch_idx`` (V, n), ``image`` (V, H, W, 4)); and
+   ``{results}/relight/timing/{obj}.json`` with both methods' costs side by side.
+
+Everything is first written to a staging folder ``{results}/relight/.staging-{obj}-*`` and each run folder is
+renamed into place only after the whole object succeeded.
+
+Runs
+----
+``full`` (V = 6, K = ``frng.top_k_percent``), the ablations of ``frng.variants`` (``no-fine``, ``no-idm``,
+``no-ind``, ``no-neural``), the K sweep ``k1``, ``k4``, ``k8`` (``frng.k_sweep``; their own trained models; the
+entry equal to the full model's K is the full run), the #views sweep ``full-v{V}`` (the full model fed V input
+views), and ``backbone``.
+
+Timing (``timing/{obj}.json``)
+------------------------------
+``frng.reconstruction_s``: backbone geometry + appearance tokens (input light) + IDM priors + F-RNG
+reconstruction, V = 6; ``frng.relight_ms_per_image``: rendering the asset under one light at all target views,
+divided by the number of views, averaged over lights; ``backbone.reconstruction_s``: backbone geometry;
+``backbone.relight_ms_per_image``: one full denoising pass + rendering the target views, per image. Same
+resolution (the dataset's), same device, same job; F-RNG's ``spp`` is ``shading.spp_infer`` (the backbone has
+no light sampling: SH radiance).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from frng import config as frng_config
+from frng import envmap, io
+
+RIG_VIEWS = 6
+BACKBONE = "backbone"
+
+
+class RelightError(ValueError):
+    """Bad input to ``frng relight`` (names the file at fault); nothing was written."""
+
+
+@dataclass(frozen=True)
+class Run:
+    """One set of relit images of a test object: ``name`` is its folder under ``{results}/relight/``."""
+
+    name: str
+    method: str  # "F-RNG" or "backbone"
+    variant: str  # model variant (folder under results/models/), "backbone" for the baseline
+    views: int  # input views fed to the reconstruction
+    k_percent: float  # K of the model (NaN for the backbone)
+
+
+def sweep_views(n_input_views: int) -> list[int]:
+    """View counts of the #views sweep an object with ``n_input_views`` input views supports."""
+    from frng.priors.cache import view_counts
+
+    return view_counts("test", n_input_views)
+
+
+def runs(config: dict, n_input_views: int | None = None) -> list[Run]:
+    """All runs of one test object (``n_input_views`` None: the views the config gives every test object).
+
+    ``frng.variants`` at 6 views, the K sweep ``frng.k_sweep`` (the entry equal to ``frng.top_k_percent`` is the
+    full run itself), the #views sweep ``full-v{V}``, and the backbone."""
+    from frng.model.frng import canonical_variant, k_variant
+
+    if n_input_views is None:
+        n_input_views = RIG_VIEWS + int(config["render"].get("extra_input_views", 0))
+    f = config["frng"]
+    k_full = float(f["top_k_percent"])
+    out = [Run(v, "F-RNG", v, RIG_VIEWS, k_full) for v in dict.fromkeys(["full", *f["variants"]])]
+    for p in f["k_sweep"]:
+        name = k_variant(p)
+        if canonical_variant(config, name) != "full":
+            out.append(Run(name, "F-RNG", name, RIG_VIEWS, float(p)))
+    out += [Run(f"full-v{V}", "F-RNG", "full", V, k_full) for V in sweep_views(n_input_views) if V != RIG_VIEWS]
+    out.append(Run(BACKBONE, "backbone", BACKBONE, RIG_VIEWS, float("nan")))
+    return out
+
+
+def model_variants(config: dict) -> list[str]:
+    """The trained variants (``{results}/models/{variant}/model.pt``) the runs read."""
+    return list(dict.fromkeys(r.variant for r in runs(config) if r.method != BACKBONE))
+
+
+# -- validation --------------------------------------------------------------------------------------
+
+def validate_inputs(config: dict, oid: str) -> dict:
+    """Check everything ``relight`` reads, before anything is written. Returns the object's meta.json.
+
+    Raises :class:`RelightError` naming the file: missing/unreadable meta.json, a missing, corrupt or non-RGBA
+    input view, an input view that is not ``render.resolution`` square, a missing or non-2:1 env map."""
+    results = Path(config["results"])
+    root = results / "objects" / oid
+    try:
+        meta = io.read_json(root / "meta.json")
+    except (FileNotFoundError, ValueError) as e:
+        raise RelightError(f"{root / 'meta.json'}: cannot read object metadata ({e})") from e
+    for key in ("views", "input_lights", "target_lights"):
+        if key not in meta:
+            raise RelightError(f"{root / 'meta.json'}: missing key {key!r}")
+    res = int(config["render"]["resolution"])
+    light_in = meta["input_lights"][0]
+    for cam in meta["views"]["inputs"]:
+        path = root / "inputs" / light_in / f"{cam['name']}.exr"
+        try:
+            img = io.read_rgba(path)
+        except io.ImageError as e:
+            raise RelightError(f"input view: {e}") from e
+        if img.shape[:2] != (res, res):
+            raise RelightError(f"{path}: input view is {img.shape[1]}x{img.shape[0]}, expected {res}x{res} "
+                               f"(render.resolution)")
+        if not np.all(np.isfinite(img)):
+            raise RelightError(f"{path}: input view contains NaN or inf")
+    for light in dict.fromkeys([light_in] + list(meta["target_lights"])):
+        try:
+            envmap.read(results / "envmaps" / f"{light}.exr")
+        except envmap.EnvMapError as e:
+            raise RelightError(f"environment map: {e}") from e
+    return meta
+
+
+# -- the work ------------------------------------------------------------------------------------------
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+class Timer:
+    """Wall-clock seconds of a block, synchronising CUDA at both ends: ``with Timer(dev) as t: ...; t.s``."""
+
+    def __init__(self, device: torch.device):
+        self.device, self.s = device, 0.0
+
+    def __enter__(self):
+        _sync(self.device)
+        self.t0 = time.perf_counter()
+        return self
+
+    def __exit__(self, *exc):
+        _sync(self.device)
+        self.s = time.perf_counter() - self.t0
+
+
+def backbone_views(config: dict, backbone, oid: str, views, env_in: torch.Tensor, light_in: str, device) -> dict:
+    """The backbone's tokens for V input views, live, keyed as a cache entry (:class:`frng.priors.cache.
+    BackboneCache.views`): t_geo (V, h, w, D), raw (V, H, W, 9), means/quats/scales/opacities, keep (N,) uint8,
+    c2w, intr, light0.t_app (V, h, w, D), light0.sh (N, K, 3); light 0 = the input light, with the DDIM seed
+    the cache stage uses."""
+    from frng.data import catalog
+
+    rgb, a, c2w, intr = (x.to(device) for x in (views.rgb, views.alpha, views.c2w, views.intr))
+    H, W = rgb.shape[1:3]
+    t_geo, raw, gauss, keep = backbone.reconstruct(rgb, a, c2w, intr)
+    nd = backbone.cfg.den_views
+    g = torch.Generator(device=device).manual_seed(catalog.derive_seed(config["seed"], "cache", oid, light_in))
+    sh, t_app = backbone.denoise(t_geo, gauss, keep, env_in.to(device)[None], c2w[:nd], intr[:nd], H, W,
+                                 generator=g)
+    return {"t_geo": t_geo[0].float(), "raw": raw.float(), "means": gauss.means, "quats": gauss.quats,
+            "scales": gauss.scales, "opacities": gauss.opacities, "keep": keep.to(torch.uint8), "c2w": c2w,
+            "intr": intr, "light0.t_app": t_app[0].float(), "light0.sh": sh.float()}
+
+
+def _write_images(folder: Path, light: str, names: list[str], rgba: torch.Tensor) -> None:
+    """rgba (Vt, H, W, 4) linear premultiplied -> folder/light/{view}.exr."""
+    arr = rgba.detach().float().cpu().numpy()
+    for k, name in enumerate(names):
+        io.write_exr(folder / light / f"{name}.exr", arr[k], channels=["R", "G", "B", "A"])
+
+
+def relight_object(config: dict, oid: str, models: dict[str, Path], backbone_path: Path, out_root: Path,
+                   device: torch.device) -> dict:
+    """Do the whole job for one object (see the module docstring). ``models``: variant -> model.pt.
+
+    Writes into ``out_root`` (a staging folder): ``{run}/...`` folders and ``timing.json``. Returns the timing."""
+    from frng.data import catalog
+    from frng.model.frng import FRNG
+    from frng.priors import build_idm, load_backbone
+    from frng.priors.dataset import load_object
+
+    idm = build_idm(config, device)
+    obj = load_object(config, oid, with_targets=False, with_gbuffer=idm.kind == "oracle")
+    meta = io.read_json(Path(config["results"], "objects", oid, "meta.json"))
+    light_in = obj.input_lights[0]
+    views_all = obj.inputs[light_in]
+    cams_t = meta["views"]["targets"]
+    t_names = [c["name"] for c in cams_t]
+    t_c2w = torch.tensor(np.array([c["c2w"] for c in cams_t]), dtype=torch.float32, device=device)
+    t_intr = torch.tensor(np.array([c["intrinsics"] for c in cams_t]), dtype=torch.float32, device=device)
+    H, W = views_all.rgb.shape[1:3]
+    lights = obj.target_lights or list(meta["target_lights"])
+    envs = {l: obj.envs[l].to(device) for l in lights}
+    spp = int(config["shading"]["spp_infer"])
+    the_runs = runs(config, len(views_all))
+    backbone = load_backbone(backbone_path, device)
+
+    # live priors per view count (shared by every run with that V)
+    prepared: dict[int, dict] = {}
+    with torch.no_grad():
+        with Timer(device) as t_idm:
+            pri_all = idm.priors(oid, views_all, obj.gbuffer)
+        for V in sorted({r.views for r in the_runs}):
+            v = views_all.select(range(V))
+            with Timer(device) as t_bb:
+                bv = backbone_views(config, backbone, oid, v, obj.envs[light_in], light_in, device)
+            images = torch.cat([v.rgb, v.alpha], -1).to(device)
+            prepared[V] = {"bv": bv, "images": images, "priors": pri_all.select(slice(0, V)).to(device),
+                           "names": v.names, "backbone_s": t_bb.s}
+
+    timing: dict = {"object": oid, "device": str(device), "resolution": int(H), "spp": spp,
+                    "target_views": len(t_names), "lights": len(lights), "idm_s": t_idm.s}
+    loaded: dict[str, object] = {}
+    for run in the_runs:
+        folder = out_root / run.name
+        folder.mkdir(parents=True)
+        p = prepared[run.views]
+        per_light_ms = []
+        if run.method == BACKBONE:
+            rgb, a = p["images"][..., :3], p["images"][..., 3:4]
+            c2w, intr = p["bv"]["c2w"], p["bv"]["intr"]
+            nd = backbone.cfg.den_views
+            with torch.no_grad():
+                with Timer(device) as t_rec:
+                    t_geo, _, gauss, keep = backbone.reconstruct(rgb, a, c2w, intr)
+                for light in lights:
+                    g = torch.Generator(device=device).manual_seed(
+                        catalog.derive_seed(config["seed"], "relight", oid, light))
+                    with Timer(device) as t_l:
+                        sh, _ = backbone.denoise(t_geo, gauss, keep, envs[light][None], c2w[:nd], intr[:nd], H, W,
+                                                 generator=g)
+                        out, out_a, _ = backbone.render(gauss, sh, t_c2w, t_intr, H, W, keep)
+                        rgba = torch.cat([out.clamp(0.0, 1.0) ** 2.2, out_a], -1)
+                    per_light_ms.append(1000.0 * t_l.s / len(t_names))
+                    _write_images(folder, light, t_names, rgba)
+            rec_s = t_rec.s
+        else:
+            if run.variant not in loaded:
+                loaded[run.variant] = FRNG.load(models[run.variant], device)
+            model = loaded[run.variant]
+            priors = p["priors"] if model.cfg.uses_priors else None
+            with torch.no_grad():
+                with Timer(device) as t_rec:
+                    rec = model.reconstruct(p["bv"], 0, priors, p["images"])
+                for i, light in enumerate(lights):
+                    g = torch.Generator(device=device).manual_seed(
+                        catalog.derive_seed(config["seed"], "relight-frng", oid, light))
+                    with Timer(device) as t_l:
+                        rgba = model.render(rec, envs[light], t_c2w, t_intr, H, W, spp, generator=g)
+                    per_light_ms.append(1000.0 * t_l.s / len(t_names))
+                    _write_images(folder, light, t_names, rgba)
+            rec_s = t_rec.s + p["backbone_s"] + t_idm.s
+            if run.name == "full":
+                _save_full_extras(folder, model, rec, p, oid, run)
+        info = asdict(run) | {"object": oid, "lights": lights, "target_views": t_names, "input_views": p["names"],
+                              "resolution": int(H), "spp": spp if run.method != BACKBONE else None,
+                              "reconstruction_s": rec_s, "relight_ms_per_image": float(np.mean(per_light_ms)),
+                              "relight_ms_per_light_image": per_light_ms}
+        io.write_json(folder / "run.json", info)
+        if run.name in ("full", BACKBONE):
+            timing[run.method] = {"reconstruction_s": rec_s, "relight_ms_per_image": float(np.mean(per_light_ms)),
+                                  "spp": info["spp"]}
+    timing["speedup"] = timing[BACKBONE]["relight_ms_per_image"] / timing["F-RNG"]["relight_ms_per_image"]
+    io.write_json(out_root / "timing.json", timing)
+    return timing
+
+
+def _save_full_extras(folder: Path, model, rec, p: dict, oid: str, run: Run) -> None:
+    """The full run's relightable asset and its saliency (for the figures)."""
+    from frng.asset import save_asset
+
+    if rec.features is not None:
+        meta = {"object_id": oid, "source_views": p["names"], "decoder": model.decoder_meta(),
+                "variant": run.variant, "k_percent": run.k_percent}
+        save_asset(folder / "asset", rec.gaussians, rec.features, model.decoder.state_dict(), meta)
+    np.savez_compressed(folder / "saliency.npz", saliency=rec.saliency.detach().float().cpu().numpy(),
+                        patch_idx=rec.patch_idx.detach().cpu().numpy(),
+                        image=p["images"].detach().float().cpu().numpy())
+
+
+def publish(staging: Path, results: Path, oid: str) -> None:
+    """Move each staged run folder to ``{results}/relight/{run}/{oid}`` and the timing to
+    ``{results}/relight/timing/{oid}.json`` (an existing, e.g. snakemake-created empty, folder is replaced)."""
+    for folder in sorted(p for p in staging.iterdir() if p.is_dir()):
+        dest = results / "relight" / folder.name / oid
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        if dest.exists():
+            shutil.rmtree(dest)
+        os.replace(folder, dest)
+    timing = results / "relight" / "timing" / f"{oid}.json"
+    timing.parent.mkdir(parents=True, exist_ok=True)
+    os.replace(staging / "timing.json", timing)
+
+
+def relight(config: dict, oid: str, models_dir: Path | None = None, device: str | None = None) -> dict:
+    """Validate, relight into a staging folder, publish. Returns the timing dict."""
+    from frng import training as tr
+
+    results = Path(config["results"])
+    validate_inputs(config, oid)
+    models_dir = Path(models_dir or results / "models")
+    models = {v: models_dir / v / "model.pt" for v in model_variants(config)}
+    missing = [str(p) for p in models.values() if not p.exists()]
+    if missing:
+        raise RelightError(f"trained F-RNG model(s) missing: {missing}; run the train rules first")
+    backbone = results / "backbone" / "model.pt"
+    if not backbone.exists():
+        raise RelightError(f"{backbone}: backbone model missing")
+    dev = tr.resolve_device(device or config["device"])
+    (results / "relight").mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".staging-{oid}-", dir=results / "relight"))
+    try:
+        timing = relight_object(config, oid, models, backbone, staging, dev)
+        publish(staging, results, oid)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return timing
+
+
+# -- CLI ------------------------------------------------------------------------------------------------
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    frng_config.add_config_argument(parser)
+    parser.add_argument("--object", required=True, help="test object id")
+    parser.add_argument("--models", help="folder of trained variants (default {results}/models)")
+    parser.add_argument("--device", help="override the config's device")
+
+
+def run(args: argparse.Namespace) -> int:
+    config = frng_config.load(args.config)
+    try:
+        timing = relight(config, args.object, args.models, args.device)
+    except RelightError as e:
+        print(f"frng relight: error: {e}")
+        return 2
+    f, b = timing["F-RNG"], timing[BACKBONE]
+    print(f"relight {args.object}: F-RNG {f['relight_ms_per_image']:.1f} ms/image, backbone "
+          f"{b['relight_ms_per_image']:.1f} ms/image ({timing['speedup']:.1f}x) at {timing['resolution']} px, "
+          f"F-RNG reconstruction {f['reconstruction_s']:.2f} s")
+    print(json.dumps(timing, indent=1))
+    return 0
