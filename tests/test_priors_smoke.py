@@ -19,22 +19,11 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture(scope="module")
-def smoke(tmp_path_factory):
-    pytest.importorskip("bpy")
-    d = tmp_path_factory.mktemp("priors_smoke")
-    cfg = yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text())
-    cfg["results"] = str(d / "results")
-    path = d / "smoke.yaml"
-    path.write_text(yaml.safe_dump(cfg))
-    config = frng_config.load(path)
-    py = [sys.executable, "-m", "frng"]
-    subprocess.run(py + ["envmaps", "--config", str(path)], check=True, cwd=d, capture_output=True)
-    from frng.data import catalog
+def smoke(smoke_dataset, tmp_path_factory):
+    """Own results folder on the session's shared smoke dataset (tests/conftest.py)."""
+    from conftest import smoke_results
 
-    for oid in catalog.plan(config).object_ids:
-        subprocess.run(py + ["curate", "--config", str(path), "--object", oid], check=True, cwd=d,
-                       capture_output=True)
-    return path, config
+    return smoke_results(smoke_dataset, tmp_path_factory.mktemp("priors_smoke"))
 
 
 def _rows(p):

@@ -1,0 +1,333 @@
+"""Stage ``frng train``: train one F-RNG variant on the training split from the frozen priors' caches.
+
+Loss (supplement, "Model and training details")::
+
+    L = lambda_1 L_2 + lambda_per L_per + L_ind,      (lambda_c, lambda_KLD, lambda_1, lambda_per) = (0.2, 0.2, 1.0, 0.5)
+
+One step = ``train.batch`` objects (split over ranks under torchrun/srun, :mod:`frng.distributed`); per object:
+
+1. read from memory what the caches hold (never the backbone): the V-view backbone entry (T_geo, per-pixel
+   Gaussians, keep, cameras, T_app per cached light), its IDM priors (not even opened for ``no-idm``) and its
+   input images (saliency + fine keep mask);
+2. reconstruct from the input light (cache light 0); with L_ind on, the MaterialFormer also runs on the
+   appearance tokens of a random extra cached light j >= 1 (same T_geo, T_prior and salient patches; one
+   batched pass) and ``L_ind = lambda_c C + lambda_KLD KL`` compares the two T_mat (:mod:`frng.model.light_independence`);
+   for ``no-ind`` the second pass is skipped (its weights are zero);
+3. target light: uniform over the object's target lights and its other input lights; ``train.target_views`` random
+   views of it (target views, or input views for an input light); render under that light's env map with
+   ``shading.spp_train`` importance samples of which ``shading.spp_grad`` carry gradients (paper 64 / 24);
+4. L_2: mean squared error over foreground pixels (target alpha > 0.5 or rendered alpha > 0.5) of the
+   premultiplied RGB after ``x -> (max(x, 0) + 1e-4)^(1/2.2)`` (a display-like encoding without an upper clamp,
+   so over-bright predictions still get a gradient); L_per: LPIPS-vgg (real ImageNet weights,
+   :class:`frng.perceptual.PerceptualLoss`) on the sRGB-encoded renders over black.
+
+The frozen backbone is loaded once, only to copy its GeoDetokenizer into the FineGeoDetokenizer (and for its
+architecture); it is never run and gets no gradient. Outputs in ``--out`` (default ``{results}/models/{variant}``):
+``model.pt`` (:meth:`FRNG.save`), ``checkpoint.pt`` (resume: rerunning the same command continues from it),
+``loss.csv``, ``loss.png``, ``train.json`` (steps, wall time, device, step time). Seeds are fixed
+(``config.seed``); AdamW with linear warm-up + cosine decay; bf16 autocast for the networks (``train.bf16``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import random
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import torch
+from torch import nn
+from tqdm import tqdm
+
+from frng import config as frng_config
+from frng import distributed, envmap, io
+from frng import training as tr
+from frng.model.frng import FRNG, FRNGConfig, all_variants, canonical_variant, trained_variants, variant_config
+from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
+
+CACHE_KEYS = ("t_geo", "means", "quats", "scales", "opacities", "keep", "c2w", "intr")  # + light{j}.t_app
+LOSS_NAMES = ["total", "l2", "perceptual", "ind", "ind_cos", "ind_kld"]
+
+
+@dataclass
+class TrainConfig:
+    """Typed view of the config's ``train`` section (see config/README.md)."""
+
+    steps: int = 300
+    ablation_steps: int | None = None
+    lr: float = 1e-3
+    warmup: int = 20
+    weight_decay: float = 0.01
+    grad_clip: float = 1.0
+    batch: int = 1
+    target_views: int = 2
+    views: int = 6
+    perceptual_net: str = "vgg"
+    bf16: bool = True
+    checkpoint_every: int = 25
+    loss: dict = field(default_factory=lambda: {"lambda_1": 1.0, "lambda_per": 0.5, "lambda_c": 0.2,
+                                                "lambda_kld": 0.2, "temperature": 1.0})
+
+    @classmethod
+    def from_config(cls, config: dict) -> "TrainConfig":
+        d = config.get("train", {})
+        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+
+    def steps_for(self, variant: str) -> int:
+        return self.steps if variant == "full" or self.ablation_steps is None else self.ablation_steps
+
+
+@dataclass
+class TrainObject:
+    """What training reads of one object (all CPU tensors)."""
+
+    id: str
+    views: dict  # CACHE_KEYS + light{j}.t_app of the V-view cache entry
+    lights: int  # cached lights (0 = input light)
+    priors: object | None  # IntrinsicPriors or None (no-idm: never read)
+    images: torch.Tensor  # (V, H, W, 4) input views under the input light
+    targets: list  # [(light name, env (He, We, 3), c2w (Vt, 4, 4), intr (Vt, 4), rgba (Vt, H, W, 4))]
+
+
+def load_objects(config: dict, ids: list[str], backbone_path: Path, use_priors: bool, V: int) -> list[TrainObject]:
+    """Read caches + curated images of ``ids``. IDM priors are opened only when ``use_priors``."""
+    from frng.data.dataset import open_object
+    from frng.priors.cache import load_backbone_cache, load_idm_priors
+
+    res = Path(config["results"])
+    idm_model = res / "idm" / "model.pt" if config["idm"]["kind"] == "learned" else None
+    envs: dict[str, torch.Tensor] = {}
+    out = []
+    for oid in ids:
+        cache = load_backbone_cache(res / "backbone" / "cache" / f"{oid}.safetensors", backbone_path)
+        allv = cache.views(V)
+        lights = len(cache.lights)
+        views = {k: allv[k] for k in CACHE_KEYS}
+        views.update({f"light{j}.t_app": allv[f"light{j}.t_app"] for j in range(lights)})
+        priors = None
+        if use_priors:
+            priors, _ = load_idm_priors(res / "priors" / "idm" / f"{oid}.safetensors", idm_model)
+            priors = priors.select(slice(0, V))
+        obj = open_object(res, oid)
+        light_in = cache.meta["input_light"]
+        names = cache.meta["view_names"][str(V)]
+        images = obj.images("inputs", light_in, names, torch=True)
+        targets = []
+        kinds = [("targets", l) for l in obj.target_lights] + [("inputs", l) for l in obj.input_lights if l != light_in]
+        for kind, light in kinds:
+            if light not in envs:
+                envs[light] = torch.from_numpy(envmap.read(obj.envmap_path(light, res))).float()
+            c2w, K = obj.cameras(kind, None, torch=True)
+            targets.append((light, envs[light], c2w, K, obj.images(kind, light, None, torch=True)))
+        out.append(TrainObject(oid, views, lights, priors, images, targets))
+    return out
+
+
+def encode_display(x: torch.Tensor) -> torch.Tensor:
+    """The L_2 space: (max(x, 0) + 1e-4)^(1/2.2), no upper clamp (see the module docstring)."""
+    return (x.clamp_min(0.0) + 1e-4) ** (1.0 / 2.2)
+
+
+class StepLoss(nn.Module):
+    """One training step's loss over a list of objects; a module so DDP can wrap it (its forward is the step)."""
+
+    def __init__(self, model: FRNG, ind: LightIndependenceConfig, tcfg: TrainConfig, perceptual: nn.Module | None,
+                 bf16: bool):
+        super().__init__()
+        self.model, self.ind, self.tcfg, self.bf16 = model, ind, tcfg, bf16
+        self.perceptual = perceptual  # frozen (no parameters require grad)
+        w = tcfg.loss
+        self.lambda_1, self.lambda_per = w["lambda_1"], w["lambda_per"]
+
+    @property
+    def ind_on(self) -> bool:
+        return self.ind.lambda_c > 0 or self.ind.lambda_kld > 0
+
+    def forward(self, samples: list[tuple[TrainObject, int, int, list[int], int]]) -> tuple[torch.Tensor, dict]:
+        """samples: [(object, extra light j, target index, target view indices, sample seed)] -> (loss, logs)."""
+        m = self.model
+        dev = m.device
+        sc = m.shading_cfg
+        total = torch.zeros((), device=dev)
+        logs = {k: 0.0 for k in LOSS_NAMES}
+        for obj, j, ti, vidx, seed in samples:
+            lights = [0, j] if self.ind_on and obj.lights > 1 else [0]
+            with tr.autocast(dev, self.bf16):
+                recs = m.reconstruct(obj.views, lights, obj.priors, obj.images, keep_tokens=True)
+            _, env, c2w, K, rgba = obj.targets[ti]
+            vi = torch.as_tensor(vidx)
+            tgt = rgba[vi].to(dev)
+            H, W = tgt.shape[1:3]
+            gen = torch.Generator().manual_seed(seed)
+            out = m.render(recs[0], env, c2w[vi], K[vi], H, W, spp=sc.spp_train, generator=gen,
+                           spp_grad=sc.spp_grad)
+            fg = ((tgt[..., 3:4] > 0.5) | (out[..., 3:4].detach() > 0.5)).float()
+            diff = (encode_display(out[..., :3]) - encode_display(tgt[..., :3])) ** 2 * fg
+            l2 = diff.sum() / (3 * fg.sum()).clamp_min(1.0)
+            loss = self.lambda_1 * l2
+            logs["l2"] += float(l2.detach())
+            if self.perceptual is not None and self.lambda_per > 0:
+                per = self.perceptual(out[..., :3].permute(0, 3, 1, 2), tgt[..., :3].permute(0, 3, 1, 2))
+                loss = loss + self.lambda_per * per
+                logs["perceptual"] += float(per.detach())
+            if len(recs) > 1:
+                ind, parts = light_independence_loss(recs[0].t_mat, recs[1].t_mat, self.ind)
+                loss = loss + ind
+                logs["ind"] += float(ind.detach())
+                logs["ind_cos"] += float(parts["cos"])
+                logs["ind_kld"] += float(parts["kld"])
+            total = total + loss / len(samples)
+            logs["total"] += float(loss.detach())
+        return total, {k: v / len(samples) for k, v in logs.items()}
+
+
+def sample(obj: TrainObject, rng: random.Random, n_views: int) -> tuple[int, int, list[int]]:
+    """(extra light j, target index, target view indices) of one object (see the module docstring)."""
+    j = rng.randrange(1, obj.lights) if obj.lights > 1 else 0
+    ti = rng.randrange(len(obj.targets))
+    nv = obj.targets[ti][2].shape[0]
+    vidx = sorted(rng.sample(range(nv), min(n_views, nv)))
+    return j, ti, vidx
+
+
+def build_model(config: dict, variant: str, backbone_path: Path, device) -> tuple[FRNG, LightIndependenceConfig]:
+    """A fresh variant model, FineGeoDetokenizer initialised from the frozen backbone's GeoDetokenizer."""
+    from frng.priors import load_backbone
+    from frng.render import RasterConfig
+    from frng.render.shading import ShadingConfig
+
+    backbone = load_backbone(backbone_path, "cpu")
+    cfg, ind = variant_config(config, variant, backbone.cfg.to_dict())
+    model = FRNG.from_backbone(cfg, backbone, RasterConfig.from_config(config), ShadingConfig.from_config(config))
+    return model.to(device), ind
+
+
+def train(config: dict, variant: str, out: Path, backbone_path: Path | None = None, steps: int | None = None,
+          stop_after: int | None = None, objects: list[TrainObject] | None = None) -> Path:
+    """Train (or resume) one variant; returns ``out/model.pt`` (or the checkpoint when stopped by ``stop_after``,
+    which tests use to simulate an interruption)."""
+    variant = canonical_variant(config, variant)
+    res = Path(config["results"])
+    backbone_path = Path(backbone_path or res / "backbone" / "model.pt")
+    tcfg = TrainConfig.from_config(config)
+    total = steps or tcfg.steps_for(variant)
+    info = distributed.init(config.get("device", "auto"))
+    device = info.device
+    distributed.seed_everything(config["seed"], info, per_rank=False)  # identical init on every rank
+    model, ind = build_model(config, variant, backbone_path, device)
+    if objects is None:
+        from frng.data import catalog
+
+        ids = distributed.shard_items(catalog.plan(config).split("train"), info)
+        objects = load_objects(config, ids, backbone_path, model.cfg.uses_priors, tcfg.views)
+    if not objects:
+        raise ValueError("frng train: no training objects on this rank")
+    perceptual = None
+    if tcfg.loss["lambda_per"] > 0:
+        from frng.perceptual import PerceptualLoss
+
+        perceptual = PerceptualLoss("lpips", net=tcfg.perceptual_net, srgb=True,
+                                    autocast_bf16=tcfg.bf16 and device.type == "cpu").to(device)
+    step_loss = StepLoss(model, ind, tcfg, perceptual, tcfg.bf16)
+    ddp = distributed.wrap(step_loss, info, find_unused_parameters=True)
+    params = [p for p in model.parameters() if p.requires_grad]
+    opt = torch.optim.AdamW(params, lr=tcfg.lr, betas=(0.9, 0.99), weight_decay=tcfg.weight_decay)
+    fingerprint = {"variant": variant, "arch": model.cfg.to_dict(), "train": asdict(tcfg), "steps": total,
+                   "seed": config["seed"], "shading": asdict(model.shading_cfg), "world": info.world_size,
+                   "backbone_sha256": tr.file_sha256(backbone_path)}
+    out.mkdir(parents=True, exist_ok=True)
+    ckpt = tr.Checkpointer(out, tcfg.checkpoint_every)
+    state = ckpt.load(model, opt, fingerprint)
+    start = state["step"] if state else 0
+    rng = random.Random(distributed.rank_seed(config["seed"], info))
+    if state:
+        rng.setstate(state["sample_rng"][info.rank] if info.distributed else state["sample_rng"])
+    log = tr.LossLog(out, LOSS_NAMES) if info.is_main else None
+    if log:
+        log.truncate(start)
+    timer = tr.Timer(state["elapsed"] if state else 0.0)
+    local_batch = max(1, tcfg.batch // info.world_size)
+    model.train()
+    bar = tqdm(range(start, total), initial=start, total=total, desc=f"train {variant}", dynamic_ncols=True,
+               disable=not info.is_main)
+    ran, t_steps = 0, []
+
+    def save_ckpt(step):
+        rs = rng.getstate()
+        if info.distributed:
+            gathered = [None] * info.world_size
+            torch.distributed.all_gather_object(gathered, rs)
+            rs = gathered
+        if info.is_main:
+            ckpt.save(step, model, opt, fingerprint, {"sample_rng": rs, "elapsed": timer.elapsed()})
+        distributed.barrier(info)
+
+    for step in bar:
+        t0 = time.time()
+        for g in opt.param_groups:
+            g["lr"] = tr.cosine_lr(step, total, tcfg.lr, tcfg.warmup)
+        opt.zero_grad(set_to_none=True)
+        samples = []
+        for b in range(local_batch):
+            obj = objects[rng.randrange(len(objects))]
+            j, ti, vidx = sample(obj, rng, tcfg.target_views)
+            seed = (config["seed"] * 1_000_003 + step * 1009 + info.rank * 31 + b) % (2**31 - 1)
+            samples.append((obj, j, ti, vidx, seed))
+        loss, logs = ddp(samples)
+        loss.backward()
+        gnorm = torch.nn.utils.clip_grad_norm_(params, tcfg.grad_clip)
+        if torch.isfinite(gnorm):
+            opt.step()
+        logs = distributed.all_reduce_scalars(logs, info)
+        t_steps.append(time.time() - t0)
+        if log:
+            log.append(step + 1, timer.elapsed(), logs)
+        bar.set_postfix(loss=f"{logs['total']:.4f}", l2=f"{logs['l2']:.4f}")
+        ran += 1
+        if ckpt.due(step + 1, total):
+            save_ckpt(step + 1)
+            if log:
+                log.plot(f"F-RNG {variant} training loss")
+        if stop_after is not None and ran >= stop_after and step + 1 < total:
+            save_ckpt(step + 1)
+            return out / "checkpoint.pt"
+    bar.close()
+    path = out / "model.pt"
+    if info.is_main:
+        log.plot(f"F-RNG {variant} training loss")
+        model.save(path, {"variant": variant, "steps": total, "backbone_sha256": fingerprint["backbone_sha256"]})
+        io.write_json(out / "train.json", {
+            "variant": variant, "steps": total, "wall_s": round(timer.elapsed(), 1), "device": str(device),
+            "world_size": info.world_size, "bf16": tcfg.bf16, "objects": len(objects) * info.world_size,
+            "step_s_mean_this_run": round(sum(t_steps) / max(1, len(t_steps)), 3),
+            "parameters": sum(p.numel() for p in model.parameters())})
+    distributed.barrier(info)
+    return path
+
+
+# -- CLI -----------------------------------------------------------------------------------------------------
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    frng_config.add_config_argument(parser)
+    parser.add_argument("--variant", default="full", help="full, no-fine, no-idm, no-ind, no-neural, k<percent>")
+    parser.add_argument("--out", help="output folder (default {results}/models/{variant})")
+    parser.add_argument("--backbone", help="frozen backbone file (default {results}/backbone/model.pt)")
+    parser.add_argument("--steps", type=int, help="override train.steps / train.ablation_steps")
+    parser.add_argument("--list-variants", action="store_true", help="print the config's variants and exit")
+
+
+def run(args: argparse.Namespace) -> int:
+    config = frng_config.load(args.config)
+    if args.list_variants:
+        for v in all_variants(config):
+            c = canonical_variant(config, v)
+            print(v if c == v else f"{v} (= {c})")
+        return 0
+    if args.variant not in all_variants(config) and canonical_variant(config, args.variant) not in trained_variants(config):
+        variant_config(config, args.variant)  # raises for unknown names; other k<percent> values are allowed
+    out = Path(args.out or Path(config["results"], "models", args.variant))
+    path = train(config, args.variant, out, args.backbone, steps=args.steps)
+    print(f"train: wrote {path}")
+    distributed.cleanup()
+    return 0

@@ -1,0 +1,156 @@
+"""F-RNG training on the smoke tier (frng/train.py): frozen backbone gets no gradient, no-idm never reads priors,
+a short run lowers the relighting loss, kill + rerun resumes. Priors: a tiny backbone trained here + oracle IDM
+priors (G-buffers), on the session's shared smoke dataset (tests/conftest.py)."""
+
+import csv
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+from conftest import smoke_results
+
+
+@pytest.fixture(scope="module")
+def frng_smoke(smoke_dataset, tmp_path_factory):
+    from frng.data import catalog
+    from frng.priors import backbone_train, cache
+    from frng.priors.dataset import load_split
+
+    d = tmp_path_factory.mktemp("train_smoke")
+    path, config = smoke_results(smoke_dataset, d, idm={"kind": "oracle"})
+    res = Path(config["results"])
+    model = backbone_train.train(config, load_split(config, "train"), res / "backbone")
+    for oid in catalog.plan(config).split("train"):
+        cache.make_backbone_cache(config, oid, model, res / "backbone" / "cache" / f"{oid}.safetensors")
+        cache.make_idm_priors(config, oid, res / "priors" / "idm" / f"{oid}.safetensors")
+    return path, config
+
+
+def _objects(config, use_priors=True):
+    from frng.data import catalog
+    from frng.train import load_objects
+
+    res = Path(config["results"])
+    return load_objects(config, catalog.plan(config).split("train"), res / "backbone" / "model.pt", use_priors, 6)
+
+
+def _fixed_loss(model, objects, config) -> float:
+    """Mean L2 (the training loss's L_2 term) over every object's first two target views of each target light,
+    fixed light-sample seeds, no gradient."""
+    from frng.model.light_independence import LightIndependenceConfig
+    from frng.train import StepLoss, TrainConfig
+
+    tcfg = TrainConfig.from_config(config)
+    step = StepLoss(model, LightIndependenceConfig(0.0, 0.0), tcfg, None, bf16=False)
+    vals = []
+    with torch.no_grad():
+        for obj in objects:
+            for ti in range(len(obj.targets)):
+                vals.append(step([(obj, 0, ti, [0, 1], 123)])[1]["l2"])
+    return sum(vals) / len(vals)
+
+
+def test_frozen_backbone_gets_no_gradient(frng_smoke):
+    from frng.model.light_independence import LightIndependenceConfig
+    from frng.priors import load_backbone
+    from frng.train import StepLoss, TrainConfig, build_model
+
+    _, config = frng_smoke
+    res = Path(config["results"])
+    backbone = load_backbone(res / "backbone" / "model.pt")
+    model, ind = build_model(config, "full", res / "backbone" / "model.pt", "cpu")
+    from frng.model.frng import FRNG
+
+    model = FRNG.from_backbone(model.cfg, backbone, model.raster_cfg, model.shading_cfg)
+    objs = _objects(config)
+    loss, logs = StepLoss(model, ind, TrainConfig.from_config(config), None, bf16=False)([(objs[0], 1, 0, [0, 1], 0)])
+    loss.backward()
+    assert logs["ind"] > 0
+    assert all(p.grad is None for p in backbone.parameters())
+    assert not any(p.requires_grad for p in backbone.parameters())
+    got = {n for n, p in model.named_parameters() if p.grad is not None and p.grad.abs().sum() > 0}
+    for prefix in ("tokenizer.", "fine.detokenizer.", "material.former.", "material.detokenizer.", "decoder."):
+        assert any(n.startswith(prefix) for n in got), prefix
+    # copied, not shared
+    assert model.fine.detokenizer.proj.weight.data_ptr() != backbone.geo_detokenizer.proj.weight.data_ptr()
+
+
+def test_no_idm_never_reads_priors(frng_smoke, tmp_path, monkeypatch):
+    import frng.priors.cache as cache_mod
+    from frng import train as train_mod
+
+    _, config = frng_smoke
+    res = Path(config["results"])
+    # poison: a garbage priors folder, and any call of the priors loader fails
+    cfg = dict(config, results=str(tmp_path / "results"))
+    (tmp_path / "results" / "priors" / "idm").mkdir(parents=True)
+    for sub in ("envmaps", "objects", "backbone"):
+        (tmp_path / "results" / sub).symlink_to(res / sub, target_is_directory=True)
+    for f in (res / "priors" / "idm").iterdir():
+        (tmp_path / "results" / "priors" / "idm" / f.name).write_bytes(b"not a safetensors file")
+
+    def boom(*a, **k):
+        raise AssertionError("no-idm read IDM priors")
+
+    monkeypatch.setattr(cache_mod, "load_idm_priors", boom)
+    out = train_mod.train(cfg, "no-idm", tmp_path / "no-idm", steps=2)
+    assert out.exists()
+    from frng.model.frng import FRNG
+
+    m = FRNG.load(out, "cpu")
+    assert m.tokenizer is None and not m.cfg.uses_priors
+    assert not any("prior" in n for n, _ in m.named_parameters())
+
+
+def test_training_lowers_relighting_loss(frng_smoke, tmp_path):
+    from frng import train as train_mod
+    from frng.model.frng import FRNG
+
+    _, config = frng_smoke
+    objs = _objects(config)
+    fresh, _ = train_mod.build_model(config, "full", Path(config["results"]) / "backbone" / "model.pt", "cpu")
+    before = _fixed_loss(fresh, objs, config)
+    t0 = time.time()
+    path = train_mod.train(config, "full", tmp_path / "full", objects=objs)
+    wall = time.time() - t0
+    after = _fixed_loss(FRNG.load(path, "cpu"), objs, config)
+    print(f"smoke full: fixed-sample L2 {before:.4f} -> {after:.4f} in {wall:.1f}s")
+    assert after < 0.5 * before
+    rows = list(csv.DictReader(open(tmp_path / "full" / "loss.csv")))
+    assert len(rows) == config["train"]["steps"] and (tmp_path / "full" / "loss.png").exists()
+
+
+def test_train_killed_then_resumed(frng_smoke, tmp_path):
+    import yaml
+
+    path, config = frng_smoke
+    cfg = yaml.safe_load(Path(path).read_text())
+    cfg["train"] = {**cfg.get("train", {}), "checkpoint_every": 2}
+    p = tmp_path / "cfg.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    out = tmp_path / "no-ind"
+    steps = 8
+    cmd = [sys.executable, "-m", "frng", "train", "--config", str(p), "--variant", "no-ind", "--steps", str(steps),
+           "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    ckpt = out / "checkpoint.pt"
+    deadline = time.time() + 120
+    while not ckpt.exists() and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert ckpt.exists() and not (out / "model.pt").exists()
+    saved = torch.load(ckpt, weights_only=False)["step"]
+    assert 0 < saved < steps
+    subprocess.run(cmd, check=True, capture_output=True)
+    assert (out / "model.pt").exists()
+    rows = list(csv.DictReader(open(out / "loss.csv")))
+    assert [int(r["step"]) for r in rows] == list(range(1, steps + 1))
+    assert all(r["ind"] in ("0", "0.0") for r in rows)  # no-ind: the L_ind pass is skipped
