@@ -28,6 +28,9 @@ PAPER = ROOT / "config" / "paper.yaml"
 PLAN_LIMIT_S = 20
 
 
+from frng.model.frng import all_variants, trained_variants  # noqa: E402
+
+
 def n_objects(c: dict) -> int:
     return c["objects"]["count"] + len(c["objects"].get("extra", []))
 
@@ -49,6 +52,8 @@ EXPECTED = {
     "backbone_cache": n_objects,  # tokens per object
     "idm_priors": n_objects,  # IDM passes per object
     "eval_backbone": lambda c: 1,
+    "train": lambda c: len(trained_variants(c)),  # one job per variant; k2 (= full's K) is not retrained
+    "model_alias": lambda c: len(all_variants(c)) - len(trained_variants(c)),  # k2: a copy of full
 }
 
 
