@@ -41,6 +41,8 @@ from typing import Any, Mapping
 import torch
 import torch.distributed as dist
 
+from frng.variants import torchrun_command  # noqa: F401  (torch-free, used by the rule files)
+
 DEFAULT_PORT = 29500
 
 
@@ -262,14 +264,3 @@ def save0(info: DistInfo, obj: Any, path: str | Path) -> None:
     barrier(info)
 
 
-def torchrun_command(nproc: int, module: str = "frng", python: str | None = None) -> str:
-    """Shell prefix a rule uses to start ``nproc`` training processes on one node (plain python for 1).
-
-    ``python -m torch.distributed.run`` is torchrun run by the given interpreter (the rule's ``PY``)."""
-    import shlex
-    import sys
-
-    py = shlex.quote(python or sys.executable)
-    if nproc <= 1:
-        return f"{py} -m {module}"
-    return f"{py} -m torch.distributed.run --standalone --nnodes=1 --nproc-per-node={int(nproc)} -m {module}"

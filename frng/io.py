@@ -185,3 +185,20 @@ def read_png(path: str | os.PathLike) -> np.ndarray:
         raise ImageError(f"{path}: cannot read PNG ({e})") from e
     scale = 65535.0 if img.dtype == np.uint16 else 255.0
     return img.astype(np.float32) / scale
+
+
+def write_file_index(paths: Sequence[str | os.PathLike], out: str | os.PathLike, log: str | os.PathLike | None = None,
+                     **fields) -> Path:
+    """Write ``out``: a JSON index ``{**fields, "files": [{"path", "bytes"}, ...]}`` of files a later stage depends on
+    as a whole (e.g. the training split's caches), atomically; a missing file raises FileNotFoundError naming it.
+    ``log``: where to note what was indexed."""
+    entries = []
+    for p in paths:
+        if not os.path.exists(p):
+            raise FileNotFoundError(f"{p}: cannot index a missing file")
+        entries.append({"path": str(p), "bytes": os.path.getsize(p)})
+    write_json(out, {**fields, "files": entries})
+    if log is not None:
+        Path(log).parent.mkdir(parents=True, exist_ok=True)
+        Path(log).write_text(f"indexed {len(entries)} files into {out}\n")
+    return Path(out)

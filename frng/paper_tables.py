@@ -34,8 +34,7 @@ from frng import config as frng_config
 from frng import io
 from frng import metrics as M
 from frng import tables as T
-from frng.model.frng import BASE_VARIANTS
-from frng.relight import BACKBONE, RIG_VIEWS
+from frng.variants import BACKBONE, BASE_VARIANTS, RIG_VIEWS
 
 TABLES = ("vs_backbone", "ablation", "views", "k", "timing")
 VARIANT_LABELS = {

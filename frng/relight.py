@@ -45,7 +45,7 @@ import os
 import shutil
 import tempfile
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -53,57 +53,12 @@ import torch
 
 from frng import config as frng_config
 from frng import envmap, io
+from frng.variants import BACKBONE, RIG_VIEWS, Run, model_variants, runs  # noqa: F401
 
-RIG_VIEWS = 6
-BACKBONE = "backbone"
 
 
 class RelightError(ValueError):
     """Bad input to ``frng relight`` (names the file at fault); nothing was written."""
-
-
-@dataclass(frozen=True)
-class Run:
-    """One set of relit images of a test object: ``name`` is its folder under ``{results}/relight/``."""
-
-    name: str
-    method: str  # "F-RNG" or "backbone"
-    variant: str  # model variant (folder under results/models/), "backbone" for the baseline
-    views: int  # input views fed to the reconstruction
-    k_percent: float  # K of the model (NaN for the backbone)
-
-
-def sweep_views(n_input_views: int) -> list[int]:
-    """View counts of the #views sweep an object with ``n_input_views`` input views supports."""
-    from frng.priors.cache import view_counts
-
-    return view_counts("test", n_input_views)
-
-
-def runs(config: dict, n_input_views: int | None = None) -> list[Run]:
-    """All runs of one test object (``n_input_views`` None: the views the config gives every test object).
-
-    ``frng.variants`` at 6 views, the K sweep ``frng.k_sweep`` (the entry equal to ``frng.top_k_percent`` is the
-    full run itself), the #views sweep ``full-v{V}``, and the backbone."""
-    from frng.model.frng import canonical_variant, k_variant
-
-    if n_input_views is None:
-        n_input_views = RIG_VIEWS + int(config["render"].get("extra_input_views", 0))
-    f = config["frng"]
-    k_full = float(f["top_k_percent"])
-    out = [Run(v, "F-RNG", v, RIG_VIEWS, k_full) for v in dict.fromkeys(["full", *f["variants"]])]
-    for p in f["k_sweep"]:
-        name = k_variant(p)
-        if canonical_variant(config, name) != "full":
-            out.append(Run(name, "F-RNG", name, RIG_VIEWS, float(p)))
-    out += [Run(f"full-v{V}", "F-RNG", "full", V, k_full) for V in sweep_views(n_input_views) if V != RIG_VIEWS]
-    out.append(Run(BACKBONE, "backbone", BACKBONE, RIG_VIEWS, float("nan")))
-    return out
-
-
-def model_variants(config: dict) -> list[str]:
-    """The trained variants (``{results}/models/{variant}/model.pt``) the runs read."""
-    return list(dict.fromkeys(r.variant for r in runs(config) if r.method != BACKBONE))
 
 
 # -- validation --------------------------------------------------------------------------------------

@@ -28,7 +28,7 @@ PAPER = ROOT / "config" / "paper.yaml"
 PLAN_LIMIT_S = 20
 
 
-from frng.model.frng import all_variants, trained_variants  # noqa: E402
+from frng.variants import all_variants, trained_variants  # noqa: E402
 
 
 def n_objects(c: dict) -> int:
@@ -39,9 +39,7 @@ def n_test_objects(c: dict) -> int:
     return c["objects"]["test_count"] + sum(e["split"] == "test" for e in c["objects"].get("extra", []))
 
 
-# rule -> expected number of jobs, from the config. Later stages: fill in as their rules land, e.g.
-#   "train": lambda c: len(variants(c)), "relight": lambda c: len(variants(c)) * n_test_objects(c),
-#   "evaluate": lambda c: len(variants(c)), "tables": lambda c: 1, "figures": lambda c: 1,
+# rule -> expected number of jobs, from the config.
 EXPECTED = {
     "all": lambda c: 1,
     "envmaps": lambda c: 1,  # one job bakes/rotates every map (seconds)
@@ -52,8 +50,14 @@ EXPECTED = {
     "backbone_cache": n_objects,  # tokens per object
     "idm_priors": n_objects,  # IDM passes per object
     "eval_backbone": lambda c: 1,
+    "training_set_caches": lambda c: 1,  # one index of the training split's caches (the train jobs' fan-in)
+    "training_set_priors": lambda c: int(any(v != "no-idm" for v in trained_variants(c))),
     "train": lambda c: len(trained_variants(c)),  # one job per variant; k2 (= full's K) is not retrained
     "model_alias": lambda c: len(all_variants(c)) - len(trained_variants(c)),  # k2: a copy of full
+    "relight": n_test_objects,  # one job per test object: every F-RNG run + the backbone, timed side by side
+    "evaluate": lambda c: 1,
+    "tables": lambda c: 1,
+    "figures": lambda c: 1,
 }
 
 

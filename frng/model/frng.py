@@ -49,8 +49,8 @@ from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, sele
 from frng.model.tokenizers import PriorTokenizer, stack_priors
 from frng.render import RasterConfig, rasterize
 from frng.render.shading import NeuralDecoder, ShadingConfig, deferred_shade, ggx_reflectance
+from frng.variants import BASE_VARIANTS, all_variants, canonical_variant, k_variant, trained_variants
 
-BASE_VARIANTS = ("full", "no-fine", "no-idm", "no-ind", "no-neural")
 MODEL_KIND = "frng"
 
 
@@ -308,32 +308,6 @@ def _ggx_unit_normal(albedo, roughness, metallic, normal, wo, wi):
 
 
 # -- variants from the pipeline config --------------------------------------------------------------------------
-
-def k_variant(percent: float) -> str:
-    """Name of the K-sweep variant for K = ``percent`` % (1 -> "k1", 0.5 -> "k0.5")."""
-    return f"k{percent:g}"
-
-
-def all_variants(config: dict) -> list[str]:
-    """Every variant the config asks for: ``frng.variants`` then the K sweep (``frng.k_sweep``, percent)."""
-    f = config["frng"]
-    out = list(f["variants"])
-    out += [k_variant(p) for p in f["k_sweep"] if k_variant(p) not in out]
-    return out
-
-
-def canonical_variant(config: dict, name: str) -> str:
-    """The variant whose training produces ``name``'s model: the K-sweep entry equal to the full model's K is the
-    full model itself (``k2`` -> ``full`` with the paper's K = 2%), so it is not trained twice."""
-    if name.startswith("k") and float(name[1:]) == float(config["frng"]["top_k_percent"]):
-        return "full"
-    return name
-
-
-def trained_variants(config: dict) -> list[str]:
-    """The variants that get a ``train`` job (aliases resolved, order kept, duplicates dropped)."""
-    return list(dict.fromkeys(canonical_variant(config, v) for v in all_variants(config)))
-
 
 def variant_config(config: dict, name: str, backbone_cfg: dict | None = None) -> tuple[FRNGConfig, LightIndependenceConfig]:
     """(architecture, L_ind weights) of a variant from a validated pipeline config.

@@ -54,10 +54,10 @@ from frng.data import catalog
 from frng.priors import build_idm, load_backbone
 from frng import training as tr
 from frng.priors.intrinsics import IntrinsicPriors
+from frng.variants import SWEEP_VIEWS, view_counts  # noqa: F401
 
 BACKBONE_CACHE_VERSION = "1"
 IDM_CACHE_VERSION = "1"
-SWEEP_VIEWS = (2, 4, 6, 8, 10)
 
 
 class StaleCacheError(RuntimeError):
@@ -87,11 +87,6 @@ def extra_training_lights(config: dict, oid: str, exclude: str, count: int) -> l
         raise ValueError(f"only {len(pool)} training env maps besides {exclude}; need {count} extra lights")
     rng = catalog.rng_for(config["seed"], "cache-lights", oid)
     return [pool[i] for i in rng.choice(len(pool), count, replace=False)]
-
-
-def view_counts(split: str, n_views: int) -> list[int]:
-    vs = [6] if split == "train" else [v for v in SWEEP_VIEWS if v <= n_views]
-    return sorted(set(v for v in vs if v <= n_views))
 
 
 # -- backbone cache ------------------------------------------------------------------------------------

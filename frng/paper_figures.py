@@ -1,0 +1,122 @@
+"""Stage ``frng figures``: the paper-style figures from the relit images (drawn with :mod:`frng.figures`).
+
+Outputs (``{results}/figures/``):
+
+- ``comparison/{obj}.png`` per test object: input views | light | ground truth | backbone | F-RNG, one row per
+  target light (first target view), PSNR (the configured protocol) captioned on the predictions;
+- ``ablation.png``: ground truth and every ablation variant (``frng.variants``), one row per test object (first
+  target light and view);
+- ``saliency/{obj}.png`` per test object: input view 0 | saliency map | the selected top-K patches (full run);
+- ``loss_curves.png``: the training curves of every run (``{results}/models/*/loss.csv``, the backbone and the
+  IDM when present).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from frng import config as frng_config
+from frng import envmap, figures, io
+from frng.relight import BACKBONE
+
+
+def _psnr_lookup(per_image: pd.DataFrame):
+    key = per_image.set_index(["object", "run", "light", "view"])["psnr"]
+    return lambda obj, run, light, view: float(key.get((obj, run, light, view), np.nan))
+
+
+def comparison(results: Path, oid: str, out_png: Path, psnr) -> None:
+    """Per test object: input views, env map, ground truth, backbone, F-RNG under each target light."""
+    full = io.read_json(results / "relight" / "full" / oid / "run.json")
+    view = full["target_views"][0]
+    lights = full["lights"]
+    meta = io.read_json(results / "objects" / oid / "meta.json")
+    light_in = meta["input_lights"][0]
+    inputs = [io.read_rgba(results / "objects" / oid / "inputs" / light_in / f"{v}.exr") for v in full["input_views"]]
+    gt = [io.read_rgba(results / "objects" / oid / "targets" / l / f"{view}.exr") for l in lights]
+    bb = [io.read_rgba(results / "relight" / BACKBONE / oid / l / f"{view}.exr") for l in lights]
+    fr = [io.read_rgba(results / "relight" / "full" / oid / l / f"{view}.exr") for l in lights]
+    envs = [envmap.read(results / "envmaps" / f"{l}.exr") for l in lights]
+    figures.object_comparison(
+        out_png, inputs, gt, bb, fr, lights, envmaps=envs,
+        psnr_backbone=[psnr(oid, BACKBONE, l, view) for l in lights],
+        psnr_frng=[psnr(oid, "full", l, view) for l in lights],
+        title=f"{oid} ({meta['material_class']}), view {view}")
+
+
+def ablation(results: Path, objects: list[str], variants: list[str], out_png: Path, psnr) -> None:
+    """Ground truth and each ablation variant, one row per test object (first target light and view)."""
+    gts, imgs, caps, labels = [], {v: [] for v in variants}, {v: [] for v in variants}, []
+    for oid in objects:
+        info = io.read_json(results / "relight" / "full" / oid / "run.json")
+        light, view = info["lights"][0], info["target_views"][0]
+        gts.append(io.read_rgba(results / "objects" / oid / "targets" / light / f"{view}.exr"))
+        for v in variants:
+            imgs[v].append(io.read_rgba(results / "relight" / v / oid / light / f"{view}.exr"))
+            caps[v].append(psnr(oid, v, light, view))
+        labels.append(f"{oid} / {light}")
+    figures.ablation_grid(out_png, imgs, gts, labels, caps, title="Ablations (PSNR per image)")
+
+
+def saliency(results: Path, oid: str, out_png: Path, patch: int) -> None:
+    """Input view 0, its saliency map and the selected top-K patches of the full run."""
+    d = np.load(results / "relight" / "full" / oid / "saliency.npz")
+    image, sal, idx = d["image"][0], d["saliency"][0], d["patch_idx"][0]
+    H, W = image.shape[:2]
+    sel = np.zeros((H // patch) * (W // patch), bool)
+    sel[idx] = True
+    figures.saliency_overlay(out_png, image, sal, sel.reshape(H // patch, W // patch), patch,
+                             title=f"{oid}: saliency and top-K patches (view 0)")
+
+
+def loss_curves(results: Path, out_png: Path) -> None:
+    """Every training run's loss.csv: F-RNG variants, backbone, IDM."""
+    runs = {}
+    for p in sorted((results / "models").glob("*/loss.csv")):
+        runs[f"F-RNG {p.parent.name}"] = pd.read_csv(p)
+    for name in ("backbone", "idm"):
+        p = results / name / "loss.csv"
+        if p.exists():
+            runs[name] = pd.read_csv(p)
+    if not runs:
+        raise FileNotFoundError(f"no training curves: {results}/models/*/loss.csv, backbone/ or idm/loss.csv")
+    figures.loss_curves(runs, out_png, title="Training losses (all runs)")
+
+
+def make_figures(config: dict, objects: list[str], out_dir: Path) -> list[Path]:
+    from frng.metrics import read_csv
+
+    results = Path(config["results"])
+    psnr = _psnr_lookup(read_csv(results / "metrics" / "relight_per_image.csv"))
+    written = []
+    for oid in objects:
+        p = out_dir / "comparison" / f"{oid}.png"
+        comparison(results, oid, p, psnr)
+        s = out_dir / "saliency" / f"{oid}.png"
+        saliency(results, oid, s, int(config["model"]["patch_size"]))
+        written += [p, s]
+    variants = list(dict.fromkeys(["full", *config["frng"]["variants"]]))
+    ablation(results, objects, variants, out_dir / "ablation.png", psnr)
+    loss_curves(results, out_dir / "loss_curves.png")
+    return written + [out_dir / "ablation.png", out_dir / "loss_curves.png"]
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    frng_config.add_config_argument(parser)
+    parser.add_argument("--objects", nargs="*", help="test objects (default: the config's test split)")
+    parser.add_argument("--out", help="figures folder (default {results}/figures)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from frng.data import catalog
+
+    config = frng_config.load(args.config)
+    objects = args.objects or catalog.plan(config).split("test")
+    out = Path(args.out or Path(config["results"], "figures"))
+    for p in make_figures(config, objects, out):
+        print(f"figures: wrote {p}")
+    return 0

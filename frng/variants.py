@@ -1,0 +1,103 @@
+"""What gets trained and what gets relit: the F-RNG variants and the relighting runs a config implies.
+
+Torch-free on purpose: the Snakemake rule files import this while planning the DAG (importing torch there costs
+about a second of every ``snakemake`` call, dry runs included).
+
+Variants (``{results}/models/{variant}/``): ``frng.variants`` (``full`` and the ablations of :data:`BASE_VARIANTS`)
+then the K sweep ``k{P}`` (``frng.k_sweep``, P in % of a view's patches). The K-sweep entry equal to
+``frng.top_k_percent`` is the full model itself (``k2`` with the paper's 2%): it is not trained twice.
+
+Runs (``{results}/relight/{run}/{obj}/``, :func:`runs`): every variant at the 6-view rig, the K sweep, the #views
+sweep ``full-v{V}`` (the full model fed V input views) and the ``backbone`` baseline.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+BASE_VARIANTS = ("full", "no-fine", "no-idm", "no-ind", "no-neural")
+RIG_VIEWS = 6  # the paper's input rig
+SWEEP_VIEWS = (2, 4, 6, 8, 10)  # the #views table
+BACKBONE = "backbone"
+
+
+def k_variant(percent: float) -> str:
+    """Name of the K-sweep variant for K = ``percent`` % (1 -> "k1", 0.5 -> "k0.5")."""
+    return f"k{percent:g}"
+
+
+def all_variants(config: dict) -> list[str]:
+    """Every variant the config asks for: ``frng.variants`` then the K sweep (``frng.k_sweep``, percent)."""
+    f = config["frng"]
+    out = list(f["variants"])
+    out += [k_variant(p) for p in f["k_sweep"] if k_variant(p) not in out]
+    return out
+
+
+def canonical_variant(config: dict, name: str) -> str:
+    """The variant whose training produces ``name``'s model: the K-sweep entry equal to the full model's K is the
+    full model itself (``k2`` -> ``full`` with the paper's K = 2%), so it is not trained twice."""
+    if name.startswith("k") and float(name[1:]) == float(config["frng"]["top_k_percent"]):
+        return "full"
+    return name
+
+
+def trained_variants(config: dict) -> list[str]:
+    """The variants that get a ``train`` job (aliases resolved, order kept, duplicates dropped)."""
+    return list(dict.fromkeys(canonical_variant(config, v) for v in all_variants(config)))
+
+
+def view_counts(split: str, n_views: int) -> list[int]:
+    """Input-view counts cached/relit for an object of ``split`` with ``n_views`` input views: the rig for training
+    objects, every :data:`SWEEP_VIEWS` entry the object has for test objects."""
+    vs = [RIG_VIEWS] if split == "train" else [v for v in SWEEP_VIEWS if v <= n_views]
+    return sorted(set(v for v in vs if v <= n_views))
+
+
+@dataclass(frozen=True)
+class Run:
+    """One set of relit images of a test object: ``name`` is its folder under ``{results}/relight/``."""
+
+    name: str
+    method: str  # "F-RNG" or "backbone"
+    variant: str  # model variant (folder under results/models/), "backbone" for the baseline
+    views: int  # input views fed to the reconstruction
+    k_percent: float  # K of the model (NaN for the backbone)
+
+
+def runs(config: dict, n_input_views: int | None = None) -> list[Run]:
+    """All runs of one test object (``n_input_views`` None: the views the config gives every test object).
+
+    ``frng.variants`` at 6 views, the K sweep ``frng.k_sweep`` (the entry equal to ``frng.top_k_percent`` is the
+    full run itself), the #views sweep ``full-v{V}``, and the backbone."""
+    if n_input_views is None:
+        n_input_views = RIG_VIEWS + int(config["render"].get("extra_input_views", 0))
+    f = config["frng"]
+    k_full = float(f["top_k_percent"])
+    out = [Run(v, "F-RNG", v, RIG_VIEWS, k_full) for v in dict.fromkeys(["full", *f["variants"]])]
+    for p in f["k_sweep"]:
+        name = k_variant(p)
+        if canonical_variant(config, name) != "full":
+            out.append(Run(name, "F-RNG", name, RIG_VIEWS, float(p)))
+    out += [Run(f"full-v{V}", "F-RNG", "full", V, k_full)
+            for V in view_counts("test", n_input_views) if V != RIG_VIEWS]
+    out.append(Run(BACKBONE, "backbone", BACKBONE, RIG_VIEWS, float("nan")))
+    return out
+
+
+def model_variants(config: dict) -> list[str]:
+    """The trained variants (``{results}/models/{variant}/model.pt``) the runs read."""
+    return list(dict.fromkeys(r.variant for r in runs(config) if r.method != BACKBONE))
+
+
+def torchrun_command(nproc: int, module: str = "frng", python: str | None = None) -> str:
+    """Shell prefix a rule uses to start ``nproc`` training processes on one node (plain python for 1).
+
+    ``python -m torch.distributed.run`` is torchrun run by the given interpreter (the rule's ``PY``)."""
+    import shlex
+    import sys
+
+    py = shlex.quote(python or sys.executable)
+    if nproc <= 1:
+        return f"{py} -m {module}"
+    return f"{py} -m torch.distributed.run --standalone --nnodes=1 --nproc-per-node={int(nproc)} -m {module}"

@@ -1,0 +1,107 @@
+# Evaluation (frng/evaluate.py), the paper's tables (frng/paper_tables.py) and figures (frng/paper_figures.py).
+# Tables and figures are wrapped in report(...) for `snakemake --report` (captions in workflow/report/).
+TABLE_NAMES = ["vs_backbone", "ablation", "views", "k", "timing"]
+_TABLE_CAPTIONS = {"vs_backbone": "F-RNG vs backbone", "ablation": "ablation", "views": "number of input views",
+                   "k": "top-K patches", "timing": "timing"}
+
+
+rule evaluate:
+    message:
+        "Per-image relighting metrics ({protocol} protocol) of {n} test objects".format(
+            protocol=config["eval"]["protocol"], n=len(TEST_IDS))
+    input:
+        # one file per test object stands for all its runs (relight publishes every run before its timing file);
+        # listing every run.json would add runs x objects inputs to the paper DAG
+        timing=expand(res("relight/timing/{obj}.json"), obj=TEST_IDS),
+    output:
+        per_image=res("metrics/relight_per_image.csv"),
+        summary=res("metrics/relight_summary.csv"),
+    params:
+        py=PY,
+        config=CONFIG_FILE,
+        out=lambda wildcards, output: os.path.dirname(output.per_image),
+        objects=TEST_IDS,
+    log:
+        res("logs/evaluate.log"),
+    conda:
+        "../envs/eval.yaml"
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=30,
+    shell:
+        "{params.py} -m frng evaluate --config {params.config} --objects {params.objects} --out {params.out} > {log} 2>&1"
+
+
+rule tables:
+    message:
+        "The paper's tables: {names}".format(names=", ".join(TABLE_NAMES))
+    input:
+        per_image=res("metrics/relight_per_image.csv"),
+        timing=expand(res("relight/timing/{obj}.json"), obj=TEST_IDS),
+    output:
+        *[
+            report(res(f"tables/{t}.csv"), caption=f"../workflow/report/{t}.rst", category="Tables",
+                   labels={"table": _TABLE_CAPTIONS[t]})
+            for t in TABLE_NAMES
+        ],
+        *[res(f"tables/{t}.{ext}") for t in TABLE_NAMES for ext in ("md", "tex")],
+    params:
+        py=PY,
+        config=CONFIG_FILE,
+        out=lambda wildcards, output: os.path.dirname(output[0]),
+    log:
+        res("logs/tables.log"),
+    conda:
+        "../envs/eval.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    shell:
+        "{params.py} -m frng tables --config {params.config} --metrics {input.per_image} --timing {input.timing} "
+        "--out {params.out} > {log} 2>&1"
+
+
+rule figures:
+    message:
+        "Figures: comparison grids, ablation grid, saliency maps, loss curves"
+    input:
+        per_image=res("metrics/relight_per_image.csv"),
+        timing=expand(res("relight/timing/{obj}.json"), obj=TEST_IDS),
+        curves=expand(res("models/{variant}/loss.csv"), variant=FRNG_VARIANTS),
+    output:
+        comparison=report(directory(res("figures/comparison")), patterns=["{obj}.png"],
+                          caption="../workflow/report/comparison.rst", category="Figures", subcategory="Relighting",
+                          labels={"object": "{obj}"}),
+        saliency=report(directory(res("figures/saliency")), patterns=["{obj}.png"],
+                        caption="../workflow/report/saliency.rst", category="Figures", subcategory="Saliency",
+                        labels={"object": "{obj}"}),
+        ablation=report(res("figures/ablation.png"), caption="../workflow/report/ablation_grid.rst",
+                        category="Figures", subcategory="Ablations", labels={"figure": "ablation grid"}),
+        curves=report(res("figures/loss_curves.png"), caption="../workflow/report/loss_curves.rst",
+                      category="Figures", subcategory="Training", labels={"figure": "loss curves"}),
+    params:
+        py=PY,
+        config=CONFIG_FILE,
+        out=lambda wildcards, output: os.path.dirname(output.ablation),
+        objects=TEST_IDS,
+    log:
+        res("logs/figures.log"),
+    conda:
+        "../envs/eval.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    shell:
+        "{params.py} -m frng figures --config {params.config} --objects {params.objects} --out {params.out} > {log} 2>&1"
+
+
+add_targets(
+    *[res(f"tables/{t}.{ext}") for t in TABLE_NAMES for ext in ("csv", "md", "tex")],
+    res("figures/ablation.png"),
+    res("figures/loss_curves.png"),
+    res("figures/comparison"),
+    res("figures/saliency"),
+)

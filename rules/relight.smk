@@ -1,0 +1,38 @@
+# Relighting of the held-out objects (frng/relight.py): ONE job per test object runs every F-RNG run (ablation
+# variants, K sweep, #views sweep of the full model) and the backbone baseline, so that both are timed side by side
+# in the same job and the paper-scale DAG grows by the number of test objects only.
+from frng.variants import model_variants, runs
+
+TEST_IDS = CATALOG.split("test")
+RELIGHT_RUNS = [r.name for r in runs(config)]
+
+
+rule relight:
+    message:
+        "Relighting {wildcards.obj}: F-RNG runs and the backbone under every target light"
+    input:
+        models=expand(res("models/{variant}/model.pt"), variant=model_variants(config)),
+        backbone=res("backbone/model.pt"),
+        idm=_IDM_MODEL,
+        meta=res("objects/{obj}/meta.json"),
+    output:
+        runs=expand(res("relight/{run}/{{obj}}/run.json"), run=RELIGHT_RUNS),
+        timing=res("relight/timing/{obj}.json"),
+    params:
+        py=PY,
+        config=CONFIG_FILE,
+        models=lambda wildcards, input: os.path.dirname(os.path.dirname(input.models[0])),
+    log:
+        res("logs/relight/{obj}.log"),
+    wildcard_constraints:
+        obj=r"[a-z0-9_]+",
+    conda:
+        "../envs/torch.yaml"
+    threads: 2
+    resources:
+        mem_mb=6000,
+        runtime=60,
+        gpu=_TRAIN_GPUS,
+    shell:
+        "{params.py} -m frng relight --config {params.config} --object {wildcards.obj} --models {params.models} "
+        "> {log} 2>&1"

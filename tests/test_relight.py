@@ -1,0 +1,112 @@
+"""frng relight: the run plan, and bad input (missing view, wrong image size, corrupt EXR, env map not 2:1) ->
+a clear error naming the file, nothing written. Bad-input cases run on a private copy of the smoke test object."""
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from frng import config as frng_config
+from frng import io, relight
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_runs_cover_ablation_k_and_views_sweeps():
+    from frng.priors.cache import SWEEP_VIEWS
+
+    config = frng_config.load(ROOT / "config" / "smoke.yaml")
+    runs = {r.name: r for r in relight.runs(config, n_input_views=10)}
+    for v in config["frng"]["variants"]:
+        assert runs[v].views == relight.RIG_VIEWS and runs[v].method == "F-RNG"
+    assert {f"full-v{V}" for V in SWEEP_VIEWS if V != relight.RIG_VIEWS} <= set(runs)
+    assert all(runs[f"full-v{V}"].variant == "full" for V in SWEEP_VIEWS if V != relight.RIG_VIEWS)
+    ks = {r.k_percent for r in runs.values() if r.method == "F-RNG" and r.views == relight.RIG_VIEWS}
+    assert ks == {float(p) for p in config["frng"]["k_sweep"]}
+    assert "k2" not in runs  # K = 2% is the full run itself
+    assert runs[relight.BACKBONE].method == "backbone"
+    assert len({r.name for r in relight.runs(config, n_input_views=6)}) == len(runs) - 2  # no v8/v10 with 6 views
+
+
+@pytest.fixture(scope="module")
+def private_object(smoke_dataset, tmp_path_factory):
+    """A results folder holding a real copy (not a link) of the smoke test object and the env maps."""
+    from frng.data import catalog
+
+    src_path, src_config = smoke_dataset
+    d = tmp_path_factory.mktemp("relight_bad")
+    src = Path(src_config["results"])
+    oid = catalog.plan(src_config).split("test")[0]
+    return src, oid, d
+
+
+def _fresh(private_object, name):
+    import yaml
+
+    src, oid, d = private_object
+    res = d / name / "results"
+    shutil.copytree(src / "objects" / oid, res / "objects" / oid)
+    shutil.copytree(src / "envmaps", res / "envmaps")
+    cfg = yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text())
+    cfg["results"] = str(res)
+    path = d / name / "smoke.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    config = frng_config.load(path)
+    meta = io.read_json(res / "objects" / oid / "meta.json")
+    return path, config, oid, meta, res
+
+
+def _input(res, oid, meta, k=1):
+    return res / "objects" / oid / "inputs" / meta["input_lights"][0] / f"{meta['views']['inputs'][k]['name']}.exr"
+
+
+def _corrupt_missing(res, oid, meta):
+    p = _input(res, oid, meta)
+    p.unlink()
+    return p
+
+
+def _corrupt_size(res, oid, meta):
+    p = _input(res, oid, meta)
+    io.write_exr(p, np.ones((16, 16, 4), np.float32), channels=["R", "G", "B", "A"])
+    return p
+
+
+def _corrupt_bytes(res, oid, meta):
+    p = _input(res, oid, meta)
+    p.write_bytes(b"not an exr" * 20)
+    return p
+
+
+def _corrupt_envmap(res, oid, meta):
+    p = res / "envmaps" / f"{meta['target_lights'][0]}.exr"
+    io.write_exr(p, np.ones((16, 16, 3), np.float32), channels=["R", "G", "B"])
+    return p
+
+
+@pytest.mark.parametrize("corrupt, words", [
+    (_corrupt_missing, "does not exist"),
+    (_corrupt_size, "expected 32x32"),
+    (_corrupt_bytes, "cannot read EXR"),
+    (_corrupt_envmap, "2:1"),
+])
+def test_bad_input_names_the_file_and_writes_nothing(private_object, corrupt, words):
+    path, config, oid, meta, res = _fresh(private_object, corrupt.__name__)
+    relight.validate_inputs(config, oid)  # the clean copy is fine
+    bad = corrupt(res, oid, meta)
+    with pytest.raises(relight.RelightError) as e:
+        relight.relight(config, oid)
+    assert str(bad) in str(e.value) and words in str(e.value), str(e.value)
+    assert not (res / "relight").exists(), "relight wrote something on bad input"
+
+
+def test_cli_reports_bad_input(private_object):
+    path, config, oid, meta, res = _fresh(private_object, "cli")
+    bad = _corrupt_bytes(res, oid, meta)
+    r = subprocess.run([sys.executable, "-m", "frng", "relight", "--config", str(path), "--object", oid],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and str(bad) in r.stdout + r.stderr
+    assert not (res / "relight").exists()
