@@ -9,6 +9,7 @@ import importlib
 # name -> (module, one-line help)
 BENCHES: dict[str, tuple[str, str]] = {
     "render": ("frng.render.bench", "rasterizer fwd/fwd+bwd and deferred-shading cost at 32/64/128 px"),
+    "relight": ("frng.relight_bench", "F-RNG vs backbone relighting/reconstruction time at each config's model sizes"),
 }
 
 

@@ -110,3 +110,20 @@ def test_cli_reports_bad_input(private_object):
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and str(bad) in r.stdout + r.stderr
     assert not (res / "relight").exists()
+
+
+def test_bench_relight_reports_both_methods():
+    """`frng bench relight` at smoke sizes: one JSON line with both methods' costs (values, not timings, checked)."""
+    import json
+
+    r = subprocess.run([sys.executable, "-m", "frng", "bench", "relight", "--configs", str(ROOT / "config" / "smoke.yaml"),
+                        "--resolution", "32", "--repeats", "1", "--lights", "2", "--target-views", "2", "--json"],
+                       capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert r.returncode == 0, r.stdout + r.stderr
+    row = json.loads(r.stdout.strip().splitlines()[-1])
+    for key in ("reconstruction_s", "frng_ms_per_image", "frng_ms_per_image_amortised", "backbone_ms_per_image",
+                "speedup", "gaussians"):
+        assert np.isfinite(row[key]) and row[key] > 0, (key, row)
+    assert row["resolution"] == 32 and row["lights"] == 2 and row["target_views"] == 2
+    # amortising the light-independent rasterization over 2 lights can only help
+    assert row["frng_ms_per_image_amortised"] <= row["frng_ms_per_image"]

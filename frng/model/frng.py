@@ -270,19 +270,14 @@ class FRNG(nn.Module):
         sampler = envmap.importance_sampler(env.detach().to(self.device))
         return envmap.sample(sampler, spp, self.shading_cfg.sampling, seed)
 
-    def render(self, rec: Reconstruction, env: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, height: int,
-               width: int, spp: int | None = None, generator: torch.Generator | None = None,
-               spp_grad: int | None = None) -> torch.Tensor:
-        """Render a Reconstruction under an env map (He, We, 3) at cameras c2w (Vt, 4, 4), intr (Vt, 4).
+    def rasterize(self, rec: Reconstruction, c2w: torch.Tensor, intr: torch.Tensor, height: int,
+                  width: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The light-independent half of :meth:`render`: rasterize the per-Gaussian payload (neural features or
+        Cook-Torrance parameters) at cameras c2w (Vt, 4, 4), intr (Vt, 4).
 
-        Deferred shading: rasterize the per-Gaussian payload, then per foreground pixel a Monte-Carlo estimate
-        with ``spp`` importance samples of ``env`` (default ``shading.spp_infer``; ``spp_grad`` of them carry
-        gradients during training). Neural head: the universal decoder; pbr head: GGX. ``generator`` seeds the
-        sample set (None: seed 0). Returns RGBA (Vt, H, W, 4), linear, premultiplied over black.
-        """
+        Returns (maps (Vt, H, W, C) alpha-premultiplied payload, alpha (Vt, H, W, 1), c2w, intr on the model's
+        device). Relighting under many lights rasterizes once and calls :meth:`shade` per light."""
         dev = self.device
-        spp = spp or self.shading_cfg.spp_infer
-        samples = self.light_samples(env, spp, generator)
         g = rec.gaussians
         rc = self.raster_cfg
         radius = rc.max_radius_px if rc.max_radius_px is not None else self.cfg.max_radius_px
@@ -290,6 +285,15 @@ class FRNG(nn.Module):
         c2w, intr = c2w.to(dev).float(), intr.to(dev).float()
         maps, alpha, _ = rasterize(g.means, g.quats, g.scales, g.opacities, g.features.float(), c2w, intr,
                                    height, width, **kw)
+        return maps, alpha, c2w, intr
+
+    def shade(self, raster: tuple, env: torch.Tensor, spp: int | None = None,
+              generator: torch.Generator | None = None, spp_grad: int | None = None) -> torch.Tensor:
+        """The per-light half of :meth:`render`: deferred shading of :meth:`rasterize`'s output under an env map
+        (He, We, 3). Returns RGBA (Vt, H, W, 4), linear, premultiplied over black."""
+        maps, alpha, c2w, intr = raster
+        spp = spp or self.shading_cfg.spp_infer
+        samples = self.light_samples(env, spp, generator)
         sc = self.shading_cfg
         if self.cfg.head == "neural":
             rgb = deferred_shade(self.decoder, [maps], alpha, c2w, intr, samples, spp_grad, sc.alpha_eps,
@@ -299,6 +303,19 @@ class FRNG(nn.Module):
             rgb = deferred_shade(_ggx_unit_normal, split, alpha, c2w, intr, samples, spp_grad, sc.alpha_eps,
                                  chunk=sc.chunk_pixels)
         return torch.cat([rgb, alpha], -1)
+
+    def render(self, rec: Reconstruction, env: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, height: int,
+               width: int, spp: int | None = None, generator: torch.Generator | None = None,
+               spp_grad: int | None = None) -> torch.Tensor:
+        """Render a Reconstruction under an env map (He, We, 3) at cameras c2w (Vt, 4, 4), intr (Vt, 4).
+
+        Deferred shading: rasterize the per-Gaussian payload (:meth:`rasterize`), then per foreground pixel a
+        Monte-Carlo estimate with ``spp`` importance samples of ``env`` (:meth:`shade`; default
+        ``shading.spp_infer``; ``spp_grad`` of them carry gradients during training). Neural head: the universal
+        decoder; pbr head: GGX. ``generator`` seeds the sample set (None: seed 0). Returns RGBA (Vt, H, W, 4),
+        linear, premultiplied over black.
+        """
+        return self.shade(self.rasterize(rec, c2w, intr, height, width), env, spp, generator, spp_grad)
 
 
 def _ggx_unit_normal(albedo, roughness, metallic, normal, wo, wi):

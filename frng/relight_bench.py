@@ -1,0 +1,217 @@
+"""``frng bench relight``: F-RNG's relighting cost vs the backbone's, at each config's architecture sizes.
+
+The relight stage (``frng relight``) times both methods on the trained default-tier models; this benchmark checks
+the speed claim where model size matters: it builds the backbone, the learned IDM and F-RNG with the sizes of each
+given config (``config/paper.yaml``: RelitLRM's 24 + 8 layers x 1024, MaterialFormer 4 x 1024, decoder 4 x 256,
+128 spp) with untrained weights (timing does not depend on the weights' values), on a synthetic object
+(a textured sphere seen by the paper's 6-view rig; one Gaussian per foreground input pixel as the backbone makes)
+at a resolution this machine can afford, and measures, with the same code paths as the relight stage:
+
+- ``reconstruction_s`` (F-RNG): backbone geometry + appearance tokens under the input light (one DDIM pass)
+  + IDM priors + F-RNG reconstruction; the per-part times are reported too;
+- ``frng_ms_per_image``: one new image (rasterize its view's G-buffer + shade under one light);
+- ``frng_ms_per_image_amortised``: rasterize the target views once, shade under ``--lights`` lights (what the
+  relight stage does), per image;
+- ``backbone_ms_per_image``: one full denoising pass per light + rendering the target views, per image;
+- ``speedup``: backbone / F-RNG (single new image), ``speedup_amortised``.
+
+Medians of ``--repeats`` runs after a warm-up. ``--device cuda`` where a GPU is present (gsplat backend if
+installed); ``--bf16`` runs the transformers under bf16 autocast (CPU: AMX; CUDA).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from contextlib import nullcontext
+from pathlib import Path
+
+import numpy as np
+import torch
+
+DEFAULT_CONFIGS = ["config/config.yaml", "config/paper.yaml"]
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--configs", nargs="+", default=DEFAULT_CONFIGS,
+                        help="pipeline configs whose architecture sizes (backbone, idm, frng, shading) are timed")
+    parser.add_argument("--resolution", type=int, default=64, help="image size (multiple of the patch size)")
+    parser.add_argument("--lights", type=int, default=3, help="lights per relighting (amortised figure)")
+    parser.add_argument("--target-views", type=int, default=4)
+    parser.add_argument("--spp", type=int, default=None, help="light samples per pixel (default shading.spp_infer)")
+    parser.add_argument("--repeats", type=int, default=3, help="timed runs per measurement (median reported)")
+    parser.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
+    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
+    parser.add_argument("--bf16", action="store_true", help="bf16 autocast for the transformers")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", action="store_true", help="one JSON object per config")
+
+
+def _sync(dev: torch.device) -> None:
+    if dev.type == "cuda":
+        torch.cuda.synchronize(dev)
+
+
+def _timed(fn, dev: torch.device, repeats: int):
+    """(median seconds over ``repeats`` runs after one warm-up, last result)."""
+    out = fn()
+    ts = []
+    for _ in range(repeats):
+        _sync(dev)
+        t = time.perf_counter()
+        out = fn()
+        _sync(dev)
+        ts.append(time.perf_counter() - t)
+    return statistics.median(ts), out
+
+
+def synthetic_object(config: dict, res: int, n_targets: int, seed: int, dev: torch.device) -> dict:
+    """A checker-textured Lambertian sphere (radius 0.6) under a fixed directional light, seen by the 6-view rig.
+
+    Returns rgb (6, H, W, 3) and alpha (6, H, W, 1) linear premultiplied, c2w (6, 4, 4), intr (6, 4), and the
+    target cameras t_c2w (Vt, 4, 4), t_intr (Vt, 4)."""
+    from frng import camera
+    from frng.data import rig
+
+    rng = np.random.default_rng(seed)
+    r = config["render"]
+    args = (r["camera_distance"], r["fov_deg"], res)
+    ins, tgts = rig.input_views(rng, 0, *args), rig.target_views(rng, n_targets, *args)
+
+    def cams(views):
+        return (torch.tensor(np.stack([v.c2w for v in views]), dtype=torch.float32, device=dev),
+                torch.tensor(np.stack([v.intrinsics for v in views]), dtype=torch.float32, device=dev))
+
+    c2w, intr = cams(ins)
+    o, d = camera.pixel_rays(c2w, intr, res, res)
+    b = (o * d).sum(-1)
+    disc = b * b - ((o * o).sum(-1) - 0.36)
+    hit = disc > 0
+    t = -b - disc.clamp_min(0).sqrt()
+    p = o + t[..., None] * d
+    n = p / p.norm(dim=-1, keepdim=True)
+    checker = ((torch.floor(p[..., 0] * 6) + torch.floor(p[..., 1] * 6) + torch.floor(p[..., 2] * 6)) % 2)
+    albedo = torch.stack([0.2 + 0.6 * checker, 0.5 - 0.2 * checker, 0.3 + 0.1 * checker], -1)
+    light = torch.tensor([0.5, 0.3, 0.8], device=dev)
+    shade = 0.15 + (n * light / light.norm()).sum(-1).clamp_min(0)
+    alpha = hit.float()[..., None]
+    t_c2w, t_intr = cams(tgts)
+    return {"rgb": albedo * shade[..., None] * alpha, "alpha": alpha, "c2w": c2w, "intr": intr,
+            "t_c2w": t_c2w, "t_intr": t_intr}
+
+
+def synthetic_env(height: int, seed: int, dev: torch.device) -> torch.Tensor:
+    """A smooth sky-like HDR map (height, 2 * height, 3) with a sun blob (its position from ``seed``)."""
+    from frng import envmap
+
+    g = torch.Generator().manual_seed(seed)
+    dirs = envmap.pixel_directions(height, 2 * height)
+    sun = torch.nn.functional.normalize(torch.randn(3, generator=g).abs() * torch.tensor([1.0, 1.0, 2.0]), dim=0)
+    sky = 0.3 + 0.7 * dirs[..., 2:3].clamp_min(0) * torch.tensor([0.5, 0.7, 1.0])
+    blob = 50.0 * torch.exp(((dirs * sun).sum(-1, keepdim=True) - 1.0) / 0.002)
+    return (sky + blob).float().to(dev)
+
+
+def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict:
+    from frng import config as frng_config
+    from frng.model.frng import FRNG, variant_config
+    from frng.priors import freeze
+    from frng.priors import backbone as backbone_mod
+    from frng.priors import idm as idm_mod
+    from frng.priors.data import Views
+
+    config = frng_config.load(path)
+    res = args.resolution
+    patch = int(config["model"]["patch_size"])
+    if res % patch:
+        raise SystemExit(f"--resolution {res} is not a multiple of the patch size {patch} ({path})")
+    torch.manual_seed(args.seed)
+    bcfg = {**config["backbone"], "patch": patch}
+    backbone = freeze(backbone_mod.build(bcfg).to(dev))
+    idm_cfg = {k: v for k, v in config["idm"].items() if k in idm_mod.IDMConfig.__dataclass_fields__}
+    idm = freeze(idm_mod.build({**idm_cfg, "patch": patch}).to(dev))
+    fcfg, _ = variant_config(config, "full", backbone.cfg.to_dict())
+    model = FRNG.from_backbone(fcfg, backbone).to(dev).eval()
+    spp = args.spp or int(config["shading"]["spp_infer"])
+    obj = synthetic_object(config, res, args.target_views, args.seed, dev)
+    env_h = max(16, int(config["envmaps"]["width"]) // 2)
+    env_in = synthetic_env(env_h, args.seed, dev)
+    envs = [synthetic_env(env_h, args.seed + 1 + i, dev) for i in range(args.lights)]
+    rgb, alpha, c2w, intr, t_c2w, t_intr = (obj[k] for k in ("rgb", "alpha", "c2w", "intr", "t_c2w", "t_intr"))
+    nd = backbone.cfg.den_views
+    Vt = t_c2w.shape[0]
+    amp = torch.autocast(dev.type, dtype=torch.bfloat16) if args.bf16 else nullcontext()
+    R = args.repeats
+
+    def gen(seed):
+        return torch.Generator(device=dev).manual_seed(seed)
+
+    with torch.no_grad(), amp:
+        t_geo_s, (t_geo, raw, gauss, keep) = _timed(lambda: backbone.reconstruct(rgb, alpha, c2w, intr), dev, R)
+        t_app_s, (sh_in, t_app) = _timed(lambda: backbone.denoise(
+            t_geo, gauss, keep, env_in[None], c2w[:nd], intr[:nd], res, res, generator=gen(0)), dev, R)
+        views = Views([f"in_{i:02d}" for i in range(6)], rgb, alpha, c2w, intr)
+        t_idm_s, priors = _timed(lambda: idm.predict(views.rgb, views.alpha, views.c2w, views.intr), dev, R)
+        bv = {"t_geo": t_geo[0].float(), "raw": raw.float(), "means": gauss.means, "quats": gauss.quats,
+              "scales": gauss.scales, "opacities": gauss.opacities, "keep": keep.to(torch.uint8), "c2w": c2w,
+              "intr": intr, "light0.t_app": t_app[0].float()}
+        images = torch.cat([rgb, alpha], -1)
+        t_frng_s, rec = _timed(lambda: model.reconstruct(bv, 0, priors, images), dev, R)
+    with torch.no_grad():
+        t_ras_s, raster = _timed(lambda: model.rasterize(rec, t_c2w, t_intr, res, res), dev, R)
+        t_shade_s, _ = _timed(lambda: [model.shade(raster, e, spp, generator=gen(i)) for i, e in enumerate(envs)],
+                              dev, R)
+
+    def backbone_relight():
+        with torch.no_grad(), amp:
+            for i, e in enumerate(envs):
+                sh, _ = backbone.denoise(t_geo, gauss, keep, e[None], c2w[:nd], intr[:nd], res, res, generator=gen(i))
+                backbone.render(gauss, sh, t_c2w, t_intr, res, res, keep)
+
+    t_bb_s, _ = _timed(backbone_relight, dev, R)
+    L = len(envs)
+    raster_ms, shade_ms = 1000 * t_ras_s / Vt, 1000 * t_shade_s / (L * Vt)
+    frng_ms, frng_amort_ms = raster_ms + shade_ms, shade_ms + raster_ms / L
+    bb_ms = 1000 * t_bb_s / (L * Vt)
+    n_params = lambda m: sum(p.numel() for p in m.parameters())  # noqa: E731
+    return {
+        "config": path, "tier": config["tier"], "device": str(dev), "threads": torch.get_num_threads(),
+        "bf16": bool(args.bf16), "resolution": res, "spp": spp, "lights": L, "target_views": Vt,
+        "gaussians": int(rec.gaussians.means.shape[0]),
+        "backbone_params_m": n_params(backbone) / 1e6, "frng_params_m": n_params(model) / 1e6,
+        "reconstruction_s": t_geo_s + t_app_s + t_idm_s + t_frng_s,
+        "backbone_geometry_s": t_geo_s, "backbone_appearance_s": t_app_s, "idm_s": t_idm_s, "frng_s": t_frng_s,
+        "raster_ms_per_view": raster_ms, "shade_ms_per_image": shade_ms,
+        "frng_ms_per_image": frng_ms, "frng_ms_per_image_amortised": frng_amort_ms,
+        "backbone_ms_per_image": bb_ms, "speedup": bb_ms / frng_ms, "speedup_amortised": bb_ms / frng_amort_ms,
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    from frng import training as tr
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    dev = tr.resolve_device(args.device)
+    for path in args.configs:
+        if not Path(path).exists():
+            raise SystemExit(f"frng bench relight: config {path} does not exist")
+    for path in args.configs:
+        r = bench_config(path, args, dev)
+        if args.json:
+            print(json.dumps(r), flush=True)
+            continue
+        print(f"== {r['tier']} sizes ({path}) on {r['device']} ({r['threads']} threads{', bf16' if r['bf16'] else ''}), "
+              f"{r['resolution']} px, {r['spp']} spp, {r['lights']} lights x {r['target_views']} views, "
+              f"{r['gaussians']} Gaussians; backbone {r['backbone_params_m']:.1f} M params, "
+              f"F-RNG {r['frng_params_m']:.1f} M params")
+        print(f"  F-RNG reconstruction {r['reconstruction_s']:.2f} s (backbone geometry {r['backbone_geometry_s']:.2f}, "
+              f"appearance {r['backbone_appearance_s']:.2f}, IDM {r['idm_s']:.2f}, F-RNG {r['frng_s']:.2f})")
+        print(f"  F-RNG relighting {r['frng_ms_per_image']:.1f} ms/image (raster {r['raster_ms_per_view']:.1f} + "
+              f"shade {r['shade_ms_per_image']:.1f}); amortised over {r['lights']} lights "
+              f"{r['frng_ms_per_image_amortised']:.1f} ms/image")
+        print(f"  backbone relighting {r['backbone_ms_per_image']:.1f} ms/image -> speed-up {r['speedup']:.1f}x "
+              f"({r['speedup_amortised']:.1f}x amortised)", flush=True)
+    return 0
