@@ -155,6 +155,7 @@ def relight_object(config: dict, oid: str, models: dict[str, Path], backbone_pat
     Writes into ``out_root`` (a staging folder): ``{run}/...`` folders and ``timing.json``. Returns the timing."""
     from frng.data import catalog
     from frng.model.frng import FRNG
+    from frng.render.shading import ShadingConfig
     from frng.priors import build_idm, load_backbone
     from frng.priors.dataset import load_object
 
@@ -215,7 +216,8 @@ def relight_object(config: dict, oid: str, models: dict[str, Path], backbone_pat
             rec_s = t_rec.s
         else:
             if run.variant not in loaded:
-                loaded[run.variant] = FRNG.load(models[run.variant], device)
+                loaded[run.variant] = FRNG.load(models[run.variant], device).set_inference_shading(
+                    ShadingConfig.from_config(config))
             model = loaded[run.variant]
             priors = p["priors"] if model.cfg.uses_priors else None
             with torch.no_grad():

@@ -16,7 +16,8 @@ at a resolution this machine can afford, and measures, with the same code paths 
 - ``speedup``: backbone / F-RNG (single new image), ``speedup_amortised``.
 
 Medians of ``--repeats`` runs after a warm-up. ``--device cuda`` where a GPU is present (gsplat backend if
-installed); ``--bf16`` runs the transformers under bf16 autocast (CPU: AMX; CUDA).
+installed); ``--bf16`` runs the transformers and the decoder under bf16 autocast (CPU: AMX; CUDA); the decoder
+also uses bf16 when the config's ``shading.bf16_infer`` is true.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import json
 import statistics
 import time
 from contextlib import nullcontext
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -121,6 +123,7 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
     from frng.priors import backbone as backbone_mod
     from frng.priors import idm as idm_mod
     from frng.priors.data import Views
+    from frng.render.shading import ShadingConfig
 
     config = frng_config.load(path)
     res = args.resolution
@@ -133,7 +136,10 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
     idm_cfg = {k: v for k, v in config["idm"].items() if k in idm_mod.IDMConfig.__dataclass_fields__}
     idm = freeze(idm_mod.build({**idm_cfg, "patch": patch}).to(dev))
     fcfg, _ = variant_config(config, "full", backbone.cfg.to_dict())
-    model = FRNG.from_backbone(fcfg, backbone).to(dev).eval()
+    shading = ShadingConfig.from_config(config)
+    if args.bf16:
+        shading = replace(shading, bf16_infer=True)
+    model = FRNG.from_backbone(fcfg, backbone, shading=shading).to(dev).eval()
     spp = args.spp or int(config["shading"]["spp_infer"])
     obj = synthetic_object(config, res, args.target_views, args.seed, dev)
     env_h = max(16, int(config["envmaps"]["width"]) // 2)
@@ -178,7 +184,7 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
     n_params = lambda m: sum(p.numel() for p in m.parameters())  # noqa: E731
     return {
         "config": path, "tier": config["tier"], "device": str(dev), "threads": torch.get_num_threads(),
-        "bf16": bool(args.bf16), "resolution": res, "spp": spp, "lights": L, "target_views": Vt,
+        "bf16": bool(args.bf16), "bf16_decoder": shading.bf16_infer, "resolution": res, "spp": spp, "lights": L, "target_views": Vt,
         "gaussians": int(rec.gaussians.means.shape[0]),
         "backbone_params_m": n_params(backbone) / 1e6, "frng_params_m": n_params(model) / 1e6,
         "reconstruction_s": t_geo_s + t_app_s + t_idm_s + t_frng_s,
