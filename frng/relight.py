@@ -57,7 +57,6 @@ from frng import envmap, io
 from frng.variants import BACKBONE, RIG_VIEWS, Run, model_variants, runs  # noqa: F401
 
 
-
 class RelightError(ValueError):
     """Bad input to ``frng relight`` (names the file at fault); nothing was written."""
 
