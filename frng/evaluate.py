@@ -64,7 +64,7 @@ def evaluate(config: dict, run_dirs: list[Path], out_dir: Path) -> tuple[Path, P
 
 def run_dirs_of(config: dict, objects: list[str]) -> list[Path]:
     """Every ``{results}/relight/{run}/{obj}`` folder the config plans for these test objects."""
-    from frng.relight import runs
+    from frng.variants import runs
 
     results = Path(config["results"])
     return [results / "relight" / r.name / oid for oid in objects for r in runs(config)]
