@@ -36,7 +36,7 @@ from frng import metrics as M
 from frng import tables as T
 from frng.variants import BACKBONE, BASE_VARIANTS, RIG_VIEWS
 
-TABLES = ("vs_backbone", "ablation", "views", "k", "timing")
+TABLES = tuple(T.TABLE_COLUMNS)
 VARIANT_LABELS = {
     "full": "full model",
     "no-fine": "w/o fine-grained Gaussians",

@@ -1,6 +1,8 @@
 # Evaluation (frng/evaluate.py), the paper's tables (frng/paper_tables.py) and figures (frng/paper_figures.py).
 # Tables and figures are wrapped in report(...) for `snakemake --report` (captions in workflow/report/).
-TABLE_NAMES = ["vs_backbone", "ablation", "views", "k", "timing"]
+from frng.tables import TABLE_COLUMNS
+
+TABLE_NAMES = list(TABLE_COLUMNS)  # the paper's five tables (frng/tables.py)
 _TABLE_CAPTIONS = {"vs_backbone": "F-RNG vs backbone", "ablation": "ablation", "views": "number of input views",
                    "k": "top-K patches", "timing": "timing"}
 
