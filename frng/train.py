@@ -16,10 +16,14 @@ One step = ``train.batch`` objects (split over ranks under torchrun/srun, :mod:`
 3. target light: uniform over the object's target lights and its other input lights; ``train.target_views`` random
    views of it (target views, or input views for an input light); render under that light's env map with
    ``shading.spp_train`` importance samples of which ``shading.spp_grad`` carry gradients (paper 64 / 24);
-4. L_2: mean squared error over foreground pixels (target alpha > 0.5 or rendered alpha > 0.5) of the
-   premultiplied RGB after ``x -> (max(x, 0) + 1e-4)^(1/2.2)`` (a display-like encoding without an upper clamp,
-   so over-bright predictions still get a gradient); L_per: LPIPS-vgg (real ImageNet weights,
-   :class:`frng.perceptual.PerceptualLoss`) on the sRGB-encoded renders over black.
+4. both images are composited over ``train.background`` (default white, the evaluation's background: a render
+   whose alpha falls short of the target's near the silhouette is then penalised for the background showing
+   through, and the decoder learns colours that hold up where the frozen coarse geometry is thin);
+   L_2: mean squared error over foreground pixels (target alpha > 0.5 or rendered alpha > 0.5) of the composited
+   RGB after ``x -> (max(x, 0) + 1e-4)^(1/2.2)`` (a display-like encoding without an upper clamp, so over-bright
+   predictions still get a gradient); L_per: LPIPS-vgg (real ImageNet weights,
+   :class:`frng.perceptual.PerceptualLoss`) on the sRGB-encoded composited renders, from step
+   ``train.perceptual_after`` on (0: from the start).
 
 The frozen backbone is loaded once, only to copy its GeoDetokenizer into the FineGeoDetokenizer (and for its
 architecture); it is never run and gets no gradient. Outputs in ``--out`` (default ``{results}/models/{variant}``):
@@ -64,6 +68,8 @@ class TrainConfig:
     target_views: int = 2
     views: int = 6
     perceptual_net: str = "vgg"
+    perceptual_after: int = 0
+    background: tuple = (1.0, 1.0, 1.0)
     bf16: bool = True
     checkpoint_every: int = 25
     loss: dict = field(default_factory=lambda: {"lambda_1": 1.0, "lambda_per": 0.5, "lambda_c": 0.2,
@@ -71,7 +77,9 @@ class TrainConfig:
 
     @classmethod
     def from_config(cls, config: dict) -> "TrainConfig":
-        d = config.get("train", {})
+        d = dict(config.get("train", {}))
+        if "background" in d:
+            d["background"] = tuple(float(c) for c in d["background"])
         return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
 
     def steps_for(self, variant: str) -> int:
@@ -124,9 +132,27 @@ def load_objects(config: dict, ids: list[str], backbone_path: Path, use_priors: 
     return out
 
 
+def composite(rgba: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
+    """Premultiplied RGBA (..., 4) over a constant background (3,) -> RGB (..., 3)."""
+    return rgba[..., :3] + (1.0 - rgba[..., 3:4]) * background
+
+
 def encode_display(x: torch.Tensor) -> torch.Tensor:
     """The L_2 space: (max(x, 0) + 1e-4)^(1/2.2), no upper clamp (see the module docstring)."""
     return (x.clamp_min(0.0) + 1e-4) ** (1.0 / 2.2)
+
+
+def l2_loss(out: torch.Tensor, tgt: torch.Tensor, background) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """L_2 of a render against its target (module docstring, step 4).
+
+    out, tgt: (B, H, W, 4) linear premultiplied RGBA; background: 3 floats (``train.background``).
+    Returns (L_2 scalar, out RGB (B, H, W, 3) and tgt RGB composited over the background).
+    """
+    fg = ((tgt[..., 3:4] > 0.5) | (out[..., 3:4].detach() > 0.5)).to(out.dtype)
+    bg = torch.as_tensor(background, device=out.device, dtype=out.dtype)
+    rgb_out, rgb_tgt = composite(out, bg), composite(tgt, bg)
+    diff = (encode_display(rgb_out) - encode_display(rgb_tgt)) ** 2 * fg
+    return diff.sum() / (3 * fg.sum()).clamp_min(1.0), rgb_out, rgb_tgt
 
 
 class StepLoss(nn.Module):
@@ -139,6 +165,7 @@ class StepLoss(nn.Module):
         self.perceptual = perceptual  # frozen (no parameters require grad)
         w = tcfg.loss
         self.lambda_1, self.lambda_per = w["lambda_1"], w["lambda_per"]
+        self.step = 0  # set by the training loop (L_per starts at ``tcfg.perceptual_after``)
 
     @property
     def ind_on(self) -> bool:
@@ -162,13 +189,11 @@ class StepLoss(nn.Module):
             gen = torch.Generator().manual_seed(seed)
             out = m.render(recs[0], env, c2w[vi], K[vi], H, W, spp=sc.spp_train, generator=gen,
                            spp_grad=sc.spp_grad)
-            fg = ((tgt[..., 3:4] > 0.5) | (out[..., 3:4].detach() > 0.5)).float()
-            diff = (encode_display(out[..., :3]) - encode_display(tgt[..., :3])) ** 2 * fg
-            l2 = diff.sum() / (3 * fg.sum()).clamp_min(1.0)
+            l2, rgb_out, rgb_tgt = l2_loss(out, tgt, self.tcfg.background)
             loss = self.lambda_1 * l2
             logs["l2"] += float(l2.detach())
-            if self.perceptual is not None and self.lambda_per > 0:
-                per = self.perceptual(out[..., :3].permute(0, 3, 1, 2), tgt[..., :3].permute(0, 3, 1, 2))
+            if self.perceptual is not None and self.lambda_per > 0 and self.step >= self.tcfg.perceptual_after:
+                per = self.perceptual(rgb_out.permute(0, 3, 1, 2), rgb_tgt.permute(0, 3, 1, 2))
                 loss = loss + self.lambda_per * per
                 logs["perceptual"] += float(per.detach())
             if len(recs) > 1:
@@ -274,6 +299,7 @@ def train(config: dict, variant: str, out: Path, backbone_path: Path | None = No
             j, ti, vidx = sample(obj, rng, tcfg.target_views)
             seed = (config["seed"] * 1_000_003 + step * 1009 + info.rank * 31 + b) % (2**31 - 1)
             samples.append((obj, j, ti, vidx, seed))
+        step_loss.step = step
         loss, logs = ddp(samples)
         loss.backward()
         gnorm = torch.nn.utils.clip_grad_norm_(params, tcfg.grad_clip)

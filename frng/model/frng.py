@@ -137,8 +137,7 @@ class FRNG(nn.Module):
         self.decoder = NeuralDecoder(cfg.feature_dim, cfg.decoder_width, cfg.decoder_depth, cfg.dir_freqs) \
             if cfg.head == "neural" else None
         if self.decoder is not None:  # start dim: softplus(-3) ~ 0.05 reflectance x cos, not ~0.7 (over-bright renders)
-            nn.init.constant_(self.decoder.out.bias, -3.0)
-            self.decoder.out.weight.data.mul_(0.1)
+            nn.init.constant_(self.decoder.out.bias, -3.0)  # weights keep PyTorch's init: x0.1 froze the output
 
     # -- construction / files ------------------------------------------------------------------------------
 
