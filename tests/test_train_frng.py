@@ -159,3 +159,16 @@ def test_train_killed_then_resumed(frng_smoke, tmp_path):
     rows = list(csv.DictReader(open(out / "loss.csv")))
     assert [int(r["step"]) for r in rows] == list(range(1, steps + 1))
     assert all(r["ind"] in ("0", "0.0") for r in rows)  # no-ind: the L_ind pass is skipped
+
+
+def test_l2_loss_composites_over_the_training_background():
+    from frng.train import l2_loss
+
+    tgt = torch.zeros(1, 4, 4, 4)
+    tgt[..., :3], tgt[..., 3] = 0.2, 1.0
+    assert float(l2_loss(tgt, tgt, (1.0, 1.0, 1.0))[0]) == 0.0
+    thin = tgt * 0.5  # same colour, half the coverage (premultiplied)
+    black = float(l2_loss(thin, tgt, (0.0, 0.0, 0.0))[0])
+    white, rgb_out, rgb_tgt = l2_loss(thin, tgt, (1.0, 1.0, 1.0))
+    assert torch.allclose(rgb_out, torch.full_like(rgb_out, 0.6)) and torch.allclose(rgb_tgt, tgt[..., :3])
+    assert float(white) > black > 0.0  # white shows through the thin silhouette; the darker colour over black
