@@ -150,9 +150,15 @@ def srgb_decode(encoded: np.ndarray) -> np.ndarray:
     return np.asarray(colour.cctf_decoding(np.clip(encoded, 0.0, 1.0), function="sRGB"), dtype=np.float32)
 
 
-def composite(rgba: np.ndarray, background: Sequence[float] = (1.0, 1.0, 1.0)) -> np.ndarray:
-    """Premultiplied RGBA (..., 4) over a constant background -> RGB (..., 3)."""
-    bg = np.asarray(background, dtype=np.float32)
+def composite(rgba, background: Sequence[float] = (1.0, 1.0, 1.0)):
+    """Premultiplied RGBA (..., 4) over a constant background -> RGB (..., 3); a numpy array or a torch tensor
+    (differentiable, on the tensor's device and dtype)."""
+    if isinstance(rgba, np.ndarray):
+        bg = np.asarray(background, dtype=np.float32)
+    else:
+        import torch
+
+        bg = torch.as_tensor(background, dtype=rgba.dtype, device=rgba.device)
     return rgba[..., :3] + (1.0 - rgba[..., 3:4]) * bg
 
 

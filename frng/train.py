@@ -132,11 +132,6 @@ def load_objects(config: dict, ids: list[str], backbone_path: Path, use_priors: 
     return out
 
 
-def composite(rgba: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
-    """Premultiplied RGBA (..., 4) over a constant background (3,) -> RGB (..., 3)."""
-    return rgba[..., :3] + (1.0 - rgba[..., 3:4]) * background
-
-
 def encode_display(x: torch.Tensor) -> torch.Tensor:
     """The L_2 space: (max(x, 0) + 1e-4)^(1/2.2), no upper clamp (see the module docstring)."""
     return (x.clamp_min(0.0) + 1e-4) ** (1.0 / 2.2)
@@ -149,8 +144,7 @@ def l2_loss(out: torch.Tensor, tgt: torch.Tensor, background) -> tuple[torch.Ten
     Returns (L_2 scalar, out RGB (B, H, W, 3) and tgt RGB composited over the background).
     """
     fg = ((tgt[..., 3:4] > 0.5) | (out[..., 3:4].detach() > 0.5)).to(out.dtype)
-    bg = torch.as_tensor(background, device=out.device, dtype=out.dtype)
-    rgb_out, rgb_tgt = composite(out, bg), composite(tgt, bg)
+    rgb_out, rgb_tgt = io.composite(out, background), io.composite(tgt, background)
     diff = (encode_display(rgb_out) - encode_display(rgb_tgt)) ** 2 * fg
     return diff.sum() / (3 * fg.sum()).clamp_min(1.0), rgb_out, rgb_tgt
 
