@@ -17,6 +17,9 @@ table            rows                                                columns
 ``timing``       F-RNG and the backbone, mean over test objects      method, reconstruction_s,
                                                                      relight_ms_per_image, resolution, spp,
                                                                      speedup (vs the backbone)
+``ladder``       the quality ladder (:data:`LADDER_STEPS`): oracle   step, what, n, psnr, ssim, lpips,
+                 references, backbone, F-RNG, F-RNG + oracle priors  scale_log2
+                 (also reads ``{results}/metrics/backbone.csv``)
 ================ =================================================== =====================================
 
 Metric values are means of per-image values (PSNR averaged in dB) over all test objects, lights and views.
@@ -34,7 +37,7 @@ from frng import config as frng_config
 from frng import io
 from frng import metrics as M
 from frng import tables as T
-from frng.variants import BACKBONE, BASE_VARIANTS, RIG_VIEWS
+from frng.variants import BACKBONE, BASE_VARIANTS, ORACLE_RUN, RIG_VIEWS
 
 TABLES = tuple(T.TABLE_COLUMNS)
 VARIANT_LABELS = {
@@ -104,6 +107,40 @@ def k_table(df: pd.DataFrame) -> pd.DataFrame:
     return out[list(T.TABLE_COLUMNS["k"])].reset_index(drop=True)
 
 
+LADDER_STEPS = (  # (step, what, source, task/run, method); source "prior" = backbone.csv, "relight" = per-image
+    ("a", "ground-truth depth + oracle colour (representation ceiling)", "prior", "relight", "gt-depth+oracle-colour"),
+    ("b", "backbone geometry + oracle colour", "prior", "relight", "backbone-geometry+oracle-colour"),
+    ("c", "backbone novel views (input light, held-out views)", "prior", "nvs", "backbone"),
+    ("d", "backbone relighting", "relight", BACKBONE, None),
+    ("e", "F-RNG relighting", "relight", "full", None),
+    ("f", "F-RNG relighting with oracle (G-buffer) IDM priors", "relight", ORACLE_RUN, None),
+    ("-", "trivial baseline: mean training image", "prior", "relight", "mean-image"),
+)
+
+
+def scale_error(df: pd.DataFrame) -> pd.Series:
+    """Per row: the largest |log2| of the aligned protocol's per-channel scales (0 = the colours needed no repair)."""
+    return np.log2(df[["scale_r", "scale_g", "scale_b"]].clip(lower=1e-6)).abs().max(axis=1)
+
+
+def ladder_table(df: pd.DataFrame, prior: pd.DataFrame) -> pd.DataFrame:
+    """The quality ladder (rows of :data:`LADDER_STEPS` present in the inputs): where the dB go, on the held-out
+    relighting images (row c: the held-out input-light views). ``scale_log2``: median over images of
+    :func:`scale_error`. LPIPS only for the relighting stage's rows (the prior evaluation does not compute it)."""
+    rows = []
+    for step, what, source, key, method in LADDER_STEPS:
+        if source == "prior":
+            sub = prior[(prior["task"] == key) & (prior["method"] == method)]
+        else:
+            sub = df[df["run"] == key]
+        if not len(sub):
+            continue
+        rows.append({"step": step, "what": what, "n": len(sub), "psnr": sub["psnr"].mean(),
+                     "ssim": sub["ssim"].mean(), "lpips": sub["lpips"].mean() if "lpips" in sub else np.nan,
+                     "scale_log2": float(scale_error(sub).median()) if "scale_r" in sub else np.nan})
+    return pd.DataFrame(rows, columns=list(T.TABLE_COLUMNS["ladder"]))
+
+
 def timing_table(timings: list[dict]) -> pd.DataFrame:
     rows = []
     for m in ("F-RNG", BACKBONE):
@@ -115,8 +152,9 @@ def timing_table(timings: list[dict]) -> pd.DataFrame:
     return T.timing(pd.DataFrame(rows), reference=METHOD_LABELS[BACKBONE])
 
 
-def write_tables(config: dict, per_image_csv: Path, timing_files: list[Path], out_dir: Path) -> dict[str, dict]:
-    """Write the five tables (see the module docstring). Returns {table: {"csv"|"md"|"tex": path}}."""
+def write_tables(config: dict, per_image_csv: Path, timing_files: list[Path], out_dir: Path,
+                 prior_csv: Path) -> dict[str, dict]:
+    """Write the tables (see the module docstring). Returns {table: {"csv"|"md"|"tex": path}}."""
     df = M.read_csv(per_image_csv)
     missing = [c for c in ("dataset", "object", "run", "method", "variant", "views", "k", "psnr", "ssim", "lpips",
                            "protocol") if c not in df.columns]
@@ -144,6 +182,12 @@ def write_tables(config: dict, per_image_csv: Path, timing_files: list[Path], ou
         k_table(df), out_dir / "k",
         caption=_caption("Top-K salient patches (K in % of a view's patches; 2% is the full model).", config,
                          k_rows(df)), label="tab:k")
+    prior = pd.read_csv(prior_csv)
+    out["ladder"] = T.write_table(
+        ladder_table(df, prior), out_dir / "ladder", decimals={"scale_log2": 2},
+        caption=(f"Quality ladder: where the dB go. Aligned protocol on the held-out relighting images (row c: the "
+                 f"held-out input-light views); scale_log2 = median over images of the largest |log2| per-channel "
+                 f"scale the protocol applied. Tier {config['tier']}."), label="tab:ladder")
     t = timing_table(timings)
     out["timing"] = T.write_table(
         t, out_dir / "timing",
@@ -160,6 +204,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--timing", nargs="*", help="timing JSONs (default {results}/relight/timing/*.json of "
                                                     "the test objects)")
     parser.add_argument("--out", help="tables folder (default {results}/tables)")
+    parser.add_argument("--prior-metrics", help="the priors' evaluation CSV for the quality ladder "
+                                                "(default {results}/metrics/backbone.csv)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -169,7 +215,8 @@ def run(args: argparse.Namespace) -> int:
     res = Path(config["results"])
     timing = args.timing or [res / "relight" / "timing" / f"{o}.json" for o in catalog.plan(config).split("test")]
     out = write_tables(config, Path(args.metrics or res / "metrics" / "relight_per_image.csv"),
-                       [Path(p) for p in timing], Path(args.out or res / "tables"))
+                       [Path(p) for p in timing], Path(args.out or res / "tables"),
+                       Path(args.prior_metrics or res / "metrics" / "backbone.csv"))
     for name, paths in out.items():
         print(f"== {name} ({paths['md']})\n{paths['md'].read_text()}")
     return 0

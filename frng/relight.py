@@ -130,12 +130,13 @@ def backbone_views(config: dict, backbone, oid: str, views, env_in: torch.Tensor
 
     rgb, a, c2w, intr = (x.to(device) for x in (views.rgb, views.alpha, views.c2w, views.intr))
     H, W = rgb.shape[1:3]
-    t_geo, raw, gauss, keep = backbone.reconstruct(rgb, a, c2w, intr)
+    t_geo, raw, gauss, keep, raw_prior, pixels = backbone.reconstruct(rgb, a, c2w, intr)
     nd = backbone.cfg.den_views
     g = torch.Generator(device=device).manual_seed(catalog.derive_seed(config["seed"], "cache", oid, light_in))
     sh, t_app = backbone.denoise(t_geo, gauss, keep, env_in.to(device)[None], c2w[:nd], intr[:nd], H, W,
-                                 generator=g)
-    return {"t_geo": t_geo[0].float(), "raw": raw.float(), "means": gauss.means, "quats": gauss.quats,
+                                 generator=g, pixels=pixels)
+    return {"t_geo": t_geo[0].float(), "raw": raw.float(), "raw_prior": raw_prior.float(), "means": gauss.means,
+            "quats": gauss.quats,
             "scales": gauss.scales, "opacities": gauss.opacities, "keep": keep.to(torch.uint8), "c2w": c2w,
             "intr": intr, "light0.t_app": t_app[0].float(), "light0.sh": sh.float()}
 
@@ -159,8 +160,10 @@ def relight_object(config: dict, oid: str, models: dict[str, Path], backbone_pat
     from frng.priors.dataset import load_object
 
     idm = build_idm(config, device)
-    obj = load_object(config, oid, with_targets=False, with_gbuffer=idm.kind == "oracle")
     meta = io.read_json(Path(config["results"], "objects", oid, "meta.json"))
+    the_runs = runs(config, len(meta["views"]["inputs"]))
+    need_gbuffer = idm.kind == "oracle" or any(r.priors == "oracle" for r in the_runs)
+    obj = load_object(config, oid, with_targets=False, with_gbuffer=need_gbuffer)
     light_in = obj.input_lights[0]
     views_all = obj.inputs[light_in]
     cams_t = meta["views"]["targets"]
@@ -171,7 +174,6 @@ def relight_object(config: dict, oid: str, models: dict[str, Path], backbone_pat
     lights = obj.target_lights or list(meta["target_lights"])
     envs = {l: obj.envs[l].to(device) for l in lights}
     spp = int(config["shading"]["spp_infer"])
-    the_runs = runs(config, len(views_all))
     backbone = load_backbone(backbone_path, device)
 
     # live priors per view count (shared by every run with that V)
@@ -186,6 +188,8 @@ def relight_object(config: dict, oid: str, models: dict[str, Path], backbone_pat
             images = torch.cat([v.rgb, v.alpha], -1).to(device)
             prepared[V] = {"bv": bv, "images": images, "priors": pri_all.select(slice(0, V)).to(device),
                            "names": v.names, "backbone_s": t_bb.s}
+            if obj.gbuffer is not None:
+                prepared[V]["oracle"] = obj.gbuffer.select(slice(0, V)).to(device)
 
     timing: dict = {"object": oid, "device": str(device), "resolution": int(H), "spp": spp,
                     "target_views": len(t_names), "lights": len(lights), "idm_s": t_idm.s}
@@ -201,13 +205,13 @@ def relight_object(config: dict, oid: str, models: dict[str, Path], backbone_pat
             nd = backbone.cfg.den_views
             with torch.no_grad():
                 with Timer(device) as t_rec:
-                    t_geo, _, gauss, keep = backbone.reconstruct(rgb, a, c2w, intr)
+                    t_geo, _, gauss, keep, _, pixels = backbone.reconstruct(rgb, a, c2w, intr)
                 for light in lights:
                     g = torch.Generator(device=device).manual_seed(
                         catalog.derive_seed(config["seed"], "relight", oid, light))
                     with Timer(device) as t_l:
                         sh, _ = backbone.denoise(t_geo, gauss, keep, envs[light][None], c2w[:nd], intr[:nd], H, W,
-                                                 generator=g)
+                                                 generator=g, pixels=pixels)
                         out, out_a, _ = backbone.render(gauss, sh, t_c2w, t_intr, H, W, keep)
                         rgba = torch.cat([out.clamp(0.0, 1.0) ** 2.2, out_a], -1)
                     per_light_ms.append(1000.0 * t_l.s / len(t_names))
@@ -218,7 +222,7 @@ def relight_object(config: dict, oid: str, models: dict[str, Path], backbone_pat
                 loaded[run.variant] = FRNG.load(models[run.variant], device).set_inference_shading(
                     ShadingConfig.from_config(config))
             model = loaded[run.variant]
-            priors = p["priors"] if model.cfg.uses_priors else None
+            priors = (p["oracle"] if run.priors == "oracle" else p["priors"]) if model.cfg.uses_priors else None
             with torch.no_grad():
                 with Timer(device) as t_rec:
                     rec = model.reconstruct(p["bv"], 0, priors, p["images"])

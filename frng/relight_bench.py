@@ -155,12 +155,13 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
         return torch.Generator(device=dev).manual_seed(seed)
 
     with torch.no_grad(), amp:
-        t_geo_s, (t_geo, raw, gauss, keep) = _timed(lambda: backbone.reconstruct(rgb, alpha, c2w, intr), dev, R)
+        t_geo_s, (t_geo, raw, gauss, keep, raw_prior, pixels) = _timed(
+            lambda: backbone.reconstruct(rgb, alpha, c2w, intr), dev, R)
         t_app_s, (sh_in, t_app) = _timed(lambda: backbone.denoise(
-            t_geo, gauss, keep, env_in[None], c2w[:nd], intr[:nd], res, res, generator=gen(0)), dev, R)
+            t_geo, gauss, keep, env_in[None], c2w[:nd], intr[:nd], res, res, generator=gen(0), pixels=pixels), dev, R)
         views = Views([f"in_{i:02d}" for i in range(6)], rgb, alpha, c2w, intr)
         t_idm_s, priors = _timed(lambda: idm.predict(views.rgb, views.alpha, views.c2w, views.intr), dev, R)
-        bv = {"t_geo": t_geo[0].float(), "raw": raw.float(), "means": gauss.means, "quats": gauss.quats,
+        bv = {"t_geo": t_geo[0].float(), "raw": raw.float(), "raw_prior": raw_prior.float(), "means": gauss.means, "quats": gauss.quats,
               "scales": gauss.scales, "opacities": gauss.opacities, "keep": keep.to(torch.uint8), "c2w": c2w,
               "intr": intr, "light0.t_app": t_app[0].float()}
         images = torch.cat([rgb, alpha], -1)
@@ -173,7 +174,8 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
     def backbone_relight():
         with torch.no_grad(), amp:
             for i, e in enumerate(envs):
-                sh, _ = backbone.denoise(t_geo, gauss, keep, e[None], c2w[:nd], intr[:nd], res, res, generator=gen(i))
+                sh, _ = backbone.denoise(t_geo, gauss, keep, e[None], c2w[:nd], intr[:nd], res, res, generator=gen(i),
+                                         pixels=pixels)
                 backbone.render(gauss, sh, t_c2w, t_intr, res, res, keep)
 
     t_bb_s, _ = _timed(backbone_relight, dev, R)

@@ -40,6 +40,7 @@ TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
     "views": ("views", "psnr", "ssim", "lpips"),
     "k": ("k_percent", "psnr", "ssim", "lpips"),
     "timing": ("method", "reconstruction_s", "relight_ms_per_image", "resolution", "spp"),
+    "ladder": ("step", "what", "n", "psnr", "ssim", "lpips", "scale_log2"),
 }
 
 # Displayed decimals per column (others: 3 for floats, none for integers).
@@ -52,7 +53,7 @@ HEADERS: dict[str, str] = {
     "psnr": "PSNR", "ssim": "SSIM", "lpips": "LPIPS", "dataset": "Dataset", "method": "Method",
     "variant": "Variant", "views": "Input views", "k_percent": "K (%)", "reconstruction_s": "Reconstruction (s)",
     "relight_ms_per_image": "Relighting (ms/image)", "resolution": "Resolution", "spp": "spp",
-    "speedup": "Speed-up", "n": "n",
+    "speedup": "Speed-up", "n": "n", "step": "Step", "what": "What", "scale_log2": "median |log2 scale|",
 }
 
 LATEX_PREAMBLE_NOTE = (

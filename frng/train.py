@@ -50,7 +50,7 @@ from frng import training as tr
 from frng.model.frng import FRNG, FRNGConfig, all_variants, canonical_variant, trained_variants, variant_config
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
 
-CACHE_KEYS = ("t_geo", "means", "quats", "scales", "opacities", "keep", "c2w", "intr")  # + light{j}.t_app
+CACHE_KEYS = ("t_geo", "raw_prior", "means", "quats", "scales", "opacities", "keep", "c2w", "intr")  # + light{j}.t_app
 LOSS_NAMES = ["total", "l2", "perceptual", "ind", "ind_cos", "ind_kld"]
 
 
@@ -247,7 +247,7 @@ def train(config: dict, variant: str, out: Path, backbone_path: Path | None = No
         from frng.perceptual import PerceptualLoss
 
         perceptual = PerceptualLoss("lpips", net=tcfg.perceptual_net, srgb=True,
-                                    autocast_bf16=tcfg.bf16 and device.type == "cpu").to(device)
+                                    autocast_bf16=tcfg.bf16 and device.type == "cpu" and tr.bf16_ok(device)).to(device)
     step_loss = StepLoss(model, ind, tcfg, perceptual, tcfg.bf16)
     ddp = distributed.wrap(step_loss, info, find_unused_parameters=True)
     params = [p for p in model.parameters() if p.requires_grad]

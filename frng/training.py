@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import functools
 import hashlib
 import os
 import random
@@ -38,9 +39,29 @@ def resolve_device(name: str = "auto") -> torch.device:
     return torch.device(name)
 
 
+@functools.lru_cache(maxsize=None)
+def _cpu_has_bf16() -> bool:
+    """Whether this CPU computes bf16 natively (AMX or AVX512-BF16). Without it, torch emulates bf16 matmuls and
+    autocast is several times SLOWER than float32 (measured 8x on an AVX2-only AMD EPYC)."""
+    try:
+        flags = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return False
+    return any(f in flags for f in ("amx_bf16", "avx512_bf16"))
+
+
+def bf16_ok(device: torch.device | str) -> bool:
+    """Whether bf16 autocast pays on ``device``: CUDA with bf16 support, or a CPU with native bf16 (AMX/AVX512-BF16).
+    Every ``bf16`` config switch means "bf16 where the hardware has it" and goes through this test."""
+    device = torch.device(device)
+    if device.type == "cuda":
+        return torch.cuda.is_available() and torch.cuda.is_bf16_supported()
+    return device.type == "cpu" and _cpu_has_bf16()
+
+
 def autocast(device: torch.device, bf16: bool):
-    """bf16 autocast on ``device`` when ``bf16`` is set, else a no-op context."""
-    if not bf16:
+    """bf16 autocast on ``device`` when ``bf16`` is set and :func:`bf16_ok`, else a no-op context."""
+    if not (bf16 and bf16_ok(device)):
         return contextlib.nullcontext()
     return torch.autocast(device_type=device.type, dtype=torch.bfloat16)
 

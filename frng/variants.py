@@ -8,7 +8,8 @@ then the K sweep ``k{P}`` (``frng.k_sweep``, P in % of a view's patches). The K-
 ``frng.top_k_percent`` is the full model itself (``k2`` with the paper's 2%): it is not trained twice.
 
 Runs (``{results}/relight/{run}/{obj}/``, :func:`runs`): every variant at the 6-view rig, the K sweep, the #views
-sweep ``full-v{V}`` (the full model fed V input views) and the ``backbone`` baseline.
+sweep ``full-v{V}`` (the full model fed V input views), ``full-oracle`` (the full model fed the test object's
+rendered G-buffers instead of the IDM's priors: how much a perfect IDM would add) and the ``backbone`` baseline.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ BASE_VARIANTS = ("full", "no-fine", "no-idm", "no-ind", "no-neural")
 RIG_VIEWS = 6  # the paper's input rig
 SWEEP_VIEWS = (2, 4, 6, 8, 10)  # the #views table
 BACKBONE = "backbone"
+ORACLE_RUN = "full-oracle"  # the full model fed the G-buffers instead of the IDM's priors (quality ladder row f)
 
 
 def k_variant(percent: float) -> str:
@@ -63,6 +65,7 @@ class Run:
     variant: str  # model variant (folder under results/models/), "backbone" for the baseline
     views: int  # input views fed to the reconstruction
     k_percent: float  # K of the model (NaN for the backbone)
+    priors: str = "idm"  # "idm" (the configured IDM) or "oracle" (the rendered G-buffers: the quality ladder's (f))
 
 
 def runs(config: dict, n_input_views: int | None = None) -> list[Run]:
@@ -81,6 +84,8 @@ def runs(config: dict, n_input_views: int | None = None) -> list[Run]:
             out.append(Run(name, "F-RNG", name, RIG_VIEWS, float(p)))
     out += [Run(f"full-v{V}", "F-RNG", "full", V, k_full)
             for V in view_counts("test", n_input_views) if V != RIG_VIEWS]
+    if config["idm"]["kind"] != "oracle" and int(config["frng"].get("prior_dim", 1)) > 0:
+        out.append(Run(ORACLE_RUN, "F-RNG", "full", RIG_VIEWS, k_full, priors="oracle"))
     out.append(Run(BACKBONE, "backbone", BACKBONE, RIG_VIEWS, float("nan")))
     return out
 

@@ -4,7 +4,7 @@ from frng.tables import TABLE_COLUMNS
 
 TABLE_NAMES = list(TABLE_COLUMNS)  # the paper's five tables (frng/tables.py)
 _TABLE_CAPTIONS = {"vs_backbone": "F-RNG vs backbone", "ablation": "ablation", "views": "number of input views",
-                   "k": "top-K patches", "timing": "timing"}
+                   "k": "top-K patches", "timing": "timing", "ladder": "quality ladder"}
 
 
 rule evaluate:
@@ -41,6 +41,7 @@ rule tables:
     input:
         per_image=res("metrics/relight_per_image.csv"),
         timing=expand(res("relight/timing/{obj}.json"), obj=TEST_IDS),
+        prior=rules.eval_backbone.output.backbone,
     output:
         *[
             report(res(f"tables/{t}.csv"), caption=f"../workflow/report/{t}.rst", category="Tables",
@@ -62,7 +63,7 @@ rule tables:
         runtime=10,
     shell:
         "{params.py} -m frng tables --config {params.config} --metrics {input.per_image} --timing {input.timing} "
-        "--out {params.out} > {log} 2>&1"
+        "--prior-metrics {input.prior} --out {params.out} > {log} 2>&1"
 
 
 rule figures:

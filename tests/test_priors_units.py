@@ -52,7 +52,7 @@ def test_frozen_backbone_cannot_be_updated(tiny_backbone_file):
     opt = torch.optim.AdamW([p for p in parent.parameters() if p.requires_grad], lr=1.0)
     c2w, intr = _rig()
     imgs = torch.rand(1, 3, 16, 16, 3)
-    t_geo, raw = model.encode_geometry(imgs, c2w[None], intr[None])
+    t_geo, raw, _ = model.encode_geometry(imgs, torch.ones(1, 3, 16, 16, 1), c2w[None], intr[None])
     loss = head(t_geo).square().mean() + raw.square().mean()
     loss.backward()
     opt.step()

@@ -28,6 +28,9 @@ def test_runs_cover_ablation_k_and_views_sweeps():
     assert ks == {float(p) for p in config["frng"]["k_sweep"]}
     assert "k2" not in runs  # K = 2% is the full run itself
     assert runs[relight.BACKBONE].method == "backbone"
+    # the quality ladder's row (f): the full model fed the G-buffers instead of the IDM's priors
+    assert runs["full-oracle"].variant == "full" and runs["full-oracle"].priors == "oracle"
+    assert all(r.priors == "idm" for name, r in runs.items() if name != "full-oracle")
     assert len({r.name for r in relight.runs(config, n_input_views=6)}) == len(runs) - 2  # no v8/v10 with 6 views
 
 

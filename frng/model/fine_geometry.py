@@ -129,6 +129,15 @@ def fine_gaussian_uv(patch_idx: torch.Tensor, w: int, patch: int, s: int, dtype=
     return uv.reshape(V, n * s * s, p * p, 2)
 
 
+def sample_pixels(image: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+    """Bilinear reads of a per-pixel map at sub-pixel positions (border pixels replicated).
+
+    image (V, H, W, C); uv (V, M, P, 2) pixel coordinates (x, y), pixel centres at +0.5 -> (V, M, P, C)."""
+    from frng.priors.multiview import sample_image
+
+    return sample_image(image, uv, padding="border")
+
+
 def fine_keep_mask(uv: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """Foreground test for fine Gaussians, the analogue of the backbone's per-pixel ``keep`` (input alpha > 0.5).
 
@@ -228,7 +237,11 @@ class FineGeometry(nn.Module):
         c2w: torch.Tensor,
         intrinsics: torch.Tensor,
         t_prior: torch.Tensor | None = None,
+        raw_prior: torch.Tensor | None = None,
     ) -> FineGeometryOutput:
+        """raw_prior (V, H, W, 9) or None: the backbone's multi-view prior part of its per-pixel raw parameters
+        (``BackboneGeometry.raw_prior``); when given it is sampled bilinearly at every fine Gaussian's sub-pixel
+        position and added to the detokenizer's output, as the backbone adds it to its own."""
         V, h, w, _ = t_geo.shape
         s, p = self.cfg.upsample, self.cfg.patch
         pos = self.positions(patch_idx, w)
@@ -236,6 +249,8 @@ class FineGeometry(nn.Module):
         fine_prior = None if t_prior is None else bilinear_tokens(t_prior, pos)
         raw = self.detokenizer(fine_geo, fine_prior)  # (V, M, P, 9)
         uv = fine_gaussian_uv(patch_idx, w, p, s)  # (V, M, P, 2)
+        if raw_prior is not None:
+            raw = raw.float() + sample_pixels(raw_prior.float(), uv)
         o, d = camera.rays_at(c2w.float(), intrinsics.float(), uv)
         means, quats, scales, opac = decode_raw(raw.float(), o, d, self.decode_cfg)
         g = Gaussians(means.reshape(-1, 3), quats.reshape(-1, 4), scales.reshape(-1, 3), opac.reshape(-1))
@@ -244,5 +259,5 @@ class FineGeometry(nn.Module):
 
 __all__ = [
     "FineGeoDetokenizer", "FineGeometry", "FineGeometryConfig", "FineGeometryOutput", "bilinear_tokens",
-    "fine_gaussian_uv", "fine_keep_mask", "fine_positions",
+    "fine_gaussian_uv", "fine_keep_mask", "fine_positions", "sample_pixels",
 ]

@@ -34,8 +34,9 @@ import torch
 from torch import nn
 
 from frng import envmap
+from frng.training import bf16_ok
 from frng.gaussians import GaussianDecodeConfig, Gaussians
-from frng.model.fine_geometry import FineGeometry, FineGeometryConfig, fine_keep_mask
+from frng.model.fine_geometry import FineGeometry, FineGeometryConfig, fine_keep_mask, sample_pixels
 from frng.model.light_independence import LightIndependenceConfig
 from frng.model.materialformer import (
     MaterialFormerConfig,
@@ -76,6 +77,7 @@ class FRNGConfig:
     far: float = 4.5
     max_radius_px: float | None = 12.0  # footprint cap at render time (the backbone's, unless raster sets one)
     saliency: dict = field(default_factory=dict)  # SaliencyConfig fields (top_k is taken from ``top_k``)
+    pixel_head: int = 32  # hidden width of the per-Gaussian pixel head (0 = off: the paper's linear detokenizer only)
 
     @classmethod
     def from_dict(cls, d: dict) -> "FRNGConfig":
@@ -118,6 +120,49 @@ class Reconstruction:
     t_mat: torch.Tensor | None = None
 
 
+PRIOR_PIXEL_CHANNELS = ("albedo", "normal", "roughness", "metallic")
+
+
+def pixel_channels(uses_priors: bool) -> int:
+    """Channels of :func:`pixel_map`: gamma colour 3 + alpha 1 (+ albedo 3, normal 3, roughness 1, metallic 1)."""
+    return 4 + (8 if uses_priors else 0)
+
+
+def pixel_map(images: torch.Tensor, priors, V: int) -> torch.Tensor:
+    """Per-pixel inputs of the pixel head: images (V, H, W, 4) linear premultiplied RGBA, priors IntrinsicPriors (first
+    V views) or None -> (V, H, W, C): [unpremultiplied gamma-2.2 colour, alpha, (albedo, world normal, roughness,
+    metallic)]."""
+    rgb, a = images[..., :3].float(), images[..., 3:4].float()
+    parts = [(rgb / a.clamp_min(1e-3)).clamp(0, 1) ** (1 / 2.2), a]
+    if priors is not None:
+        d = priors.as_dict()
+        parts += [d[k][:V].to(images.device).float() for k in PRIOR_PIXEL_CHANNELS]
+    return torch.cat(parts, -1)
+
+
+class PixelHead(nn.Module):
+    """Per-Gaussian residual on the MatDetokenizer's output from the Gaussian's own input pixel (our addition).
+
+    The MatDetokenizer is one linear layer from a patch token to p*p Gaussians; at this project's token widths it
+    cannot carry per-pixel detail (a 64 px view is only 8 x 8 tokens), so every Gaussian also sees its input pixel:
+    ``g + MLP([g, pixel])`` with ``pixel`` from :func:`pixel_map` (the no-idm variant gets no prior channels). The
+    last layer starts at zero (the paper's detokenizer at initialisation).
+
+    forward(g (N, C_out), pixel (N, C_pix)) -> (N, C_out)."""
+
+    def __init__(self, out_channels: int, pixel_channels: int, hidden: int):
+        super().__init__()
+        self.pixel_channels = pixel_channels
+        self.mlp = nn.Sequential(nn.Linear(out_channels + pixel_channels, hidden), nn.GELU(),
+                                 nn.Linear(hidden, hidden), nn.GELU(), nn.Linear(hidden, out_channels))
+        nn.init.zeros_(self.mlp[-1].weight)
+        nn.init.zeros_(self.mlp[-1].bias)
+
+    def forward(self, g: torch.Tensor, pixel: torch.Tensor) -> torch.Tensor:
+        assert g.shape[0] == pixel.shape[0] and pixel.shape[-1] == self.pixel_channels, (g.shape, pixel.shape)
+        return g + self.mlp(torch.cat([g, pixel.to(g.dtype)], -1))
+
+
 class FRNG(nn.Module):
     """F-RNG's trainable networks: PriorTokenizer, FineGeometry, MaterialHead, universal decoder.
 
@@ -134,6 +179,9 @@ class FRNG(nn.Module):
         self.fine = FineGeometry(FineGeometryConfig(upsample=cfg.upsample, patch=cfg.patch, geo_dim=cfg.geo_dim,
                                                     prior_dim=cfg.prior_dim), decode) if cfg.fine else None
         self.material = MaterialHead(cfg.materialformer_config())
+        out_ch = self.material.cfg.out_channels
+        self.pixel_head = PixelHead(out_ch, pixel_channels(cfg.uses_priors), cfg.pixel_head) \
+            if cfg.pixel_head > 0 else None
         self.decoder = NeuralDecoder(cfg.feature_dim, cfg.decoder_width, cfg.decoder_depth, cfg.dir_freqs) \
             if cfg.head == "neural" else None
         if self.decoder is not None:  # start dim: softplus(-3) ~ 0.05 reflectance x cos, not ~0.7 (over-bright renders)
@@ -208,7 +256,8 @@ class FRNG(nn.Module):
                     keep_tokens: bool = False) -> Reconstruction | list[Reconstruction]:
         """Build the relightable asset of one object.
 
-        backbone_views: ``BackboneCache.views(V)`` (t_geo (V, h, w, D), means/quats/scales/opacities/keep (N = V*H*W),
+        backbone_views: ``BackboneCache.views(V)`` (t_geo (V, h, w, D), raw_prior (V, H, W, 9) optional,
+        means/quats/scales/opacities/keep (N = V*H*W),
         c2w (V, 4, 4), intr (V, 4), light{j}.t_app (V, h, w, D)); light: cache light index (0 = input light), or a
         list of indices -> one Reconstruction per light, sharing geometry (one batched MaterialFormer pass);
         priors: IntrinsicPriors of the input views (first V used) or None (required None for no-idm);
@@ -229,7 +278,7 @@ class FRNG(nn.Module):
         apps = torch.stack([bv[f"light{j}.t_app"].float() for j in lights])  # (B, V, h, w, D)
         B = len(lights)
         if self.fine is not None:
-            fine = self.fine(t_geo, patch_idx, c2w, intr, t_prior)
+            fine = self.fine(t_geo, patch_idx, c2w, intr, t_prior, bv.get("raw_prior"))
             keep_f = fine_keep_mask(fine.uv, images[..., 3])
             geo_seq = to_sequence(t_geo, fine.t_geo)
             app_seq = torch.cat([to_sequence(a, self.fine.interpolate(a, patch_idx)) for a in apps])
@@ -242,6 +291,12 @@ class FRNG(nn.Module):
         prior_seq = None if prior_seq is None else prior_seq.expand(B, -1, -1)
         t_mat, g_mat = self.material(geo_seq, app_seq, prior_seq)  # (B, L, hid), (B, L, P, C)
         g_coarse, g_fine = split_sequence(g_mat.float(), V, h, w)
+        if self.pixel_head is not None:  # per-Gaussian pixel inputs, same order as the kept Gaussians below
+            pix_map = pixel_map(images, priors, V) if self.cfg.uses_priors else pixel_map(images, None, V)
+            pix = [pix_map.reshape(-1, pix_map.shape[-1])[keep_c]]
+            if fine is not None:
+                pix.append(sample_pixels(pix_map, fine.uv).reshape(-1, pix_map.shape[-1])[keep_f])
+            pix = torch.cat(pix)
         out = []
         for b in range(B):
             feats = [coarse_features_to_pixels(g_coarse[b], self.cfg.patch).reshape(-1, g_mat.shape[-1])[keep_c]]
@@ -250,6 +305,8 @@ class FRNG(nn.Module):
                 feats.append(g_fine[b].reshape(-1, g_mat.shape[-1])[keep_f])
                 parts.append(fine.gaussians[keep_f])
             raw = torch.cat(feats)
+            if self.pixel_head is not None:
+                raw = self.pixel_head(raw, pix)
             gauss = Gaussians.cat(parts)
             if self.cfg.head == "neural":
                 feat, pbr = raw, None
@@ -295,7 +352,7 @@ class FRNG(nn.Module):
         samples = self.light_samples(env, spp, generator)
         sc = self.shading_cfg
         # bf16 decoding at inference only (shading.bf16_infer; ~2x on AMX CPUs and GPUs, ~1e-3 relative error)
-        amp = sc.bf16_infer and not torch.is_grad_enabled() and self.cfg.head == "neural"
+        amp = sc.bf16_infer and not torch.is_grad_enabled() and self.cfg.head == "neural" and bf16_ok(maps.device)
         with torch.autocast(maps.device.type, dtype=torch.bfloat16, enabled=amp):
             if self.cfg.head == "neural":
                 rgb = deferred_shade(self.decoder, [maps], alpha, c2w, intr, samples, spp_grad, sc.alpha_eps,
@@ -352,6 +409,7 @@ def variant_config(config: dict, name: str, backbone_cfg: dict | None = None) ->
         decoder_width=config["shading"]["decoder_width"], decoder_depth=config["shading"]["decoder_depth"],
         dir_freqs=config["shading"]["dir_freqs"], near=bb.get("near", 1.0), far=bb.get("far", 4.5),
         max_radius_px=bb.get("max_radius_px", 12.0), saliency=dict(f.get("saliency", {})),
+        pixel_head=f.get("pixel_head", 32),
     )
     loss = config["train"]["loss"]
     ind = LightIndependenceConfig(lambda_c=loss["lambda_c"], lambda_kld=loss["lambda_kld"],

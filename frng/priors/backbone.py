@@ -20,6 +20,24 @@ Relighting with the backbone = one full denoising pass per new light (the paper'
 Image conventions: views are premultiplied linear RGB (composited on black), mapped to [-1, 1] with
 :func:`frng.priors.diffusion.to_diffusion_space` before tokenization.
 
+Multi-view geometry prior (``cues``, on by default; paper tier too). A transformer that has seen a few hundred
+objects cannot learn multi-view stereo from scratch (RelitLRM saw ~1M), so the geometry stage is given what
+comparing the views along the known camera rays says (:mod:`frng.priors.multiview`): per input pixel the soft
+visual hull's distance, its normal and a photo-agreement score. They enter twice:
+
+- as extra tokenizer channels: every view's patch sees [diffusion-space RGB, Pluecker rays, alpha, cues], so T_geo
+  (and through it T_app and F-RNG's tokens) carries the object's shape;
+- as a per-pixel bias of the raw 9-vector (:meth:`RelitLRMBackbone.prior_raw`): distance = the hull distance,
+  isotropic scale = ``footprint_px`` pixels at that distance, identity rotation, opacity = the input alpha. The
+  GeoDetokenizer starts at zero, so an untrained backbone already renders the hull with the inputs' colours
+  (measured: within 0.1 dB of ground-truth depth in novel-view PSNR); training learns residuals (concavities).
+
+Appearance gets the pixel's own input colour the same way: the AppDetokenizer emits ``pixel_features`` per pixel,
+and a per-pixel MLP over [those, the input pixel's gamma colour, alpha] gives the SH coefficients plus a per-channel
+log-gain g, with ``SH_DC += (c_in * exp(g) - 0.5) / C0``: at initialisation (zero last layer) each Gaussian has its
+input pixel's colour, and relighting learns how that colour changes with the light (:meth:`sh_coefficients`,
+``pixels`` = :meth:`pixel_inputs`). ``cues: false`` restores the plain RelitLRM tokenizer/detokenizers.
+
 Rendering (x0-hat). Geometry: :func:`frng.gaussians.pixel_gaussians` decodes the GeoDetokenizer's raw 9-vectors
 along the input pixel rays (RelitLRM's constants, ``near``/``far`` from the config). Gaussians of input pixels
 outside the object mask (input alpha < 0.5) are not rendered (``keep`` mask: the inputs are RGBA and the mask is
@@ -45,6 +63,7 @@ same as mixing x0-hats); guidance 1.0 runs only the conditional pass.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import NamedTuple
 
 import torch
 from torch import nn
@@ -54,7 +73,8 @@ from frng.gaussians import GaussianDecodeConfig, Gaussians, pixel_gaussians
 from frng.nn import PatchDetokenizer, PatchTokenizer, Transformer, timestep_embedding
 from frng.priors.diffusion import NoiseSchedule, from_diffusion_space, to_diffusion_space
 from frng.priors.envenc import EnvTokenizer
-from frng.render.sh import eval_sh
+from frng.priors.multiview import CUE_CHANNELS, geometry_cues
+from frng.render.sh import C0, eval_sh
 from frng.render import rasterize
 
 GEO_CHANNELS = 9  # distance 1, scale 3, rotation 4, opacity 1 (RelitLRM's split)
@@ -79,6 +99,10 @@ class BackboneConfig:
     guidance: float = 1.0
     cond_drop: float = 0.1
     max_radius_px: float = 16.0
+    cues: bool = True
+    hull_bins: int = 48
+    footprint_px: float = 0.7
+    pixel_features: int = 16
 
     @classmethod
     def from_dict(cls, d: dict) -> "BackboneConfig":
@@ -93,6 +117,21 @@ class BackboneConfig:
         return (self.sh_degree + 1) ** 2
 
 
+class BackboneGeometry(NamedTuple):
+    """What :meth:`RelitLRMBackbone.reconstruct` returns for one object (V views, N = V*H*W Gaussians).
+
+    t_geo (1, V, h, w, D); raw (V, H, W, 9) the decoded Gaussians' raw parameters; gaussians (N); keep (N,) bool =
+    input alpha >= 0.5; raw_prior (V, H, W, 9) the multi-view prior's part of raw (zeros with ``cues: false``);
+    pixels (1, V, H, W, 4) the per-pixel appearance inputs :meth:`RelitLRMBackbone.denoise` takes."""
+
+    t_geo: torch.Tensor
+    raw: torch.Tensor
+    gaussians: Gaussians
+    keep: torch.Tensor
+    raw_prior: torch.Tensor
+    pixels: torch.Tensor
+
+
 class RelitLRMBackbone(nn.Module):
     """Geometry transformer + appearance DiT. See the module docstring for the equations."""
 
@@ -100,16 +139,28 @@ class RelitLRMBackbone(nn.Module):
         super().__init__()
         self.cfg = cfg
         D, p = cfg.width, cfg.patch
-        self.input_tokenizer = PatchTokenizer(3 + 6, D, p)
+        self.input_tokenizer = PatchTokenizer(3 + 6 + (1 + CUE_CHANNELS if cfg.cues else 0), D, p)
         self.geo_transformer = Transformer(D, cfg.geo_depth, cfg.heads)
         self.geo_detokenizer = PatchDetokenizer(D, GEO_CHANNELS, p)
+        if cfg.cues:  # start at the multi-view prior (see the module docstring)
+            nn.init.zeros_(self.geo_detokenizer.proj.weight)
+            nn.init.zeros_(self.geo_detokenizer.proj.bias)
         self.noisy_tokenizer = PatchTokenizer(3 + 6, D, p)
         self.env_tokenizer = EnvTokenizer(D, cfg.env_height, cfg.env_patch)
         self.step_mlp = nn.Sequential(nn.Linear(D, D), nn.SiLU(), nn.Linear(D, D))
         self.type_embed = nn.Parameter(torch.zeros(4, D))  # geo, light, noisy, step
         nn.init.normal_(self.type_embed, std=0.02)
         self.dit = Transformer(D, cfg.app_depth, cfg.heads)
-        self.app_detokenizer = PatchDetokenizer(D, 3 * cfg.sh_coeffs, p)
+        if cfg.cues:
+            F_ = cfg.pixel_features
+            self.app_detokenizer = PatchDetokenizer(D, F_, p)
+            self.pixel_head = nn.Sequential(nn.Linear(F_ + 4, 2 * F_), nn.GELU(),
+                                            nn.Linear(2 * F_, 3 * cfg.sh_coeffs + 3))
+            nn.init.zeros_(self.pixel_head[-1].weight)
+            nn.init.zeros_(self.pixel_head[-1].bias)
+        else:
+            self.app_detokenizer = PatchDetokenizer(D, 3 * cfg.sh_coeffs, p)
+            self.pixel_head = None
         self.schedule = NoiseSchedule()
 
     # -- geometry ----------------------------------------------------------------------------------
@@ -122,17 +173,51 @@ class RelitLRMBackbone(nn.Module):
             rays = camera.plucker(o, d).reshape(B, V, H, W, 6)
         return torch.cat([rgb if rgb.dtype != torch.bool else rgb.float(), rays], dim=-1)
 
-    def encode_geometry(self, images: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor):
+    @torch.no_grad()
+    def prior_raw(self, images: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor):
+        """Multi-view cues and the raw 9-vector they imply (see the module docstring), per object of the batch.
+
+        images (B, V, H, W, 3), alpha (B, V, H, W, 1), c2w (B, V, 4, 4), intr (B, V, 4).
+        Returns cue features (B, V, H, W, CUE_CHANNELS) and raw (B, V, H, W, 9) such that decoding raw alone
+        (:func:`frng.gaussians.decode_raw`) gives: distance = hull distance, isotropic scale = ``footprint_px`` pixels
+        at that distance, identity rotation, opacity = alpha (clamped to [0.02, 0.98])."""
+        c = self.cfg
+        dc = self.decode_config()
+        feats, raws = [], []
+        for b in range(images.shape[0]):
+            cues = geometry_cues(images[b].float(), alpha[b].float(), c2w[b].float(), intr[b].float(), c.near, c.far,
+                                 bins=c.hull_bins)
+            dist = cues["distance"]
+            w = ((dist - c.near) / (c.far - c.near)).clamp(1e-3, 1 - 1e-3)
+            fx = intr[b, :, 0].float().reshape(-1, 1, 1, 1)
+            scale = (dist * c.footprint_px / fx).clamp_min(1e-6)
+            a = alpha[b].float().clamp(0.02, 0.98)
+            raw = torch.cat([torch.logit(w), (scale.log() + dc.scale_offset).expand(*dist.shape[:-1], 3),
+                             torch.ones_like(dist), torch.zeros_like(dist).expand(*dist.shape[:-1], 3),
+                             torch.logit(a) + dc.opacity_offset], dim=-1)
+            feats.append(cues["features"])
+            raws.append(raw)
+        return torch.stack(feats), torch.stack(raws)
+
+    def encode_geometry(self, images: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor):
         """Input views -> geometry tokens and raw per-pixel Gaussian parameters.
 
-        images: (B, V, H, W, 3) linear premultiplied RGB; c2w: (B, V, 4, 4); intr: (B, V, 4).
-        Returns T_geo (B, V, h, w, D) and raw (B, V, H, W, 9).
+        images: (B, V, H, W, 3) linear premultiplied RGB; alpha (B, V, H, W, 1); c2w: (B, V, 4, 4); intr: (B, V, 4).
+        Returns T_geo (B, V, h, w, D), raw (B, V, H, W, 9) and the multi-view prior's part of raw
+        (B, V, H, W, 9; zeros with ``cues: false``), so that ``raw - prior`` is what the GeoDetokenizer added.
         """
+        assert images.shape[:-1] == alpha.shape[:-1] and images.shape[-1] == 3, (images.shape, alpha.shape)
         x = self._view_input(to_diffusion_space(images), c2w, intr)
+        if self.cfg.cues:
+            cue_feats, prior = self.prior_raw(images, alpha, c2w, intr)
+            x = torch.cat([x, 2.0 * alpha.to(x.dtype) - 1.0, cue_feats.to(x.dtype)], dim=-1)
         tok = self.input_tokenizer(x)  # (B, V, h, w, D)
         B, V, h, w, D = tok.shape
         t_geo = self.geo_transformer(tok.reshape(B, V * h * w, D)).reshape(B, V, h, w, D)
-        return t_geo, self.geo_detokenizer(t_geo)
+        raw = self.geo_detokenizer(t_geo)
+        if not self.cfg.cues:
+            prior = torch.zeros_like(raw, dtype=torch.float32)
+        return t_geo, raw.float() + prior, prior
 
     # -- appearance ----------------------------------------------------------------------------------
 
@@ -161,11 +246,30 @@ class RelitLRMBackbone(nn.Module):
         out = self.dit(torch.cat([geo, light, noisy_tok, step], dim=1))
         return out[:, : V * h * w].reshape(B, V, h, w, D)
 
-    def sh_coefficients(self, t_app: torch.Tensor) -> torch.Tensor:
-        """T_app (B, V, h, w, D) -> SH coefficients per Gaussian (B, V*H*W, K, 3), K = (degree + 1)^2."""
-        sh = self.app_detokenizer(t_app)  # (B, V, H, W, 3K)
-        B = sh.shape[0]
-        return sh.reshape(B, -1, self.cfg.sh_coeffs, 3)
+    @staticmethod
+    def pixel_inputs(images: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
+        """Per-pixel appearance inputs of one object: images (V, H, W, 3) linear premultiplied, alpha (V, H, W, 1)
+        -> (1, V, H, W, 4) = [unpremultiplied gamma-2.2 colour in [0, 1], alpha]."""
+        col = (images.float() / alpha.float().clamp_min(1e-3)).clamp(0, 1) ** (1 / 2.2)
+        return torch.cat([col, alpha.float()], -1)[None]
+
+    def sh_coefficients(self, t_app: torch.Tensor, pixels: torch.Tensor | None = None) -> torch.Tensor:
+        """T_app (B, V, h, w, D) -> SH coefficients per Gaussian (B, V*H*W, K, 3), K = (degree + 1)^2.
+
+        pixels (B, V, H, W, 4) from :meth:`pixel_inputs`: required with ``cues`` (the per-pixel colour path)."""
+        B = t_app.shape[0]
+        K = self.cfg.sh_coeffs
+        if self.pixel_head is None:
+            return self.app_detokenizer(t_app).reshape(B, -1, K, 3)
+        if pixels is None:
+            raise ValueError("this backbone (cues: true) needs the input pixels: sh_coefficients(t_app, pixels)")
+        feat = self.app_detokenizer(t_app)  # (B, V, H, W, F)
+        assert pixels.shape[:-1] == feat.shape[:-1] and pixels.shape[-1] == 4, (pixels.shape, feat.shape)
+        out = self.pixel_head(torch.cat([feat, pixels.to(feat.dtype)], -1)).float()
+        sh = out[..., : 3 * K].reshape(B, -1, K, 3)
+        gain = out[..., 3 * K:].reshape(B, -1, 3)
+        base = (pixels[..., :3].float().reshape(B, -1, 3) * gain.exp() - 0.5) / C0
+        return torch.cat([sh[:, :, :1] + base[:, :, None], sh[:, :, 1:]], dim=2)
 
     # -- Gaussians and rendering -----------------------------------------------------------------------
 
@@ -204,12 +308,12 @@ class RelitLRMBackbone(nn.Module):
 
     # -- denoising (DDIM with x0 prediction, classifier-free guidance) -------------------------------------
 
-    def guided_sh(self, t_geo, env, x_t, den_c2w, den_intr, t: torch.Tensor, guidance: float):
+    def guided_sh(self, t_geo, env, x_t, den_c2w, den_intr, t: torch.Tensor, guidance: float, pixels=None):
         """SH (B, N, K, 3) and conditional T_app (B, V, h, w, D) of one DiT step with guidance (see module doc)."""
         t_app = self.appearance_tokens(t_geo, env, x_t, den_c2w, den_intr, t)
-        sh = self.sh_coefficients(t_app)
+        sh = self.sh_coefficients(t_app, pixels)
         if guidance != 1.0 and env is not None:
-            sh_u = self.sh_coefficients(self.appearance_tokens(t_geo, None, x_t, den_c2w, den_intr, t))
+            sh_u = self.sh_coefficients(self.appearance_tokens(t_geo, None, x_t, den_c2w, den_intr, t), pixels)
             sh = sh_u + guidance * (sh - sh_u)
         return sh, t_app
 
@@ -227,11 +331,13 @@ class RelitLRMBackbone(nn.Module):
         steps: int | None = None,
         guidance: float | None = None,
         generator: torch.Generator | None = None,
+        pixels: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """One full DDIM pass for one object under one light (the backbone's relighting).
 
         t_geo (1, V, h, w, D); gauss: the object's N Gaussians; env (1, He, We, 3) or None; den_c2w (Vd, 4, 4),
-        den_intr (Vd, 4). Returns the final SH (N, K, 3) and the final step's conditional T_app (1, V, h, w, D).
+        den_intr (Vd, 4); pixels (1, V, H, W, 4) from :meth:`pixel_inputs` (required with ``cues``).
+        Returns the final SH (N, K, 3) and the final step's conditional T_app (1, V, h, w, D).
         """
         steps = steps or self.cfg.denoise_steps
         guidance = self.cfg.guidance if guidance is None else guidance
@@ -241,7 +347,7 @@ class RelitLRMBackbone(nn.Module):
         sh = t_app = None
         for i, t in enumerate(ts):
             tt = torch.full((1,), t, device=t_geo.device, dtype=torch.long)
-            sh, t_app = self.guided_sh(t_geo, env, x, den_c2w[None], den_intr[None], tt, guidance)
+            sh, t_app = self.guided_sh(t_geo, env, x, den_c2w[None], den_intr[None], tt, guidance, pixels)
             if i + 1 < len(ts):
                 rgb, _, _ = self.render(gauss, sh[0], den_c2w, den_intr, height, width, keep)
                 x0 = (2.0 * rgb - 1.0).clamp(-1.0, 1.0)[None]
@@ -249,13 +355,14 @@ class RelitLRMBackbone(nn.Module):
         return sh[0].float(), t_app
 
     @torch.no_grad()
-    def reconstruct(self, images: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor):
+    def reconstruct(self, images: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor,
+                    intr: torch.Tensor) -> "BackboneGeometry":
         """Geometry of one object from V input views: images (V, H, W, 3) linear premultiplied, alpha
-        (V, H, W, 1), c2w (V, 4, 4), intr (V, 4). Returns (t_geo (1, V, h, w, D), raw (V, H, W, 9),
-        Gaussians (N = V*H*W), keep (N,) bool = input alpha >= 0.5)."""
-        t_geo, raw = self.encode_geometry(images[None], c2w[None], intr[None])
+        (V, H, W, 1), c2w (V, 4, 4), intr (V, 4). See :class:`BackboneGeometry` for what comes back."""
+        t_geo, raw, prior = self.encode_geometry(images[None], alpha[None], c2w[None], intr[None])
         gauss = self.gaussians(raw[0], c2w, intr)
-        return t_geo, raw[0], gauss, (alpha.reshape(-1) >= 0.5)
+        return BackboneGeometry(t_geo, raw[0], gauss, alpha.reshape(-1) >= 0.5, prior[0],
+                                self.pixel_inputs(images, alpha))
 
     @torch.no_grad()
     def relight(
@@ -280,11 +387,11 @@ class RelitLRMBackbone(nn.Module):
         H, W = images.shape[1:3]
         if den_c2w is None:
             den_c2w, den_intr = c2w[: self.cfg.den_views], intr[: self.cfg.den_views]
-        t_geo, _, gauss, keep = self.reconstruct(images, alpha, c2w, intr)
+        t_geo, _, gauss, keep, _, pixels = self.reconstruct(images, alpha, c2w, intr)
         out = []
         for i, env in enumerate(envs):
             g = torch.Generator(device=images.device).manual_seed(seed + i)
-            sh, _ = self.denoise(t_geo, gauss, keep, env[None], den_c2w, den_intr, H, W, generator=g)
+            sh, _ = self.denoise(t_geo, gauss, keep, env[None], den_c2w, den_intr, H, W, generator=g, pixels=pixels)
             rgb, a, _ = self.render(gauss, sh, out_c2w, out_intr, H, W, keep)
             out.append((rgb.clamp(0.0, 1.0) ** 2.2, a))
         return out
@@ -296,4 +403,4 @@ def build(cfg: dict | BackboneConfig) -> RelitLRMBackbone:
     return RelitLRMBackbone(cfg)
 
 
-__all__ = ["BackboneConfig", "RelitLRMBackbone", "build", "from_diffusion_space", "GEO_CHANNELS"]
+__all__ = ["BackboneConfig", "BackboneGeometry", "RelitLRMBackbone", "build", "from_diffusion_space", "GEO_CHANNELS"]

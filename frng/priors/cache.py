@@ -16,7 +16,8 @@ the first V input views: rig order, then extras), ``sh_degree``, ``patch``, ``wi
 key                             shape           meaning
 =============================== =============== ===============================================================
 ``v{V}.t_geo``                  (V, h, w, D)    geometry tokens T_geo (h = w = resolution / patch)
-``v{V}.raw``                    (V, H, W, 9)    GeoDetokenizer output (decode with frng.gaussians.pixel_gaussians)
+``v{V}.raw``                    (V, H, W, 9)    raw Gaussian parameters (decode with frng.gaussians.pixel_gaussians)
+``v{V}.raw_prior``              (V, H, W, 9)    the multi-view prior's part of raw (frng.priors.multiview)
 ``v{V}.means`` / ``quats`` /    (N, 3)/(N, 4)/  decoded per-pixel Gaussians, N = V*H*W in (view, row, col)
 ``scales`` / ``opacities``      (N, 3)/(N,)     order (quats (w, x, y, z), scales = std devs)
 ``v{V}.keep``                   (N,) uint8      1 where the input pixel is foreground (alpha >= 0.5)
@@ -56,7 +57,7 @@ from frng import training as tr
 from frng.priors.intrinsics import IntrinsicPriors
 from frng.variants import SWEEP_VIEWS, view_counts  # noqa: F401
 
-BACKBONE_CACHE_VERSION = "1"
+BACKBONE_CACHE_VERSION = "2"
 IDM_CACHE_VERSION = "1"
 
 
@@ -109,16 +110,17 @@ def make_backbone_cache(config: dict, oid: str, model_path: Path, out: Path, dev
         v = views.select(range(V))
         names[V] = v.names
         rgb, a, c2w, intr = (x.to(device) for x in (v.rgb, v.alpha, v.c2w, v.intr))
-        t_geo, raw, gauss, keep = model.reconstruct(rgb, a, c2w, intr)
+        t_geo, raw, gauss, keep, raw_prior, pixels = model.reconstruct(rgb, a, c2w, intr)
         p = f"v{V}."
-        tensors.update({p + "t_geo": t_geo[0].float(), p + "raw": raw.float(), p + "means": gauss.means,
+        tensors.update({p + "t_geo": t_geo[0].float(), p + "raw": raw.float(), p + "raw_prior": raw_prior.float(),
+                        p + "means": gauss.means,
                         p + "quats": gauss.quats, p + "scales": gauss.scales, p + "opacities": gauss.opacities,
                         p + "keep": keep.to(torch.uint8), p + "c2w": v.c2w, p + "intr": v.intr})
         nd = model.cfg.den_views
         for j, light in enumerate(lights):
             g = torch.Generator(device=device).manual_seed(catalog.derive_seed(config["seed"], "cache", oid, light))
             sh, t_app = model.denoise(t_geo, gauss, keep, envs[light].to(device)[None], c2w[:nd], intr[:nd], H, W,
-                                      generator=g)
+                                      generator=g, pixels=pixels)
             tensors[f"{p}light{j}.t_app"] = t_app[0].float()
             tensors[f"{p}light{j}.sh"] = sh.float()
     tensors = {k: t.detach().cpu() for k, t in tensors.items()}

@@ -8,7 +8,14 @@ least-squares scale, foreground PSNR/SSIM, white background, sRGB-encoded):
   rendered at the held-out extra input views (``in_06 ..``, same light, never fed to the model);
 - ``relight``: the same geometry, one DDIM pass per held-out target light, rendered at the target views;
 - baseline ``mean-image``: the per-pixel mean of all TRAINING objects' target images (RGBA), the same for every
-  view -- what a model that ignores its input would output at best under L2.
+  view -- what a model that ignores its input would output at best under L2;
+- quality-ladder references on the same images (:func:`oracle_colour_render`): ``gt-depth+oracle-colour`` --
+  one Gaussian per input pixel of the 6 rig views at the G-buffer's depth (isotropic, the backbone's starting
+  footprint, opacity = input alpha), each coloured with the ground-truth image's colour where it projects: the
+  per-pixel representation's ceiling; ``backbone-geometry+oracle-colour`` -- the backbone's own Gaussians coloured
+  the same way: what its geometry alone allows.
+
+Every row also records the aligned protocol's per-channel scales (``scale_r, scale_g, scale_b``).
 
 IDM (``{results}/metrics/idm.csv``, one row per object and method): on each test object's input views
 (foreground of the G-buffer), ``normal_deg`` (mean angular error), ``albedo_psnr`` (linear albedo, foreground),
@@ -42,7 +49,50 @@ def _score(pred: np.ndarray, gt: np.ndarray) -> dict:
     from frng.metrics import evaluate_pair
 
     m = evaluate_pair(pred, gt, protocol="aligned")
-    return {"psnr": m["psnr"], "ssim": m["ssim"]}
+    return {k: m[k] for k in ("psnr", "ssim", "scale_r", "scale_g", "scale_b")}
+
+
+def oracle_colour_render(gauss, keep: torch.Tensor, out, max_radius_px: float | None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Render Gaussians at the views of ``out`` (a :class:`frng.priors.data.Views`), each Gaussian coloured with that
+    view's ground truth (unpremultiplied linear colour, bilinear) where its mean projects -- an oracle appearance
+    that isolates the geometry. gauss: N Gaussians; keep (N,) bool. Returns linear premultiplied RGB (Vo, H, W, 3)
+    and alpha (Vo, H, W, 1)."""
+    from frng import camera
+    from frng.priors.multiview import sample_image
+    from frng.render import rasterize
+
+    g = gauss[keep]
+    H, W = out.rgb.shape[1:3]
+    col = out.rgb / out.alpha.clamp_min(1e-3) * (out.alpha > 1e-3)
+    rgbs, alphas = [], []
+    for k in range(len(out)):
+        c2w, intr = out.c2w[k:k + 1], out.intr[k:k + 1]
+        uv, _ = camera.project(g.means, c2w, intr)
+        colours = sample_image(col[k:k + 1], uv)[0]
+        rgb, a, _ = rasterize(g.means, g.quats, g.scales, g.opacities, colours, c2w, intr, H, W,
+                              max_radius_px=max_radius_px)
+        rgbs.append(rgb)
+        alphas.append(a)
+    return torch.cat(rgbs), torch.cat(alphas)
+
+
+def gt_depth_gaussians(rig, gbuffer, footprint_px: float):
+    """One isotropic Gaussian per rig pixel at the G-buffer's depth (opacity = input alpha clamped to 0.98) and the
+    keep mask (input alpha >= 0.5): the representation's ceiling for :func:`oracle_colour_render`."""
+    from frng import camera
+    from frng.gaussians import Gaussians
+    from frng.priors.backbone_train import ray_distance_target
+
+    V, H, W, _ = rig.alpha.shape
+    o, d = camera.pixel_rays(rig.c2w, rig.intr, H, W)
+    dist = ray_distance_target(gbuffer.depth, rig.c2w, rig.intr)
+    means = (o + d * dist).reshape(-1, 3)
+    scale = (dist * footprint_px / rig.intr[:, 0].reshape(-1, 1, 1, 1)).reshape(-1, 1).expand(-1, 3)
+    quats = torch.zeros(means.shape[0], 4)
+    quats[:, 0] = 1.0
+    opac = rig.alpha.reshape(-1).clamp(0.0, 0.98)
+    keep = (rig.alpha.reshape(-1) >= 0.5) & (gbuffer.mask.reshape(-1) > 0.5)
+    return Gaussians(means, quats, scale.contiguous(), opac), keep
 
 
 def mean_image(train_objects: list[PriorObject]) -> np.ndarray:
@@ -64,18 +114,25 @@ def eval_backbone(config: dict, model, test: list[PriorObject], mean_img: np.nda
         jobs += [("relight", l, obj.targets[l]) for l in obj.target_lights]
         rgb, a, c2w, intr = (x.to(device) for x in (rig.rgb, rig.alpha, rig.c2w, rig.intr))
         H, W = rgb.shape[1:3]
-        t_geo, _, gauss, keep = model.reconstruct(rgb, a, c2w, intr)
+        t_geo, _, gauss, keep, _, pixels = model.reconstruct(rgb, a, c2w, intr)
+        gt_gauss, gt_keep = gt_depth_gaussians(rig, obj.gbuffer.select(torch.arange(obj.rig_views)),
+                                               getattr(model.cfg, "footprint_px", 0.7))
+        mr = model.cfg.max_radius_px
         for i, (task, light, out) in enumerate(jobs):
             g = torch.Generator(device=device).manual_seed(config["seed"] + i)
             env = obj.envs[light].to(device)[None]
-            sh, _ = model.denoise(t_geo, gauss, keep, env, c2w[:nd], intr[:nd], H, W, generator=g)
+            sh, _ = model.denoise(t_geo, gauss, keep, env, c2w[:nd], intr[:nd], H, W, generator=g, pixels=pixels)
             pred, pa, _ = model.render(gauss, sh, out.c2w.to(device), out.intr.to(device), H, W, keep)
             pred = pred.clamp(0, 1) ** 2.2
+            oracle = {"gt-depth+oracle-colour": oracle_colour_render(gt_gauss, gt_keep, out, mr),
+                      "backbone-geometry+oracle-colour": oracle_colour_render(gauss.to("cpu"), keep.cpu(), out, mr)}
             for k, name in enumerate(out.names):
                 gt = _rgba(out.rgb[k], out.alpha[k])
                 base = {"task": task, "object": obj.id, "light": light, "view": name}
                 rows.append(base | {"method": "backbone"} | _score(_rgba(pred[k], pa[k]), gt))
                 rows.append(base | {"method": "mean-image"} | _score(mean_img, gt))
+                for method, (o_rgb, o_a) in oracle.items():
+                    rows.append(base | {"method": method} | _score(_rgba(o_rgb[k], o_a[k]), gt))
     return rows
 
 

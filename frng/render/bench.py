@@ -17,6 +17,8 @@ import time
 
 import torch
 
+from frng.training import bf16_ok
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128])
@@ -153,7 +155,7 @@ def _measure(args, dev, kw, backend, rc, sc, size, C) -> dict:
         fg = int((a > sc.alpha_eps).sum())
 
         def shade_inf():  # as FRNG.shade at inference: pair-chunked, bf16 when shading.bf16_infer
-            with torch.no_grad(), torch.autocast(dev.type, dtype=torch.bfloat16, enabled=sc.bf16_infer):
+            with torch.no_grad(), torch.autocast(dev.type, dtype=torch.bfloat16, enabled=sc.bf16_infer and bf16_ok(dev)):
                 deferred_shade(dec, [f], a, s["c2w"], s["intrinsics"], smp_inf, alpha_eps=sc.alpha_eps,
                                chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
 

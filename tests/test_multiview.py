@@ -1,0 +1,77 @@
+"""The multi-view geometry cues (frng.priors.multiview) on an analytic sphere seen by the paper's 6-view rig."""
+
+import math
+
+import numpy as np
+import torch
+
+from frng import camera
+from frng.priors.multiview import depth_normals, geometry_cues, hull_distance, ray_sphere
+
+R_SPHERE = 0.6
+DIST = 2.6
+
+
+def _rig(res: int):
+    angles = [(0, 0), (90, 0), (180, 0), (270, 0), (45, 45), (225, 45)]
+    c2w = np.stack([camera.look_at(camera.spherical_to_cartesian(az, el, DIST)) for az, el in angles])
+    intr = np.stack([camera.intrinsics_from_fov(50.0, res, res)] * len(angles))
+    return torch.tensor(c2w, dtype=torch.float32), torch.tensor(intr, dtype=torch.float32)
+
+
+def _sphere_views(res: int = 48):
+    """Masks, colours and true ray distances of a sphere of radius R_SPHERE at the origin."""
+    c2w, intr = _rig(res)
+    o, d = camera.pixel_rays(c2w, intr, res, res)
+    t0, _, hit = ray_sphere(o, d, R_SPHERE)
+    alpha = hit.float()[..., None]
+    pts = o + d * t0[..., None]
+    rgb = (0.5 + 0.4 * pts / R_SPHERE).clamp(0, 1) * alpha  # a colour that varies over the surface
+    return rgb, alpha, c2w, intr, t0, hit
+
+
+def test_ray_sphere_distances():
+    o = torch.tensor([[0.0, 0.0, -3.0]])
+    d = torch.tensor([[0.0, 0.0, 1.0]])
+    t0, t1, hit = ray_sphere(o, d, 1.0)
+    assert hit.item() and math.isclose(t0.item(), 2.0, abs_tol=1e-6) and math.isclose(t1.item(), 4.0, abs_tol=1e-6)
+    _, _, miss = ray_sphere(o + torch.tensor([[2.0, 0.0, 0.0]]), d, 1.0)
+    assert not miss.item()
+
+
+def test_hull_distance_interpolates_the_crossing():
+    t = torch.linspace(0, 1, 11)
+    occ = torch.clamp((t - 0.4) / 0.2, 0, 1)  # crosses 0.5 at t = 0.5
+    dist, hit = hull_distance(occ, t, far=9.0)
+    assert hit.item() and math.isclose(dist.item(), 0.5, abs_tol=1e-6)
+    dist, hit = hull_distance(torch.zeros(11), t, far=9.0)
+    assert not hit.item() and dist.item() == 9.0
+
+
+def test_hull_of_a_sphere_is_the_sphere():
+    rgb, alpha, c2w, intr, t_true, hit = _sphere_views()
+    cues = geometry_cues(rgb, alpha, c2w, intr, near=1.0, far=4.5)
+    inner = hit & (alpha[..., 0] > 0.5)
+    # erode by one pixel: silhouette pixels are where a 6-view hull is loosest
+    inner = inner & inner.roll(1, 1) & inner.roll(-1, 1) & inner.roll(1, 2) & inner.roll(-1, 2)
+    err = (cues["distance"][..., 0] - t_true)[inner].abs()
+    # 6 views of a sphere: the hull bulges out between the views (most where the ray grazes the surface)
+    assert err.mean() < 0.03, err.mean()
+    assert err.max() < 0.25, err.max()  # grazing rays near a view's silhouette
+    assert torch.equal(cues["hit"][..., 0].bool() & inner, inner)
+    # outside the mask the ray never enters the hull: far
+    assert (cues["distance"][..., 0][~hit] == 4.5).all()
+    # photo agreement: higher for a colour painted on the surface than for per-pixel noise (inconsistent views)
+    noise = torch.rand(rgb.shape, generator=torch.Generator().manual_seed(0)) * alpha
+    noisy = geometry_cues(noise, alpha, c2w, intr, near=1.0, far=4.5)
+    assert cues["agreement"][inner].mean() > 2 * noisy["agreement"][inner].mean()
+    assert cues["features"].shape == (6, 48, 48, 6)
+
+
+def test_depth_normals_of_a_plane_face_the_camera():
+    c2w, intr = _rig(16)
+    o, d = camera.pixel_rays(c2w[:1], intr[:1], 16, 16)
+    # plane x = 0.3 seen by the camera on +X looking at the origin: world normal +X = camera -z
+    t = (0.3 - o[..., 0]) / d[..., 0]
+    n = depth_normals(o + d * t[..., None], c2w[:1], torch.ones(1, 16, 16, dtype=torch.bool))
+    assert torch.allclose(n, torch.tensor([0.0, 0.0, -1.0]).expand_as(n), atol=1e-4)
