@@ -3,22 +3,40 @@
 Three kinds, chosen by ``idm.kind`` and produced through :func:`frng.priors.build_idm` (the registry):
 
 - ``learned`` (default) -- :class:`LearnedIDM`, a small transformer over ALL input views at once (one token
-  sequence, so attention runs across views: the multi-view analogue of feeding DiffusionRenderer a video).
-  Per view: [diffusion-space RGB (3), alpha (1), Pluecker rays (6)] -> 8x8 patches -> tokens; Pre-LN transformer
-  (frng.nn); a linear patch detokenizer to ``pixel_features`` per pixel, then a per-pixel MLP over those features
-  and the pixel's own RGB/alpha (keeps sub-patch detail) -> 9 raw values per pixel:
+  sequence, so attention runs across views: the multi-view analogue of feeding DiffusionRenderer a video), on
+  top of explicit multi-view geometry cues. A few hundred training objects are far too few to learn multi-view
+  stereo from scratch, so geometry comes from the soft visual hull of the known masks and cameras
+  (:func:`frng.priors.multiview.geometry_cues`, computed per object without gradients: they are data) and the
+  network predicts residuals on top of it.
+
+  Per view and pixel: cues = [hull distance (normalised over [near, far]), hull normal (camera frame), photo
+  agreement, hull hit] (6 channels, ``cues: true``). Tokenizer input: [diffusion-space RGB (3), alpha (1),
+  Pluecker rays (6), cues (6)] -> 8x8 patches -> tokens; Pre-LN transformer (frng.nn); a linear patch
+  detokenizer to ``pixel_features`` per pixel. The pixel head (keeps sub-patch detail) takes
+  [pixel_features, RGB, alpha, cues] per pixel, plus (``head_global``) the object context: the alpha-weighted
+  mean and standard deviation of those inputs and of the local contrast over ALL views of the object
+  (:meth:`LearnedIDM.object_context`), standardised with running statistics of the training objects
+  (:class:`RunningNorm`) -- roughness and metallic are properties of the object (diffuse / specular / fur), and
+  without this context the head learnt no better than a constant. Then ``head_layers`` convolutions of
+  ``head_hidden`` channels with ``head_kernel`` x ``head_kernel`` kernels (1 = a per-pixel MLP; 3 = 3x3 convs) and
+  GELU, then 1x1 output layers initialised to ZERO -> 9 raw values per pixel:
 
   ====== ======= ==========================================================================================
-  raw    pass    decoding
+  raw    pass    decoding (hull: the cues; ``cos`` = ray direction . optical axis, z_hull = distance * cos)
   ====== ======= ==========================================================================================
-  0:3    normal  unit-normalised, CAMERA frame (OpenCV), rotated to world with the view's c2w
-  3      depth   near + sigmoid(raw) * (far - near)   (camera z)
+  0:3    normal  normalise(hull normal + raw), CAMERA frame (OpenCV), rotated to world with the view's c2w
+  3      depth   clamp(z_hull + tanh(raw) * depth_range, near, far)   (camera z)
   4:7    albedo  sigmoid
   7      rough.  sigmoid
   8      metal.  sigmoid
   ====== ======= ==========================================================================================
 
-  Trained on the training split's G-buffers (``frng idm-train``), masked to the foreground:
+  So an untrained model (zero output layer) outputs the visual hull's depth and normals (and 0.5 materials);
+  training learns corrections. With ``cues: false`` the model is the cue-free ablation: normal =
+  normalise(raw), depth = near + sigmoid(raw) * (far - near), and the cues are neither computed nor fed.
+
+  Trained on the training split's G-buffers (``frng idm-train``; the material outputs and the head's hidden
+  layers at ``idm.train.head_lr`` x the learning rate), masked to the foreground:
   ``(1 - cos(n, n*)) + |depth_n - depth_n*| + |albedo - albedo*| + |rough - rough*| + |metal - metal*|``
   with depth normalised to [0, 1] over [near, far]. Then frozen.
 - ``oracle`` -- the rendered G-buffers themselves (analysis / upper bound): :func:`oracle_priors`.
@@ -39,6 +57,7 @@ from frng import camera
 from frng.nn import PatchDetokenizer, PatchTokenizer, Transformer
 from frng.priors.diffusion import to_diffusion_space
 from frng.priors.intrinsics import IntrinsicPriors
+from frng.priors.multiview import CUE_CHANNELS, geometry_cues
 
 RAW_CHANNELS = 9
 
@@ -54,6 +73,13 @@ class IDMConfig:
     pixel_features: int = 16
     near: float = 1.0
     far: float = 4.5
+    cues: bool = True  # visual-hull geometry cues in, depth/normals decoded as hull + residual
+    depth_range: float = 0.5  # bound of the learned camera-z residual on the hull depth (world units)
+    head_hidden: int = 64  # pixel head width
+    head_layers: int = 2  # hidden layers of the pixel head
+    head_kernel: int = 1  # pixel head kernel size (1 = per-pixel MLP, 3 = 3x3 convs)
+    cue_bins: int = 48  # plane-sweep samples per ray of the hull (frng.priors.multiview)
+    head_global: bool = True  # pixel head also sees object-level statistics of its inputs (object_context)
 
     @classmethod
     def from_dict(cls, d: dict) -> "IDMConfig":
@@ -63,6 +89,57 @@ class IDMConfig:
         return asdict(self)
 
 
+class PixelHead(nn.Module):
+    """``layers`` k x k convolutions + GELU, then two zero-initialised 1x1 output layers, ``out_geo`` (the first
+    ``geo`` channels: normal and depth residuals) and ``out_mat`` (the rest: material logits), so the trainer can
+    give them different learning rates: (N, H, W, C) -> (N, H, W, out). With k = 1 it is a per-pixel MLP."""
+
+    def __init__(self, in_channels: int, hidden: int, out_channels: int, layers: int, kernel: int, geo: int = 4):
+        super().__init__()
+        mods: list[nn.Module] = []
+        c = in_channels
+        for _ in range(layers):
+            mods += [nn.Conv2d(c, hidden, kernel, padding=kernel // 2, padding_mode="replicate"), nn.GELU()]
+            c = hidden
+        self.body = nn.Sequential(*mods)
+        self.out_geo = nn.Conv2d(c, geo, 1)
+        self.out_mat = nn.Conv2d(c, out_channels - geo, 1)
+        for layer in (self.out_geo, self.out_mat):
+            nn.init.zeros_(layer.weight)
+            nn.init.zeros_(layer.bias)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        h = self.body(x.permute(0, 3, 1, 2))
+        return torch.cat([self.out_geo(h), self.out_mat(h)], dim=1).permute(0, 2, 3, 1)
+
+
+class RunningNorm(nn.Module):
+    """Standardises object-level vectors (B, C) with running statistics over the training objects (buffers, saved
+    with the model): in training mode each call first updates them (cumulative average over the first
+    ``1 / momentum`` calls, then an exponential moving average), in eval mode they are fixed. Batch size 1 (one
+    object per step) is fine, unlike BatchNorm."""
+
+    def __init__(self, dim: int, momentum: float = 0.02, eps: float = 1e-3):
+        super().__init__()
+        self.momentum, self.eps = momentum, eps
+        self.register_buffer("mean", torch.zeros(dim))
+        self.register_buffer("var", torch.ones(dim))
+        self.register_buffer("count", torch.zeros(()))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if self.training:
+            with torch.no_grad():
+                for row in x.detach().float():
+                    self.count += 1
+                    m = max(1.0 / float(self.count), self.momentum)
+                    delta = row - self.mean
+                    self.mean += m * delta
+                    self.var.copy_((1 - m) * (self.var + m * delta ** 2) if self.count > 1 else 0.0 * self.var)
+        if self.count < 2:  # no spread measured yet (e.g. an untrained model): identity
+            return x
+        return (x - self.mean) * self.var.clamp_min(self.eps).rsqrt()
+
+
 class LearnedIDM(nn.Module):
     """Multi-view IDM. See the module docstring."""
 
@@ -70,42 +147,106 @@ class LearnedIDM(nn.Module):
         super().__init__()
         self.cfg = cfg
         D, p = cfg.width, cfg.patch
-        self.tokenizer = PatchTokenizer(3 + 1 + 6, D, p)
+        nc = CUE_CHANNELS if cfg.cues else 0
+        self.tokenizer = PatchTokenizer(3 + 1 + 6 + nc, D, p)
         self.view_embed = nn.Parameter(torch.zeros(D))
         self.transformer = Transformer(D, cfg.depth, cfg.heads)
         self.detokenizer = PatchDetokenizer(D, cfg.pixel_features, p)
-        hidden = 2 * cfg.pixel_features
-        self.pixel_head = nn.Sequential(
-            nn.Linear(cfg.pixel_features + 4, hidden), nn.GELU(), nn.Linear(hidden, RAW_CHANNELS)
-        )
+        head_in = cfg.pixel_features + 4 + nc
+        ctx = 2 * (head_in + 1)  # object context (see object_context)
+        self.context_norm = RunningNorm(ctx) if cfg.head_global else None
+        head_in += ctx if cfg.head_global else 0
+        self.pixel_head = PixelHead(head_in, cfg.head_hidden, RAW_CHANNELS, cfg.head_layers, cfg.head_kernel)
 
-    def forward(self, images: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor) -> torch.Tensor:
+    @staticmethod
+    def object_context(x: torch.Tensor, rgb: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
+        """Object-level appearance statistics for every pixel (material class is a property of the object):
+        x (B, V, H, W, C) per-pixel head inputs, rgb (B, V, H, W, 3) diffusion space, alpha (B, V, H, W, 1).
+        Appends the local contrast |lum - 3x3 mean of lum| (lum = mean RGB; specular highlights and fur are
+        high-frequency) to x, then takes the alpha-weighted mean and standard deviation over ALL views and pixels:
+        returns (B, 2 (C + 1)) (standardised by ``context_norm`` and given to every pixel of the object)."""
+        B, V, H, W, _ = x.shape
+        lum = rgb.mean(-1).reshape(B * V, 1, H, W)
+        contrast = (lum - F.avg_pool2d(lum, 3, 1, 1, count_include_pad=False)).abs().reshape(B, V, H, W, 1)
+        q = torch.cat([x, contrast], dim=-1)
+        wsum = alpha.sum((1, 2, 3)).clamp_min(1.0)  # (B, 1)
+        mean = (q * alpha).sum((1, 2, 3)) / wsum  # (B, C + 1)
+        var = ((q - mean[:, None, None, None]) ** 2 * alpha).sum((1, 2, 3)) / wsum
+        return torch.cat([mean, (var + 1e-6).sqrt()], dim=-1)
+
+    @torch.no_grad()
+    def cues(self, images: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor) -> dict:
+        """Geometry cues of a batch of objects (no gradients; the inputs are data): images (B, V, H, W, 3), alpha
+        (B, V, H, W, 1), c2w (B, V, 4, 4), intr (B, V, 4) -> dict of float32 (B, V, H, W, C): ``features``
+        (CUE_CHANNELS, see :func:`frng.priors.multiview.geometry_cues`), ``distance`` (1) hull distance along
+        the unit ray, ``z`` (1) hull camera z (= distance * ray . optical axis), ``normal`` (3) hull normal,
+        camera frame."""
+        c = self.cfg
+        out: dict[str, list] = {"features": [], "distance": [], "z": [], "normal": []}
+        H, W = images.shape[2:4]
+        with torch.autocast(device_type=images.device.type, enabled=False):
+            for b in range(images.shape[0]):
+                cb, ib = c2w[b].float(), intr[b].float()
+                g = geometry_cues(images[b].float(), alpha[b].float(), cb, ib, c.near, c.far, bins=c.cue_bins)
+                _, d = camera.pixel_rays(cb, ib, H, W)
+                cos = (d * cb[:, None, None, :3, 2]).sum(-1, keepdim=True)  # ray . optical axis
+                out["features"].append(g["features"])
+                out["distance"].append(g["distance"])
+                out["z"].append(g["distance"] * cos)
+                out["normal"].append(g["normal"])
+        return {k: torch.stack(v) for k, v in out.items()}
+
+    def forward(self, images: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor,
+                cues: dict | None = None) -> torch.Tensor:
         """images (B, V, H, W, 3) linear premultiplied RGB; alpha (B, V, H, W, 1); c2w (B, V, 4, 4);
-        intr (B, V, 4). Returns raw predictions (B, V, H, W, 9)."""
+        intr (B, V, 4); cues: :meth:`cues` of these inputs when already computed (the trainer caches them),
+        else computed here (``cues: true``). Returns raw predictions (B, V, H, W, 9), float32: [camera-frame
+        normal vector (not yet unit, 3), camera z (1, not yet clamped), albedo/roughness/metallic logits (5)];
+        :meth:`decode` finishes them."""
         B, V, H, W, _ = images.shape
+        c = self.cfg
         with torch.autocast(device_type=images.device.type, enabled=False):  # ray geometry in fp32
             o, d = camera.pixel_rays(c2w.reshape(B * V, 4, 4).float(), intr.reshape(B * V, 4).float(), H, W)
             rays = camera.plucker(o, d).reshape(B, V, H, W, 6)
         rgb = to_diffusion_space(images)
         a = 2.0 * alpha - 1.0
-        tok = self.tokenizer(torch.cat([rgb, a, rays], dim=-1))  # (B, V, h, w, D)
+        inp = [rgb, a, rays]
+        if c.cues:
+            if cues is None:
+                cues = self.cues(images, alpha, c2w, intr)
+            cf = 2.0 * cues["features"] - 1.0
+            inp.append(cf)
+        tok = self.tokenizer(torch.cat(inp, dim=-1))  # (B, V, h, w, D)
         _, _, h, w, D = tok.shape
         x = self.transformer(tok.reshape(B, V * h * w, D)).reshape(B, V, h, w, D)
         feat = self.detokenizer(x)  # (B, V, H, W, F)
-        return self.pixel_head(torch.cat([feat, rgb, a], dim=-1))
+        with torch.autocast(device_type=images.device.type, enabled=False):  # small per-pixel head: fp32
+            head_in = [feat.float(), rgb.float(), a.float()] + ([cf.float()] if c.cues else [])
+            if c.head_global:
+                g = self.context_norm(self.object_context(torch.cat(head_in, dim=-1), rgb.float(), alpha.float()))
+                head_in.append(g[:, None, None, None].expand(B, V, H, W, -1))
+            r = self.pixel_head(torch.cat(head_in, dim=-1).reshape(B * V, H, W, -1)).reshape(B, V, H, W, -1)
+            if c.cues:
+                n = cues["normal"] + r[..., 0:3]
+                z = cues["z"] + torch.tanh(r[..., 3:4]) * c.depth_range
+            else:
+                n = r[..., 0:3]
+                z = c.near + torch.sigmoid(r[..., 3:4]) * (c.far - c.near)
+            return torch.cat([n, z, r[..., 4:]], dim=-1)
 
     def decode(self, raw: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor) -> dict[str, torch.Tensor]:
-        """raw (B, V, H, W, 9) -> dict of passes (B, V, H, W, C) in world space (not yet masked)."""
+        """raw (B, V, H, W, 9) from :meth:`forward` -> dict of passes (B, V, H, W, C) in world space (not yet
+        masked)."""
         c = self.cfg
         n_cam = F.normalize(raw[..., 0:3].float(), dim=-1, eps=1e-6)
-        R = c2w[:, :, None, None, :3, :3]  # (B, V, 1, 1, 3, 3)
+        R = c2w[:, :, None, None, :3, :3].float()  # (B, V, 1, 1, 3, 3)
         normal = (R @ n_cam.unsqueeze(-1)).squeeze(-1)
         return {
             "normal": normal,
-            "depth": c.near + torch.sigmoid(raw[..., 3:4]) * (c.far - c.near),
-            "albedo": torch.sigmoid(raw[..., 4:7]),
-            "roughness": torch.sigmoid(raw[..., 7:8]),
-            "metallic": torch.sigmoid(raw[..., 8:9]),
+            "depth": raw[..., 3:4].float().clamp(c.near, c.far),
+            "albedo": torch.sigmoid(raw[..., 4:7].float()),
+            "roughness": torch.sigmoid(raw[..., 7:8].float()),
+            "metallic": torch.sigmoid(raw[..., 8:9].float()),
             "mask": alpha,
         }
 

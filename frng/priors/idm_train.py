@@ -1,8 +1,14 @@
 """Stage ``frng idm-train``: train the learned IDM on the training split's G-buffers, then freeze it.
 
-One step = one training object, one of its input lights, its input views (the 6 rig views with probability 1/2,
-else a random subset of 2..all input views, so every V in 2..10 is seen) processed jointly; loss
-:func:`frng.priors.idm.idm_loss` against the views' G-buffers. Only training objects are read.
+One step = one training object, one of its input lights, its input views (ALL of them -- what the IDM sees at
+inference, ``frng idm-priors`` / ``relight`` -- with probability ``all_views``, else a random subset of 2..all input
+views, so every V in 2..10 is seen) processed jointly; loss :func:`frng.priors.idm.idm_loss` against the views'
+G-buffers. Only training objects are read.
+
+The geometry cues (:func:`frng.priors.multiview.geometry_cues`, the visual hull: most of a step's cost on a CPU) are
+data, so :class:`CueCache` keeps those of the all-views samples in memory: the hull depends only on the masks and
+cameras, identical under every input light, so it is computed once per object; only the light-dependent photo
+agreement channel is recomputed per (object, light). Random subsets are computed per step.
 
 Outputs in ``--out`` (default ``{results}/idm``): ``model.pt``, ``checkpoint.pt`` (resume), ``loss.csv``,
 ``loss.png``, ``train.json``.
@@ -20,11 +26,11 @@ import torch
 from tqdm import tqdm
 
 from frng import config as frng_config
-from frng import io
+from frng import camera, io
 from frng.priors import idm as idm_mod
 from frng import training as tr
-from frng.priors.backbone_train import sample_views
-from frng.priors.data import PriorObject
+from frng.priors import multiview
+from frng.priors.data import PriorObject, Views
 
 
 @dataclass
@@ -34,6 +40,9 @@ class IDMTrainConfig:
     warmup: int = 30
     bf16: bool = True
     checkpoint_every: int = 50
+    all_views: float = 0.75  # probability of a step on all input views, else a random subset of 2..all
+    head_lr: float = 10.0  # learning-rate multiplier of the pixel head except its geometry output (param_groups)
+    geo_lr: float = 0.3  # learning-rate multiplier of the head's geometry-residual output layer
 
     @classmethod
     def from_dict(cls, d: dict) -> "IDMTrainConfig":
@@ -45,6 +54,65 @@ def idm_config(config: dict) -> idm_mod.IDMConfig:
     d["patch"] = config["model"]["patch_size"]
     d["near"], d["far"] = config["backbone"]["near"], config["backbone"]["far"]
     return idm_mod.IDMConfig.from_dict(d)
+
+
+def sample_views(obj: PriorObject, rng: random.Random, all_views: float) -> tuple[str, list[int]]:
+    """Input light and input view indices of one training sample (see the module docstring)."""
+    light = rng.choice(obj.input_lights)
+    n = len(obj.inputs[light])
+    if rng.random() < all_views or n <= 2:
+        return light, list(range(n))
+    k = rng.randint(2, n)
+    return light, sorted(rng.sample(range(n), k))
+
+
+class CueCache:
+    """In-memory geometry cues (:meth:`frng.priors.idm.LearnedIDM.cues`) of the all-views training samples.
+
+    ``get(model, obj, light, idx, views)`` -> cue dict with a batch dimension of 1 (tensors on ``views``'
+    device). Only full view sets (``idx`` = all input views) are stored: the hull once per object (reused under
+    another light when its masks and cameras are the same), the photo agreement per (object, light)."""
+
+    def __init__(self):
+        self.hull: dict[str, tuple[torch.Tensor, torch.Tensor, dict]] = {}  # oid -> (alpha, c2w, cues)
+        self.per_light: dict[tuple[str, str], dict] = {}
+
+    def get(self, model: idm_mod.LearnedIDM, obj: PriorObject, light: str, idx: list[int], views: Views) -> dict:
+        def compute() -> dict:
+            return model.cues(views.rgb[None], views.alpha[None], views.c2w[None], views.intr[None])
+
+        if len(idx) != len(obj.inputs[light]):
+            return compute()
+        key = (obj.id, light)
+        if key in self.per_light:
+            return self.per_light[key]
+        base = self.hull.get(obj.id)
+        if base is None or not (torch.equal(base[0], views.alpha) and torch.equal(base[1], views.c2w)):
+            cues = compute()
+            self.hull.setdefault(obj.id, (views.alpha, views.c2w, cues))
+        else:  # same masks and cameras -> same hull; only the photo agreement depends on the light's colours
+            cues = {k: v.clone() for k, v in base[2].items()}
+            H, W = views.rgb.shape[1:3]
+            o, d = camera.pixel_rays(views.c2w.float(), views.intr.float(), H, W)
+            dist = cues["distance"][0, ..., 0]
+            pts = o + d * dist[..., None]
+            agree = multiview.photo_agreement(views.rgb.float(), views.alpha.float(), pts, views.c2w.float(),
+                                              views.intr.float(), dist)
+            cues["features"][0, ..., 4:5] = agree * cues["features"][0, ..., 5:6]  # [dist, normal, agree, hit]
+        self.per_light[key] = cues
+        return cues
+
+
+def param_groups(model: idm_mod.LearnedIDM, tcfg: IDMTrainConfig) -> list[dict]:
+    """Optimiser groups with an ``lr_mult``: the pixel head's hidden layers and material output layer at
+    ``head_lr`` x lr (a small MLP that starts at zero output), its geometry-residual output layer at ``geo_lr`` x lr,
+    everything else (the transformer) at lr."""
+    head = [p for n, p in model.pixel_head.named_parameters() if not n.startswith("out_geo.")]
+    geo = list(model.pixel_head.out_geo.parameters())
+    ids = {id(p) for p in head + geo}
+    rest = [p for p in model.parameters() if id(p) not in ids]
+    return [{"params": rest, "lr_mult": 1.0}, {"params": head, "lr_mult": tcfg.head_lr},
+            {"params": geo, "lr_mult": tcfg.geo_lr}]
 
 
 LOSS_NAMES = ["total", "normal", "depth", "albedo", "roughness", "metallic"]
@@ -63,7 +131,7 @@ def train(config: dict, objects: list[PriorObject], out: Path, steps: int | None
     device = tr.resolve_device(config.get("device", "auto"))
     tr.seed_everything(config["seed"] + 1)
     model = idm_mod.LearnedIDM(cfg).to(device)
-    opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, weight_decay=0.01)
+    opt = torch.optim.AdamW(param_groups(model, tcfg), lr=tcfg.lr, weight_decay=0.01)
     fingerprint = {"arch": cfg.to_dict(), "train": asdict(tcfg), "steps": total, "seed": config["seed"],
                    "objects": sorted(o.id for o in objects)}
     out.mkdir(parents=True, exist_ok=True)
@@ -79,17 +147,20 @@ def train(config: dict, objects: list[PriorObject], out: Path, steps: int | None
     model.train()
     bar = tqdm(range(start, total), initial=start, total=total, desc="idm", dynamic_ncols=True)
     ran = 0
+    cue_cache = CueCache()
     for step in bar:
         for g in opt.param_groups:
-            g["lr"] = tr.cosine_lr(step, total, tcfg.lr, tcfg.warmup)
+            g["lr"] = tr.cosine_lr(step, total, tcfg.lr, tcfg.warmup) * g["lr_mult"]
         obj = objects[rng.randrange(len(objects))]
-        light, idx = sample_views(obj, rng)
+        light, idx = sample_views(obj, rng, tcfg.all_views)
         v = obj.inputs[light].select(idx)
         gb = obj.gbuffer.select(torch.as_tensor(idx)).to(device)
         c2w, intr = v.c2w.to(device)[None], v.intr.to(device)[None]
         alpha = v.alpha.to(device)[None]
+        vd = Views(v.names, v.rgb.to(device), v.alpha.to(device), v.c2w.to(device), v.intr.to(device))
+        cues = cue_cache.get(model, obj, light, idx, vd) if cfg.cues else None
         with tr.autocast(device, tcfg.bf16):
-            raw = model(v.rgb.to(device)[None], alpha, c2w, intr)
+            raw = model(vd.rgb[None], alpha, c2w, intr, cues=cues)
         target = {k: t[None] for k, t in gb.as_dict().items()}
         losses = idm_mod.idm_loss(model, raw.float(), alpha, c2w, target)
         opt.zero_grad(set_to_none=True)
