@@ -19,7 +19,7 @@ Three kinds, chosen by ``idm.kind`` and produced through :func:`frng.priors.buil
   (:class:`RunningNorm`) -- roughness and metallic are properties of the object (diffuse / specular / fur), and
   without this context the head learnt no better than a constant. Then ``head_layers`` convolutions of
   ``head_hidden`` channels with ``head_kernel`` x ``head_kernel`` kernels (1 = a per-pixel MLP; 3 = 3x3 convs) and
-  GELU, then 1x1 output layers initialised to ZERO -> 9 raw values per pixel:
+  GELU, then 1x1 output layers (the geometry one initialised to ZERO) -> 9 raw values per pixel:
 
   ====== ======= ==========================================================================================
   raw    pass    decoding (hull: the cues; ``cos`` = ray direction . optical axis, z_hull = distance * cos)
@@ -31,7 +31,7 @@ Three kinds, chosen by ``idm.kind`` and produced through :func:`frng.priors.buil
   8      metal.  sigmoid
   ====== ======= ==========================================================================================
 
-  So an untrained model (zero output layer) outputs the visual hull's depth and normals (and 0.5 materials);
+  So an untrained model (zero geometry output layer) outputs the visual hull's depth and normals;
   training learns corrections. With ``cues: false`` the model is the cue-free ablation: normal =
   normalise(raw), depth = near + sigmoid(raw) * (far - near), and the cues are neither computed nor fed.
 
@@ -90,9 +90,10 @@ class IDMConfig:
 
 
 class PixelHead(nn.Module):
-    """``layers`` k x k convolutions + GELU, then two zero-initialised 1x1 output layers, ``out_geo`` (the first
-    ``geo`` channels: normal and depth residuals) and ``out_mat`` (the rest: material logits), so the trainer can
-    give them different learning rates: (N, H, W, C) -> (N, H, W, out). With k = 1 it is a per-pixel MLP."""
+    """``layers`` k x k convolutions + GELU, then two 1x1 output layers, ``out_geo`` (the first ``geo`` channels:
+    normal and depth residuals; initialised to ZERO) and ``out_mat`` (the rest: material logits; PyTorch's init --
+    zero there learnt albedo more slowly on the smoke tier), so the trainer can give them different learning rates:
+    (N, H, W, C) -> (N, H, W, out). With k = 1 it is a per-pixel MLP."""
 
     def __init__(self, in_channels: int, hidden: int, out_channels: int, layers: int, kernel: int, geo: int = 4):
         super().__init__()
@@ -104,9 +105,8 @@ class PixelHead(nn.Module):
         self.body = nn.Sequential(*mods)
         self.out_geo = nn.Conv2d(c, geo, 1)
         self.out_mat = nn.Conv2d(c, out_channels - geo, 1)
-        for layer in (self.out_geo, self.out_mat):
-            nn.init.zeros_(layer.weight)
-            nn.init.zeros_(layer.bias)
+        nn.init.zeros_(self.out_geo.weight)  # step 0 = the hull's depth and normals
+        nn.init.zeros_(self.out_geo.bias)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         h = self.body(x.permute(0, 3, 1, 2))
