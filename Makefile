@@ -8,6 +8,9 @@ STAMP := $(VENV)/.installed
 CONFIG ?= config/config.yaml
 CORES ?= 2
 SNAKEMAKE := $(VENV)/bin/snakemake --snakefile workflow/Snakefile --profile profiles/local
+# One line naming the file (and line) for a missing or malformed config, before snakemake reads it (snakemake's own
+# message for these names neither).
+CHECK = $(PY) -m frng config --check
 
 .PHONY: reproduce test setup smoke dry-run lint bench clean-results
 
@@ -23,15 +26,18 @@ $(STAMP): requirements.lock requirements.txt pyproject.toml
 	touch $(STAMP)
 
 reproduce: $(STAMP)
+	@$(CHECK) $(CONFIG)
 	$(SNAKEMAKE) --configfile $(CONFIG) --cores $(CORES)
 
 test: $(STAMP)
 	$(PY) -m pytest -q tests
 
 smoke: $(STAMP)
+	@$(CHECK) config/smoke.yaml
 	$(SNAKEMAKE) --configfile config/smoke.yaml --cores $(CORES)
 
 dry-run: $(STAMP)
+	@$(CHECK) $(CONFIG)
 	$(SNAKEMAKE) --configfile $(CONFIG) -n --quiet rules
 
 lint: $(STAMP)

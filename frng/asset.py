@@ -51,7 +51,7 @@ import numpy as np
 import torch
 
 from frng.gaussians import Gaussians
-from frng.io import atomic_path, read_json, srgb_decode, srgb_encode, write_json
+from frng.io import atomic_path, read_json, srgb_decode, srgb_encode, temp_dir, write_json
 
 FORMAT = "frng-asset"
 FORMAT_VERSION = 1
@@ -381,7 +381,7 @@ def save_asset(
     info.update({k: v for k, v in meta.items() if k not in info})
 
     folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{folder.name}-", dir=folder.parent))
+    tmp = temp_dir(f".tmp-{folder.name}-", folder.parent)
     try:
         write_ply(tmp / PLY_FILE, fields, comments=[f"{FORMAT} v{FORMAT_VERSION} object {info['object_id']}",
                                                     "3DGS layout: opacity=logit, scale=log, rot=(w,x,y,z); feat_* = F-RNG features"])

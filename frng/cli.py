@@ -12,6 +12,7 @@ Snakemake rules call these subcommands; users can call them directly too.
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import sys
 
@@ -72,5 +73,26 @@ def main(argv: list[str] | None = None) -> None:
     parser = stage_parser(argv[0])
     args = parser.parse_args(argv[1:])
     run = getattr(args, "_run")
-    code = run(args)
-    sys.exit(int(code or 0))
+    sys.exit(run_stage(argv[0], run, args))
+
+
+# OS errors that mean "no permission" (read-only results folder, read-only file system): one line.
+_UNWRITABLE = {errno.EACCES, errno.EPERM, errno.EROFS}
+
+
+def run_stage(name: str, run, args: argparse.Namespace) -> int:
+    """Run one stage; a bad config file or a permission error (read-only results folder) ends in one line on
+    stderr naming the file (exit 2), not a traceback. Other errors propagate."""
+    from frng.config import ConfigError
+
+    try:
+        return int(run(args) or 0)
+    except ConfigError as e:
+        print(f"frng {name}: error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:
+        if e.errno not in _UNWRITABLE:
+            raise
+        where = f"{e.filename}: " if e.filename is not None else ""
+        print(f"frng {name}: error: {where}{e.strerror} (is the results folder writable?)", file=sys.stderr)
+        return 2

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import copy
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -47,7 +48,12 @@ def _validator_with_defaults(schema: dict):
                     instance[name] = copy.deepcopy(sub["default"])
         yield from base.VALIDATORS["properties"](validator, properties, instance, schema_)
 
-    cls = validators.extend(base, {"properties": set_defaults})
+    # JSON Schema's "integer" accepts 32.0 (a float with zero fraction); a config's integers must be ints (a
+    # float resolution reaches Blender and numpy shapes). Booleans are not integers either.
+    type_checker = base.TYPE_CHECKER.redefine(
+        "integer", lambda checker, instance: isinstance(instance, int) and not isinstance(instance, bool)
+    )
+    cls = validators.extend(base, {"properties": set_defaults}, type_checker=type_checker)
     return cls(schema)
 
 
@@ -101,15 +107,36 @@ def check_semantics(config: dict) -> None:
         raise ConfigError(f"config key 'objects.material_mix': fractions sum to {sum(mix.values()):.3f}, not 1")
 
 
-def load(path: Path | str, overrides: dict | None = None) -> dict:
-    """Read a YAML config, apply ``overrides`` (nested dict, merged), validate, fill defaults."""
+def read_yaml(path: Path | str) -> dict:
+    """Read a config YAML file as a mapping (no validation).
+
+    Raises :class:`ConfigError` naming the file (and the line of a YAML syntax error) when the file is missing,
+    unreadable, not YAML, or not a mapping at the top level."""
     path = Path(path)
     if not path.exists():
         raise ConfigError(f"config file {path} does not exist")
-    with open(path) as f:
-        config = yaml.safe_load(f) or {}
+    if not path.is_file():
+        raise ConfigError(f"config file {path} is not a file")
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise ConfigError(f"config file {path}: cannot read ({e.strerror})") from e
+    try:
+        config = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None) or getattr(e, "context_mark", None)
+        where = f", line {mark.line + 1} column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
+        raise ConfigError(f"config file {path}{where}: invalid YAML ({problem})") from e
+    config = {} if config is None else config
     if not isinstance(config, dict):
         raise ConfigError(f"config file {path}: top level must be a mapping")
+    return config
+
+
+def load(path: Path | str, overrides: dict | None = None) -> dict:
+    """Read a YAML config, apply ``overrides`` (nested dict, merged), validate, fill defaults."""
+    config = read_yaml(path)
     if overrides:
         config = merge(config, overrides)
     return validate(config)
@@ -126,16 +153,124 @@ def merge(base: dict, override: dict) -> dict:
     return out
 
 
-def write_resolved(config: dict, path: Path | str) -> None:
-    """Write a validated config as YAML, only if the content differs (keeps mtimes stable)."""
+# -- the effective config of a results folder ------------------------------------------------------
+#
+# Every stage reads ``{results}/config.yaml``: the validated config (defaults filled in) of the run that made the
+# folder. The workflow writes it when jobs start (rules/common.smk, ``onstart:``), never while planning, and
+# refuses to run with a different config unless asked to replace it (:data:`OVERWRITE_SWITCH`).
+
+OVERWRITE_SWITCH = "overwrite_config"
+"""``snakemake --config overwrite_config=true``: replace a results folder's recorded config that differs."""
+
+_TRUE = {"true", "yes", "1", "on"}
+_FALSE = {"false", "no", "0", "off", "none", ""}
+
+
+def pop_switch(config: dict, name: str = OVERWRITE_SWITCH) -> bool:
+    """Remove the workflow switch ``name`` from ``config`` (it is not part of the effective config) and return
+    its value as a bool. Raises :class:`ConfigError` for a value that is not a boolean."""
+    value = config.pop(name, False)
+    if isinstance(value, bool):
+        return value
+    if value is None or str(value).strip().lower() in _FALSE:
+        return False
+    if str(value).strip().lower() in _TRUE:
+        return True
+    raise ConfigError(f"config key '{name}': {value!r} is not a boolean (use true or false)")
+
+
+def flatten(config: dict, prefix: str = "") -> dict[str, Any]:
+    """Nested mapping -> {dotted key: leaf value} (lists and empty mappings are leaves)."""
+    out: dict[str, Any] = {}
+    for k, v in config.items():
+        if isinstance(v, dict) and v:
+            out.update(flatten(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+_ABSENT = "<absent>"
+
+
+def differences(recorded: dict, effective: dict) -> list[str]:
+    """The keys whose values differ between two configs, as ``"key: recorded R, now E"`` lines (sorted)."""
+    a, b = flatten(recorded), flatten(effective)
+    return [f"{k}: recorded {a.get(k, _ABSENT)!r}, now {b.get(k, _ABSENT)!r}"
+            for k in sorted(set(a) | set(b)) if a.get(k, _ABSENT) != b.get(k, _ABSENT)]
+
+
+def read_recorded(path: Path | str) -> dict | None:
+    """The config recorded in a results folder (``{results}/config.yaml``), or None when there is none yet."""
     path = Path(path)
-    text = yaml.safe_dump(config, sort_keys=False)
-    if path.exists() and path.read_text() == text:
-        return
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".tmp-{path.name}")
-    tmp.write_text(text)
-    tmp.replace(path)
+    if not path.exists():
+        return None
+    return read_yaml(path)
+
+
+def _write_text_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary name beside it (created with the umask's permissions).
+    Raises :class:`ConfigError` naming the file when the folder cannot be written."""
+    tmp = path.with_name(f".tmp-{path.name}.{os.getpid()}")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    except OSError as e:
+        raise ConfigError(f"cannot write {path}: {e.strerror or e}") from e
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def check_writable(folder: Path | str) -> None:
+    """Raise :class:`ConfigError` naming ``folder`` when it (or, while it does not exist yet, its nearest existing
+    parent) cannot be written: a read-only results folder fails here, in one line, before any job starts."""
+    folder = Path(folder).absolute()
+    existing = next(p for p in (folder, *folder.parents) if p.exists())
+    if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
+        what = "" if existing == folder else f" (its parent {existing} cannot be written)"
+        raise ConfigError(f"results folder {folder} is not writable{what}")
+
+
+def dump(config: dict) -> str:
+    """The YAML text of a config as recorded and as ``frng config`` prints it."""
+    return yaml.safe_dump(config, sort_keys=False)
+
+
+def record(config: dict, path: Path | str, overwrite: bool = False) -> str:
+    """Record the validated ``config`` as the effective config of its results folder at ``path``.
+
+    Returns ``"written"`` (none was recorded), ``"unchanged"`` (the same config is recorded; the file is not
+    touched, so its mtime stays) or ``"replaced"`` (a different one was recorded and ``overwrite`` is set).
+    Raises :class:`ConfigError` when a different config is recorded and ``overwrite`` is not set (listing the
+    differing keys), or when the file cannot be read or written."""
+    path = Path(path)
+    check_writable(path.parent)
+    try:
+        recorded = read_recorded(path)
+    except ConfigError as e:  # an unreadable record: only an explicit overwrite replaces it
+        if not overwrite:
+            raise ConfigError(f"recorded config: {e}; rerun with `--config {OVERWRITE_SWITCH}=true` to replace "
+                              f"it") from e
+        recorded = {}
+    if recorded is not None:
+        diff = differences(recorded, config)
+        if not diff:
+            return "unchanged"
+        if not overwrite:
+            raise ConfigError(refusal(path, diff))
+    _write_text_atomic(path, dump(config))
+    return "written" if recorded is None else "replaced"
+
+
+def refusal(path: Path | str, diff: list[str], shown: int = 8) -> str:
+    """The message refusing to run a config that differs from the one recorded at ``path``."""
+    more = f"; ... ({len(diff) - shown} more)" if len(diff) > shown else ""
+    return (f"{path} records a different config ({len(diff)} key(s) differ: {'; '.join(diff[:shown])}{more}). "
+            f"The results in that folder were made with the recorded config: point `results:` at a new folder, "
+            f"or rerun with `--config {OVERWRITE_SWITCH}=true` to replace the recorded config (results already "
+            f"there are not rebuilt unless their rules rerun)")
 
 
 def add_config_argument(parser: argparse.ArgumentParser) -> None:
@@ -148,15 +283,18 @@ def add_config_argument(parser: argparse.ArgumentParser) -> None:
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("path", help="config YAML to validate")
     parser.add_argument("--json", action="store_true", help="print the filled-in config as JSON")
+    parser.add_argument("--check", action="store_true", help="validate only: print nothing when the config is valid")
 
 
 def run(args: argparse.Namespace) -> int:
     try:
         config = load(args.path)
     except ConfigError as e:
-        print(f"invalid config {args.path}: {e}")
+        where = "" if str(e).startswith("config file") else f"{args.path}: "  # file-level errors name it already
+        print(f"invalid config: {where}{e}")
         return 1
-    print(json.dumps(config, indent=2) if args.json else yaml.safe_dump(config, sort_keys=False))
+    if not args.check:
+        print(json.dumps(config, indent=2) if args.json else dump(config))
     return 0
 
 

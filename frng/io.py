@@ -23,17 +23,44 @@ class ImageError(ValueError):
     """An image file is missing, unreadable or has unexpected content. The message names the file."""
 
 
+def current_umask() -> int:
+    """The process's umask: from ``/proc/self/status`` on Linux (no side effect), else by setting and restoring
+    it (Python has no read-only call; another thread creating a file in between would see 022)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def temp_dir(prefix: str, dir: str | os.PathLike) -> Path:
+    """``tempfile.mkdtemp`` with the permissions an ordinary ``mkdir`` would give (0777 minus the umask) instead
+    of 0700, for staging folders that are renamed into place (results are shared on clusters)."""
+    tmp = Path(tempfile.mkdtemp(prefix=prefix, dir=dir))
+    os.chmod(tmp, 0o777 & ~current_umask())
+    return tmp
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path in the target's folder; rename it to ``path`` if the block succeeds.
 
     The temporary name keeps the suffix (writers pick the format from it) and starts with ``.tmp-`` so a
-    half-written file never matches the final name.
+    half-written file never matches the final name. The file gets the permissions an ordinary ``open`` would
+    give (0666 minus the umask), not ``mkstemp``'s 0600.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".tmp-{path.stem}-", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
+    try:
+        os.fchmod(fd, 0o666 & ~current_umask())
+    finally:
+        os.close(fd)
     tmp = Path(tmp)
     try:
         yield tmp
@@ -92,11 +119,16 @@ def read_exr(path: str | os.PathLike, channels: Sequence[str]) -> np.ndarray:
     return np.stack([data[c] for c in channels], axis=-1)
 
 
-def read_rgba(path: str | os.PathLike) -> np.ndarray:
-    """Read an RGBA (or RGB; alpha then 1) EXR as float32 (H, W, 4), linear, premultiplied as stored."""
+def read_rgba(path: str | os.PathLike, require_alpha: bool = False) -> np.ndarray:
+    """Read an RGBA (or RGB; alpha then 1) EXR as float32 (H, W, 4), linear, premultiplied as stored.
+
+    ``require_alpha``: an RGB-only file is an :class:`ImageError` (where the alpha is the object's mask)."""
     data = read_exr_channels(path)
     if not all(c in data for c in "RGB"):
         raise ImageError(f"{path}: expected R, G, B channels; has {sorted(data)}")
+    if require_alpha and "A" not in data:
+        raise ImageError(f"{path}: no alpha channel (has {sorted(data)}); expected RGBA with the object's mask "
+                         f"in A")
     a = data.get("A", np.ones_like(data["R"]))
     return np.stack([data["R"], data["G"], data["B"], a], axis=-1)
 

@@ -66,8 +66,10 @@ class RelightError(ValueError):
 def validate_inputs(config: dict, oid: str) -> dict:
     """Check everything ``relight`` reads, before anything is written. Returns the object's meta.json.
 
-    Raises :class:`RelightError` naming the file: missing/unreadable meta.json, a missing, corrupt or non-RGBA
-    input view, an input view that is not ``render.resolution`` square, a missing or non-2:1 env map."""
+    Raises :class:`RelightError` naming the file: missing/unreadable meta.json, an object of the training split
+    (relighting evaluates held-out objects), a missing, corrupt or non-RGBA input view (no alpha channel: the
+    masks are part of the input), an input view that is not ``render.resolution`` square, a missing or non-2:1
+    env map."""
     results = Path(config["results"])
     root = results / "objects" / oid
     try:
@@ -77,12 +79,13 @@ def validate_inputs(config: dict, oid: str) -> dict:
     for key in ("views", "input_lights", "target_lights"):
         if key not in meta:
             raise RelightError(f"{root / 'meta.json'}: missing key {key!r}")
+    check_test_split(config, oid, meta, root / "meta.json")
     res = int(config["render"]["resolution"])
     light_in = meta["input_lights"][0]
     for cam in meta["views"]["inputs"]:
         path = root / "inputs" / light_in / f"{cam['name']}.exr"
         try:
-            img = io.read_rgba(path)
+            img = io.read_rgba(path, require_alpha=True)
         except io.ImageError as e:
             raise RelightError(f"input view: {e}") from e
         if img.shape[:2] != (res, res):
@@ -96,6 +99,22 @@ def validate_inputs(config: dict, oid: str) -> dict:
         except envmap.EnvMapError as e:
             raise RelightError(f"environment map: {e}") from e
     return meta
+
+
+def check_test_split(config: dict, oid: str, meta: dict, meta_path: Path) -> None:
+    """Refuse an object of the training split: its split as curated (``meta.json``'s ``split``) and as the config
+    plans it must both be ``test``. Raises :class:`RelightError` naming the object and the file."""
+    from frng.data import catalog
+
+    curated = meta.get("split")
+    try:
+        planned = catalog.plan(config).object(oid).split
+    except catalog.CatalogError as e:
+        raise RelightError(f"{meta_path}: object {oid!r} is not planned by this config ({e})") from e
+    for split, source in ((curated, f"{meta_path} (split)"), (planned, "the config's dataset plan")):
+        if split is not None and split != "test":
+            raise RelightError(f"object {oid!r} is in the {split!r} split according to {source}; relighting "
+                               f"evaluates held-out (test) objects only")
 
 
 # -- the work ------------------------------------------------------------------------------------------

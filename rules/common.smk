@@ -4,19 +4,58 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(workflow.basedir).parent))  # import frng without installing (conda users)
 
+from snakemake.logging import logger
+from snakemake_interface_executor_plugins.settings import ExecMode
+
 from frng import config as frng_config
 
 try:
+    # `--config overwrite_config=true`: replace the results folder's recorded config (not part of the config)
+    OVERWRITE_CONFIG = frng_config.pop_switch(config)
     frng_config.validate(config)
 except frng_config.ConfigError as e:
     raise WorkflowError(f"invalid config: {e}")
 
 RESULTS = config["results"]
 ROOT = Path(workflow.basedir).parent
-# The validated config (defaults filled, --config overrides applied) that every stage reads via
-# `--config {CONFIG_FILE}`. Rewritten only when its content changes, one per results folder.
+# The effective config: validated, defaults filled, --config overrides applied; one per results folder. Every
+# stage reads it via `--config {CONFIG_FILE}`. It is written when jobs start (`onstart:` below: never by a dry
+# run, `--summary` or any other planning), and a run whose config differs from the recorded one is refused.
 CONFIG_FILE = str(Path(RESULTS, "config.yaml"))
-frng_config.write_resolved(config, CONFIG_FILE)
+
+
+def effective_config_notice():
+    """While planning: say whether this config matches the one recorded in the results folder (a dry run shows
+    the refusal a real run would meet). Prints nothing when they match or none is recorded."""
+    try:
+        recorded = frng_config.read_recorded(CONFIG_FILE)
+    except frng_config.ConfigError as e:
+        logger.warning(f"NOTE: recorded config: {e}. A run is refused unless {frng_config.OVERWRITE_SWITCH}=true.")
+        return
+    if recorded is None:
+        return
+    diff = frng_config.differences(recorded, config)
+    if diff and not OVERWRITE_CONFIG:
+        logger.warning(f"NOTE: {frng_config.refusal(CONFIG_FILE, diff)}. A run with this config is refused.")
+    elif diff:
+        logger.warning(f"NOTE: {CONFIG_FILE} records a different config ({len(diff)} key(s) differ); a run "
+                       f"replaces it ({frng_config.OVERWRITE_SWITCH}=true).")
+
+
+if workflow.exec_mode == ExecMode.DEFAULT:  # not inside a job's own snakemake process (cluster/subprocess jobs)
+    effective_config_notice()
+
+
+onstart:
+    # Jobs are about to run: record the effective config, or refuse a differing one.
+    try:
+        outcome = frng_config.record(config, CONFIG_FILE, overwrite=OVERWRITE_CONFIG)
+    except frng_config.ConfigError as e:
+        raise WorkflowError(str(e))
+    if outcome != "unchanged":
+        logger.info(f"effective config {outcome}: {CONFIG_FILE}")
+
+
 # Python running the stages: the interpreter snakemake runs in (the project's venv) unless --sdm conda.
 PY = sys.executable
 

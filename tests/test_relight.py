@@ -130,3 +130,52 @@ def test_bench_relight_reports_both_methods():
     assert row["resolution"] == 32 and row["lights"] == 2 and row["target_views"] == 2
     # amortising the light-independent rasterization over 2 lights can only help
     assert row["frng_ms_per_image_amortised"] <= row["frng_ms_per_image"]
+
+
+# -- issue 12, point 6: an RGB-only input view and a training object are refused (no Blender: synthetic inputs) ----
+
+def _synthetic_object(tmp_path, split):
+    """A results folder with one object of the smoke plan's ``split`` whose input views are RGB-only EXRs."""
+    import yaml
+
+    from frng.data import catalog
+
+    cfg = yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text())
+    cfg["results"] = str(tmp_path / "results")
+    path = tmp_path / "smoke.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    config = frng_config.load(path)
+    spec = catalog.plan(config).object(catalog.plan(config).split(split)[0])
+    root = tmp_path / "results" / "objects" / spec.id
+    res = config["render"]["resolution"]
+    views = [{"name": f"in_{k:02d}"} for k in range(2)]
+    io.write_json(root / "meta.json", {"split": spec.split, "views": {"inputs": views},
+                                       "input_lights": list(spec.input_lights),
+                                       "target_lights": list(spec.target_lights)})
+    for v in views:
+        io.write_exr(root / "inputs" / spec.input_lights[0] / f"{v['name']}.exr", np.ones((res, res, 3), np.float32))
+    return config, spec.id, root
+
+
+def test_rgb_only_input_view_is_refused(tmp_path):
+    config, oid, root = _synthetic_object(tmp_path, "test")
+    with pytest.raises(relight.RelightError) as e:
+        relight.validate_inputs(config, oid)
+    assert "no alpha channel" in str(e.value) and str(root / "inputs") in str(e.value), str(e.value)
+
+
+def test_training_object_is_refused(tmp_path):
+    config, oid, root = _synthetic_object(tmp_path, "train")
+    with pytest.raises(relight.RelightError) as e:
+        relight.validate_inputs(config, oid)
+    assert repr(oid) in str(e.value) and "'train' split" in str(e.value), str(e.value)
+
+
+def test_object_curated_as_training_is_refused(tmp_path):
+    """meta.json says train although the plan says test (curated under another config): refused, naming the file."""
+    config, oid, root = _synthetic_object(tmp_path, "test")
+    meta = io.read_json(root / "meta.json")
+    io.write_json(root / "meta.json", {**meta, "split": "train"})
+    with pytest.raises(relight.RelightError) as e:
+        relight.validate_inputs(config, oid)
+    assert str(root / "meta.json") in str(e.value) and "'train' split" in str(e.value), str(e.value)

@@ -29,7 +29,6 @@ from __future__ import annotations
 import argparse
 import shutil
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -102,7 +101,7 @@ def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print) -> 
 
     out_root.mkdir(parents=True, exist_ok=True)
     final = out_root / oid
-    tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{oid}-", dir=out_root))
+    tmp = io.temp_dir(f".tmp-{oid}-", out_root)
     t_start = time.perf_counter()
     try:
         scene = bscene.new_scene(render["resolution"], render["spp"], render["threads"], spec.seed)
