@@ -8,7 +8,8 @@ scale, foreground PSNR/SSIM; ``plain``: whole image, no scaling) and ``eval.back
 - ``{results}/metrics/relight_per_image.csv``: one row per image, columns ``dataset`` (the object's material
   class: diffuse / specular / fur), ``object, run, method, variant, views, k, light, view, psnr, ssim, lpips,
   protocol`` and the protocol's ``scale_r/g/b, fg_fraction``;
-- ``{results}/metrics/relight_summary.csv``: means per ``run`` (plus ``n``), via :func:`frng.metrics.aggregate`.
+- ``{results}/metrics/relight_summary.csv``: means per ``run`` (plus ``n``), via :func:`frng.metrics.aggregate`,
+  and ``scale_log2`` (:func:`frng.metrics.scale_log2`: how much colour repair the aligned protocol did per run).
 
 Every table (``frng tables``) is recomputed from the per-image CSV.
 """
@@ -59,6 +60,8 @@ def evaluate(config: dict, run_dirs: list[Path], out_dir: Path) -> tuple[Path, P
     df = df[list(COLUMNS) + [c for c in df.columns if c not in COLUMNS]]
     per_image = M.write_csv(df, out_dir / PER_IMAGE)
     summary = M.aggregate(df, ["run", "method", "variant", "views", "k"])
+    scales = {run: M.scale_log2(g) for run, g in df.groupby("run", sort=False)}
+    summary["scale_log2"] = summary["run"].map(scales)
     return per_image, M.write_csv(summary, out_dir / SUMMARY)
 
 

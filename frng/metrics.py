@@ -254,6 +254,16 @@ def read_csv(path: str | os.PathLike):
     return pd.read_csv(path)
 
 
+def scale_log2(df) -> float:
+    """How much colour repair the aligned protocol did: the median over rows (images) and channels of
+    ``|log2 scale_c|`` (0 = none; 0.25 = a 19% correction). NaN without scale columns (plain protocol rows carry
+    scale 1: 0)."""
+    cols = ["scale_r", "scale_g", "scale_b"]
+    if not set(cols) <= set(df.columns) or not len(df):
+        return float("nan")
+    return float(np.median(np.abs(np.log2(np.clip(df[cols].to_numpy(dtype=float), 1e-6, None)))))
+
+
 def aggregate(df, by: Sequence[str], metrics: Sequence[str] = METRICS):
     """Mean of each metric per group of ``by`` columns (group order as first seen), plus ``n`` (image count).
 

@@ -118,15 +118,10 @@ LADDER_STEPS = (  # (step, what, source, task/run, method); source "prior" = bac
 )
 
 
-def scale_error(df: pd.DataFrame) -> pd.Series:
-    """Per row: the largest |log2| of the aligned protocol's per-channel scales (0 = the colours needed no repair)."""
-    return np.log2(df[["scale_r", "scale_g", "scale_b"]].clip(lower=1e-6)).abs().max(axis=1)
-
-
 def ladder_table(df: pd.DataFrame, prior: pd.DataFrame) -> pd.DataFrame:
     """The quality ladder (rows of :data:`LADDER_STEPS` present in the inputs): where the dB go, on the held-out
-    relighting images (row c: the held-out input-light views). ``scale_log2``: median over images of
-    :func:`scale_error`. LPIPS only for the relighting stage's rows (the prior evaluation does not compute it)."""
+    relighting images (row c: the held-out input-light views). ``scale_log2``: :func:`frng.metrics.scale_log2`.
+    LPIPS only for the relighting stage's rows (the prior evaluation does not compute it)."""
     rows = []
     for step, what, source, key, method in LADDER_STEPS:
         if source == "prior":
@@ -137,7 +132,7 @@ def ladder_table(df: pd.DataFrame, prior: pd.DataFrame) -> pd.DataFrame:
             continue
         rows.append({"step": step, "what": what, "n": len(sub), "psnr": sub["psnr"].mean(),
                      "ssim": sub["ssim"].mean(), "lpips": sub["lpips"].mean() if "lpips" in sub else np.nan,
-                     "scale_log2": float(scale_error(sub).median()) if "scale_r" in sub else np.nan})
+                     "scale_log2": M.scale_log2(sub)})
     return pd.DataFrame(rows, columns=list(T.TABLE_COLUMNS["ladder"]))
 
 
@@ -186,8 +181,8 @@ def write_tables(config: dict, per_image_csv: Path, timing_files: list[Path], ou
     out["ladder"] = T.write_table(
         ladder_table(df, prior), out_dir / "ladder", decimals={"scale_log2": 2},
         caption=(f"Quality ladder: where the dB go. Aligned protocol on the held-out relighting images (row c: the "
-                 f"held-out input-light views); scale_log2 = median over images of the largest |log2| per-channel "
-                 f"scale the protocol applied. Tier {config['tier']}."), label="tab:ladder")
+                 f"held-out input-light views); scale_log2 = median over images and channels of |log2| of the "
+                 f"per-channel scale the protocol applied. Tier {config['tier']}."), label="tab:ladder")
     t = timing_table(timings)
     out["timing"] = T.write_table(
         t, out_dir / "timing",

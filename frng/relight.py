@@ -244,7 +244,7 @@ def relight_object(config: dict, oid: str, models: dict[str, Path], backbone_pat
             priors = (p["oracle"] if run.priors == "oracle" else p["priors"]) if model.cfg.uses_priors else None
             with torch.no_grad():
                 with Timer(device) as t_rec:
-                    rec = model.reconstruct(p["bv"], 0, priors, p["images"])
+                    rec = model.reconstruct(p["bv"], 0, priors, p["images"], input_env=obj.envs[light_in].to(device))
                 # the G-buffer of the target views does not depend on the light: rasterize once, shade per light
                 with Timer(device) as t_ras:
                     raster = model.rasterize(rec, t_c2w, t_intr, H, W)

@@ -165,7 +165,7 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
               "scales": gauss.scales, "opacities": gauss.opacities, "keep": keep.to(torch.uint8), "c2w": c2w,
               "intr": intr, "light0.t_app": t_app[0].float()}
         images = torch.cat([rgb, alpha], -1)
-        t_frng_s, rec = _timed(lambda: model.reconstruct(bv, 0, priors, images), dev, R)
+        t_frng_s, rec = _timed(lambda: model.reconstruct(bv, 0, priors, images, input_env=env_in), dev, R)
     with torch.no_grad():
         t_ras_s, raster = _timed(lambda: model.rasterize(rec, t_c2w, t_intr, res, res), dev, R)
         t_shade_s, _ = _timed(lambda: [model.shade(raster, e, spp, generator=gen(i)) for i, e in enumerate(envs)],

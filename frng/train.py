@@ -70,6 +70,7 @@ class TrainConfig:
     perceptual_net: str = "vgg"
     perceptual_after: int = 0
     background: tuple = (1.0, 1.0, 1.0)
+    l2_space: str = "display"
     bf16: bool = True
     checkpoint_every: int = 25
     loss: dict = field(default_factory=lambda: {"lambda_1": 1.0, "lambda_per": 0.5, "lambda_c": 0.2,
@@ -95,6 +96,7 @@ class TrainObject:
     lights: int  # cached lights (0 = input light)
     priors: object | None  # IntrinsicPriors or None (no-idm: never read)
     images: torch.Tensor  # (V, H, W, 4) input views under the input light
+    env_in: torch.Tensor  # (He, We, 3) the input light's env map
     targets: list  # [(light name, env (He, We, 3), c2w (Vt, 4, 4), intr (Vt, 4), rgba (Vt, H, W, 4))]
 
 
@@ -121,6 +123,8 @@ def load_objects(config: dict, ids: list[str], backbone_path: Path, use_priors: 
         light_in = cache.meta["input_light"]
         names = cache.meta["view_names"][str(V)]
         images = obj.images("inputs", light_in, names, torch=True)
+        if light_in not in envs:
+            envs[light_in] = torch.from_numpy(envmap.read(obj.envmap_path(light_in, res))).float()
         targets = []
         kinds = [("targets", l) for l in obj.target_lights] + [("inputs", l) for l in obj.input_lights if l != light_in]
         for kind, light in kinds:
@@ -128,7 +132,7 @@ def load_objects(config: dict, ids: list[str], backbone_path: Path, use_priors: 
                 envs[light] = torch.from_numpy(envmap.read(obj.envmap_path(light, res))).float()
             c2w, K = obj.cameras(kind, None, torch=True)
             targets.append((light, envs[light], c2w, K, obj.images(kind, light, None, torch=True)))
-        out.append(TrainObject(oid, views, lights, priors, images, targets))
+        out.append(TrainObject(oid, views, lights, priors, images, envs[light_in], targets))
     return out
 
 
@@ -137,15 +141,25 @@ def encode_display(x: torch.Tensor) -> torch.Tensor:
     return (x.clamp_min(0.0) + 1e-4) ** (1.0 / 2.2)
 
 
-def l2_loss(out: torch.Tensor, tgt: torch.Tensor, background) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+L2_SPACES = ("display", "linear")
+
+
+def l2_loss(out: torch.Tensor, tgt: torch.Tensor, background, space: str = "display"
+            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """L_2 of a render against its target (module docstring, step 4).
 
-    out, tgt: (B, H, W, 4) linear premultiplied RGBA; background: 3 floats (``train.background``).
-    Returns (L_2 scalar, out RGB (B, H, W, 3) and tgt RGB composited over the background).
+    out, tgt: (B, H, W, 4) linear premultiplied RGBA; background: 3 floats (``train.background``); space:
+    ``display`` (gamma-encoded, :func:`encode_display`) or ``linear``. A Monte-Carlo render is noisy, and the gamma
+    curve is concave, so in display space the loss is minimised by a render whose MEAN is brighter than the target
+    (the noise pulls the encoded value down); in linear space the noise adds a constant and the minimiser is the
+    target itself. Returns (L_2 scalar, out RGB (B, H, W, 3) and tgt RGB composited over the background).
     """
+    if space not in L2_SPACES:
+        raise ValueError(f"train.l2_space must be one of {L2_SPACES}, got {space!r}")
     fg = ((tgt[..., 3:4] > 0.5) | (out[..., 3:4].detach() > 0.5)).to(out.dtype)
     rgb_out, rgb_tgt = io.composite(out, background), io.composite(tgt, background)
-    diff = (encode_display(rgb_out) - encode_display(rgb_tgt)) ** 2 * fg
+    enc = encode_display if space == "display" else (lambda x: x)
+    diff = (enc(rgb_out) - enc(rgb_tgt)) ** 2 * fg
     return diff.sum() / (3 * fg.sum()).clamp_min(1.0), rgb_out, rgb_tgt
 
 
@@ -175,7 +189,7 @@ class StepLoss(nn.Module):
         for obj, j, ti, vidx, seed in samples:
             lights = [0, j] if self.ind_on and obj.lights > 1 else [0]
             with tr.autocast(dev, self.bf16):
-                recs = m.reconstruct(obj.views, lights, obj.priors, obj.images, keep_tokens=True)
+                recs = m.reconstruct(obj.views, lights, obj.priors, obj.images, keep_tokens=True, input_env=obj.env_in)
             _, env, c2w, K, rgba = obj.targets[ti]
             vi = torch.as_tensor(vidx)
             tgt = rgba[vi].to(dev)
@@ -183,7 +197,7 @@ class StepLoss(nn.Module):
             gen = torch.Generator().manual_seed(seed)
             out = m.render(recs[0], env, c2w[vi], K[vi], H, W, spp=sc.spp_train, generator=gen,
                            spp_grad=sc.spp_grad)
-            l2, rgb_out, rgb_tgt = l2_loss(out, tgt, self.tcfg.background)
+            l2, rgb_out, rgb_tgt = l2_loss(out, tgt, self.tcfg.background, self.tcfg.l2_space)
             loss = self.lambda_1 * l2
             logs["l2"] += float(l2.detach())
             if self.perceptual is not None and self.lambda_per > 0 and self.step >= self.tcfg.perceptual_after:

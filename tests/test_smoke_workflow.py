@@ -60,6 +60,8 @@ def test_every_target_and_table(smoke_run):
     assert len(per_image) == len(tests) * len(runs(config)) * n_lights * n_views
     assert per_image["psnr"].between(0, 100).all() and per_image["ssim"].between(-1, 1).all()
     assert per_image["lpips"].between(0, 2).all()
+    ladder = pd.read_csv(results / "tables" / "ladder.csv")
+    assert {"a", "b", "c", "d", "e", "f"} <= set(ladder["step"]), list(ladder["step"])
     timing = pd.read_csv(results / "tables" / "timing.csv")
     assert (timing["relight_ms_per_image"] > 0).all()
 

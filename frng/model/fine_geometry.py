@@ -129,13 +129,14 @@ def fine_gaussian_uv(patch_idx: torch.Tensor, w: int, patch: int, s: int, dtype=
     return uv.reshape(V, n * s * s, p * p, 2)
 
 
-def sample_pixels(image: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
-    """Bilinear reads of a per-pixel map at sub-pixel positions (border pixels replicated).
+def sample_pixels(image: torch.Tensor, uv: torch.Tensor, mode: str = "bilinear") -> torch.Tensor:
+    """Reads of a per-pixel map at sub-pixel positions (border pixels replicated), bilinear or ``"nearest"`` (the
+    value of the pixel containing the position, as :func:`fine_keep_mask` reads the mask).
 
     image (V, H, W, C); uv (V, M, P, 2) pixel coordinates (x, y), pixel centres at +0.5 -> (V, M, P, C)."""
     from frng.priors.multiview import sample_image
 
-    return sample_image(image, uv, padding="border")
+    return sample_image(image, uv, padding="border", mode=mode)
 
 
 def fine_keep_mask(uv: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -240,8 +241,9 @@ class FineGeometry(nn.Module):
         raw_prior: torch.Tensor | None = None,
     ) -> FineGeometryOutput:
         """raw_prior (V, H, W, 9) or None: the backbone's multi-view prior part of its per-pixel raw parameters
-        (``BackboneGeometry.raw_prior``); when given it is sampled bilinearly at every fine Gaussian's sub-pixel
-        position and added to the detokenizer's output, as the backbone adds it to its own."""
+        (``BackboneGeometry.raw_prior``); when given, the value of the pixel containing each fine Gaussian's
+        sub-pixel position is added to the detokenizer's output, as the backbone adds it to its own (not bilinear:
+        at a silhouette that would average the surface's distance with the background's and make floaters)."""
         V, h, w, _ = t_geo.shape
         s, p = self.cfg.upsample, self.cfg.patch
         pos = self.positions(patch_idx, w)
@@ -250,7 +252,7 @@ class FineGeometry(nn.Module):
         raw = self.detokenizer(fine_geo, fine_prior)  # (V, M, P, 9)
         uv = fine_gaussian_uv(patch_idx, w, p, s)  # (V, M, P, 2)
         if raw_prior is not None:
-            raw = raw.float() + sample_pixels(raw_prior.float(), uv)
+            raw = raw.float() + sample_pixels(raw_prior.float(), uv, mode="nearest")
         o, d = camera.rays_at(c2w.float(), intrinsics.float(), uv)
         means, quats, scales, opac = decode_raw(raw.float(), o, d, self.decode_cfg)
         g = Gaussians(means.reshape(-1, 3), quats.reshape(-1, 4), scales.reshape(-1, 3), opac.reshape(-1))

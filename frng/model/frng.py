@@ -78,6 +78,7 @@ class FRNGConfig:
     max_radius_px: float | None = 12.0  # footprint cap at render time (the backbone's, unless raster sets one)
     saliency: dict = field(default_factory=dict)  # SaliencyConfig fields (top_k is taken from ``top_k``)
     pixel_head: int = 32  # hidden width of the per-Gaussian pixel head (0 = off: the paper's linear detokenizer only)
+    decoder_cosine: bool = False  # decoder output x max(0, n.w_i), n = features 0:3 (shading.decoder_cosine)
 
     @classmethod
     def from_dict(cls, d: dict) -> "FRNGConfig":
@@ -124,16 +125,51 @@ PRIOR_PIXEL_CHANNELS = ("albedo", "normal", "roughness", "metallic")
 
 
 def pixel_channels(uses_priors: bool) -> int:
-    """Channels of :func:`pixel_map`: gamma colour 3 + alpha 1 (+ albedo 3, normal 3, roughness 1, metallic 1)."""
-    return 4 + (8 if uses_priors else 0)
+    """Channels of :func:`pixel_map`: gamma colour 3, alpha 1, shading-normalised colour 3, input irradiance 3,
+    geometry normal 3 (+ albedo 3, normal 3, roughness 1, metallic 1 with IDM priors)."""
+    return 13 + (8 if uses_priors else 0)
 
 
-def pixel_map(images: torch.Tensor, priors, V: int) -> torch.Tensor:
-    """Per-pixel inputs of the pixel head: images (V, H, W, 4) linear premultiplied RGBA, priors IntrinsicPriors (first
-    V views) or None -> (V, H, W, C): [unpremultiplied gamma-2.2 colour, alpha, (albedo, world normal, roughness,
-    metallic)]."""
+def pixel_normal_index(uses_priors: bool) -> int:
+    """Where the best available world normal starts in :func:`pixel_map`: the IDM's, else the geometry's."""
+    return 16 if uses_priors else 10
+
+
+def geometry_normals(means: torch.Tensor, keep: torch.Tensor, c2w: torch.Tensor) -> torch.Tensor:
+    """World normals (V, H, W, 3) of the backbone's per-pixel Gaussians: means (V*H*W, 3) on the input pixel grid,
+    keep (V*H*W,) bool, c2w (V, 4, 4); from finite differences of the means (:func:`frng.priors.multiview.
+    depth_normals`), facing the input camera."""
+    from frng.priors.multiview import depth_normals
+
+    V = c2w.shape[0]
+    pts = means.reshape(V, -1, 3)
+    H = W = int(round(pts.shape[1] ** 0.5))
+    assert H * W == pts.shape[1], f"per-pixel Gaussians of square views expected, got {pts.shape[1]} per view"
+    n_cam = depth_normals(pts.reshape(V, H, W, 3).float(), c2w, keep.reshape(V, H, W).bool())
+    return (c2w[:, None, None, :3, :3].float() @ n_cam.unsqueeze(-1)).squeeze(-1)
+
+
+def pixel_map(images: torch.Tensor, priors, V: int, normals: torch.Tensor, input_env: torch.Tensor) -> torch.Tensor:
+    """Per-pixel inputs of the pixel head.
+
+    images (V, H, W, 4) linear premultiplied RGBA under the input light; priors IntrinsicPriors (first V views) or
+    None; normals (V, H, W, 3) world normals of the backbone's geometry (:func:`geometry_normals`); input_env
+    (He, We, 3) the input light's HDR map. Returns (V, H, W, C) = [unpremultiplied gamma-2.2 colour, alpha,
+    shading-normalised colour (gamma of c * pi / E(n): an albedo estimate under a Lambertian assumption, clamped
+    to [0, 4]), input irradiance (gamma of E(n) / pi), the geometry normal, (IDM albedo, world normal, roughness,
+    metallic)], where E(n) is
+    the input light's irradiance at the shading normal n (the IDM's normal with priors, else the geometry's;
+    degree-2 SH, :func:`frng.envmap.sh_irradiance`). The input light is
+    known in F-RNG's setting; dividing it out is what lets the same decoder relight under another light."""
+    from frng import envmap
+
     rgb, a = images[..., :3].float(), images[..., 3:4].float()
-    parts = [(rgb / a.clamp_min(1e-3)).clamp(0, 1) ** (1 / 2.2), a]
+    col = (rgb / a.clamp_min(1e-3)).clamp(0, 1)
+    shading_normals = priors.as_dict()["normal"][:V] if priors is not None else normals
+    E = envmap.sh_irradiance(envmap.sh_project(input_env.float().cpu()).float(), shading_normals.float().cpu())
+    E = E.to(images.device).clamp_min(0.0) / math.pi
+    ratio = (col / E.clamp_min(1e-3)).clamp(0, 4)
+    parts = [col ** (1 / 2.2), a, ratio ** (1 / 2.2), E ** (1 / 2.2), normals.to(images.device).float()]
     if priors is not None:
         d = priors.as_dict()
         parts += [d[k][:V].to(images.device).float() for k in PRIOR_PIXEL_CHANNELS]
@@ -146,13 +182,17 @@ class PixelHead(nn.Module):
     The MatDetokenizer is one linear layer from a patch token to p*p Gaussians; at this project's token widths it
     cannot carry per-pixel detail (a 64 px view is only 8 x 8 tokens), so every Gaussian also sees its input pixel:
     ``g + MLP([g, pixel])`` with ``pixel`` from :func:`pixel_map` (the no-idm variant gets no prior channels). The
-    last layer starts at zero (the paper's detokenizer at initialisation).
+    last layer starts at zero (the paper's detokenizer at initialisation). With ``normal_index`` (the cosine decoder,
+    ``shading.decoder_cosine``) the pixel's normal (``pixel[:, normal_index:normal_index + 3]``) is added to output
+    channels 0:3, which the decoder reads as the shading normal, and the diffuse BRDF estimate c / E(n) (the
+    shading-normalised colour / pi, linear) to channels 3:6, the decoder's Lambertian base: at initialisation F-RNG
+    re-renders its input view under the input light and relights it as a Lambertian surface.
 
     forward(g (N, C_out), pixel (N, C_pix)) -> (N, C_out)."""
 
-    def __init__(self, out_channels: int, pixel_channels: int, hidden: int):
+    def __init__(self, out_channels: int, pixel_channels: int, hidden: int, normal_index: int | None = None):
         super().__init__()
-        self.pixel_channels = pixel_channels
+        self.pixel_channels, self.normal_index = pixel_channels, normal_index
         self.mlp = nn.Sequential(nn.Linear(out_channels + pixel_channels, hidden), nn.GELU(),
                                  nn.Linear(hidden, hidden), nn.GELU(), nn.Linear(hidden, out_channels))
         nn.init.zeros_(self.mlp[-1].weight)
@@ -160,7 +200,13 @@ class PixelHead(nn.Module):
 
     def forward(self, g: torch.Tensor, pixel: torch.Tensor) -> torch.Tensor:
         assert g.shape[0] == pixel.shape[0] and pixel.shape[-1] == self.pixel_channels, (g.shape, pixel.shape)
-        return g + self.mlp(torch.cat([g, pixel.to(g.dtype)], -1))
+        out = g + self.mlp(torch.cat([g, pixel.to(g.dtype)], -1))
+        if self.normal_index is not None:
+            i = self.normal_index
+            diffuse = pixel[:, 4:7].float() ** 2.2 / math.pi  # shading-normalised colour (gamma) -> c / E(n)
+            out = torch.cat([out[:, :3] + pixel[:, i:i + 3].to(out.dtype), out[:, 3:6] + diffuse.to(out.dtype),
+                             out[:, 6:]], -1)
+        return out
 
 
 class FRNG(nn.Module):
@@ -180,12 +226,20 @@ class FRNG(nn.Module):
                                                     prior_dim=cfg.prior_dim), decode) if cfg.fine else None
         self.material = MaterialHead(cfg.materialformer_config())
         out_ch = self.material.cfg.out_channels
-        self.pixel_head = PixelHead(out_ch, pixel_channels(cfg.uses_priors), cfg.pixel_head) \
+        cosine = cfg.decoder_cosine and cfg.head == "neural"
+        self.pixel_head = PixelHead(out_ch, pixel_channels(cfg.uses_priors), cfg.pixel_head,
+                                    pixel_normal_index(cfg.uses_priors) if cosine else None) \
             if cfg.pixel_head > 0 else None
-        self.decoder = NeuralDecoder(cfg.feature_dim, cfg.decoder_width, cfg.decoder_depth, cfg.dir_freqs) \
+        if cosine and self.pixel_head is not None:  # start exactly at the Lambertian relighting of the input views
+            nn.init.zeros_(self.material.detokenizer.proj.weight)
+            nn.init.zeros_(self.material.detokenizer.proj.bias)
+        self.decoder = NeuralDecoder(cfg.feature_dim, cfg.decoder_width, cfg.decoder_depth, cfg.dir_freqs,
+                                     cosine=cfg.decoder_cosine) \
             if cfg.head == "neural" else None
         if self.decoder is not None:  # start dim: softplus(-3) ~ 0.05 reflectance x cos, not ~0.7 (over-bright renders)
-            nn.init.constant_(self.decoder.out.bias, -3.0)  # weights keep PyTorch's init: x0.1 froze the output
+            # weights keep PyTorch's init: x0.1 froze the output. With the cosine decoder the MLP only adds to the
+            # Lambertian base: start it near zero (softplus(-6) ~ 0.0025)
+            nn.init.constant_(self.decoder.out.bias, -6.0 if cfg.decoder_cosine else -3.0)
 
     # -- construction / files ------------------------------------------------------------------------------
 
@@ -225,7 +279,8 @@ class FRNG(nn.Module):
         enc = "raw" if self.cfg.dir_freqs == 0 else f"raw+sincos{self.cfg.dir_freqs}"
         return {"width": self.cfg.decoder_width, "depth": self.cfg.decoder_depth,
                 "input_encoding": f"[feature({self.cfg.feature_dim}), {enc}(w_o world), {enc}(w_i world)]",
-                "dir_freqs": self.cfg.dir_freqs, "feature_dim": self.cfg.feature_dim, "output": "softplus RGB x cos",
+                "dir_freqs": self.cfg.dir_freqs, "feature_dim": self.cfg.feature_dim, "output": "softplus RGB x max(0, n.w_i), n = normalise(feature[0:3])" if self.cfg.decoder_cosine
+                else "softplus RGB x cos", "cosine": self.cfg.decoder_cosine,
                 "head": self.cfg.head}
 
     @property
@@ -253,7 +308,8 @@ class FRNG(nn.Module):
         return self.tokenizer(stack_priors(d))
 
     def reconstruct(self, backbone_views: dict, light: int | list[int], priors=None, images: torch.Tensor = None,
-                    keep_tokens: bool = False) -> Reconstruction | list[Reconstruction]:
+                    keep_tokens: bool = False, input_env: torch.Tensor | None = None
+                    ) -> Reconstruction | list[Reconstruction]:
         """Build the relightable asset of one object.
 
         backbone_views: ``BackboneCache.views(V)`` (t_geo (V, h, w, D), raw_prior (V, H, W, 9) optional,
@@ -262,7 +318,8 @@ class FRNG(nn.Module):
         list of indices -> one Reconstruction per light, sharing geometry (one batched MaterialFormer pass);
         priors: IntrinsicPriors of the input views (first V used) or None (required None for no-idm);
         images: (V, H, W, 4) input RGBA (linear premultiplied) under the input light, for the saliency map and
-        the fine keep mask. keep_tokens: also return T_mat (1, L, hidden) for L_ind.
+        the fine keep mask. keep_tokens: also return T_mat (1, L, hidden) for L_ind. input_env: (He, We, 3) the input
+        light's HDR map (required with the pixel head, ``pixel_head > 0``: see :func:`pixel_map`).
         """
         dev = self.device
         lights = [light] if isinstance(light, int) else list(light)
@@ -292,7 +349,10 @@ class FRNG(nn.Module):
         t_mat, g_mat = self.material(geo_seq, app_seq, prior_seq)  # (B, L, hid), (B, L, P, C)
         g_coarse, g_fine = split_sequence(g_mat.float(), V, h, w)
         if self.pixel_head is not None:  # per-Gaussian pixel inputs, same order as the kept Gaussians below
-            pix_map = pixel_map(images, priors, V) if self.cfg.uses_priors else pixel_map(images, None, V)
+            if input_env is None:
+                raise ValueError("F-RNG with a pixel head needs the input light's env map: reconstruct(..., input_env=)")
+            normals = geometry_normals(bv["means"], keep_c, c2w)
+            pix_map = pixel_map(images, priors if self.cfg.uses_priors else None, V, normals, input_env)
             pix = [pix_map.reshape(-1, pix_map.shape[-1])[keep_c]]
             if fine is not None:
                 pix.append(sample_pixels(pix_map, fine.uv).reshape(-1, pix_map.shape[-1])[keep_f])
@@ -409,7 +469,7 @@ def variant_config(config: dict, name: str, backbone_cfg: dict | None = None) ->
         decoder_width=config["shading"]["decoder_width"], decoder_depth=config["shading"]["decoder_depth"],
         dir_freqs=config["shading"]["dir_freqs"], near=bb.get("near", 1.0), far=bb.get("far", 4.5),
         max_radius_px=bb.get("max_radius_px", 12.0), saliency=dict(f.get("saliency", {})),
-        pixel_head=f.get("pixel_head", 32),
+        pixel_head=f.get("pixel_head", 32), decoder_cosine=config["shading"].get("decoder_cosine", False),
     )
     loss = config["train"]["loss"]
     ind = LightIndependenceConfig(lambda_c=loss["lambda_c"], lambda_kld=loss["lambda_kld"],

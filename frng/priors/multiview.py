@@ -45,15 +45,15 @@ def ray_sphere(o: torch.Tensor, d: torch.Tensor, radius: float) -> tuple[torch.T
     return (-b - s).clamp_min(0), (-b + s).clamp_min(0), hit
 
 
-def sample_image(images: torch.Tensor, uv: torch.Tensor, padding: str = "zeros") -> torch.Tensor:
-    """Bilinear reads of per-view images at pixel coordinates (pixel centres at +0.5).
+def sample_image(images: torch.Tensor, uv: torch.Tensor, padding: str = "zeros", mode: str = "bilinear") -> torch.Tensor:
+    """Reads of per-view images at pixel coordinates (pixel centres at +0.5), bilinear or ``mode="nearest"``.
 
     images (V, H, W, C); uv (V, ..., 2) as (x, y) -> (V, ..., C). ``padding``: "zeros" (0 outside the image) or
     "border" (edge pixels replicated), as :func:`torch.nn.functional.grid_sample`."""
     V, H, W, C = images.shape
     lead = uv.shape[1:-1]
     grid = torch.stack([2.0 * uv[..., 0] / W - 1.0, 2.0 * uv[..., 1] / H - 1.0], dim=-1).reshape(V, 1, -1, 2)
-    out = F.grid_sample(images.permute(0, 3, 1, 2), grid.to(images.dtype), mode="bilinear", padding_mode=padding,
+    out = F.grid_sample(images.permute(0, 3, 1, 2), grid.to(images.dtype), mode=mode, padding_mode=padding,
                         align_corners=False)
     return out[:, :, 0].permute(0, 2, 1).reshape(V, *lead, C)
 

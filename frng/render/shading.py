@@ -39,6 +39,7 @@ class ShadingConfig:
     decoder_width: int = 64
     decoder_depth: int = 3
     dir_freqs: int = 0
+    decoder_cosine: bool = True
     sampling: str = "sobol"
     alpha_eps: float = 1e-3
     chunk_pixels: int = 4096
@@ -68,18 +69,25 @@ def encode_dirs(d: torch.Tensor, freqs: int) -> torch.Tensor:
 class NeuralDecoder(nn.Module):
     """Universal neural appearance decoder Theta(f, w_o, w_i) -> RGB reflectance x cosine (>= 0).
 
-    An MLP with ``depth`` hidden layers of ``width`` units (paper: 4 x 256), ReLU, softplus output. Input:
+    An MLP with ``depth`` hidden layers of ``width`` units (paper: 4 x 256), ReLU, softplus output. With
+    ``cosine`` (our choice at this project's data scale; ``shading.decoder_cosine``) features 0:3 carry a normal n,
+    features 3:6 a diffuse BRDF value d (albedo / pi) and the output is (max(d, 0) + softplus(MLP)) max(0, n . w_i):
+    a Lambertian base that the MLP refines (specular, fur, corrections) instead of learning BRDF x cosine from
+    scratch. Input:
     [feature (C), enc(w_o), enc(w_i)] with :func:`encode_dirs` (raw directions by default). Because the light
     samples are shared by all pixels, the first layer is split: W [f; w_o; w_i] = (W_f f + W_o w_o)[p] +
     (W_i w_i)[k], computed per pixel and per sample and broadcast-added -- identical to the concatenated MLP
     at a fraction of the cost.
     """
 
-    def __init__(self, feature_dim: int, width: int = 256, depth: int = 4, dir_freqs: int = 0):
+    def __init__(self, feature_dim: int, width: int = 256, depth: int = 4, dir_freqs: int = 0, cosine: bool = False):
         super().__init__()
         if depth < 1:
             raise ValueError("decoder depth must be >= 1")
-        self.dir_freqs = dir_freqs
+        if cosine and feature_dim < 6:
+            raise ValueError("a cosine decoder reads the normal and diffuse BRDF from feature channels 0:6; "
+                             "feature_dim must be >= 6")
+        self.dir_freqs, self.cosine = dir_freqs, cosine
         d_enc = 3 * (1 + 2 * dir_freqs)
         self.inp_pixel = nn.Linear(feature_dim + d_enc, width)
         self.inp_light = nn.Linear(d_enc, width, bias=False)
@@ -93,7 +101,12 @@ class NeuralDecoder(nn.Module):
         h = torch.relu(a[:, None, :] + b[None, :, :])
         for layer in self.hidden:
             h = torch.relu(layer(h))
-        return nn.functional.softplus(self.out(h))
+        out = nn.functional.softplus(self.out(h))
+        if self.cosine:  # the rendering equation's cosine, factored out: the MLP only learns the BRDF beyond diffuse
+            n = nn.functional.normalize(features[:, :3].float(), dim=-1, eps=1e-6)
+            diffuse = features[:, 3:6].float().clamp_min(0.0)[:, None, :]
+            out = (diffuse + out.float()) * (n @ wi.float().T).clamp_min(0.0)[..., None]
+        return out
 
 
 def ggx_reflectance(albedo, roughness, metallic, normal, wo, wi) -> torch.Tensor:

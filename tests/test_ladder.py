@@ -1,0 +1,47 @@
+"""The quality ladder table (frng.paper_tables.ladder_table) and the colour-repair statistic it reports."""
+
+import math
+
+import numpy as np
+import pandas as pd
+
+from frng import metrics as M
+from frng.paper_tables import LADDER_STEPS, ladder_table
+
+
+def _rows(n, psnr, scale, **kw):
+    return [dict(kw, psnr=psnr + 0.1 * i, ssim=0.5, lpips=0.1, scale_r=scale, scale_g=1.0, scale_b=1.0)
+            for i in range(n)]
+
+
+def test_scale_log2_is_the_median_over_images_and_channels():
+    df = pd.DataFrame({"scale_r": [2.0, 0.5], "scale_g": [1.0, 1.0], "scale_b": [4.0, 1.0]})
+    # |log2|: 1, 0, 2, 1, 0, 0 -> median 0.5
+    assert M.scale_log2(df) == 0.5
+    assert math.isnan(M.scale_log2(pd.DataFrame({"psnr": [1.0]})))
+
+
+def test_ladder_rows_come_from_both_evaluations():
+    relit = pd.DataFrame(_rows(4, 17.0, 1.0, run="backbone") + _rows(4, 18.0, 2.0, run="full")
+                         + _rows(4, 18.5, 1.0, run="full-oracle") + _rows(4, 9.0, 1.0, run="no-fine"))
+    prior = pd.DataFrame(_rows(3, 25.0, 1.0, task="relight", method="gt-depth+oracle-colour")
+                         + _rows(3, 22.0, 1.0, task="relight", method="backbone-geometry+oracle-colour")
+                         + _rows(2, 20.0, 1.0, task="nvs", method="backbone")
+                         + _rows(3, 8.0, 1.0, task="relight", method="mean-image")
+                         + _rows(3, 17.5, 1.0, task="relight", method="backbone")).drop(columns=["lpips"])
+    t = ladder_table(relit, prior)
+    assert list(t["step"]) == [s for s, *_ in LADDER_STEPS]
+    by = t.set_index("step")
+    assert by.loc["a", "n"] == 3 and np.isclose(by.loc["a", "psnr"], 25.1)
+    assert by.loc["c", "n"] == 2 and np.isclose(by.loc["c", "psnr"], 20.05)
+    assert np.isclose(by.loc["d", "psnr"], 17.15) and np.isclose(by.loc["e", "psnr"], 18.15)
+    assert np.isclose(by.loc["f", "psnr"], 18.65)
+    assert math.isnan(by.loc["a", "lpips"]) and by.loc["e", "lpips"] == 0.1  # the prior evaluation has no LPIPS
+    # full: one channel of every image scaled by 2 -> |log2| values 1, 0, 0 per image -> median 0
+    assert by.loc["e", "scale_log2"] == 0.0 and by.loc["d", "scale_log2"] == 0.0
+
+
+def test_ladder_skips_rows_it_has_no_data_for():
+    relit = pd.DataFrame(_rows(2, 17.0, 1.0, run="backbone") + _rows(2, 18.0, 1.0, run="full"))
+    prior = pd.DataFrame(_rows(2, 20.0, 1.0, task="nvs", method="backbone"))
+    assert list(ladder_table(relit, prior)["step"]) == ["c", "d", "e"]
