@@ -61,19 +61,27 @@ def _metrics(df: pd.DataFrame, by: list[str]) -> pd.DataFrame:
     return M.aggregate(df, by)
 
 
+def _idm_runs(df: pd.DataFrame) -> pd.DataFrame:
+    """Rows of runs fed the configured IDM's priors (drops the ladder's oracle-prior run)."""
+    return df[df["run"] != ORACLE_RUN]
+
+
 def ablation_rows(df: pd.DataFrame) -> pd.DataFrame:
     """Per-image rows of the ablation runs (6 views, one of :data:`BASE_VARIANTS`)."""
+    df = _idm_runs(df)
     return df[(df["views"] == RIG_VIEWS) & df["variant"].isin(BASE_VARIANTS)]
 
 
 def k_rows(df: pd.DataFrame) -> pd.DataFrame:
     """Per-image rows of the K sweep (6 views, the full model and the ``k*`` variants)."""
+    df = _idm_runs(df)
     v = df["variant"].astype(str)
     return df[(df["views"] == RIG_VIEWS) & (df["method"] == "F-RNG") & ((v == "full") | v.str.match(r"^k[0-9.]+$"))]
 
 
 def views_rows(df: pd.DataFrame) -> pd.DataFrame:
     """Per-image rows of the #views sweep (the full model at every view count)."""
+    df = _idm_runs(df)
     return df[df["variant"] == "full"]
 
 

@@ -45,3 +45,14 @@ def test_ladder_skips_rows_it_has_no_data_for():
     relit = pd.DataFrame(_rows(2, 17.0, 1.0, run="backbone") + _rows(2, 18.0, 1.0, run="full"))
     prior = pd.DataFrame(_rows(2, 20.0, 1.0, task="nvs", method="backbone"))
     assert list(ladder_table(relit, prior)["step"]) == ["c", "d", "e"]
+
+
+def test_oracle_run_stays_out_of_the_paper_tables():
+    from frng.paper_tables import ablation_rows, k_rows, views_rows
+
+    rows = []
+    for run, variant, psnr in (("full", "full", 18.0), ("full-oracle", "full", 30.0), ("no-fine", "no-fine", 17.0)):
+        rows += _rows(2, psnr, 1.0, run=run, variant=variant, views=6, method="F-RNG", k=2.0)
+    df = pd.DataFrame(rows)
+    for sub in (ablation_rows(df), k_rows(df), views_rows(df)):
+        assert "full-oracle" not in set(sub["run"]) and len(sub)

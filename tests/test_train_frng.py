@@ -134,8 +134,8 @@ def test_training_overfits_one_object(frng_smoke, tmp_path):
     wall = time.time() - t0
     after = _fixed_loss(FRNG.load(path, "cpu"), objs, config)
     print(f"smoke full: fixed-sample L2 {before:.4f} -> {after:.4f} in {wall:.1f}s")
-    # measured 0.063 -> 0.043 (over white, the smoke backbone's blurry silhouettes leave a high floor)
-    assert after < 0.75 * before
+    # measured on one object: 0.039 -> 0.020 (the untrained model is already a Lambertian relighting)
+    assert after < 0.7 * before
     rows = list(csv.DictReader(open(tmp_path / "full" / "loss.csv")))
     assert len(rows) == STEPS and (tmp_path / "full" / "loss.png").exists()
 
