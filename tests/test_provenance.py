@@ -70,19 +70,9 @@ def frng_config_output(path) -> dict:
     return yaml.safe_load(r.stdout)
 
 
-def _flat(d: dict, prefix: str = "") -> dict:
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, dict) and v:
-            out.update(_flat(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out
-
-
 def assert_same_keys(expected: dict, actual: dict, what: str):
     """Key by key (dotted leaves), listing every difference."""
-    a, b = _flat(expected), _flat(actual)
+    a, b = frng_config.flatten(expected), frng_config.flatten(actual)
     diff = [f"{k}: frng config {a.get(k, '<absent>')!r}, snakemake {b.get(k, '<absent>')!r}"
             for k in sorted(set(a) | set(b)) if a.get(k, "<absent>") != b.get(k, "<absent>")]
     assert not diff, f"{what}: {len(diff)} key(s) differ:\n" + "\n".join(diff)
