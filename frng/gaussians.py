@@ -158,6 +158,22 @@ def decode(
     return Gaussians(means.reshape(-1, 3), quats.reshape(-1, 4), scales.reshape(-1, 3), opacities.reshape(-1), feats)
 
 
+def isotropic_raw(distance: torch.Tensor, alpha: torch.Tensor, fx: torch.Tensor, footprint_px: float,
+                  cfg: GaussianDecodeConfig | None = None) -> torch.Tensor:
+    """The raw 9-vectors that :func:`decode_raw` turns into isotropic per-pixel Gaussians: distance ``distance``
+    along each pixel ray (clamped inside [near, far]), standard deviation ``footprint_px`` pixels at that distance,
+    identity rotation, opacity = alpha clamped to [0.02, 0.98].
+
+    distance, alpha (V, H, W, 1); fx (V,) focal lengths in pixels -> raw (V, H, W, 9)."""
+    cfg = cfg or GaussianDecodeConfig()
+    w = ((distance - cfg.near) / (cfg.far - cfg.near)).clamp(1e-3, 1 - 1e-3)
+    scale = (distance * footprint_px / fx.reshape(-1, 1, 1, 1)).clamp_min(1e-6)
+    lead = distance.shape[:-1]
+    return torch.cat([torch.logit(w), (scale.log() + cfg.scale_offset).expand(*lead, 3), torch.ones_like(distance),
+                      torch.zeros_like(distance).expand(*lead, 3),
+                      torch.logit(alpha.clamp(0.02, 0.98)) + cfg.opacity_offset], dim=-1)
+
+
 def pixel_gaussians(
     raw: torch.Tensor,
     c2w: torch.Tensor,
@@ -177,5 +193,5 @@ def pixel_gaussians(
 
 __all__ = [
     "FAR", "NEAR", "OPACITY_OFFSET", "RAW_CHANNELS", "RAW_SPLIT", "SCALE_MAX", "SCALE_OFFSET",
-    "GaussianDecodeConfig", "Gaussians", "decode", "decode_raw", "pixel_gaussians",
+    "GaussianDecodeConfig", "Gaussians", "decode", "decode_raw", "isotropic_raw", "pixel_gaussians",
 ]

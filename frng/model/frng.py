@@ -122,6 +122,10 @@ class Reconstruction:
 
 
 PRIOR_PIXEL_CHANNELS = ("albedo", "normal", "roughness", "metallic")
+# Where things sit in :func:`pixel_map`'s channels (one place for the layout).
+PIXEL_RATIO = slice(4, 7)  # shading-normalised colour (gamma)
+PIXEL_GEO_NORMAL = 10  # geometry normal, 3 channels
+PIXEL_IDM_NORMAL = 16  # the IDM's normal, 3 channels (with priors)
 
 
 def pixel_channels(uses_priors: bool) -> int:
@@ -132,7 +136,7 @@ def pixel_channels(uses_priors: bool) -> int:
 
 def pixel_normal_index(uses_priors: bool) -> int:
     """Where the best available world normal starts in :func:`pixel_map`: the IDM's, else the geometry's."""
-    return 16 if uses_priors else 10
+    return PIXEL_IDM_NORMAL if uses_priors else PIXEL_GEO_NORMAL
 
 
 def geometry_normals(means: torch.Tensor, keep: torch.Tensor, c2w: torch.Tensor) -> torch.Tensor:
@@ -165,13 +169,13 @@ def pixel_map(images: torch.Tensor, priors, V: int, normals: torch.Tensor, input
 
     rgb, a = images[..., :3].float(), images[..., 3:4].float()
     col = (rgb / a.clamp_min(1e-3)).clamp(0, 1)
-    shading_normals = priors.as_dict()["normal"][:V] if priors is not None else normals
+    d = priors.as_dict() if priors is not None else None
+    shading_normals = d["normal"][:V] if d is not None else normals
     E = envmap.sh_irradiance(envmap.sh_project(input_env.float().cpu()).float(), shading_normals.float().cpu())
     E = E.to(images.device).clamp_min(0.0) / math.pi
     ratio = (col / E.clamp_min(1e-3)).clamp(0, 4)
     parts = [col ** (1 / 2.2), a, ratio ** (1 / 2.2), E ** (1 / 2.2), normals.to(images.device).float()]
-    if priors is not None:
-        d = priors.as_dict()
+    if d is not None:
         parts += [d[k][:V].to(images.device).float() for k in PRIOR_PIXEL_CHANNELS]
     return torch.cat(parts, -1)
 
@@ -203,7 +207,7 @@ class PixelHead(nn.Module):
         out = g + self.mlp(torch.cat([g, pixel.to(g.dtype)], -1))
         if self.normal_index is not None:
             i = self.normal_index
-            diffuse = pixel[:, 4:7].float() ** 2.2 / math.pi  # shading-normalised colour (gamma) -> c / E(n)
+            diffuse = pixel[:, PIXEL_RATIO].float() ** 2.2 / math.pi  # shading-normalised colour (gamma) -> c / E(n)
             out = torch.cat([out[:, :3] + pixel[:, i:i + 3].to(out.dtype), out[:, 3:6] + diffuse.to(out.dtype),
                              out[:, 6:]], -1)
         return out

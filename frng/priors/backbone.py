@@ -69,7 +69,7 @@ import torch
 from torch import nn
 
 from frng import camera
-from frng.gaussians import GaussianDecodeConfig, Gaussians, pixel_gaussians
+from frng.gaussians import GaussianDecodeConfig, Gaussians, isotropic_raw, pixel_gaussians
 from frng.nn import PatchDetokenizer, PatchTokenizer, Transformer, timestep_embedding
 from frng.priors.diffusion import NoiseSchedule, from_diffusion_space, to_diffusion_space
 from frng.priors.envenc import EnvTokenizer
@@ -182,21 +182,13 @@ class RelitLRMBackbone(nn.Module):
         (:func:`frng.gaussians.decode_raw`) gives: distance = hull distance, isotropic scale = ``footprint_px`` pixels
         at that distance, identity rotation, opacity = alpha (clamped to [0.02, 0.98])."""
         c = self.cfg
-        dc = self.decode_config()
         feats, raws = [], []
         for b in range(images.shape[0]):
             cues = geometry_cues(images[b].float(), alpha[b].float(), c2w[b].float(), intr[b].float(), c.near, c.far,
                                  bins=c.hull_bins)
-            dist = cues["distance"]
-            w = ((dist - c.near) / (c.far - c.near)).clamp(1e-3, 1 - 1e-3)
-            fx = intr[b, :, 0].float().reshape(-1, 1, 1, 1)
-            scale = (dist * c.footprint_px / fx).clamp_min(1e-6)
-            a = alpha[b].float().clamp(0.02, 0.98)
-            raw = torch.cat([torch.logit(w), (scale.log() + dc.scale_offset).expand(*dist.shape[:-1], 3),
-                             torch.ones_like(dist), torch.zeros_like(dist).expand(*dist.shape[:-1], 3),
-                             torch.logit(a) + dc.opacity_offset], dim=-1)
             feats.append(cues["features"])
-            raws.append(raw)
+            raws.append(isotropic_raw(cues["distance"], alpha[b].float(), intr[b, :, 0].float(), c.footprint_px,
+                                      self.decode_config()))
         return torch.stack(feats), torch.stack(raws)
 
     def encode_geometry(self, images: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor):

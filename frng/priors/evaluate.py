@@ -76,23 +76,18 @@ def oracle_colour_render(gauss, keep: torch.Tensor, out, max_radius_px: float | 
     return torch.cat(rgbs), torch.cat(alphas)
 
 
-def gt_depth_gaussians(rig, gbuffer, footprint_px: float):
-    """One isotropic Gaussian per rig pixel at the G-buffer's depth (opacity = input alpha clamped to 0.98) and the
-    keep mask (input alpha >= 0.5): the representation's ceiling for :func:`oracle_colour_render`."""
-    from frng import camera
-    from frng.gaussians import Gaussians
+def gt_depth_gaussians(rig, gbuffer, footprint_px: float, decode_cfg):
+    """One isotropic Gaussian per rig pixel at the G-buffer's depth, decoded like the backbone's multi-view prior
+    (:func:`frng.gaussians.isotropic_raw`), and the keep mask (input alpha >= 0.5, G-buffer coverage and depth): the
+    representation's reference for :func:`oracle_colour_render`."""
+    from frng.gaussians import isotropic_raw, pixel_gaussians
     from frng.priors.backbone_train import ray_distance_target
 
-    V, H, W, _ = rig.alpha.shape
-    o, d = camera.pixel_rays(rig.c2w, rig.intr, H, W)
     dist = ray_distance_target(gbuffer.depth, rig.c2w, rig.intr)
-    means = (o + d * dist).reshape(-1, 3)
-    scale = (dist * footprint_px / rig.intr[:, 0].reshape(-1, 1, 1, 1)).reshape(-1, 1).expand(-1, 3)
-    quats = torch.zeros(means.shape[0], 4)
-    quats[:, 0] = 1.0
-    opac = rig.alpha.reshape(-1).clamp(0.0, 0.98)
-    keep = (rig.alpha.reshape(-1) >= 0.5) & (gbuffer.mask.reshape(-1) > 0.5)
-    return Gaussians(means, quats, scale.contiguous(), opac), keep
+    raw = isotropic_raw(dist, rig.alpha, rig.intr[:, 0], footprint_px, decode_cfg)
+    # G-buffer edge pixels may hold depth 0 (no surface sample): no Gaussian there (it would sit at the camera)
+    keep = (rig.alpha.reshape(-1) >= 0.5) & (gbuffer.mask.reshape(-1) > 0.5) & (gbuffer.depth.reshape(-1) > 0)
+    return pixel_gaussians(raw, rig.c2w, rig.intr, decode_cfg), keep
 
 
 def mean_image(train_objects: list[PriorObject]) -> np.ndarray:
@@ -116,7 +111,7 @@ def eval_backbone(config: dict, model, test: list[PriorObject], mean_img: np.nda
         H, W = rgb.shape[1:3]
         t_geo, _, gauss, keep, _, pixels = model.reconstruct(rgb, a, c2w, intr)
         gt_gauss, gt_keep = gt_depth_gaussians(rig, obj.gbuffer.select(torch.arange(obj.rig_views)),
-                                               getattr(model.cfg, "footprint_px", 0.7))
+                                               getattr(model.cfg, "footprint_px", 0.7), model.decode_config())
         mr = model.cfg.max_radius_px
         for i, (task, light, out) in enumerate(jobs):
             g = torch.Generator(device=device).manual_seed(config["seed"] + i)
