@@ -10,8 +10,8 @@ rule curate:
     output:
         res("objects/{obj}/meta.json"),
     params:
+        config_digest=frng_config.rule_digest(config, "curate"),
         spec=lambda wildcards: json.dumps(CATALOG.object(wildcards.obj).to_dict(), sort_keys=True),
-        render=json.dumps(_RENDER, sort_keys=True),
         envmaps=lambda wildcards, input: os.path.dirname(input.index),
         objects=lambda wildcards, output: os.path.dirname(os.path.dirname(output[0])),
         py=PY,
@@ -39,6 +39,7 @@ rule dataset_preview:
     output:
         expand(res("previews/{obj}.png"), obj=OBJECT_IDS),
     params:
+        config_digest=frng_config.rule_digest(config, "dataset_preview"),
         out=lambda wildcards, output: os.path.dirname(output[0]),
         py=PY,
         config=CONFIG_FILE,

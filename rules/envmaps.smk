@@ -23,7 +23,7 @@ rule envmaps:
         index=res("envmaps/index.json"),
         maps=expand(res("envmaps/{env}.exr"), env=ENVMAP_NAMES),
     params:
-        settings=json.dumps({"seed": config["seed"], "envmaps": config["envmaps"]}, sort_keys=True),
+        config_digest=frng_config.rule_digest(config, "envmaps"),
         out=lambda wildcards, output: os.path.dirname(output.index),
         py=PY,
         config=CONFIG_FILE,

@@ -19,6 +19,7 @@ rule evaluate:
         per_image=res("metrics/relight_per_image.csv"),
         summary=res("metrics/relight_summary.csv"),
     params:
+        config_digest=frng_config.rule_digest(config, "evaluate"),
         py=PY,
         config=CONFIG_FILE,
         out=lambda wildcards, output: os.path.dirname(output.per_image),
@@ -50,6 +51,7 @@ rule tables:
         ],
         *[res(f"tables/{t}.{ext}") for t in TABLE_NAMES for ext in ("md", "tex")],
     params:
+        config_digest=frng_config.rule_digest(config, "tables"),
         py=PY,
         config=CONFIG_FILE,
         out=lambda wildcards, output: os.path.dirname(output[0]),
@@ -85,6 +87,7 @@ rule figures:
         curves=report(res("figures/loss_curves.png"), caption="../workflow/report/loss_curves.rst",
                       category="Figures", subcategory="Training", labels={"figure": "loss curves"}),
     params:
+        config_digest=frng_config.rule_digest(config, "figures"),
         py=PY,
         config=CONFIG_FILE,
         out=lambda wildcards, output: os.path.dirname(output.ablation),

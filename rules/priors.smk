@@ -14,6 +14,7 @@ rule backbone_train:
         curve=res("backbone/loss.csv"),
         plot=res("backbone/loss.png"),
     params:
+        config_digest=frng_config.rule_digest(config, "backbone_train"),
         out=lambda wildcards, output: os.path.dirname(output.model),
         py=PY,
         config=CONFIG_FILE,
@@ -40,6 +41,7 @@ rule idm_train:
         curve=res("idm/loss.csv"),
         plot=res("idm/loss.png"),
     params:
+        config_digest=frng_config.rule_digest(config, "idm_train"),
         out=lambda wildcards, output: os.path.dirname(output.model),
         py=PY,
         config=CONFIG_FILE,
@@ -65,6 +67,7 @@ rule backbone_cache:
     output:
         res("backbone/cache/{obj}.safetensors"),
     params:
+        config_digest=frng_config.rule_digest(config, "backbone_cache"),
         py=PY,
         config=CONFIG_FILE,
     log:
@@ -92,6 +95,7 @@ rule idm_priors:
     output:
         res("priors/idm/{obj}.safetensors"),
     params:
+        config_digest=frng_config.rule_digest(config, "idm_priors"),
         py=PY,
         config=CONFIG_FILE,
     log:
@@ -120,6 +124,7 @@ rule eval_backbone:
         backbone=res("metrics/backbone.csv"),
         idm=res("metrics/idm.csv"),
     params:
+        config_digest=frng_config.rule_digest(config, "eval_backbone"),
         py=PY,
         config=CONFIG_FILE,
     log:

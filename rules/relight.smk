@@ -19,6 +19,7 @@ rule relight:
         runs=expand(res("relight/{run}/{{obj}}/run.json"), run=RELIGHT_RUNS),
         timing=res("relight/timing/{obj}.json"),
     params:
+        config_digest=frng_config.rule_digest(config, "relight"),
         py=PY,
         config=CONFIG_FILE,
         models=lambda wildcards, input: os.path.dirname(os.path.dirname(input.models[0])),

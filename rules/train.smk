@@ -25,6 +25,8 @@ rule training_set_caches:
         meta=expand(res("objects/{obj}/meta.json"), obj=_TRAIN_IDS),
     output:
         res("backbone/cache/train_set.json"),
+    params:
+        config_digest=frng_config.rule_digest(config, "training_set_caches"),
     log:
         res("logs/training_set_caches.log"),
     localrule: True
@@ -41,6 +43,8 @@ rule training_set_priors:
         priors=expand(res("priors/idm/{obj}.safetensors"), obj=_TRAIN_IDS),
     output:
         res("priors/idm/train_set.json"),
+    params:
+        config_digest=frng_config.rule_digest(config, "training_set_priors"),
     log:
         res("logs/training_set_priors.log"),
     localrule: True
@@ -62,6 +66,7 @@ rule train:
         curve=res("models/{variant}/loss.csv"),
         plot=res("models/{variant}/loss.png"),
     params:
+        config_digest=frng_config.rule_digest(config, "train"),
         out=lambda wildcards, output: os.path.dirname(output.model),
         launcher=lambda wildcards, resources: torchrun_command(resources.gpu, python=PY),
         config=CONFIG_FILE,
@@ -92,6 +97,8 @@ rule model_alias:
         model=res("models/{alias}/model.pt"),
         curve=res("models/{alias}/loss.csv"),
         plot=res("models/{alias}/loss.png"),
+    params:
+        config_digest=frng_config.rule_digest(config, "model_alias"),
     log:
         res("models/{alias}/alias.log"),
     wildcard_constraints:

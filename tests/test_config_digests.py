@@ -1,0 +1,186 @@
+"""Config edits rerun exactly what they affect (issue 12, problem 3).
+
+Every rule declares ``params: config_digest=`` a digest of the config keys its stage reads (``frng/config.py``,
+``RULE_CONFIG_KEYS``), so Snakemake's params trigger reruns the rules whose keys were edited and, through their
+rebuilt outputs, the rules downstream; the other rules stay.
+
+The workflow test needs a results folder where every job has run with a known config, without running any stage:
+every output the smoke tier plans is created empty, then ``snakemake --touch --forceall`` "runs" every job as a touch,
+which records each job's params in ``.snakemake`` metadata as a real run does. A dry run with that config has
+nothing to do; a dry run with one key edited lists the jobs the edit reruns. Everything lives under a temporary
+folder (results and ``--directory``), never the repository's ``results/``."""
+
+import copy
+import os
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+import yaml
+
+from conftest import ROOT, venv_bin
+from frng import config as frng_config
+from frng.variants import trained_variants
+
+# -- the digest --------------------------------------------------------------------------------------------------
+
+
+def test_digest_is_short_stable_and_ignores_key_order():
+    cfg = frng_config.load(ROOT / "config" / "smoke.yaml")
+    d = frng_config.config_digest(cfg, ["train", "frng.hidden", "seed"])
+    assert re.fullmatch(r"[0-9a-f]{16}", d)
+    assert frng_config.config_digest(copy.deepcopy(cfg), ["seed", "train", "frng.hidden"]) == d
+    shuffled = {k: cfg[k] for k in reversed(list(cfg))}  # mapping order does not matter either
+    assert frng_config.config_digest(shuffled, ["frng.hidden", "seed", "train"]) == d
+    cfg["train"]["steps"] += 1
+    assert frng_config.config_digest(cfg, ["train", "frng.hidden", "seed"]) != d
+
+
+def test_digest_of_a_missing_key_is_null():
+    keys = ["a.b"]
+    assert frng_config.config_digest({}, keys) == frng_config.config_digest({"a": {}}, keys)
+    assert frng_config.config_digest({"a": {"b": None}}, keys) == frng_config.config_digest({}, keys)
+    assert frng_config.config_digest({"a": {"b": 0}}, keys) != frng_config.config_digest({}, keys)
+
+
+def test_digest_exclusions():
+    keys = ["shading", "!shading.spp_infer"]
+    base = {"shading": {"spp_infer": 32, "spp_train": 16}, "seed": 0}
+    d = frng_config.config_digest(base, keys)
+    assert frng_config.config_digest({**base, "shading": {"spp_infer": 64, "spp_train": 16}}, keys) == d
+    assert frng_config.config_digest({**base, "shading": {"spp_infer": 32, "spp_train": 8}}, keys) != d
+    assert frng_config.config_digest({**base, "seed": 1}, keys) == d
+    assert base["shading"]["spp_infer"] == 32  # the config is not modified
+    with pytest.raises(ValueError, match="train.steps"):
+        frng_config.config_digest(base, ["shading", "!train.steps"])
+
+
+def test_map_names_schema_keys_only():
+    """A misspelt key would digest as null for ever; results and the overwrite switch are never digested."""
+    assert frng_config.unknown_digest_keys() == []
+    assert frng_config.unknown_digest_keys({"properties": {"results": {"type": "string"}}}) != []
+
+
+def test_every_schema_key_is_read_by_some_rule():
+    """A key added to the schema must be added to the digests of the rules whose stages read it."""
+    assert frng_config.undigested_keys() == []
+    schema = frng_config.load_schema()
+    schema["properties"]["new_key"] = {"type": "integer"}
+    schema["properties"]["train"]["properties"]["new_leaf"] = {"type": "integer"}
+    assert frng_config.undigested_keys(schema) == ["new_key"]  # train.* is digested whole (rule train)
+    cfg = frng_config.load(ROOT / "config" / "smoke.yaml")
+    moved = {**copy.deepcopy(cfg), "results": "elsewhere"}
+    for rule in frng_config.RULE_CONFIG_KEYS:
+        assert frng_config.rule_digest(moved, rule) == frng_config.rule_digest(cfg, rule), rule
+
+
+def test_check_rule_digests_names_each_problem():
+    cfg = frng_config.load(ROOT / "config" / "smoke.yaml")
+    good = {rule: frng_config.rule_digest(cfg, rule) for rule in frng_config.RULE_CONFIG_KEYS} | {"all": None}
+    frng_config.check_rule_digests(cfg, good)
+    with pytest.raises(frng_config.ConfigError, match=r"rule train: needs .*rule_digest\(config, \"train\"\)"):
+        frng_config.check_rule_digests(cfg, good | {"train": None})
+    with pytest.raises(frng_config.ConfigError, match="rule new_stage: not in RULE_CONFIG_KEYS"):
+        frng_config.check_rule_digests(cfg, good | {"new_stage": "x"})
+    with pytest.raises(frng_config.ConfigError, match=r"RULE_CONFIG_KEYS\['figures'\]: no such rule"):
+        frng_config.check_rule_digests(cfg, {k: v for k, v in good.items() if k != "figures"})
+
+
+# -- the workflow: one edit per stage, the dry run's job list ----------------------------------------------------
+
+RULES = {"envmaps", "curate", "dataset_preview", "backbone_train", "idm_train", "backbone_cache", "idm_priors",
+         "eval_backbone", "training_set_caches", "training_set_priors", "train", "model_alias", "relight",
+         "evaluate", "tables", "figures"}
+AFTER_TRAIN = {"train", "model_alias", "relight", "evaluate", "tables", "figures"}
+
+# (key, new value) -> the rules whose jobs rerun ("all" left out); the smoke tier: learned IDM, 8 trained variants
+CASES = [
+    ("envmaps.normalize", 0.6, RULES),
+    ("render.spp", 16, RULES - {"envmaps"}),
+    ("backbone.train.steps", 13, {"backbone_train", "backbone_cache", "training_set_caches", "eval_backbone",
+                                  *AFTER_TRAIN}),
+    ("idm.train.steps", 61, {"idm_train", "idm_priors", "training_set_priors", "eval_backbone", *AFTER_TRAIN}),
+    ("train.steps", 21, AFTER_TRAIN),
+    ("frng.hidden", 32, AFTER_TRAIN),
+    ("shading.spp_infer", 64, {"relight", "evaluate", "tables", "figures"}),  # inference only: no retraining
+    ("eval.protocol", "plain", {"evaluate", "tables", "figures"}),
+    ("tier", "custom", {"tables"}),
+]
+
+
+def snakemake(configfile: Path, workdir: Path, *args) -> subprocess.CompletedProcess:
+    cmd = [venv_bin("snakemake"), "--snakefile", str(ROOT / "workflow" / "Snakefile"), "--directory", str(workdir),
+           "--configfile", str(configfile), *args]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300, env=env)
+    assert proc.returncode == 0, (proc.stdout + proc.stderr)[-4000:]
+    return proc
+
+
+def set_key(cfg: dict, dotted: str, value) -> dict:
+    cfg = copy.deepcopy(cfg)
+    *path, last = dotted.split(".")
+    node = cfg
+    for part in path:
+        node = node.setdefault(part, {})
+    node[last] = value
+    return cfg
+
+
+class Folder:
+    """A smoke-tier results folder where every job has "run" (touched) with ``config``."""
+
+    def __init__(self, tmp: Path):
+        self.tmp, self.workdir, self.results = tmp, tmp / "workdir", tmp / "results"
+        self.config = yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text())
+        self.config["results"] = str(self.results)
+        path = self.write("done.yaml", self.config)
+        self.workdir.mkdir()
+        summary = snakemake(path, self.workdir, "--summary").stdout  # every planned output (all missing now)
+        outputs = [Path(line.split("\t")[0]) for line in summary.splitlines()[1:] if line.strip()]
+        assert len(outputs) > 50 and all(str(p).startswith(str(self.results)) for p in outputs)
+        for p in outputs:  # directory() outputs (figures/comparison, figures/saliency) have no suffix
+            if p.suffix:
+                p.parent.mkdir(parents=True, exist_ok=True)
+                p.touch()
+            else:
+                p.mkdir(parents=True, exist_ok=True)
+        snakemake(path, self.workdir, "--touch", "--forceall", "--cores", "1")
+
+    def write(self, name: str, cfg: dict) -> Path:
+        path = self.tmp / name
+        path.write_text(yaml.safe_dump(cfg, sort_keys=False))
+        return path
+
+    def jobs(self, cfg: dict, name: str) -> dict[str, int]:
+        """Rule -> number of jobs a dry run with ``cfg`` would run ("all" and "total" left out)."""
+        proc = snakemake(self.write(name, cfg), self.workdir, "-n", "--quiet", "rules")
+        out = proc.stdout + proc.stderr
+        if "Nothing to be done" in out:
+            return {}
+        counts = {m.group(1): int(m.group(2)) for m in re.finditer(r"^(\w+)\s+(\d+)$", out, re.M)}
+        assert counts, out[-4000:]
+        return {r: n for r, n in counts.items() if r not in ("all", "total")}
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory) -> Folder:
+    return Folder(tmp_path_factory.mktemp("digests"))
+
+
+def test_unchanged_config_reruns_nothing(folder):
+    assert folder.jobs(folder.config, "same.yaml") == {}
+
+
+@pytest.mark.parametrize("key, value, expected", CASES, ids=[c[0] for c in CASES])
+def test_an_edit_reruns_its_rules_and_what_follows_only(folder, key, value, expected):
+    jobs = folder.jobs(set_key(folder.config, key, value), f"{key}.yaml")
+    assert set(jobs) == expected, (f"{key}: needless reruns {sorted(set(jobs) - expected)}, "
+                                   f"missing reruns {sorted(expected - set(jobs))}")
+    cfg = frng_config.load(folder.write("check.yaml", folder.config))
+    n_objects = cfg["objects"]["count"]
+    if key == "backbone.train.steps":  # every cache and every variant
+        assert jobs["backbone_cache"] == n_objects and jobs["train"] == len(trained_variants(cfg))
+    if key == "idm.train.steps":  # every variant but no-idm, which reads no IDM prior
+        assert jobs["idm_priors"] == n_objects and jobs["train"] == len(trained_variants(cfg)) - 1
