@@ -29,7 +29,7 @@ The frozen backbone is loaded once, only to copy its GeoDetokenizer into the Fin
 architecture); it is never run and gets no gradient. Outputs in ``--out`` (default ``{results}/models/{variant}``):
 ``model.pt`` (:meth:`FRNG.save`), ``checkpoint.pt`` (resume: rerunning the same command continues from it),
 ``loss.csv``, ``loss.png``, ``train.json`` (steps, wall time, device, step time). Seeds are fixed
-(``config.seed``); AdamW with linear warm-up + cosine decay; bf16 autocast for the networks (``train.bf16``).
+(``frng.training.train_seed``: ``train_seed``, else ``seed``); AdamW with linear warm-up + cosine decay; bf16 autocast for the networks (``train.bf16``).
 """
 
 from __future__ import annotations
@@ -247,7 +247,7 @@ def train(config: dict, variant: str, out: Path, backbone_path: Path | None = No
     total = steps or tcfg.steps_for(variant)
     info = distributed.init(config.get("device", "auto"))
     device = info.device
-    distributed.seed_everything(config["seed"], info, per_rank=False)  # identical init on every rank
+    distributed.seed_everything(tr.train_seed(config), info, per_rank=False)  # identical init on every rank
     model, ind = build_model(config, variant, backbone_path, device)
     if objects is None:
         from frng.data import catalog
@@ -267,13 +267,13 @@ def train(config: dict, variant: str, out: Path, backbone_path: Path | None = No
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=tcfg.lr, betas=(0.9, 0.99), weight_decay=tcfg.weight_decay)
     fingerprint = {"variant": variant, "arch": model.cfg.to_dict(), "train": asdict(tcfg), "steps": total,
-                   "seed": config["seed"], "shading": asdict(model.shading_cfg), "world": info.world_size,
+                   "seed": tr.train_seed(config), "shading": asdict(model.shading_cfg), "world": info.world_size,
                    "backbone_sha256": tr.file_sha256(backbone_path)}
     out.mkdir(parents=True, exist_ok=True)
     ckpt = tr.Checkpointer(out, tcfg.checkpoint_every)
     state = ckpt.load(model, opt, fingerprint)
     start = state["step"] if state else 0
-    rng = random.Random(distributed.rank_seed(config["seed"], info))
+    rng = random.Random(distributed.rank_seed(tr.train_seed(config), info))
     if state:
         rng.setstate(state["sample_rng"][info.rank] if info.distributed else state["sample_rng"])
     log = tr.LossLog(out, LOSS_NAMES) if info.is_main else None
@@ -305,7 +305,7 @@ def train(config: dict, variant: str, out: Path, backbone_path: Path | None = No
         for b in range(local_batch):
             obj = objects[rng.randrange(len(objects))]
             j, ti, vidx = sample(obj, rng, tcfg.target_views)
-            seed = (config["seed"] * 1_000_003 + step * 1009 + info.rank * 31 + b) % (2**31 - 1)
+            seed = (tr.train_seed(config) * 1_000_003 + step * 1009 + info.rank * 31 + b) % (2**31 - 1)
             samples.append((obj, j, ti, vidx, seed))
         step_loss.step = step
         loss, logs = ddp(samples)

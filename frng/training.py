@@ -2,7 +2,8 @@
 
 - :func:`resolve_device` -- ``auto`` = CUDA when present, else CPU.
 - :func:`autocast` -- bf16 autocast context (CPU AMX or CUDA) or a no-op.
-- :func:`seed_everything` -- python / numpy / torch seeds from the config seed.
+- :func:`train_seed` -- the learned models' seed (``train_seed``, else ``seed``);
+- :func:`seed_everything` -- python / numpy / torch seeds from it.
 - :class:`Checkpointer` -- atomic ``{out}/checkpoint.pt`` (model, optimiser, step, RNG states, loss history) every
   ``every`` steps; a rerun of the same command resumes from it (the interrupted run loses at most ``every`` steps).
 - :class:`LossLog` -- ``{out}/loss.csv`` (one row per step: step, elapsed_s, then named loss terms) and
@@ -64,6 +65,12 @@ def autocast(device: torch.device, bf16: bool):
     if not (bf16 and bf16_ok(device)):
         return contextlib.nullcontext()
     return torch.autocast(device_type=device.type, dtype=torch.bfloat16)
+
+
+def train_seed(config: dict) -> int:
+    """The learned models' seed: ``train_seed``, or the data's ``seed`` when it is null/absent."""
+    s = config.get("train_seed")
+    return int(config["seed"] if s is None else s)
 
 
 def seed_everything(seed: int) -> None:

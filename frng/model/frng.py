@@ -49,7 +49,8 @@ from frng.model.materialformer import (
 from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, select_top_k
 from frng.model.tokenizers import PriorTokenizer, stack_priors
 from frng.render import RasterConfig, rasterize
-from frng.render.shading import NeuralDecoder, ShadingConfig, deferred_shade, ggx_reflectance
+from frng.render.shading import (NeuralDecoder, ShadingConfig, deferred_shade, ggx_diffuse_brdf, ggx_reflectance,
+                                 lambert_sh, sh_diffuse)
 from frng.variants import BASE_VARIANTS, all_variants, canonical_variant, k_variant, trained_variants
 
 MODEL_KIND = "frng"
@@ -122,6 +123,7 @@ class Reconstruction:
 
 
 PRIOR_PIXEL_CHANNELS = ("albedo", "normal", "roughness", "metallic")
+PBR_INIT_ROUGHNESS_LOGIT, PBR_INIT_METALLIC_LOGIT = 2.0, -4.0  # pbr pixel head's start: roughness ~0.9, metallic ~0.02
 # Where things sit in :func:`pixel_map`'s channels (one place for the layout).
 PIXEL_RATIO = slice(4, 7)  # shading-normalised colour (gamma)
 PIXEL_GEO_NORMAL = 10  # geometry normal, 3 channels
@@ -190,13 +192,18 @@ class PixelHead(nn.Module):
     ``shading.decoder_cosine``) the pixel's normal (``pixel[:, normal_index:normal_index + 3]``) is added to output
     channels 0:3, which the decoder reads as the shading normal, and the diffuse BRDF estimate c / E(n) (the
     shading-normalised colour / pi, linear) to channels 3:6, the decoder's Lambertian base: at initialisation F-RNG
-    re-renders its input view under the input light and relights it as a Lambertian surface.
+    re-renders its input view under the input light and relights it as a Lambertian surface. With ``head='pbr'``
+    (the no-neural ablation) the same start in Cook-Torrance terms: albedo logit(pi c / E(n)), roughness ~0.9,
+    metallic ~0.02, the pixel's normal, so the ablation differs from the full model only in its appearance model.
 
     forward(g (N, C_out), pixel (N, C_pix)) -> (N, C_out)."""
 
-    def __init__(self, out_channels: int, pixel_channels: int, hidden: int, normal_index: int | None = None):
+    def __init__(self, out_channels: int, pixel_channels: int, hidden: int, normal_index: int | None = None,
+                 head: str = "neural"):
         super().__init__()
-        self.pixel_channels, self.normal_index = pixel_channels, normal_index
+        if head not in ("neural", "pbr"):
+            raise ValueError(f"PixelHead: head must be 'neural' or 'pbr', got {head!r}")
+        self.pixel_channels, self.normal_index, self.head = pixel_channels, normal_index, head
         self.mlp = nn.Sequential(nn.Linear(out_channels + pixel_channels, hidden), nn.GELU(),
                                  nn.Linear(hidden, hidden), nn.GELU(), nn.Linear(hidden, out_channels))
         nn.init.zeros_(self.mlp[-1].weight)
@@ -205,12 +212,18 @@ class PixelHead(nn.Module):
     def forward(self, g: torch.Tensor, pixel: torch.Tensor) -> torch.Tensor:
         assert g.shape[0] == pixel.shape[0] and pixel.shape[-1] == self.pixel_channels, (g.shape, pixel.shape)
         out = g + self.mlp(torch.cat([g, pixel.to(g.dtype)], -1))
-        if self.normal_index is not None:
-            i = self.normal_index
-            diffuse = pixel[:, PIXEL_RATIO].float() ** 2.2 / math.pi  # shading-normalised colour (gamma) -> c / E(n)
-            out = torch.cat([out[:, :3] + pixel[:, i:i + 3].to(out.dtype), out[:, 3:6] + diffuse.to(out.dtype),
-                             out[:, 6:]], -1)
-        return out
+        if self.normal_index is None:
+            return out
+        i = self.normal_index
+        normal = pixel[:, i:i + 3].to(out.dtype)
+        ratio = pixel[:, PIXEL_RATIO].float() ** 2.2  # shading-normalised colour (gamma) -> pi c / E(n), an albedo
+        if self.head == "neural":  # decoder features: 0:3 normal, 3:6 diffuse BRDF c / E(n)
+            return torch.cat([out[:, :3] + normal, out[:, 3:6] + (ratio / math.pi).to(out.dtype), out[:, 6:]], -1)
+        # pbr (decode_pbr's raw layout): albedo logit 0:3, roughness 3, metallic 4, normal 5:8 -> a rough
+        # dielectric of albedo pi c / E(n): GGX's diffuse lobe, i.e. the same Lambertian relighting
+        albedo = torch.logit(ratio.clamp(0.02, 0.98)).to(out.dtype)
+        rough_metal = out.new_tensor([PBR_INIT_ROUGHNESS_LOGIT, PBR_INIT_METALLIC_LOGIT])
+        return torch.cat([out[:, :3] + albedo, out[:, 3:5] + rough_metal, out[:, 5:8] + normal, out[:, 8:]], -1)
 
 
 class FRNG(nn.Module):
@@ -230,11 +243,11 @@ class FRNG(nn.Module):
                                                     prior_dim=cfg.prior_dim), decode) if cfg.fine else None
         self.material = MaterialHead(cfg.materialformer_config())
         out_ch = self.material.cfg.out_channels
-        cosine = cfg.decoder_cosine and cfg.head == "neural"
+        lambertian_start = cfg.decoder_cosine or cfg.head == "pbr"  # the cosine decoder's base, or GGX's diffuse lobe
         self.pixel_head = PixelHead(out_ch, pixel_channels(cfg.uses_priors), cfg.pixel_head,
-                                    pixel_normal_index(cfg.uses_priors) if cosine else None) \
+                                    pixel_normal_index(cfg.uses_priors) if lambertian_start else None, cfg.head) \
             if cfg.pixel_head > 0 else None
-        if cosine and self.pixel_head is not None:  # start exactly at the Lambertian relighting of the input views
+        if lambertian_start and self.pixel_head is not None:  # start at the Lambertian relighting of the input views
             nn.init.zeros_(self.material.detokenizer.proj.weight)
             nn.init.zeros_(self.material.detokenizer.proj.bias)
         self.decoder = NeuralDecoder(cfg.feature_dim, cfg.decoder_width, cfg.decoder_depth, cfg.dir_freqs,
@@ -418,9 +431,20 @@ class FRNG(nn.Module):
         # bf16 decoding at inference only (shading.bf16_infer; ~2x on AMX CPUs and GPUs, ~1e-3 relative error)
         amp = sc.bf16_infer and not torch.is_grad_enabled() and self.cfg.head == "neural" and bf16_ok(maps.device)
         with torch.autocast(maps.device.type, dtype=torch.bfloat16, enabled=amp):
-            if self.cfg.head == "neural":
+            if self.cfg.head == "neural" and self.decoder.cosine and sc.diffuse == "sh":
+                # Lambertian base in closed form (SH irradiance), Monte Carlo only for the MLP's residual
+                rgb = deferred_shade(self.decoder.residual, [maps], alpha, c2w, intr, samples, spp_grad,
+                                     sc.alpha_eps, chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
+                rgb = rgb.float() + lambert_sh(maps, alpha, envmap.sh_project(env.detach().float().cpu()).float(),
+                                               sc.alpha_eps)
+            elif self.cfg.head == "neural":
                 rgb = deferred_shade(self.decoder, [maps], alpha, c2w, intr, samples, spp_grad, sc.alpha_eps,
                                      chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
+            elif sc.diffuse == "sh":  # GGX: diffuse lobe in closed form, Monte Carlo for the specular lobe
+                split = [maps[..., 0:3], maps[..., 3:4], maps[..., 4:5], maps[..., 5:8]]
+                rgb = deferred_shade(_ggx_unit_normal_specular, split, alpha, c2w, intr, samples, spp_grad,
+                                     sc.alpha_eps, chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
+                rgb = rgb.float() + _ggx_diffuse_sh(maps, alpha, c2w, intr, env, sc.alpha_eps)
             else:
                 split = [maps[..., 0:3], maps[..., 3:4], maps[..., 4:5], maps[..., 5:8]]
                 rgb = deferred_shade(_ggx_unit_normal, split, alpha, c2w, intr, samples, spp_grad, sc.alpha_eps,
@@ -450,10 +474,29 @@ class FRNG(nn.Module):
         return self.shade(self.rasterize(rec, c2w, intr, height, width), env, spp, generator, spp_grad)
 
 
-def _ggx_unit_normal(albedo, roughness, metallic, normal, wo, wi):
+def _ggx_unit_normal(albedo, roughness, metallic, normal, wo, wi, diffuse: bool = True):
     """GGX on blended (un-premultiplied) maps: the blended normal is re-normalised first."""
     n = normal / normal.norm(dim=-1, keepdim=True).clamp_min(1e-8)
-    return ggx_reflectance(albedo.clamp(0, 1), roughness.clamp(0.02, 1), metallic.clamp(0, 1), n, wo, wi)
+    return ggx_reflectance(albedo.clamp(0, 1), roughness.clamp(0.02, 1), metallic.clamp(0, 1), n, wo, wi, diffuse)
+
+
+def _ggx_unit_normal_specular(albedo, roughness, metallic, normal, wo, wi):
+    return _ggx_unit_normal(albedo, roughness, metallic, normal, wo, wi, diffuse=False)
+
+
+def _ggx_diffuse_sh(maps: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor,
+                    env: torch.Tensor, alpha_eps: float) -> torch.Tensor:
+    """GGX's diffuse lobe (:func:`~frng.render.shading.ggx_diffuse_brdf`) in closed form under ``env``'s SH
+    irradiance, for pbr maps (V, H, W, 8) premultiplied (albedo 0:3, roughness 3, metallic 4, normal 5:8)."""
+    from frng import camera
+
+    V, H, W = alpha.shape[:3]
+    f = maps.float() / alpha.float().clamp_min(alpha_eps)
+    n = nn.functional.normalize(f[..., 5:8], dim=-1, eps=1e-8)
+    _, d = camera.pixel_rays(c2w.float(), intr.float(), H, W)
+    brdf = ggx_diffuse_brdf(f[..., 0:3].clamp(0, 1).reshape(-1, 3), f[..., 4:5].clamp(0, 1).reshape(-1, 1),
+                            n.reshape(-1, 3), -d.reshape(-1, 3)).reshape(V, H, W, 3)
+    return sh_diffuse(brdf, n, alpha, envmap.sh_project(env.detach().float().cpu()).float(), alpha_eps)
 
 
 # -- variants from the pipeline config --------------------------------------------------------------------------

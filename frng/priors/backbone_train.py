@@ -173,16 +173,16 @@ def train(config: dict, objects: list[PriorObject], out: Path, steps: int | None
     total = steps or tcfg.steps
     cfg = backbone_config(config)
     device = tr.resolve_device(config.get("device", "auto"))
-    tr.seed_everything(config["seed"])
+    tr.seed_everything(tr.train_seed(config))
     model = bb.RelitLRMBackbone(cfg).to(device)
     opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, betas=(0.9, 0.95), weight_decay=tcfg.weight_decay)
-    fingerprint = {"arch": cfg.to_dict(), "train": asdict(tcfg), "steps": total, "seed": config["seed"],
+    fingerprint = {"arch": cfg.to_dict(), "train": asdict(tcfg), "steps": total, "seed": tr.train_seed(config),
                    "objects": sorted(o.id for o in objects)}
     out.mkdir(parents=True, exist_ok=True)
     ckpt = tr.Checkpointer(out, tcfg.checkpoint_every)
     state = ckpt.load(model, opt, fingerprint)
     start = state["step"] if state else 0
-    rng = random.Random(config["seed"])
+    rng = random.Random(tr.train_seed(config))
     if state:
         rng.setstate(state["sample_rng"])
     log = tr.LossLog(out, LOSS_NAMES)

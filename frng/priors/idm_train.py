@@ -129,16 +129,16 @@ def train(config: dict, objects: list[PriorObject], out: Path, steps: int | None
     total = steps or tcfg.steps
     cfg = idm_config(config)
     device = tr.resolve_device(config.get("device", "auto"))
-    tr.seed_everything(config["seed"] + 1)
+    tr.seed_everything(tr.train_seed(config) + 1)
     model = idm_mod.LearnedIDM(cfg).to(device)
     opt = torch.optim.AdamW(param_groups(model, tcfg), lr=tcfg.lr, weight_decay=0.01)
-    fingerprint = {"arch": cfg.to_dict(), "train": asdict(tcfg), "steps": total, "seed": config["seed"],
+    fingerprint = {"arch": cfg.to_dict(), "train": asdict(tcfg), "steps": total, "seed": tr.train_seed(config),
                    "objects": sorted(o.id for o in objects)}
     out.mkdir(parents=True, exist_ok=True)
     ckpt = tr.Checkpointer(out, tcfg.checkpoint_every)
     state = ckpt.load(model, opt, fingerprint)
     start = state["step"] if state else 0
-    rng = random.Random(config["seed"] + 1)
+    rng = random.Random(tr.train_seed(config) + 1)
     if state:
         rng.setstate(state["sample_rng"])
     log = tr.LossLog(out, LOSS_NAMES)

@@ -25,8 +25,11 @@ from typing import Callable, Sequence
 import torch
 from torch import nn
 
-from frng import camera
+from frng import camera, envmap
 from frng.envmap import EnvSamples
+
+
+DIFFUSE_MODES = ("sh", "mc")
 
 
 @dataclass(frozen=True)
@@ -40,6 +43,7 @@ class ShadingConfig:
     decoder_depth: int = 3
     dir_freqs: int = 0
     decoder_cosine: bool = True
+    diffuse: str = "sh"
     sampling: str = "sobol"
     alpha_eps: float = 1e-3
     chunk_pixels: int = 4096
@@ -49,6 +53,8 @@ class ShadingConfig:
     def __post_init__(self):
         if self.spp_grad > self.spp_train:
             raise ValueError(f"shading.spp_grad ({self.spp_grad}) exceeds shading.spp_train ({self.spp_train})")
+        if self.diffuse not in DIFFUSE_MODES:
+            raise ValueError(f"shading.diffuse must be one of {DIFFUSE_MODES}, got {self.diffuse!r}")
 
     @classmethod
     def from_config(cls, config: dict) -> "ShadingConfig":
@@ -95,7 +101,18 @@ class NeuralDecoder(nn.Module):
         self.out = nn.Linear(width, 3)
 
     def forward(self, features: torch.Tensor, wo: torch.Tensor, wi: torch.Tensor) -> torch.Tensor:
-        """features (P, C), wo (P, 3), wi (K, 3) -> (P, K, 3)."""
+        """features (P, C), wo (P, 3), wi (K, 3) -> (P, K, 3): the full reflectance x cosine."""
+        return self._reflectance(features, wo, wi, with_diffuse=True)
+
+    def residual(self, features: torch.Tensor, wo: torch.Tensor, wi: torch.Tensor) -> torch.Tensor:
+        """The cosine decoder without its Lambertian base: softplus(MLP) max(0, n . w_i), (P, K, 3). Shading with
+        ``shading.diffuse: sh`` integrates this by Monte Carlo and adds the base in closed form
+        (:func:`lambert_sh`)."""
+        if not self.cosine:
+            raise ValueError("NeuralDecoder.residual needs a cosine decoder (shading.decoder_cosine)")
+        return self._reflectance(features, wo, wi, with_diffuse=False)
+
+    def _reflectance(self, features, wo, wi, with_diffuse: bool) -> torch.Tensor:
         a = self.inp_pixel(torch.cat([features, encode_dirs(wo, self.dir_freqs)], -1))  # (P, W)
         b = self.inp_light(encode_dirs(wi, self.dir_freqs))  # (K, W)
         h = torch.relu(a[:, None, :] + b[None, :, :])
@@ -104,18 +121,48 @@ class NeuralDecoder(nn.Module):
         out = nn.functional.softplus(self.out(h))
         if self.cosine:  # the rendering equation's cosine, factored out: the MLP only learns the BRDF beyond diffuse
             n = nn.functional.normalize(features[:, :3].float(), dim=-1, eps=1e-6)
-            diffuse = features[:, 3:6].float().clamp_min(0.0)[:, None, :]
-            out = (diffuse + out.float()) * (n @ wi.float().T).clamp_min(0.0)[..., None]
+            out = out.float()
+            if with_diffuse:
+                out = out + features[:, 3:6].float().clamp_min(0.0)[:, None, :]
+            out = out * (n @ wi.float().T).clamp_min(0.0)[..., None]
         return out
 
 
-def ggx_reflectance(albedo, roughness, metallic, normal, wo, wi) -> torch.Tensor:
+def lambert_sh(maps: torch.Tensor, alpha: torch.Tensor, sh_coeffs: torch.Tensor, alpha_eps: float = 1e-3
+               ) -> torch.Tensor:
+    """The cosine decoder's Lambertian base in closed form: d E(n) per pixel, premultiplied by alpha.
+
+    maps (V, H, W, C) alpha-premultiplied decoder features (channels 0:3 a normal n, 3:6 a diffuse BRDF d, as
+    :class:`NeuralDecoder` reads them), alpha (V, H, W, 1), sh_coeffs (9, 3) degree-2 SH of the env map
+    (:func:`frng.envmap.sh_project`). E(n) = int L max(0, n . w) dw from the SH (:func:`frng.envmap.sh_irradiance`;
+    exact for the map's l <= 2 part, which carries ~all of a cosine lobe's integral). The same integral the Monte
+    Carlo estimate of ``d max(0, n . w_i)`` converges to, without its noise: at 16-32 importance samples of an HDR
+    map that noise is a visible per-image error. Pixels with alpha <= alpha_eps are 0. Returns (V, H, W, 3).
+    """
+    assert maps.shape[:3] == alpha.shape[:3] and maps.shape[-1] >= 6, (maps.shape, alpha.shape)
+    f = maps.float() / alpha.float().clamp_min(alpha_eps)
+    return sh_diffuse(f[..., 3:6], f[..., :3], alpha, sh_coeffs, alpha_eps)
+
+
+def sh_diffuse(brdf: torch.Tensor, normal: torch.Tensor, alpha: torch.Tensor, sh_coeffs: torch.Tensor,
+               alpha_eps: float = 1e-3) -> torch.Tensor:
+    """Closed-form radiance of a w_i-independent BRDF: brdf (V, H, W, 3) (un-premultiplied, clamped >= 0) x
+    E(normal) (normal (V, H, W, 3), normalised here) from degree-2 SH coefficients (9, 3), premultiplied by alpha
+    (V, H, W, 1); 0 where alpha <= alpha_eps. Returns (V, H, W, 3)."""
+    assert sh_coeffs.shape == (9, 3), sh_coeffs.shape
+    n = nn.functional.normalize(normal.float(), dim=-1, eps=1e-6)
+    E = envmap.sh_irradiance(sh_coeffs.to(n.device, n.dtype), n).clamp_min(0.0)
+    return torch.where(alpha > alpha_eps, brdf.float().clamp_min(0.0) * E * alpha.float(), torch.zeros_like(E))
+
+
+def ggx_reflectance(albedo, roughness, metallic, normal, wo, wi, diffuse: bool = True) -> torch.Tensor:
     """Cook-Torrance BRDF x cosine, (P, K, 3): Lambert + GGX (Trowbridge-Reitz) D, separable Smith G, Schlick F.
 
     albedo (P, 3), roughness (P, 1) (perceptual; alpha = roughness^2, clamped >= 1e-3), metallic (P, 1),
     normal (P, 3) unit, wo (P, 3), wi (K, 3). F0 = lerp(0.04, albedo, metallic); diffuse = (1 - F(n.w_o))
     (1 - metallic) albedo / pi (weighting by F(n.w_o) rather than F(w_o.h) keeps a white dielectric's
-    furnace albedo <= 1 at grazing angles). Zero below either horizon.
+    furnace albedo <= 1 at grazing angles). Zero below either horizon. ``diffuse=False``: the specular lobe only
+    (the diffuse lobe in closed form: :func:`ggx_diffuse_brdf`).
     """
     n = normal[:, None, :]
     v = wo[:, None, :]
@@ -138,10 +185,21 @@ def ggx_reflectance(albedo, roughness, metallic, normal, wo, wi) -> torch.Tensor
     F0 = 0.04 * (1.0 - m) + albedo[:, None, :] * m
     F = F0 + (1.0 - F0) * (1.0 - vh) ** 5
     spec = D * G * F / (4.0 * nl_c * nv_c)
-    F_v = F0 + (1.0 - F0) * (1.0 - nv.clamp(0.0, 1.0)) ** 5  # diffuse gets what the view-side Fresnel lets in
-    diff = (1.0 - F_v) * (1.0 - m) * albedo[:, None, :] / math.pi
     visible = ((nl > 0) & (nv > 0)).to(spec.dtype)
+    if not diffuse:
+        return spec * nl_c * visible
+    diff = ggx_diffuse_brdf(albedo, metallic, normal, wo)[:, None, :]
     return (diff + spec) * nl_c * visible
+
+
+def ggx_diffuse_brdf(albedo, metallic, normal, wo) -> torch.Tensor:
+    """The diffuse lobe of :func:`ggx_reflectance` (without the cosine), (P, 3): (1 - F(n.w_o)) (1 - metallic)
+    albedo / pi, zero where n.w_o <= 0; it does not depend on w_i, so its integral against the light is a
+    Lambertian one."""
+    nv = (normal * wo).sum(-1, keepdim=True)
+    F0 = 0.04 * (1.0 - metallic) + albedo * metallic
+    F_v = F0 + (1.0 - F0) * (1.0 - nv.clamp(0.0, 1.0)) ** 5  # diffuse gets what the view-side Fresnel lets in
+    return (1.0 - F_v) * (1.0 - metallic) * albedo / math.pi * (nv > 0).to(albedo.dtype)
 
 
 def _estimate(reflectance, per_pixel, wo, samples: EnvSamples, chunk: int, chunk_pairs: int | None) -> torch.Tensor:
