@@ -19,7 +19,8 @@ One step = ``train.batch`` objects (split over ranks under torchrun/srun, :mod:`
 4. both images are composited over ``train.background`` (default white, the evaluation's background: a render
    whose alpha falls short of the target's near the silhouette is then penalised for the background showing
    through, and the decoder learns colours that hold up where the frozen coarse geometry is thin);
-   L_2: mean squared error over foreground pixels (target alpha > 0.5 or rendered alpha > 0.5) of the composited
+   L_2: mean squared error over the target's foreground pixels (alpha > 0.5, the metric's mask; ``train.l2_pixels:
+   union`` adds the render's foreground: those over-covered pixels pull every colour brighter) of the composited
    RGB after ``x -> (max(x, 0) + 1e-4)^(1/2.2)`` (a display-like encoding without an upper clamp, so over-bright
    predictions still get a gradient); L_per: LPIPS-vgg (real ImageNet weights,
    :class:`frng.perceptual.PerceptualLoss`) on the sRGB-encoded composited renders, from step
@@ -71,6 +72,7 @@ class TrainConfig:
     perceptual_after: int = 0
     background: tuple = (1.0, 1.0, 1.0)
     l2_space: str = "display"
+    l2_pixels: str = "target"
     bf16: bool = True
     checkpoint_every: int = 25
     loss: dict = field(default_factory=lambda: {"lambda_1": 1.0, "lambda_per": 0.5, "lambda_c": 0.2,
@@ -144,7 +146,10 @@ def encode_display(x: torch.Tensor) -> torch.Tensor:
 L2_SPACES = ("display", "linear")
 
 
-def l2_loss(out: torch.Tensor, tgt: torch.Tensor, background, space: str = "display"
+L2_PIXELS = ("target", "union")
+
+
+def l2_loss(out: torch.Tensor, tgt: torch.Tensor, background, space: str = "display", pixels: str = "target"
             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """L_2 of a render against its target (module docstring, step 4).
 
@@ -152,11 +157,18 @@ def l2_loss(out: torch.Tensor, tgt: torch.Tensor, background, space: str = "disp
     ``display`` (gamma-encoded, :func:`encode_display`) or ``linear``. A Monte-Carlo render is noisy, and the gamma
     curve is concave, so in display space the loss is minimised by a render whose MEAN is brighter than the target
     (the noise pulls the encoded value down); in linear space the noise adds a constant and the minimiser is the
-    target itself. Returns (L_2 scalar, out RGB (B, H, W, 3) and tgt RGB composited over the background).
+    target itself. pixels: ``target`` = the mean over the target's foreground (alpha > 0.5, the evaluation's
+    mask), ``union`` = also where the render's alpha > 0.5. Returns (L_2 scalar, out RGB (B, H, W, 3) and tgt RGB
+    composited over the background).
     """
     if space not in L2_SPACES:
         raise ValueError(f"train.l2_space must be one of {L2_SPACES}, got {space!r}")
-    fg = ((tgt[..., 3:4] > 0.5) | (out[..., 3:4].detach() > 0.5)).to(out.dtype)
+    if pixels not in L2_PIXELS:
+        raise ValueError(f"train.l2_pixels must be one of {L2_PIXELS}, got {pixels!r}")
+    fg = tgt[..., 3:4] > 0.5
+    if pixels == "union":
+        fg = fg | (out[..., 3:4].detach() > 0.5)
+    fg = fg.to(out.dtype)
     rgb_out, rgb_tgt = io.composite(out, background), io.composite(tgt, background)
     enc = encode_display if space == "display" else (lambda x: x)
     diff = (enc(rgb_out) - enc(rgb_tgt)) ** 2 * fg
@@ -197,7 +209,7 @@ class StepLoss(nn.Module):
             gen = torch.Generator().manual_seed(seed)
             out = m.render(recs[0], env, c2w[vi], K[vi], H, W, spp=sc.spp_train, generator=gen,
                            spp_grad=sc.spp_grad)
-            l2, rgb_out, rgb_tgt = l2_loss(out, tgt, self.tcfg.background, self.tcfg.l2_space)
+            l2, rgb_out, rgb_tgt = l2_loss(out, tgt, self.tcfg.background, self.tcfg.l2_space, self.tcfg.l2_pixels)
             loss = self.lambda_1 * l2
             logs["l2"] += float(l2.detach())
             if self.perceptual is not None and self.lambda_per > 0 and self.step >= self.tcfg.perceptual_after:

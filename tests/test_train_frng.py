@@ -195,3 +195,18 @@ def test_l2_loss_composites_over_the_training_background():
     white, rgb_out, rgb_tgt = l2_loss(thin, tgt, (1.0, 1.0, 1.0))
     assert torch.allclose(rgb_out, torch.full_like(rgb_out, 0.6)) and torch.allclose(rgb_tgt, tgt[..., :3])
     assert float(white) > black > 0.0  # white shows through the thin silhouette; the darker colour over black
+
+
+def test_l2_pixels_target_ignores_over_coverage():
+    """train.l2_pixels: target averages over the target's foreground only (the metric's mask): a render that also
+    covers background pixels is not pulled towards the white background there; union counts those pixels."""
+    from frng.train import l2_loss
+
+    tgt = torch.zeros(1, 4, 4, 4)
+    tgt[:, :2, :, :3], tgt[:, :2, :, 3] = 0.3, 1.0  # top half opaque
+    out = torch.zeros(1, 4, 4, 4)
+    out[..., :3], out[..., 3] = 0.3, 1.0  # same colour, covers everything
+    assert float(l2_loss(out, tgt, (1.0, 1.0, 1.0), pixels="target")[0]) == 0.0
+    assert float(l2_loss(out, tgt, (1.0, 1.0, 1.0), pixels="union")[0]) > 0.05
+    with pytest.raises(ValueError, match="l2_pixels"):
+        l2_loss(out, tgt, (1.0, 1.0, 1.0), pixels="all")
