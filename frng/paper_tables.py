@@ -37,16 +37,10 @@ from frng import config as frng_config
 from frng import io
 from frng import metrics as M
 from frng import tables as T
-from frng.variants import BACKBONE, BASE_VARIANTS, ORACLE_RUN, RIG_VIEWS
+from frng.variants import BACKBONE, BASE_VARIANTS, ORACLE_RUN, RIG_VIEWS, VARIANTS
 
 TABLES = tuple(T.TABLE_COLUMNS)
-VARIANT_LABELS = {
-    "full": "full model",
-    "no-fine": "w/o fine-grained Gaussians",
-    "no-idm": "w/o IDM priors",
-    "no-ind": "w/o light-independence regularization",
-    "no-neural": "w/o neural appearance modeling",
-}
+VARIANT_LABELS = {name: v.label for name, v in VARIANTS.items()}
 METHOD_LABELS = {"F-RNG": "F-RNG (ours)", BACKBONE: "backbone (RelitLRM-style)"}
 
 

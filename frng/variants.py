@@ -14,9 +14,36 @@ rendered G-buffers instead of the IDM's priors: how much a perfect IDM would add
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 
-BASE_VARIANTS = ("full", "no-fine", "no-idm", "no-ind", "no-neural")
+
+@dataclass(frozen=True)
+class Variant:
+    """One F-RNG variant: what the paper's ablation table calls it and how it differs from the full model.
+
+    arch: FRNGConfig fields replaced (:func:`frng.model.frng.variant_config`); loss: LightIndependenceConfig fields
+    replaced; reads_priors: whether its reconstruction reads the IDM's priors (the ``train`` rule of a variant that
+    does not never waits for them)."""
+
+    label: str
+    arch: dict = field(default_factory=dict)
+    loss: dict = field(default_factory=dict)
+
+    @property
+    def reads_priors(self) -> bool:
+        return self.arch.get("prior_dim", 1) != 0
+
+
+# The one table of the ablation variants (the schema's frng.variants enum is checked against it by a test).
+VARIANTS: dict[str, Variant] = {
+    "full": Variant("full model"),
+    "no-fine": Variant("w/o fine-grained Gaussians", arch={"fine": False}),
+    "no-idm": Variant("w/o IDM priors", arch={"prior_dim": 0}),
+    "no-ind": Variant("w/o light-independence regularization", loss={"lambda_c": 0.0, "lambda_kld": 0.0}),
+    "no-neural": Variant("w/o neural appearance modeling", arch={"head": "pbr"}),
+}
+BASE_VARIANTS = tuple(VARIANTS)
 RIG_VIEWS = 6  # the paper's input rig
 SWEEP_VIEWS = (2, 4, 6, 8, 10)  # the #views table
 BACKBONE = "backbone"
@@ -36,10 +63,40 @@ def all_variants(config: dict) -> list[str]:
     return out
 
 
+def k_percent(name: str) -> float | None:
+    """K in percent of a K-sweep variant name (``k2`` -> 2.0), None for other names; ValueError for a ``k`` name
+    whose K is not a number in (0, 100]."""
+    if name in VARIANTS or not name.startswith("k"):
+        return None
+    try:
+        pct = float(name[1:])
+    except ValueError:
+        raise ValueError(f"unknown F-RNG variant {name!r}; known: {', '.join(BASE_VARIANTS)}, k<percent>") from None
+    if not (0 < pct <= 100) or not math.isfinite(pct):
+        raise ValueError(f"K-sweep variant {name!r}: K must be in (0, 100] percent")
+    return pct
+
+
+def variant(name: str) -> Variant:
+    """The table entry of ``name`` (a K-sweep name ``k{P}`` is the full model with K = P %: arch top_k)."""
+    if name in VARIANTS:
+        return VARIANTS[name]
+    pct = k_percent(name)
+    if pct is None:
+        raise ValueError(f"unknown F-RNG variant {name!r}; known: {', '.join(BASE_VARIANTS)}, k<percent>")
+    return Variant(f"K = {pct:g}%", arch={"top_k": pct / 100.0})
+
+
+def reads_priors(name: str) -> bool:
+    """Whether variant ``name``'s reconstruction reads the IDM's priors."""
+    return variant(name).reads_priors
+
+
 def canonical_variant(config: dict, name: str) -> str:
     """The variant whose training produces ``name``'s model: the K-sweep entry equal to the full model's K is the
     full model itself (``k2`` -> ``full`` with the paper's K = 2%), so it is not trained twice."""
-    if name.startswith("k") and float(name[1:]) == float(config["frng"]["top_k_percent"]):
+    pct = k_percent(name)
+    if pct is not None and pct == float(config["frng"]["top_k_percent"]):
         return "full"
     return name
 

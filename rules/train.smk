@@ -3,7 +3,7 @@
 # into its own folder instead of training it twice.
 import re
 
-from frng.variants import all_variants, canonical_variant, torchrun_command, trained_variants
+from frng.variants import all_variants, canonical_variant, reads_priors, torchrun_command, trained_variants
 
 FRNG_TRAINED = trained_variants(config)
 FRNG_ALIASES = [v for v in all_variants(config) if canonical_variant(config, v) != v]
@@ -60,7 +60,7 @@ rule train:
     input:
         backbone=res("backbone/model.pt"),
         caches=res("backbone/cache/train_set.json"),
-        priors=lambda wildcards: [] if wildcards.variant == "no-idm" else res("priors/idm/train_set.json"),
+        priors=lambda wildcards: res("priors/idm/train_set.json") if reads_priors(wildcards.variant) else [],
     output:
         model=res("models/{variant}/model.pt"),
         curve=res("models/{variant}/loss.csv"),

@@ -15,7 +15,7 @@ Token layout and Gaussian order follow the contract in :mod:`frng.model` (coarse
 Gaussians in (view, row, col) order, fine ones in (view, fine token, y*p + x) order). Background Gaussians are
 dropped: coarse ones with the cache's ``keep`` (input alpha >= 0.5), fine ones with :func:`fine_keep_mask`.
 
-Variants (:func:`variant_config`): ``full``; ``no-fine`` (no FineGeometry, coarse tokens only); ``no-idm``
+Variants (:func:`variant_config`, from the one table :data:`frng.variants.VARIANTS`): ``full``; ``no-fine`` (no FineGeometry, coarse tokens only); ``no-idm``
 (``prior_dim = 0``: no tokenizer, no prior parameters anywhere; ``reconstruct`` refuses priors); ``no-ind``
 (lambda_c = lambda_KLD = 0, training only); ``no-neural`` (MaterialFormer head ``pbr`` -> Cook-Torrance per
 Gaussian, rendered with the GGX shader through the same deferred pipeline); ``k{P}`` (top-K = P% of the patches).
@@ -51,7 +51,7 @@ from frng.model.tokenizers import PriorTokenizer, stack_priors
 from frng.render import RasterConfig, rasterize
 from frng.render.shading import (NeuralDecoder, ShadingConfig, deferred_shade, ggx_diffuse_brdf, ggx_reflectance,
                                  lambert_sh, sh_diffuse)
-from frng.variants import BASE_VARIANTS, all_variants, canonical_variant, k_variant, trained_variants
+from frng.variants import BASE_VARIANTS, all_variants, canonical_variant, k_variant, trained_variants, variant
 
 MODEL_KIND = "frng"
 
@@ -521,28 +521,8 @@ def variant_config(config: dict, name: str, backbone_cfg: dict | None = None) ->
     loss = config["train"]["loss"]
     ind = LightIndependenceConfig(lambda_c=loss["lambda_c"], lambda_kld=loss["lambda_kld"],
                                   temperature=loss.get("temperature", 1.0))
-    name = canonical_variant(config, name)
-    if name == "full":
-        pass
-    elif name == "no-fine":
-        cfg = replace(cfg, fine=False)
-    elif name == "no-idm":
-        cfg = replace(cfg, prior_dim=0)
-    elif name == "no-ind":
-        ind = replace(ind, lambda_c=0.0, lambda_kld=0.0)
-    elif name == "no-neural":
-        cfg = replace(cfg, head="pbr")
-    elif name.startswith("k"):
-        try:
-            pct = float(name[1:])
-        except ValueError:
-            raise ValueError(f"unknown F-RNG variant {name!r}") from None
-        if not (0 < pct <= 100) or not math.isfinite(pct):
-            raise ValueError(f"K-sweep variant {name!r}: K must be in (0, 100] percent")
-        cfg = replace(cfg, top_k=pct / 100.0)
-    else:
-        raise ValueError(f"unknown F-RNG variant {name!r}; known: {', '.join(BASE_VARIANTS)}, k<percent>")
-    return cfg, ind
+    v = variant(canonical_variant(config, name))
+    return replace(cfg, **v.arch), replace(ind, **v.loss)
 
 
 __all__ = [
