@@ -22,6 +22,7 @@ from pathlib import Path
 from frng import config as frng_config
 from frng import io
 from frng import metrics as M
+from frng.layout import Layout
 
 PER_IMAGE = "relight_per_image.csv"
 SUMMARY = "relight_summary.csv"
@@ -33,12 +34,13 @@ def evaluate_run(results: Path, run_dir: Path, protocol: str, background, device
     """Rows of one ``{results}/relight/{run}/{obj}`` folder (see the module docstring)."""
     info = io.read_json(run_dir / "run.json")
     oid = info["object"]
-    meta = io.read_json(results / "objects" / oid / "meta.json")
+    L = Layout(results)
+    meta = io.read_json(L.object_meta(oid))
     rows = []
     for light in info["lights"]:
         for view in info["target_views"]:
             pred = run_dir / light / f"{view}.exr"
-            gt = results / "objects" / oid / "targets" / light / f"{view}.exr"
+            gt = L.object_image(oid, "targets", light, view)
             m = M.evaluate_files(pred, gt, protocol=protocol, background=background, device=device)
             rows.append({"dataset": meta["material_class"], "object": oid, "run": info["name"],
                          "method": info["method"], "variant": info["variant"], "views": int(info["views"]),
@@ -69,8 +71,8 @@ def run_dirs_of(config: dict, objects: list[str]) -> list[Path]:
     """Every ``{results}/relight/{run}/{obj}`` folder the config plans for these test objects."""
     from frng.variants import runs
 
-    results = Path(config["results"])
-    return [results / "relight" / r.name / oid for oid in objects for r in runs(config)]
+    L = Layout(config["results"])
+    return [Path(L.relight_run(r.name, oid)) for oid in objects for r in runs(config)]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -84,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
 
     config = frng_config.load(args.config)
     objects = args.objects or catalog.plan(config).split("test")
-    out = Path(args.out or Path(config["results"], "metrics"))
+    out = Path(args.out or Layout(config["results"]).metrics_dir())
     per_image, summary = evaluate(config, run_dirs_of(config, objects), out)
     print(f"evaluate ({config['eval']['protocol']} protocol): wrote {per_image} and {summary}")
     print(M.read_csv(summary).to_string(index=False))

@@ -21,6 +21,7 @@ import pandas as pd
 
 from frng import config as frng_config
 from frng import envmap, figures, io
+from frng.layout import Layout
 from frng.relight import BACKBONE
 
 
@@ -31,16 +32,17 @@ def _psnr_lookup(per_image: pd.DataFrame):
 
 def comparison(results: Path, oid: str, out_png: Path, psnr) -> None:
     """Per test object: input views, env map, ground truth, backbone, F-RNG under each target light."""
-    full = io.read_json(results / "relight" / "full" / oid / "run.json")
+    L = Layout(results)
+    full = io.read_json(L.relight_record("full", oid))
     view = full["target_views"][0]
     lights = full["lights"]
-    meta = io.read_json(results / "objects" / oid / "meta.json")
+    meta = io.read_json(L.object_meta(oid))
     light_in = meta["input_lights"][0]
-    inputs = [io.read_rgba(results / "objects" / oid / "inputs" / light_in / f"{v}.exr") for v in full["input_views"]]
-    gt = [io.read_rgba(results / "objects" / oid / "targets" / l / f"{view}.exr") for l in lights]
-    bb = [io.read_rgba(results / "relight" / BACKBONE / oid / l / f"{view}.exr") for l in lights]
-    fr = [io.read_rgba(results / "relight" / "full" / oid / l / f"{view}.exr") for l in lights]
-    envs = [envmap.read(results / "envmaps" / f"{l}.exr") for l in lights]
+    inputs = [io.read_rgba(L.object_image(oid, "inputs", light_in, v)) for v in full["input_views"]]
+    gt = [io.read_rgba(L.object_image(oid, "targets", l, view)) for l in lights]
+    bb = [io.read_rgba(L.relight_image(BACKBONE, oid, l, view)) for l in lights]
+    fr = [io.read_rgba(L.relight_image("full", oid, l, view)) for l in lights]
+    envs = [envmap.read(L.envmap(l)) for l in lights]
     figures.object_comparison(
         out_png, inputs, gt, bb, fr, lights, envmaps=envs,
         psnr_backbone=[psnr(oid, BACKBONE, l, view) for l in lights],
@@ -50,13 +52,14 @@ def comparison(results: Path, oid: str, out_png: Path, psnr) -> None:
 
 def ablation(results: Path, objects: list[str], variants: list[str], out_png: Path, psnr) -> None:
     """Ground truth and each ablation variant, one row per test object (first target light and view)."""
+    L = Layout(results)
     gts, imgs, caps, labels = [], {v: [] for v in variants}, {v: [] for v in variants}, []
     for oid in objects:
-        info = io.read_json(results / "relight" / "full" / oid / "run.json")
+        info = io.read_json(L.relight_record("full", oid))
         light, view = info["lights"][0], info["target_views"][0]
-        gts.append(io.read_rgba(results / "objects" / oid / "targets" / light / f"{view}.exr"))
+        gts.append(io.read_rgba(L.object_image(oid, "targets", light, view)))
         for v in variants:
-            imgs[v].append(io.read_rgba(results / "relight" / v / oid / light / f"{view}.exr"))
+            imgs[v].append(io.read_rgba(L.relight_image(v, oid, light, view)))
             caps[v].append(psnr(oid, v, light, view))
         labels.append(f"{oid} / {light}")
     figures.ablation_grid(out_png, imgs, gts, labels, caps, title="Ablations (PSNR per image)")
@@ -64,7 +67,7 @@ def ablation(results: Path, objects: list[str], variants: list[str], out_png: Pa
 
 def saliency(results: Path, oid: str, out_png: Path, patch: int) -> None:
     """Input view 0, its saliency map and the selected top-K patches of the full run."""
-    d = np.load(results / "relight" / "full" / oid / "saliency.npz")
+    d = np.load(Path(Layout(results).relight_run("full", oid)) / "saliency.npz")
     image, sal, idx = d["image"][0], d["saliency"][0], d["patch_idx"][0]
     H, W = image.shape[:2]
     sel = np.zeros((H // patch) * (W // patch), bool)
@@ -75,11 +78,11 @@ def saliency(results: Path, oid: str, out_png: Path, patch: int) -> None:
 
 def loss_curves(results: Path, out_png: Path) -> None:
     """Every training run's loss.csv: F-RNG variants, backbone, IDM."""
+    L = Layout(results)
     runs = {}
-    for p in sorted((results / "models").glob("*/loss.csv")):
+    for p in sorted(Path(L.models_dir()).glob("*/loss.csv")):
         runs[f"F-RNG {p.parent.name}"] = pd.read_csv(p)
-    for name in ("backbone", "idm"):
-        p = results / name / "loss.csv"
+    for name, p in (("backbone", Path(L.backbone_curve())), ("idm", Path(L.idm_curve()))):
         if p.exists():
             runs[name] = pd.read_csv(p)
     if not runs:
@@ -91,7 +94,7 @@ def make_figures(config: dict, objects: list[str], out_dir: Path) -> list[Path]:
     from frng.metrics import read_csv
 
     results = Path(config["results"])
-    psnr = _psnr_lookup(read_csv(results / "metrics" / "relight_per_image.csv"))
+    psnr = _psnr_lookup(read_csv(Layout(results).metrics("relight_per_image")))
     written = []
     for oid in objects:
         p = out_dir / "comparison" / f"{oid}.png"
@@ -116,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
 
     config = frng_config.load(args.config)
     objects = args.objects or catalog.plan(config).split("test")
-    out = Path(args.out or Path(config["results"], "figures"))
+    out = Path(args.out or Layout(config["results"]).figures_dir())
     for p in make_figures(config, objects, out):
         print(f"figures: wrote {p}")
     return 0

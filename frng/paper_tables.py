@@ -37,6 +37,7 @@ from frng import config as frng_config
 from frng import io
 from frng import metrics as M
 from frng import tables as T
+from frng.layout import Layout
 from frng.variants import BACKBONE, BASE_VARIANTS, ORACLE_RUN, RIG_VIEWS, VARIANTS
 
 TABLES = tuple(T.TABLE_COLUMNS)
@@ -209,11 +210,11 @@ def run(args: argparse.Namespace) -> int:
     from frng.data import catalog
 
     config = frng_config.load(args.config)
-    res = Path(config["results"])
-    timing = args.timing or [res / "relight" / "timing" / f"{o}.json" for o in catalog.plan(config).split("test")]
-    out = write_tables(config, Path(args.metrics or res / "metrics" / "relight_per_image.csv"),
-                       [Path(p) for p in timing], Path(args.out or res / "tables"),
-                       Path(args.prior_metrics or res / "metrics" / "backbone.csv"))
+    L = Layout(config["results"])
+    timing = args.timing or [L.relight_timing(o) for o in catalog.plan(config).split("test")]
+    out = write_tables(config, Path(args.metrics or L.metrics("relight_per_image")),
+                       [Path(p) for p in timing], Path(args.out or L.tables_dir()),
+                       Path(args.prior_metrics or L.metrics("backbone")))
     for name, paths in out.items():
         print(f"== {name} ({paths['md']})\n{paths['md'].read_text()}")
     return 0

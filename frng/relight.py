@@ -54,6 +54,7 @@ import torch
 
 from frng import config as frng_config
 from frng import envmap, io
+from frng.layout import Layout
 from frng.variants import BACKBONE, RIG_VIEWS, Run, model_variants, runs  # noqa: F401
 
 
@@ -70,8 +71,8 @@ def validate_inputs(config: dict, oid: str) -> dict:
     (relighting evaluates held-out objects), a missing, corrupt or non-RGBA input view (no alpha channel: the
     masks are part of the input), an input view that is not ``render.resolution`` square, a missing or non-2:1
     env map."""
-    results = Path(config["results"])
-    root = results / "objects" / oid
+    L = Layout(config["results"])
+    root = Path(L.object_dir(oid))
     try:
         meta = io.read_json(root / "meta.json")
     except (FileNotFoundError, ValueError) as e:
@@ -95,7 +96,7 @@ def validate_inputs(config: dict, oid: str) -> dict:
             raise RelightError(f"{path}: input view contains NaN or inf")
     for light in dict.fromkeys([light_in] + list(meta["target_lights"])):
         try:
-            envmap.read(results / "envmaps" / f"{light}.exr")
+            envmap.read(L.envmap(light))
         except envmap.EnvMapError as e:
             raise RelightError(f"environment map: {e}") from e
     return meta
@@ -179,7 +180,7 @@ def relight_object(config: dict, oid: str, models: dict[str, Path], backbone_pat
     from frng.priors.dataset import load_object
 
     idm = build_idm(config, device)
-    meta = io.read_json(Path(config["results"], "objects", oid, "meta.json"))
+    meta = io.read_json(Layout(config["results"]).object_meta(oid))
     the_runs = runs(config, len(meta["views"]["inputs"]))
     need_gbuffer = idm.kind == "oracle" or any(r.priors == "oracle" for r in the_runs)
     obj = load_object(config, oid, with_targets=False, with_gbuffer=need_gbuffer)
@@ -295,13 +296,14 @@ def _save_full_extras(folder: Path, model, rec, p: dict, oid: str, run: Run) -> 
 def publish(staging: Path, results: Path, oid: str) -> None:
     """Move each staged run folder to ``{results}/relight/{run}/{oid}`` and the timing to
     ``{results}/relight/timing/{oid}.json`` (an existing, e.g. snakemake-created empty, folder is replaced)."""
+    L = Layout(results)
     for folder in sorted(p for p in staging.iterdir() if p.is_dir()):
-        dest = results / "relight" / folder.name / oid
+        dest = Path(L.relight_run(folder.name, oid))
         dest.parent.mkdir(parents=True, exist_ok=True)
         if dest.exists():
             shutil.rmtree(dest)
         os.replace(folder, dest)
-    timing = results / "relight" / "timing" / f"{oid}.json"
+    timing = Path(L.relight_timing(oid))
     timing.parent.mkdir(parents=True, exist_ok=True)
     os.replace(staging / "timing.json", timing)
 
@@ -311,18 +313,19 @@ def relight(config: dict, oid: str, models_dir: Path | None = None, device: str 
     from frng import training as tr
 
     results = Path(config["results"])
+    L = Layout(results)
     validate_inputs(config, oid)
-    models_dir = Path(models_dir or results / "models")
+    models_dir = Path(models_dir or L.models_dir())
     models = {v: models_dir / v / "model.pt" for v in model_variants(config)}
     missing = [str(p) for p in models.values() if not p.exists()]
     if missing:
         raise RelightError(f"trained F-RNG model(s) missing: {missing}; run the train rules first")
-    backbone = results / "backbone" / "model.pt"
+    backbone = Path(L.backbone_model())
     if not backbone.exists():
         raise RelightError(f"{backbone}: backbone model missing")
     dev = tr.resolve_device(device or config["device"])
-    (results / "relight").mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".staging-{oid}-", dir=results / "relight"))
+    Path(L.relight_dir()).mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".staging-{oid}-", dir=L.relight_dir()))
     try:
         timing = relight_object(config, oid, models, backbone, staging, dev)
         publish(staging, results, oid)

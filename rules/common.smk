@@ -1,4 +1,7 @@
 # Shared helpers: config validation, object/light lists, output paths.
+import json
+import os
+import re
 import sys
 from pathlib import Path
 
@@ -8,6 +11,9 @@ from snakemake.logging import logger
 from snakemake_interface_executor_plugins.settings import ExecMode
 
 from frng import config as frng_config
+from frng.data import catalog as frng_catalog
+from frng.layout import Layout
+from frng.variants import all_variants
 
 try:
     # `--config overwrite_config=true`: replace the results folder's recorded config (not part of the config)
@@ -17,11 +23,12 @@ except frng_config.ConfigError as e:
     raise WorkflowError(f"invalid config: {e}")
 
 RESULTS = config["results"]
+L = Layout(RESULTS)  # every artefact's path (frng/layout.py); rules pass their wildcards through
 ROOT = Path(workflow.basedir).parent
 # The effective config: validated, defaults filled, --config overrides applied; one per results folder. Every
 # stage reads it via `--config {CONFIG_FILE}`. It is written when jobs start (`onstart:` below: never by a dry
 # run, `--summary` or any other planning), and a run whose config differs from the recorded one is refused.
-CONFIG_FILE = str(Path(RESULTS, "config.yaml"))
+CONFIG_FILE = L.config()
 
 
 def effective_config_notice():
@@ -60,8 +67,17 @@ onstart:
 PY = sys.executable
 
 
-def res(*parts):
-    return str(Path(RESULTS, *parts))
+# Shared state of the rule files (defined here so that include order does not matter).
+try:
+    CATALOG = frng_catalog.plan(config)  # the dataset plan: env maps, objects, splits, lights (no bpy, fast)
+except frng_catalog.CatalogError as e:
+    raise WorkflowError(f"invalid dataset plan: {e}")
+TRAIN_IDS = CATALOG.split("train")
+TEST_IDS = CATALOG.split("test")
+# GPUs per torch job: 0 on CPU (CPU clusters reject gpu > 0; see profiles/slurm-ci), else 1 (profiles raise it).
+TORCH_GPUS = 0 if config.get("device", "auto") == "cpu" else 1
+IDM_MODEL = [L.idm_model()] if config["idm"]["kind"] == "learned" else []  # the learned IDM, when there is one
+FRNG_VARIANTS = all_variants(config)  # every F-RNG variant the config asks for (frng/variants.py)
 
 
 _TARGETS = []

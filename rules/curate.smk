@@ -8,16 +8,16 @@ rule curate:
     input:
         unpack(lambda wildcards: frng_catalog.curate_inputs(config, CATALOG.object(wildcards.obj))),
     output:
-        res("objects/{obj}/meta.json"),
+        meta=L.object_meta(),
     params:
         config_digest=frng_config.rule_digest(config, "curate"),
         spec=lambda wildcards: json.dumps(CATALOG.object(wildcards.obj).to_dict(), sort_keys=True),
         envmaps=lambda wildcards, input: os.path.dirname(input.index),
-        objects=lambda wildcards, output: os.path.dirname(os.path.dirname(output[0])),
+        objects=L.objects_dir(),
         py=PY,
         config=CONFIG_FILE,
     log:
-        res("logs/curate/{obj}.log"),
+        L.log("curate", "{obj}"),
     wildcard_constraints:
         obj=r"[a-z0-9_]+",
     conda:
@@ -35,16 +35,16 @@ rule dataset_preview:
     message:
         "Contact sheets of {n} objects".format(n=len(OBJECT_IDS))
     input:
-        expand(res("objects/{obj}/meta.json"), obj=OBJECT_IDS),
+        expand(rules.curate.output.meta, obj=OBJECT_IDS),
     output:
-        expand(res("previews/{obj}.png"), obj=OBJECT_IDS),
+        expand(L.preview(), obj=OBJECT_IDS),
     params:
         config_digest=frng_config.rule_digest(config, "dataset_preview"),
-        out=lambda wildcards, output: os.path.dirname(output[0]),
+        out=L.previews_dir(),
         py=PY,
         config=CONFIG_FILE,
     log:
-        res("logs/dataset_preview.log"),
+        L.log("dataset_preview"),
     conda:
         "../envs/blender.yaml"
     threads: 1
@@ -55,4 +55,4 @@ rule dataset_preview:
         "{params.py} -m frng dataset preview --config {params.config} --out {params.out} > {log} 2>&1"
 
 
-add_targets(*expand(res("objects/{obj}/meta.json"), obj=OBJECT_IDS), *expand(res("previews/{obj}.png"), obj=OBJECT_IDS))
+add_targets(*expand(L.object_meta(), obj=OBJECT_IDS), *expand(L.preview(), obj=OBJECT_IDS))

@@ -1,15 +1,5 @@
 # Environment maps: Blender's bundled HDRIs + baked skies (+ users' maps), rotated, resized, normalised,
 # split train/test by base map. One job writes them all (seconds); see frng/data/envmaps.py.
-import json
-import os
-
-from frng.data import catalog as frng_catalog
-
-try:
-    CATALOG = frng_catalog.plan(config)  # the dataset plan: env maps, objects, splits, lights (no bpy, fast)
-except frng_catalog.CatalogError as e:
-    raise WorkflowError(f"invalid dataset plan: {e}")
-
 ENVMAP_NAMES = [e.name for e in CATALOG.envmaps]
 USER_ENVMAP_FILES = sorted({e.origin for e in CATALOG.envmaps if e.source == "user"})
 
@@ -20,15 +10,15 @@ rule envmaps:
     input:
         USER_ENVMAP_FILES,
     output:
-        index=res("envmaps/index.json"),
-        maps=expand(res("envmaps/{env}.exr"), env=ENVMAP_NAMES),
+        index=L.envmap_index(),
+        maps=expand(L.envmap(), env=ENVMAP_NAMES),
     params:
         config_digest=frng_config.rule_digest(config, "envmaps"),
         out=lambda wildcards, output: os.path.dirname(output.index),
         py=PY,
         config=CONFIG_FILE,
     log:
-        res("logs/envmaps.log"),
+        L.log("envmaps"),
     conda:
         "../envs/blender.yaml"
     threads: config["render"]["threads"]
@@ -39,4 +29,4 @@ rule envmaps:
         "{params.py} -m frng envmaps --config {params.config} --out {params.out} > {log} 2>&1"
 
 
-add_targets(res("envmaps/index.json"))
+add_targets(L.envmap_index())

@@ -14,10 +14,10 @@ rule evaluate:
     input:
         # one file per test object stands for all its runs (relight publishes every run before its timing file);
         # listing every run.json would add runs x objects inputs to the paper DAG
-        timing=expand(res("relight/timing/{obj}.json"), obj=TEST_IDS),
+        timing=expand(rules.relight.output.timing, obj=TEST_IDS),
     output:
-        per_image=res("metrics/relight_per_image.csv"),
-        summary=res("metrics/relight_summary.csv"),
+        per_image=L.metrics("relight_per_image"),
+        summary=L.metrics("relight_summary"),
     params:
         config_digest=frng_config.rule_digest(config, "evaluate"),
         py=PY,
@@ -25,7 +25,7 @@ rule evaluate:
         out=lambda wildcards, output: os.path.dirname(output.per_image),
         objects=TEST_IDS,
     log:
-        res("logs/evaluate.log"),
+        L.log("evaluate"),
     conda:
         "../envs/eval.yaml"
     threads: 1
@@ -40,23 +40,23 @@ rule tables:
     message:
         "The paper's tables: {names}".format(names=", ".join(TABLE_NAMES))
     input:
-        per_image=res("metrics/relight_per_image.csv"),
-        timing=expand(res("relight/timing/{obj}.json"), obj=TEST_IDS),
+        per_image=rules.evaluate.output.per_image,
+        timing=expand(rules.relight.output.timing, obj=TEST_IDS),
         prior=rules.eval_backbone.output.backbone,
     output:
         *[
-            report(res(f"tables/{t}.csv"), caption=f"../workflow/report/{t}.rst", category="Tables",
+            report(L.table(t), caption=f"../workflow/report/{t}.rst", category="Tables",
                    labels={"table": _TABLE_CAPTIONS[t]})
             for t in TABLE_NAMES
         ],
-        *[res(f"tables/{t}.{ext}") for t in TABLE_NAMES for ext in ("md", "tex")],
+        *[L.table(t, ext) for t in TABLE_NAMES for ext in ("md", "tex")],
     params:
         config_digest=frng_config.rule_digest(config, "tables"),
         py=PY,
         config=CONFIG_FILE,
         out=lambda wildcards, output: os.path.dirname(output[0]),
     log:
-        res("logs/tables.log"),
+        L.log("tables"),
     conda:
         "../envs/eval.yaml"
     threads: 1
@@ -72,19 +72,19 @@ rule figures:
     message:
         "Figures: comparison grids, ablation grid, saliency maps, loss curves"
     input:
-        per_image=res("metrics/relight_per_image.csv"),
-        timing=expand(res("relight/timing/{obj}.json"), obj=TEST_IDS),
-        curves=expand(res("models/{variant}/loss.csv"), variant=FRNG_VARIANTS),
+        per_image=rules.evaluate.output.per_image,
+        timing=expand(rules.relight.output.timing, obj=TEST_IDS),
+        curves=expand(L.model_curve(), variant=FRNG_VARIANTS),
     output:
-        comparison=report(directory(res("figures/comparison")), patterns=["{obj}.png"],
+        comparison=report(directory(L.figure("comparison")), patterns=["{obj}.png"],
                           caption="../workflow/report/comparison.rst", category="Figures", subcategory="Relighting",
                           labels={"object": "{obj}"}),
-        saliency=report(directory(res("figures/saliency")), patterns=["{obj}.png"],
+        saliency=report(directory(L.figure("saliency")), patterns=["{obj}.png"],
                         caption="../workflow/report/saliency.rst", category="Figures", subcategory="Saliency",
                         labels={"object": "{obj}"}),
-        ablation=report(res("figures/ablation.png"), caption="../workflow/report/ablation_grid.rst",
+        ablation=report(L.figure("ablation.png"), caption="../workflow/report/ablation_grid.rst",
                         category="Figures", subcategory="Ablations", labels={"figure": "ablation grid"}),
-        curves=report(res("figures/loss_curves.png"), caption="../workflow/report/loss_curves.rst",
+        curves=report(L.figure("loss_curves.png"), caption="../workflow/report/loss_curves.rst",
                       category="Figures", subcategory="Training", labels={"figure": "loss curves"}),
     params:
         config_digest=frng_config.rule_digest(config, "figures"),
@@ -93,7 +93,7 @@ rule figures:
         out=lambda wildcards, output: os.path.dirname(output.ablation),
         objects=TEST_IDS,
     log:
-        res("logs/figures.log"),
+        L.log("figures"),
     conda:
         "../envs/eval.yaml"
     threads: 1
@@ -105,9 +105,9 @@ rule figures:
 
 
 add_targets(
-    *[res(f"tables/{t}.{ext}") for t in TABLE_NAMES for ext in ("csv", "md", "tex")],
-    res("figures/ablation.png"),
-    res("figures/loss_curves.png"),
-    res("figures/comparison"),
-    res("figures/saliency"),
+    *[L.table(t, ext) for t in TABLE_NAMES for ext in ("csv", "md", "tex")],
+    L.figure("ablation.png"),
+    L.figure("loss_curves.png"),
+    L.figure("comparison"),
+    L.figure("saliency"),
 )

@@ -1,25 +1,23 @@
 # Frozen priors (frng/priors/): the RelitLRM-style backbone and the IDM are trained once on the TRAINING split,
 # then cached per object (one job per object) so that F-RNG training reads caches only.
-TRAIN_IDS = CATALOG.split("train")
-_IDM_MODEL = [res("idm/model.pt")] if config["idm"]["kind"] == "learned" else []
 
 
 rule backbone_train:
     message:
         "Training the backbone on {n} training objects".format(n=len(TRAIN_IDS))
     input:
-        expand(res("objects/{obj}/meta.json"), obj=TRAIN_IDS),
+        expand(rules.curate.output.meta, obj=TRAIN_IDS),
     output:
-        model=res("backbone/model.pt"),
-        curve=res("backbone/loss.csv"),
-        plot=res("backbone/loss.png"),
+        model=L.backbone_model(),
+        curve=L.backbone_curve(),
+        plot=L.backbone_curve("png"),
     params:
         config_digest=frng_config.rule_digest(config, "backbone_train"),
         out=lambda wildcards, output: os.path.dirname(output.model),
         py=PY,
         config=CONFIG_FILE,
     log:
-        res("logs/backbone_train.log"),
+        L.log("backbone_train"),
     conda:
         "../envs/torch.yaml"
     threads: 2
@@ -35,18 +33,18 @@ rule idm_train:
     message:
         "Training the learned IDM on {n} training objects".format(n=len(TRAIN_IDS))
     input:
-        expand(res("objects/{obj}/meta.json"), obj=TRAIN_IDS),
+        expand(rules.curate.output.meta, obj=TRAIN_IDS),
     output:
-        model=res("idm/model.pt"),
-        curve=res("idm/loss.csv"),
-        plot=res("idm/loss.png"),
+        model=L.idm_model(),
+        curve=L.idm_curve(),
+        plot=L.idm_curve("png"),
     params:
         config_digest=frng_config.rule_digest(config, "idm_train"),
         out=lambda wildcards, output: os.path.dirname(output.model),
         py=PY,
         config=CONFIG_FILE,
     log:
-        res("logs/idm_train.log"),
+        L.log("idm_train"),
     conda:
         "../envs/torch.yaml"
     threads: 2
@@ -62,16 +60,16 @@ rule backbone_cache:
     message:
         "Caching backbone tokens of {wildcards.obj}"
     input:
-        model=res("backbone/model.pt"),
-        meta=res("objects/{obj}/meta.json"),
+        model=rules.backbone_train.output.model,
+        meta=rules.curate.output.meta,
     output:
-        res("backbone/cache/{obj}.safetensors"),
+        cache=L.backbone_cache(),
     params:
         config_digest=frng_config.rule_digest(config, "backbone_cache"),
         py=PY,
         config=CONFIG_FILE,
     log:
-        res("logs/backbone_cache/{obj}.log"),
+        L.log("backbone_cache", "{obj}"),
     wildcard_constraints:
         obj=r"[a-z0-9_]+",
     conda:
@@ -90,16 +88,16 @@ rule idm_priors:
     message:
         "IDM priors ({kind}) of {{wildcards.obj}}".format(kind=config["idm"]["kind"])
     input:
-        model=_IDM_MODEL,
-        meta=res("objects/{obj}/meta.json"),
+        model=IDM_MODEL,
+        meta=rules.curate.output.meta,
     output:
-        res("priors/idm/{obj}.safetensors"),
+        priors=L.idm_priors(),
     params:
         config_digest=frng_config.rule_digest(config, "idm_priors"),
         py=PY,
         config=CONFIG_FILE,
     log:
-        res("logs/idm_priors/{obj}.log"),
+        L.log("idm_priors", "{obj}"),
     wildcard_constraints:
         obj=r"[a-z0-9_]+",
     conda:
@@ -117,18 +115,18 @@ rule eval_backbone:
     message:
         "Evaluating the frozen priors on the test objects"
     input:
-        backbone=res("backbone/model.pt"),
-        idm=_IDM_MODEL,
-        objects=expand(res("objects/{obj}/meta.json"), obj=CATALOG.object_ids),
+        backbone=rules.backbone_train.output.model,
+        idm=IDM_MODEL,
+        objects=expand(rules.curate.output.meta, obj=CATALOG.object_ids),
     output:
-        backbone=res("metrics/backbone.csv"),
-        idm=res("metrics/idm.csv"),
+        backbone=L.metrics("backbone"),
+        idm=L.metrics("idm"),
     params:
         config_digest=frng_config.rule_digest(config, "eval_backbone"),
         py=PY,
         config=CONFIG_FILE,
     log:
-        res("logs/eval_backbone.log"),
+        L.log("eval_backbone"),
     conda:
         "../envs/torch.yaml"
     threads: 2
@@ -141,10 +139,10 @@ rule eval_backbone:
 
 
 add_targets(
-    res("backbone/loss.png"),
-    res("idm/loss.png"),
-    res("metrics/backbone.csv"),
-    res("metrics/idm.csv"),
-    *expand(res("backbone/cache/{obj}.safetensors"), obj=CATALOG.object_ids),
-    *expand(res("priors/idm/{obj}.safetensors"), obj=CATALOG.object_ids),
+    L.backbone_curve("png"),
+    L.idm_curve("png"),
+    L.metrics("backbone"),
+    L.metrics("idm"),
+    *expand(L.backbone_cache(), obj=CATALOG.object_ids),
+    *expand(L.idm_priors(), obj=CATALOG.object_ids),
 )

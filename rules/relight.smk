@@ -3,7 +3,6 @@
 # in the same job and the paper-scale DAG grows by the number of test objects only.
 from frng.variants import model_variants, runs
 
-TEST_IDS = CATALOG.split("test")
 RELIGHT_RUNS = [r.name for r in runs(config)]
 
 
@@ -11,20 +10,20 @@ rule relight:
     message:
         "Relighting {wildcards.obj}: F-RNG runs and the backbone under every target light"
     input:
-        models=expand(res("models/{variant}/model.pt"), variant=model_variants(config)),
-        backbone=res("backbone/model.pt"),
-        idm=_IDM_MODEL,
-        meta=res("objects/{obj}/meta.json"),
+        models=expand(L.model(), variant=model_variants(config)),
+        backbone=rules.backbone_train.output.model,
+        idm=IDM_MODEL,
+        meta=rules.curate.output.meta,
     output:
-        runs=expand(res("relight/{run}/{{obj}}/run.json"), run=RELIGHT_RUNS),
-        timing=res("relight/timing/{obj}.json"),
+        runs=expand(L.relight_record("{run}", "{{obj}}"), run=RELIGHT_RUNS),
+        timing=L.relight_timing(),
     params:
         config_digest=frng_config.rule_digest(config, "relight"),
         py=PY,
         config=CONFIG_FILE,
         models=lambda wildcards, input: os.path.dirname(os.path.dirname(input.models[0])),
     log:
-        res("logs/relight/{obj}.log"),
+        L.log("relight", "{obj}"),
     wildcard_constraints:
         obj=r"[a-z0-9_]+",
     conda:
@@ -33,7 +32,7 @@ rule relight:
     resources:
         mem_mb=6000,
         runtime=60,
-        gpu=_TRAIN_GPUS,
+        gpu=TORCH_GPUS,
     shell:
         "{params.py} -m frng relight --config {params.config} --object {wildcards.obj} --models {params.models} "
         "> {log} 2>&1"

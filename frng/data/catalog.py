@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from frng.layout import Layout
+
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".gltf", ".glb")
 ENVMAP_SUFFIXES = (".exr", ".hdr")
 
@@ -362,7 +364,7 @@ def curate_minutes(config: dict, spec: ObjectSpec) -> int:
 def curate_inputs(config: dict, spec: ObjectSpec) -> dict:
     """Input files of one curation job: the env-map index (it changes whenever any map changes; listing every
     light map instead would give the paper-scale DAG 100k inputs and minutes of planning) and a user's mesh."""
-    inputs = {"index": str(Path(config["results"]) / "envmaps" / "index.json")}
+    inputs = {"index": Layout(config["results"]).envmap_index()}
     if spec.source == "user":
         inputs["mesh"] = spec.mesh
     return inputs

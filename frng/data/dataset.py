@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from frng import io
+from frng.layout import Layout
 
 GBUFFER_LAYOUT = {  # key -> EXR channels (see frng.data.curate.GBUFFER_CHANNELS)
     "alpha": ("A",),
@@ -139,4 +140,4 @@ class ObjectData:
 
 def open_object(results: str | Path, oid: str) -> ObjectData:
     """``ObjectData`` of ``{results}/objects/{oid}``."""
-    return ObjectData.open(Path(results) / "objects" / oid)
+    return ObjectData.open(Layout(results).object_dir(oid))

@@ -22,6 +22,7 @@ from frng import config as frng_config
 from frng import io
 from frng.data import catalog
 from frng.data.dataset import DatasetError, ObjectData
+from frng.layout import Layout
 
 BACKGROUND = (0.18, 0.18, 0.18)  # linear grey behind the renders
 LABEL_W = 150
@@ -104,10 +105,10 @@ def _draw_labels(sheet: np.ndarray, names: list[str], cell: int, title: str) -> 
 
 def write_previews(config: dict, objects: list[str], out: Path, cell: int, max_views: int, max_lights: int,
                    log=print) -> list[Path]:
-    results = Path(config["results"])
+    L = Layout(config["results"])
     paths = []
     for oid in objects:
-        obj = ObjectData.open(results / "objects" / oid)
+        obj = ObjectData.open(L.object_dir(oid))
         path = out / f"{oid}.png"
         io.write_png(path, contact_sheet(obj, cell, max_views, max_lights))
         log(f"[preview] {path}")
@@ -132,7 +133,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     config = frng_config.load(args.config)
     objects = args.objects or catalog.plan(config).object_ids
-    out = Path(args.out) if args.out else Path(config["results"]) / "previews"
+    out = Path(args.out) if args.out else Path(Layout(config["results"]).previews_dir())
     try:
         write_previews(config, objects, out, args.cell, args.max_views, args.max_lights,
                        log=lambda m: print(m, flush=True))

@@ -120,7 +120,9 @@ class DiffusionRendererIDMPrior:
 
 
 def _learned(config: dict, device="cpu") -> IDMPrior:
-    return LearnedIDMPrior(Path(config["results"], "idm", "model.pt"), device)
+    from frng.layout import Layout
+
+    return LearnedIDMPrior(Path(Layout(config["results"]).idm_model()), device)
 
 
 def _oracle(config: dict, device="cpu") -> IDMPrior:

@@ -52,6 +52,7 @@ import torch
 from frng import config as frng_config
 from frng import envmap, io
 from frng.data import catalog
+from frng.layout import Layout
 from frng.priors import build_idm, load_backbone
 from frng import training as tr
 from frng.priors.intrinsics import IntrinsicPriors
@@ -100,7 +101,7 @@ def make_backbone_cache(config: dict, oid: str, model_path: Path, out: Path, dev
     obj = load_object(config, oid, with_targets=False, with_gbuffer=False)
     light_in = obj.input_lights[0]
     lights = [light_in] + extra_training_lights(config, oid, light_in, config["backbone"]["cache_extra_lights"])
-    envs = {l: torch.from_numpy(envmap.read(Path(config["results"], "envmaps", f"{l}.exr"))) for l in lights}
+    envs = {l: torch.from_numpy(envmap.read(Layout(config["results"]).envmap(l))) for l in lights}
     views = obj.inputs[light_in]
     H, W = views.rgb.shape[1:3]
     tensors: dict[str, torch.Tensor] = {}
@@ -208,9 +209,9 @@ def configure_backbone(parser: argparse.ArgumentParser) -> None:
 
 def run_backbone(args: argparse.Namespace) -> int:
     config = frng_config.load(args.config)
-    res = Path(config["results"])
-    model = Path(args.model or res / "backbone" / "model.pt")
-    out = Path(args.out or res / "backbone" / "cache" / f"{args.object}.safetensors")
+    L = Layout(config["results"])
+    model = Path(args.model or L.backbone_model())
+    out = Path(args.out or L.backbone_cache(args.object))
     device = tr.resolve_device(config["device"])
     print(f"backbone-cache: wrote {make_backbone_cache(config, args.object, model, out, device)}")
     return 0
@@ -225,7 +226,7 @@ def configure_idm(parser: argparse.ArgumentParser) -> None:
 
 def run_idm(args: argparse.Namespace) -> int:
     config = frng_config.load(args.config)
-    out = Path(args.out or Path(config["results"], "priors", "idm", f"{args.object}.safetensors"))
+    out = Path(args.out or Layout(config["results"]).idm_priors(args.object))
     device = tr.resolve_device(config["device"])
     print(f"idm-priors: wrote {make_idm_priors(config, args.object, out, device, args.kind)}")
     return 0

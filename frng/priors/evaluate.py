@@ -35,6 +35,7 @@ import numpy as np
 import torch
 
 from frng import config as frng_config
+from frng.layout import Layout
 from frng.priors import build_idm, load_backbone
 from frng import training as tr
 from frng.priors.data import PriorObject
@@ -189,15 +190,14 @@ def run(args: argparse.Namespace) -> int:
     from frng.priors.dataset import load_split
 
     config = frng_config.load(args.config)
-    res = Path(config["results"])
+    L = Layout(config["results"])
     device = tr.resolve_device(config["device"])
     train_objs = load_split(config, "train")
     test = load_split(config, "test")
-    model = load_backbone(Path(args.model or res / "backbone" / "model.pt"), device)
+    model = load_backbone(Path(args.model or L.backbone_model()), device)
     bb = pd.DataFrame(eval_backbone(config, model, test, mean_image(train_objs), device))
     idm = pd.DataFrame(eval_idm(config, build_idm(config, device), test, train_objs))
-    for df, path in ((bb, args.backbone_csv or res / "metrics" / "backbone.csv"),
-                     (idm, args.idm_csv or res / "metrics" / "idm.csv")):
+    for df, path in ((bb, args.backbone_csv or L.metrics("backbone")), (idm, args.idm_csv or L.metrics("idm"))):
         with io.atomic_path(path) as tmp:
             df.to_csv(tmp, index=False, float_format="%.5g")
     print(bb.groupby(["task", "method"])[["psnr", "ssim"]].mean().round(3).to_string())
