@@ -264,3 +264,20 @@ def save0(info: DistInfo, obj: Any, path: str | Path) -> None:
     barrier(info)
 
 
+def all_gather(obj: Any, info: DistInfo) -> list:
+    """Every rank's picklable ``obj``, in rank order (a collective); ``[obj]`` for a single process."""
+    if not info.distributed:
+        return [obj]
+    out: list = [None] * info.world_size
+    dist.all_gather_object(out, obj)
+    return out
+
+
+def fit_hooks(info: DistInfo):
+    """The data-parallel hooks of :func:`frng.training.fit` for this process: logs averaged over ranks, random
+    states and data digests gathered from every rank, files written by rank 0."""
+    from frng.training import FitHooks
+
+    return FitHooks(rank=info.rank, world_size=info.world_size,
+                    reduce_logs=lambda logs: all_reduce_scalars(logs, info),
+                    gather=lambda obj: all_gather(obj, info), barrier=lambda: barrier(info))

@@ -28,8 +28,9 @@ One step = ``train.batch`` objects (split over ranks under torchrun/srun, :mod:`
 
 The frozen backbone is loaded once, only to copy its GeoDetokenizer into the FineGeoDetokenizer (and for its
 architecture); it is never run and gets no gradient. Outputs in ``--out`` (default ``{results}/models/{variant}``):
-``model.pt`` (:meth:`FRNG.save`), ``checkpoint.pt`` (resume: rerunning the same command continues from it),
-``loss.csv``, ``loss.png``, ``train.json`` (steps, wall time, device, step time). Seeds are fixed
+``model.pt`` (:meth:`FRNG.save`), ``checkpoint.pt`` (resume: rerunning the same command continues an unfinished
+run of the same config and data, :func:`frng.training.fit`), ``loss.csv``, ``loss.png``, ``train.json`` (steps,
+wall time, device, step time). Seeds are fixed
 (``frng.training.train_seed``: ``train_seed``, else ``seed``); AdamW with linear warm-up + cosine decay; bf16 autocast for the networks (``train.bf16``).
 """
 
@@ -37,13 +38,11 @@ from __future__ import annotations
 
 import argparse
 import random
-import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import torch
 from torch import nn
-from tqdm import tqdm
 
 from frng import config as frng_config
 from frng import distributed, envmap, io
@@ -278,41 +277,15 @@ def train(config: dict, variant: str, out: Path, backbone_path: Path | None = No
     ddp = distributed.wrap(step_loss, info, find_unused_parameters=True)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=tcfg.lr, betas=(0.9, 0.99), weight_decay=tcfg.weight_decay)
-    fingerprint = {"variant": variant, "arch": model.cfg.to_dict(), "train": asdict(tcfg), "steps": total,
-                   "seed": tr.train_seed(config), "shading": asdict(model.shading_cfg), "world": info.world_size,
-                   "backbone_sha256": tr.file_sha256(backbone_path)}
-    out.mkdir(parents=True, exist_ok=True)
-    ckpt = tr.Checkpointer(out, tcfg.checkpoint_every)
-    state = ckpt.load(model, opt, fingerprint)
-    start = state["step"] if state else 0
+    hooks = distributed.fit_hooks(info)
+    fingerprint = tr.fingerprint(model.cfg.to_dict(), tcfg, total, tr.train_seed(config), variant=variant,
+                                 shading=asdict(model.shading_cfg), world=info.world_size,
+                                 backbone_sha256=tr.file_sha256(backbone_path),
+                                 data=hooks.gather(tr.data_digest(objects)))
     rng = random.Random(distributed.rank_seed(tr.train_seed(config), info))
-    if state:
-        rng.setstate(state["sample_rng"][info.rank] if info.distributed else state["sample_rng"])
-    log = tr.LossLog(out, LOSS_NAMES) if info.is_main else None
-    if log:
-        log.truncate(start)
-    timer = tr.Timer(state["elapsed"] if state else 0.0)
     local_batch = max(1, tcfg.batch // info.world_size)
-    model.train()
-    bar = tqdm(range(start, total), initial=start, total=total, desc=f"train {variant}", dynamic_ncols=True,
-               disable=not info.is_main)
-    ran, t_steps = 0, []
 
-    def save_ckpt(step):
-        rs = rng.getstate()
-        if info.distributed:
-            gathered = [None] * info.world_size
-            torch.distributed.all_gather_object(gathered, rs)
-            rs = gathered
-        if info.is_main:
-            ckpt.save(step, model, opt, fingerprint, {"sample_rng": rs, "elapsed": timer.elapsed()})
-        distributed.barrier(info)
-
-    for step in bar:
-        t0 = time.time()
-        for g in opt.param_groups:
-            g["lr"] = tr.cosine_lr(step, total, tcfg.lr, tcfg.warmup)
-        opt.zero_grad(set_to_none=True)
+    def step_fn(step: int) -> dict[str, float]:
         samples = []
         for b in range(local_batch):
             obj = objects[rng.randrange(len(objects))]
@@ -322,34 +295,21 @@ def train(config: dict, variant: str, out: Path, backbone_path: Path | None = No
         step_loss.step = step
         loss, logs = ddp(samples)
         loss.backward()
-        gnorm = torch.nn.utils.clip_grad_norm_(params, tcfg.grad_clip)
-        if torch.isfinite(gnorm):
-            opt.step()
-        logs = distributed.all_reduce_scalars(logs, info)
-        t_steps.append(time.time() - t0)
-        if log:
-            log.append(step + 1, timer.elapsed(), logs)
-        bar.set_postfix(loss=f"{logs['total']:.4f}", l2=f"{logs['l2']:.4f}")
-        ran += 1
-        if ckpt.due(step + 1, total):
-            save_ckpt(step + 1)
-            if log:
-                log.plot(f"F-RNG {variant} training loss")
-        if stop_after is not None and ran >= stop_after and step + 1 < total:
-            save_ckpt(step + 1)
-            return out / "checkpoint.pt"
-    bar.close()
-    path = out / "model.pt"
-    if info.is_main:
-        log.plot(f"F-RNG {variant} training loss")
+        return logs
+
+    def save_model(path: Path) -> None:
         model.save(path, {"variant": variant, "steps": total, "backbone_sha256": fingerprint["backbone_sha256"]})
-        io.write_json(out / "train.json", {
-            "variant": variant, "steps": total, "wall_s": round(timer.elapsed(), 1), "device": str(device),
-            "world_size": info.world_size, "bf16": tcfg.bf16, "objects": len(objects) * info.world_size,
-            "step_s_mean_this_run": round(sum(t_steps) / max(1, len(t_steps)), 3),
-            "parameters": sum(p.numel() for p in model.parameters())})
-    distributed.barrier(info)
-    return path
+
+    def summary(run: tr.FitRun) -> dict:
+        return {"variant": variant, "steps": total, "wall_s": round(run.wall_s, 1), "device": str(device),
+                "world_size": info.world_size, "bf16": tcfg.bf16, "objects": len(objects) * info.world_size,
+                "step_s_mean_this_run": round(run.step_s_mean, 3),
+                "parameters": sum(p.numel() for p in model.parameters())}
+
+    return tr.fit(step_fn, tcfg, model=model, optimizer=opt, params=params, out=out, total=total,
+                  fingerprint=fingerprint, loss_names=LOSS_NAMES, save_model=save_model, summary=summary,
+                  title=f"F-RNG {variant} training loss", desc=f"train {variant}", postfix=("total", "l2"),
+                  rngs={"sample": rng}, device=device, stop_after=stop_after, hooks=hooks)
 
 
 # -- CLI -----------------------------------------------------------------------------------------------------

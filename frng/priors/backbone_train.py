@@ -22,23 +22,20 @@ objects' own (training-pool) lights.
 
 Outputs in ``--out`` (default ``{results}/backbone``): ``model.pt`` (frozen weights + config + sha256 recorded by
 caches), ``checkpoint.pt`` (resume), ``loss.csv``, ``loss.png``, ``train.json`` (steps, wall time, device).
-Rerunning the command after an interruption resumes from the last checkpoint.
+The loop is :func:`frng.training.fit`: rerunning the command after an interruption resumes from the last
+checkpoint when the config and data are unchanged; after a finished run it trains again.
 """
 
 from __future__ import annotations
 
 import argparse
 import random
-import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 import torch.nn.functional as F
-from tqdm import tqdm
 
-from frng import config as frng_config
-from frng import io
 from frng.priors import backbone as bb
 from frng import training as tr
 from frng.priors.data import PriorObject, Views
@@ -161,14 +158,12 @@ LOSS_NAMES = ["total", "l2", "alpha", "depth", "perceptual"]
 
 def train(config: dict, objects: list[PriorObject], out: Path, steps: int | None = None,
           stop_after: int | None = None) -> Path:
-    """Train (or resume) the backbone on ``objects`` (training split only); returns the model path.
+    """Train (or resume, :func:`frng.training.fit`) the backbone on ``objects`` (training split only); returns the
+    model path.
 
     ``stop_after``: stop (after checkpointing) once this many steps have run in this call -- for tests of
     resumption. ``steps`` overrides ``backbone.train.steps``."""
-    if any(o.split != "train" for o in objects):
-        raise ValueError("backbone-train must only see training objects")
-    if not objects:
-        raise ValueError("backbone-train: no training objects")
+    tr.check_training_split(objects, "backbone-train")
     tcfg = BackboneTrainConfig.from_dict(config["backbone"].get("train", {}))
     total = steps or tcfg.steps
     cfg = backbone_config(config)
@@ -176,31 +171,17 @@ def train(config: dict, objects: list[PriorObject], out: Path, steps: int | None
     tr.seed_everything(tr.train_seed(config))
     model = bb.RelitLRMBackbone(cfg).to(device)
     opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, betas=(0.9, 0.95), weight_decay=tcfg.weight_decay)
-    fingerprint = {"arch": cfg.to_dict(), "train": asdict(tcfg), "steps": total, "seed": tr.train_seed(config),
-                   "objects": sorted(o.id for o in objects)}
-    out.mkdir(parents=True, exist_ok=True)
-    ckpt = tr.Checkpointer(out, tcfg.checkpoint_every)
-    state = ckpt.load(model, opt, fingerprint)
-    start = state["step"] if state else 0
+    fingerprint = tr.fingerprint(cfg.to_dict(), tcfg, total, tr.train_seed(config),
+                                 objects=sorted(o.id for o in objects), data=tr.data_digest(objects))
     rng = random.Random(tr.train_seed(config))
-    if state:
-        rng.setstate(state["sample_rng"])
-    log = tr.LossLog(out, LOSS_NAMES)
-    log.truncate(start)
-    timer = tr.Timer(state["elapsed"] if state else 0.0)
     perceptual = None
     if tcfg.lambda_per > 0 and tcfg.perceptual_after < total:
         from frng.perceptual import PerceptualLoss
 
         perceptual = PerceptualLoss("lpips", net=tcfg.perceptual_net, srgb=False,
                                     autocast_bf16=tcfg.bf16 and device.type == "cpu" and tr.bf16_ok(device)).to(device)
-    model.train()
-    bar = tqdm(range(start, total), initial=start, total=total, desc="backbone", dynamic_ncols=True)
-    ran = 0
-    for step in bar:
-        for g in opt.param_groups:
-            g["lr"] = tr.cosine_lr(step, total, tcfg.lr, tcfg.warmup)
-        opt.zero_grad(set_to_none=True)
+
+    def step_fn(step: int) -> dict[str, float]:
         acc: dict[str, float] = {}
         for _ in range(tcfg.batch):
             obj = objects[rng.randrange(len(objects))]
@@ -208,45 +189,23 @@ def train(config: dict, objects: list[PriorObject], out: Path, steps: int | None
             (losses["total"] / tcfg.batch).backward()
             for k, v in losses.items():
                 acc[k] = acc.get(k, 0.0) + float(v.detach()) / tcfg.batch
-        gnorm = torch.nn.utils.clip_grad_norm_(model.parameters(), tcfg.grad_clip)
-        if torch.isfinite(gnorm):
-            opt.step()
-        log.append(step + 1, timer.elapsed(), acc)
-        bar.set_postfix(loss=f"{acc['total']:.4f}", l2=f"{acc['l2']:.4f}")
-        ran += 1
-        if ckpt.due(step + 1, total):
-            ckpt.save(step + 1, model, opt, fingerprint, {"sample_rng": rng.getstate(), "elapsed": timer.elapsed()})
-            log.plot("backbone training loss")
-        if stop_after is not None and ran >= stop_after and step + 1 < total:
-            ckpt.save(step + 1, model, opt, fingerprint, {"sample_rng": rng.getstate(), "elapsed": timer.elapsed()})
-            return out / "checkpoint.pt"
-    bar.close()
-    log.plot("backbone training loss")
-    path = out / "model.pt"
-    tr.save_torch({"kind": config["backbone"].get("kind", "relitlrm"), "config": cfg.to_dict(),
-                   "state_dict": model.state_dict(), "steps": total}, path)
-    io.write_json(out / "train.json", {"steps": total, "wall_s": round(timer.elapsed(), 1), "device": str(device),
-                                       "objects": len(objects), "bf16": tcfg.bf16,
-                                       "parameters": sum(p.numel() for p in model.parameters())})
-    return path
+        return acc
+
+    def save_model(path: Path) -> None:
+        tr.save_torch({"kind": config["backbone"].get("kind", "relitlrm"), "config": cfg.to_dict(),
+                       "state_dict": model.state_dict(), "steps": total}, path)
+
+    return tr.fit(step_fn, tcfg, model=model, optimizer=opt, out=out, total=total, fingerprint=fingerprint,
+                  loss_names=LOSS_NAMES, save_model=save_model, title="backbone training loss", desc="backbone", postfix=("total", "l2"),
+                  summary=lambda run: tr.run_summary(run, device, objects, tcfg.bf16, model), rngs={"sample": rng},
+                  device=device, stop_after=stop_after)
 
 
 # -- CLI ------------------------------------------------------------------------------------------------
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    frng_config.add_config_argument(parser)
-    parser.add_argument("--out", help="output folder (default {results}/backbone)")
-    parser.add_argument("--steps", type=int, help="override backbone.train.steps")
+    tr.configure_priors_stage(parser, "backbone", "backbone.train.steps")
 
 
 def run(args: argparse.Namespace) -> int:
-    from frng.priors.dataset import load_split
-
-    config = frng_config.load(args.config)
-    out = Path(args.out or Path(config["results"], "backbone"))
-    t0 = time.time()
-    objects = load_split(config, "train")
-    print(f"backbone-train: {len(objects)} training objects loaded in {time.time() - t0:.1f}s")
-    path = train(config, objects, out, steps=args.steps)
-    print(f"backbone-train: wrote {path}")
-    return 0
+    return tr.run_priors_stage(args, "backbone-train", "backbone", train)

@@ -10,23 +10,21 @@ data, so :class:`CueCache` keeps those of the all-views samples in memory: the h
 cameras, identical under every input light, so it is computed once per object; only the light-dependent photo
 agreement channel is recomputed per (object, light). Random subsets are computed per step.
 
-Outputs in ``--out`` (default ``{results}/idm``): ``model.pt``, ``checkpoint.pt`` (resume), ``loss.csv``,
-``loss.png``, ``train.json``.
+The loop is :func:`frng.training.fit` (resume, schedule, clipping at ``grad_clip`` with no update on a non-finite
+gradient norm, checkpoints). Outputs in ``--out`` (default ``{results}/idm``): ``model.pt``, ``checkpoint.pt``
+(resume), ``loss.csv``, ``loss.png``, ``train.json``.
 """
 
 from __future__ import annotations
 
 import argparse
 import random
-import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
-from tqdm import tqdm
 
-from frng import config as frng_config
-from frng import camera, io
+from frng import camera
 from frng.priors import idm as idm_mod
 from frng import training as tr
 from frng.priors import multiview
@@ -43,6 +41,9 @@ class IDMTrainConfig:
     all_views: float = 0.75  # probability of a step on all input views, else a random subset of 2..all
     head_lr: float = 10.0  # learning-rate multiplier of the pixel head except its geometry output (param_groups)
     geo_lr: float = 0.3  # learning-rate multiplier of the head's geometry-residual output layer
+    # not config keys (config/schema.yaml has none for the IDM): the values the IDM has always trained with
+    weight_decay: float = 0.01
+    grad_clip: float = 1.0
 
     @classmethod
     def from_dict(cls, d: dict) -> "IDMTrainConfig":
@@ -120,37 +121,22 @@ LOSS_NAMES = ["total", "normal", "depth", "albedo", "roughness", "metallic"]
 
 def train(config: dict, objects: list[PriorObject], out: Path, steps: int | None = None,
           stop_after: int | None = None) -> Path:
-    """Train (or resume) the learned IDM; returns the model path (or the checkpoint when stopped early)."""
-    if any(o.split != "train" for o in objects):
-        raise ValueError("idm-train must only see training objects")
-    if not objects:
-        raise ValueError("idm-train: no training objects")
+    """Train (or resume, :func:`frng.training.fit`) the learned IDM; returns the model path (or the checkpoint
+    when stopped early)."""
+    tr.check_training_split(objects, "idm-train")
     tcfg = IDMTrainConfig.from_dict(config["idm"].get("train", {}))
     total = steps or tcfg.steps
     cfg = idm_config(config)
     device = tr.resolve_device(config.get("device", "auto"))
     tr.seed_everything(tr.train_seed(config) + 1)
     model = idm_mod.LearnedIDM(cfg).to(device)
-    opt = torch.optim.AdamW(param_groups(model, tcfg), lr=tcfg.lr, weight_decay=0.01)
-    fingerprint = {"arch": cfg.to_dict(), "train": asdict(tcfg), "steps": total, "seed": tr.train_seed(config),
-                   "objects": sorted(o.id for o in objects)}
-    out.mkdir(parents=True, exist_ok=True)
-    ckpt = tr.Checkpointer(out, tcfg.checkpoint_every)
-    state = ckpt.load(model, opt, fingerprint)
-    start = state["step"] if state else 0
+    opt = torch.optim.AdamW(param_groups(model, tcfg), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
+    fingerprint = tr.fingerprint(cfg.to_dict(), tcfg, total, tr.train_seed(config),
+                                 objects=sorted(o.id for o in objects), data=tr.data_digest(objects))
     rng = random.Random(tr.train_seed(config) + 1)
-    if state:
-        rng.setstate(state["sample_rng"])
-    log = tr.LossLog(out, LOSS_NAMES)
-    log.truncate(start)
-    timer = tr.Timer(state["elapsed"] if state else 0.0)
-    model.train()
-    bar = tqdm(range(start, total), initial=start, total=total, desc="idm", dynamic_ncols=True)
-    ran = 0
-    cue_cache = CueCache()
-    for step in bar:
-        for g in opt.param_groups:
-            g["lr"] = tr.cosine_lr(step, total, tcfg.lr, tcfg.warmup) * g["lr_mult"]
+    cue_cache = CueCache()  # data only: a resumed run recomputes the same cues (bit-identical, see the test)
+
+    def step_fn(step: int) -> dict[str, float]:
         obj = objects[rng.randrange(len(objects))]
         light, idx = sample_views(obj, rng, tcfg.all_views)
         v = obj.inputs[light].select(idx)
@@ -163,45 +149,22 @@ def train(config: dict, objects: list[PriorObject], out: Path, steps: int | None
             raw = model(vd.rgb[None], alpha, c2w, intr, cues=cues)
         target = {k: t[None] for k, t in gb.as_dict().items()}
         losses = idm_mod.idm_loss(model, raw.float(), alpha, c2w, target)
-        opt.zero_grad(set_to_none=True)
         losses["total"].backward()
-        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
-        opt.step()
-        vals = {k: float(x.detach()) for k, x in losses.items()}
-        log.append(step + 1, timer.elapsed(), vals)
-        bar.set_postfix(loss=f"{vals['total']:.4f}")
-        ran += 1
-        extra = lambda: {"sample_rng": rng.getstate(), "elapsed": timer.elapsed()}  # noqa: E731
-        if ckpt.due(step + 1, total):
-            ckpt.save(step + 1, model, opt, fingerprint, extra())
-            log.plot("IDM training loss")
-        if stop_after is not None and ran >= stop_after and step + 1 < total:
-            ckpt.save(step + 1, model, opt, fingerprint, extra())
-            return out / "checkpoint.pt"
-    bar.close()
-    log.plot("IDM training loss")
-    path = out / "model.pt"
-    tr.save_torch({"kind": "learned", "config": cfg.to_dict(), "state_dict": model.state_dict(), "steps": total},
-                  path)
-    io.write_json(out / "train.json", {"steps": total, "wall_s": round(timer.elapsed(), 1), "device": str(device),
-                                       "objects": len(objects), "bf16": tcfg.bf16,
-                                       "parameters": sum(p.numel() for p in model.parameters())})
-    return path
+        return {k: float(x.detach()) for k, x in losses.items()}
+
+    def save_model(path: Path) -> None:
+        tr.save_torch({"kind": "learned", "config": cfg.to_dict(), "state_dict": model.state_dict(),
+                       "steps": total}, path)
+
+    return tr.fit(step_fn, tcfg, model=model, optimizer=opt, out=out, total=total, fingerprint=fingerprint,
+                  loss_names=LOSS_NAMES, save_model=save_model, title="IDM training loss", desc="idm",
+                  summary=lambda run: tr.run_summary(run, device, objects, tcfg.bf16, model), rngs={"sample": rng},
+                  device=device, stop_after=stop_after)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    frng_config.add_config_argument(parser)
-    parser.add_argument("--out", help="output folder (default {results}/idm)")
-    parser.add_argument("--steps", type=int, help="override idm.train.steps")
+    tr.configure_priors_stage(parser, "idm", "idm.train.steps")
 
 
 def run(args: argparse.Namespace) -> int:
-    from frng.priors.dataset import load_split
-
-    config = frng_config.load(args.config)
-    out = Path(args.out or Path(config["results"], "idm"))
-    t0 = time.time()
-    objects = load_split(config, "train", with_targets=False)
-    print(f"idm-train: {len(objects)} training objects loaded in {time.time() - t0:.1f}s")
-    print(f"idm-train: wrote {train(config, objects, out, steps=args.steps)}")
-    return 0
+    return tr.run_priors_stage(args, "idm-train", "idm", train, with_targets=False)
