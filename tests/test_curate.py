@@ -116,6 +116,8 @@ def test_corrupt_envmap_fails_naming_file_and_leaves_nothing(curated, tmp_path):
 @pytest.mark.parametrize("mesh_text, expect", [
     ("v 0 0 0\nv 1 0 0\nv 1 0.0000001 0\nf 1 2 3\n", "rendered empty"),   # a sliver: loads, renders nothing
     ("this is not an obj file\n", "no mesh with faces"),
+    ("v 0 0 0\nv 1 0 0\nv nan 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\n", "non-finite vertex coordinate"),  # NaN
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 inf\nf 1 2 3\nf 1 2 4\n", "non-finite vertex coordinate"),  # inf
 ])
 def test_bad_meshes_fail_naming_object_and_leave_nothing(tmp_path, curated, mesh_text, expect):
     tmp, _, _ = curated
@@ -128,5 +130,91 @@ def test_bad_meshes_fail_naming_object_and_leave_nothing(tmp_path, curated, mesh
     shutil.copytree(tmp / "results" / "envmaps", results / "envmaps")
     proc = frng("curate", "--config", str(cfg), "--object", "user_bad", check=False)
     assert proc.returncode != 0
-    assert "user_bad" in proc.stderr and expect in proc.stderr, proc.stderr
+    assert "user_bad" in proc.stderr and str(mesh) in proc.stderr and expect in proc.stderr, proc.stderr
     assert not (results / "objects").exists() or not any((results / "objects").iterdir())
+
+
+# -- bit-reproducible curation (fur included) -----------------------------------------------------------------
+
+def _exr_bytes(folder):
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*.exr"))}
+
+
+def test_fur_curation_is_bit_reproducible(tmp_path):
+    """Curating the same fur object twice (two processes) gives byte-identical EXRs. obj_0001 is a UV sphere: Blender's
+    UV-sphere primitive and its hair-particle distribution both changed from run to run."""
+    cfg = write_config(tmp_path / "c.yaml", tmp_path / "results",
+                       objects={"count": 2, "test_count": 1, "sources": ["primitives"],
+                                "material_mix": {"diffuse": 0.0, "specular": 0.0, "fur": 1.0}},
+                       render={"resolution": 16, "spp": 1, "threads": 1, "fur_strands": 100, "extra_input_views": 0,
+                               "target_views": 1})
+    frng("envmaps", "--config", str(cfg))
+    runs = []
+    for k in range(2):
+        out = tmp_path / f"run{k}"
+        frng("curate", "--config", str(cfg), "--object", "obj_0001", "--out", str(out))
+        runs.append(_exr_bytes(out / "obj_0001"))
+    meta = io.read_json(tmp_path / "run0" / "obj_0001" / "meta.json")
+    assert meta["material_class"] == "fur" and meta["shape"]["params"]["kind"] == "uv_sphere"
+    assert sorted(runs[0]) == sorted(runs[1]) and len(runs[0]) == 7 + 7  # 6 + 1 views: RGBA and G-buffer each
+    differ = [name for name in runs[0] if runs[0][name] != runs[1][name]]
+    assert differ == [], f"{len(differ)} of {len(runs[0])} EXRs differ: {differ[:4]}"
+
+
+def test_every_primitive_and_procedural_shape_is_built_identically():
+    """Same kind + same random numbers -> the same vertices, faces and UVs, face order included (Blender's own
+    UV-sphere primitive ordered its faces differently in every call)."""
+    import bpy  # noqa: F401
+
+    from frng.blender import objects
+
+    def build(kind, procedural):
+        make = objects.procedural if procedural else objects.primitive
+        obj, _ = make(kind, np.random.default_rng(7))
+        me = obj.data
+        loops = np.empty(len(me.loops), np.int64)
+        me.loops.foreach_get("vertex_index", loops)
+        uv = np.zeros(len(me.loops) * 2, np.float32)
+        if len(me.uv_layers):
+            me.uv_layers[0].data.foreach_get("uv", uv)
+        out = objects.vertices(obj).tobytes() + loops.tobytes() + uv.tobytes()
+        bpy.data.objects.remove(obj, do_unlink=True)
+        return out
+
+    prims = ("cube", "uv_sphere", "ico_sphere", "cylinder", "cone", "torus", "monkey")
+    procs = ("superquadric", "lathe", "blob", "cluster", "twisted_box")
+    for kinds, procedural in ((prims, False), (procs, True)):
+        for kind in kinds:
+            assert build(kind, procedural) == build(kind, procedural), kind
+
+
+# -- meshes with NaN/inf vertices fail, naming the file --------------------------------------------------------
+
+def test_nonfinite_vertices_are_found_in_every_format(tmp_path):
+    import struct
+
+    pytest.importorskip("bpy")
+    from frng.blender.objects import nonfinite_vertex
+
+    cases = {
+        "ok.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", None),
+        "nan.obj": ("v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n", "line 3"),
+        "inf.obj": ("# c\nv 0 0 0\nv 1 -inf 0\nv 0 1 0\nf 1 2 3\n", "line 3"),
+        "nan.stl": ("solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 NaN\nvertex 0 1 0\n"
+                    "endloop\nendfacet\nendsolid t\n", "line 5"),
+        "nan.ply": ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                    "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 inf 0\n"
+                    "3 0 1 2\n", "vertex 3"),
+    }
+    for name, (text, where) in cases.items():
+        (tmp_path / name).write_text(text)
+        found = nonfinite_vertex(tmp_path / name)
+        assert (found is None) if where is None else (found is not None and where in found), (name, found)
+    tri = struct.pack("<12fH", 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, float("nan"), 0, 0)
+    (tmp_path / "nan_bin.stl").write_bytes(b"\0" * 80 + struct.pack("<I", 1) + tri)
+    assert "triangle 1" in nonfinite_vertex(tmp_path / "nan_bin.stl")
+    head = ("ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+            "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n").encode()
+    verts = struct.pack("<9f", 0, 0, 0, 1, 0, 0, 0, 1, float("inf"))
+    (tmp_path / "inf_bin.ply").write_bytes(head + verts + struct.pack("<B3i", 3, 0, 1, 2))
+    assert "vertex 3" in nonfinite_vertex(tmp_path / "inf_bin.ply")

@@ -16,6 +16,11 @@ import numpy as np
 
 TEXTURE_SIZE = 256
 PATTERNS = ("checker", "stripes", "dots", "noise")
+FUR_POINTS = 6                  # control points per strand (Catmull-Rom curves)
+FUR_ROOT_RADIUS = 0.004         # strand radius at the root / tip (world units; the object fits the unit sphere)
+FUR_TIP_RADIUS = 0.0008
+FUR_TILT = 0.8                  # random tilt of a strand away from the surface normal (per axis, uniform)
+FUR_WAVE = 0.12                 # per-point jitter, as a fraction of the strand length, growing towards the tip
 
 
 def _colour(rng: np.random.Generator) -> list[float]:
@@ -29,7 +34,8 @@ def sample(rng: np.random.Generator, material_class: str, fur_strands: int) -> d
 
     diffuse:  roughness U(0.6, 1), metallic 0, image texture with p = 0.6
     specular: roughness U(0.03, 0.35), metallic U(0.8, 1) with p = 0.5 else 0, image texture with p = 0.4
-    fur:      diffuse skin + hair particles (Principled Hair BSDF, colour parametrisation)
+    fur:      diffuse skin + ``fur_strands`` hair strands (Principled Hair BSDF, colour parametrisation), see
+              :func:`add_fur`
     """
     p: dict = {"class": material_class, "base_color": _colour(rng)}
     if material_class == "diffuse":
@@ -39,15 +45,15 @@ def sample(rng: np.random.Generator, material_class: str, fur_strands: int) -> d
         p.update(roughness=float(rng.uniform(0.03, 0.35)), metallic=float(rng.uniform(0.8, 1.0)) if metal else 0.0,
                  textured=bool(rng.uniform() < 0.4))
     elif material_class == "fur":
-        children = 10
         p.update(roughness=1.0, metallic=0.0, textured=False, hair={
             "color": _colour(rng),
             "roughness": float(rng.uniform(0.2, 0.5)),
             "radial_roughness": float(rng.uniform(0.2, 0.5)),
             "length": float(rng.uniform(0.08, 0.15)),
-            "parents": max(1, fur_strands // children),
-            "children": children,
-            "root_radius": 0.008,
+            "strands": int(fur_strands),
+            "points": FUR_POINTS,
+            "root_radius": FUR_ROOT_RADIUS,
+            "tip_radius": FUR_TIP_RADIUS,
         })
         p["base_color"] = [round(c * 0.6, 5) for c in p["hair"]["color"]]  # skin under the fur
     else:
@@ -137,25 +143,80 @@ def hair_material(name: str, h: dict) -> bpy.types.Material:
     return mat
 
 
-def add_fur(obj: bpy.types.Object, h: dict, seed: int) -> None:
-    """Hair particles (parents x interpolated children) rendered with the hair material in slot 2."""
-    mod = obj.modifiers.new("fur", "PARTICLE_SYSTEM")
-    psys = mod.particle_system
-    psys.seed = int(seed) % (2**31 - 1)
-    s = psys.settings
-    s.type = "HAIR"
-    s.count = int(h["parents"])
-    s.hair_length = float(h["length"])
-    s.use_advanced_hair = True
-    s.factor_random = 0.3 * h["length"]
-    s.child_type = "INTERPOLATED"
-    s.rendered_child_count = int(h["children"])
-    s.child_percent = min(int(h["children"]), 2)  # viewport only
-    s.roughness_2 = 0.02
-    s.root_radius = 1.0
-    s.tip_radius = 0.2
-    s.radius_scale = float(h["root_radius"])
-    s.material_slot = obj.data.materials[1].name if len(obj.data.materials) > 1 else obj.data.materials[0].name
+def _surface_samples(obj: bpy.types.Object, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` points (n, 3) uniformly distributed by area over the evaluated (rendered) surface of ``obj`` and their
+    shading normals (n, 3): corner normals interpolated, so flat faces give flat normals."""
+    dg = bpy.context.evaluated_depsgraph_get()
+    ev = obj.evaluated_get(dg)
+    me = ev.to_mesh()
+    try:
+        me.calc_loop_triangles()
+        nt = len(me.loop_triangles)
+        tri_v = np.empty(nt * 3, np.int64)
+        tri_l = np.empty(nt * 3, np.int64)
+        me.loop_triangles.foreach_get("vertices", tri_v)
+        me.loop_triangles.foreach_get("loops", tri_l)
+        co = np.empty(len(me.vertices) * 3, np.float64)
+        me.vertices.foreach_get("co", co)
+        cn = np.empty(len(me.loops) * 3, np.float64)
+        me.corner_normals.foreach_get("vector", cn)
+    finally:
+        ev.to_mesh_clear()
+    tri = co.reshape(-1, 3)[tri_v.reshape(-1, 3)]            # (T, 3 corners, 3)
+    nrm = cn.reshape(-1, 3)[tri_l.reshape(-1, 3)]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    if not np.isfinite(area).all() or area.sum() <= 0:
+        raise ValueError(f"{obj.name}: no surface area to grow fur on")
+    cdf = np.cumsum(area)
+    face = np.minimum(np.searchsorted(cdf, rng.uniform(0.0, cdf[-1], n), side="right"), len(area) - 1)
+    r1, r2 = np.sqrt(rng.uniform(size=n)), rng.uniform(size=n)
+    w = np.stack([1 - r1, r1 * (1 - r2), r1 * r2], 1)[..., None]   # uniform barycentrics
+    points = (tri[face] * w).sum(1)
+    normals = (nrm[face] * w).sum(1)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    fallback = np.cross(tri[face, 1] - tri[face, 0], tri[face, 2] - tri[face, 0])
+    normals = np.where(length > 1e-8, normals / np.maximum(length, 1e-8),
+                       fallback / np.maximum(np.linalg.norm(fallback, axis=1, keepdims=True), 1e-12))
+    return points, normals
+
+
+def fur_strands(obj: bpy.types.Object, h: dict, seed: int) -> np.ndarray:
+    """Control points (strands, points, 3) of the fur on ``obj``: roots uniform by area on the rendered surface,
+    straight along the tilted shading normal, length ``h["length"]`` x U(0.8, 1.2), slightly wavy towards the tip.
+
+    Pure numpy from ``seed``: Blender's hair particle distribution is not reproducible run to run on many meshes
+    (UV spheres, cones, cylinders: parent roots land on different faces in every process, whatever the seed and
+    thread count), so the strands are generated here and handed to Blender as plain curves.
+    """
+    rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(0xF0,)))
+    n, k = int(h["strands"]), int(h["points"])
+    roots, normals = _surface_samples(obj, n, rng)
+    direction = normals + FUR_TILT * rng.uniform(-1.0, 1.0, (n, 3))
+    direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-12)
+    length = float(h["length"]) * rng.uniform(0.8, 1.2, (n, 1, 1))
+    t = np.linspace(0.0, 1.0, k)[None, :, None]
+    wave = FUR_WAVE * rng.normal(0.0, 1.0, (n, k, 3)) * t
+    pts = roots[:, None] + length * (t * direction[:, None] + wave)
+    return pts.astype(np.float32)
+
+
+def add_fur(obj: bpy.types.Object, h: dict, seed: int) -> bpy.types.Object:
+    """A hair-curves object beside ``obj`` holding :func:`fur_strands`, rendered with the hair material
+    (Cycles curves; radius tapering linearly from ``root_radius`` to ``tip_radius``). Returns the new object."""
+    pts = fur_strands(obj, h, seed)
+    n, k = pts.shape[:2]
+    curves = bpy.data.hair_curves.new("frng_fur")
+    curves.add_curves([k] * n)
+    curves.position_data.foreach_set("vector", pts.ravel())
+    radius = curves.attributes.get("radius") or curves.attributes.new("radius", "FLOAT", "POINT")
+    r = np.linspace(float(h["root_radius"]), float(h["tip_radius"]), k, dtype=np.float32)
+    radius.data.foreach_set("value", np.tile(r, n))
+    curves.materials.append(hair_material("frng_hair", h))
+    fur = bpy.data.objects.new("frng_fur", curves)
+    fur.matrix_world = obj.matrix_world.copy()
+    for col in obj.users_collection:
+        col.objects.link(fur)
+    return fur
 
 
 def apply(obj: bpy.types.Object, p: dict, seed: int) -> None:
@@ -163,5 +224,4 @@ def apply(obj: bpy.types.Object, p: dict, seed: int) -> None:
     obj.data.materials.clear()
     obj.data.materials.append(principled("frng_surface", p))
     if p["class"] == "fur":
-        obj.data.materials.append(hair_material("frng_hair", p["hair"]))
         add_fur(obj, p["hair"], seed)

@@ -79,6 +79,38 @@ def _mesh_object(name: str, verts: np.ndarray, faces: list) -> bpy.types.Object:
     return obj
 
 
+def _uv_sphere(segments: int, rings: int) -> bpy.types.Object:
+    """A unit UV sphere (quads, triangle fans at the poles) with a latitude/longitude UV map, built in numpy.
+
+    Blender's own ``primitive_uv_sphere_add`` (4.5) orders its faces and loops differently in every run (the
+    vertices agree), which moves everything sampled per face -- fur roots above all -- between runs.
+    """
+    theta = np.linspace(0, math.pi, rings + 1)[1:-1]           # polar angle of the inner rings
+    phi = np.linspace(0, 2 * math.pi, segments, endpoint=False)
+    ring_verts = np.stack([np.sin(theta)[:, None] * np.cos(phi), np.sin(theta)[:, None] * np.sin(phi),
+                           np.broadcast_to(np.cos(theta)[:, None], (rings - 1, segments))], -1).reshape(-1, 3)
+    verts = np.concatenate([ring_verts, [[0, 0, 1], [0, 0, -1]]])
+    top, bottom = len(ring_verts), len(ring_verts) + 1
+    faces, uvs = [], []
+    for i in range(segments):
+        i1 = (i + 1) % segments
+        u0, u1 = i / segments, (i + 1) / segments
+        faces.append((top, i, i1))                             # counter-clockwise seen from outside
+        uvs += [((u0 + u1) / 2, 1.0), (u0, 1 - 1 / rings), (u1, 1 - 1 / rings)]
+        for j in range(rings - 2):
+            a, b = j * segments, (j + 1) * segments
+            faces.append((a + i, b + i, b + i1, a + i1))
+            v0, v1 = 1 - (j + 1) / rings, 1 - (j + 2) / rings
+            uvs += [(u0, v0), (u0, v1), (u1, v1), (u1, v0)]
+        last = (rings - 2) * segments
+        faces.append((bottom, last + i1, last + i))
+        uvs += [((u0 + u1) / 2, 0.0), (u1, 1 / rings), (u0, 1 / rings)]
+    obj = _mesh_object("frng_uv_sphere", verts, faces)
+    uv = obj.data.uv_layers.new(name="UVMap")
+    uv.data.foreach_set("uv", np.asarray(uvs, dtype=np.float32).ravel())
+    return obj
+
+
 def _shade_smooth(obj: bpy.types.Object, smooth: bool = True) -> None:
     vals = np.full(len(obj.data.polygons), smooth, dtype=bool)
     obj.data.polygons.foreach_set("use_smooth", vals)
@@ -94,6 +126,110 @@ def _select_only(objs) -> None:
 
 # -- file import ----------------------------------------------------------------------------------------
 
+_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+              "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+
+
+def _first_nonfinite(values, where) -> str | None:
+    """``where(i)`` of the first row of ``values`` (N, 3) holding a NaN/inf, else None."""
+    bad = ~np.isfinite(np.asarray(values, dtype=np.float64)).all(axis=1)
+    return where(int(np.argmax(bad))) if bad.any() else None
+
+
+def _nonfinite_obj(text: str) -> str | None:
+    for no, line in enumerate(text.splitlines(), 1):
+        parts = line.split()
+        if len(parts) >= 4 and parts[0] == "v":
+            try:
+                xyz = [float(t) for t in parts[1:4]]
+            except ValueError:
+                continue  # not a number at all: the importer's business
+            if not all(math.isfinite(c) for c in xyz):
+                return f"line {no} ({line.strip()!r})"
+    return None
+
+
+def _nonfinite_stl(data: bytes) -> str | None:
+    n = int.from_bytes(data[80:84], "little") if len(data) >= 84 else -1
+    if n >= 0 and len(data) == 84 + 50 * n:  # binary STL
+        tris = np.frombuffer(data, dtype=np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")]),
+                             count=n, offset=84)
+        return _first_nonfinite(tris["v"].reshape(-1, 3), lambda i: f"triangle {i // 3 + 1}")
+    for no, line in enumerate(data.decode("utf-8", "replace").splitlines(), 1):
+        parts = line.split()
+        if len(parts) >= 4 and parts[0] == "vertex":
+            try:
+                xyz = [float(t) for t in parts[1:4]]
+            except ValueError:
+                continue
+            if not all(math.isfinite(c) for c in xyz):
+                return f"line {no} ({line.strip()!r})"
+    return None
+
+
+def _nonfinite_ply(data: bytes) -> str | None:
+    """Checks the vertex x, y, z of PLY files whose first element is ``vertex`` with scalar properties (the
+    usual layout); other layouts are left to the check after import."""
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        return None
+    body = data.index(b"\n", end) + 1
+    header = data[:end].decode("ascii", "replace").splitlines()
+    fmt, elements = None, []
+    for line in header:
+        parts = line.split()
+        if parts[:1] == ["format"] and len(parts) >= 2:
+            fmt = parts[1]
+        elif parts[:1] == ["element"] and len(parts) >= 3:
+            elements.append((parts[1], int(parts[2]), []))
+        elif parts[:1] == ["property"] and elements and len(parts) >= 3:
+            elements[-1][2].append(parts[1:])
+    if not elements or elements[0][0] != "vertex":
+        return None
+    _, count, props = elements[0]
+    if any(p[0] == "list" or p[0] not in _PLY_TYPES for p in props):
+        return None
+    names = [p[1] for p in props]
+    if not all(c in names for c in "xyz"):
+        return None
+    cols = [names.index(c) for c in "xyz"]
+    if fmt == "ascii":
+        rows = data[body:].decode("ascii", "replace").splitlines()[:count]
+        try:
+            xyz = [[float(r.split()[c]) for c in cols] for r in rows]
+        except (ValueError, IndexError):
+            return None
+        return _first_nonfinite(np.reshape(xyz, (-1, 3)), lambda i: f"vertex {i + 1}")
+    if fmt in ("binary_little_endian", "binary_big_endian"):
+        order = "<" if fmt == "binary_little_endian" else ">"
+        dtype = np.dtype([(n, order + _PLY_TYPES[p[0]]) for n, p in zip(names, props)])
+        if len(data) - body < dtype.itemsize * count:
+            return None
+        verts = np.frombuffer(data, dtype=dtype, count=count, offset=body)
+        return _first_nonfinite(np.stack([verts[c].astype(np.float64) for c in "xyz"], 1),
+                                lambda i: f"vertex {i + 1}")
+    return None
+
+
+def nonfinite_vertex(path: str | Path) -> str | None:
+    """Where the mesh file ``path`` stores a NaN/inf vertex coordinate (``"line 3 ('v nan 1 0')"``), else None.
+
+    Blender's OBJ/PLY/STL importers replace such values silently (the mesh then renders as something else), so
+    the file is checked as written; glTF/GLB keep them and are checked after import (:func:`import_file`).
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".obj", ".stl", ".ply"):
+        return None
+    data = path.read_bytes()
+    if suffix == ".obj":
+        return _nonfinite_obj(data.decode("utf-8", "replace"))
+    if suffix == ".stl":
+        return _nonfinite_stl(data)
+    return _nonfinite_ply(data)
+
+
 def import_file(path: str | Path) -> bpy.types.Object:
     """Import OBJ/PLY/STL/glTF/GLB as ONE mesh object with transforms applied, coordinates as in the file.
 
@@ -103,6 +239,9 @@ def import_file(path: str | Path) -> bpy.types.Object:
     if not path.is_file():
         raise MeshError(f"{path}: mesh file does not exist")
     suffix = path.suffix.lower()
+    bad = nonfinite_vertex(path)
+    if bad is not None:
+        raise MeshError(f"{path}: non-finite vertex coordinate (NaN/inf) at {bad}")
     before = set(bpy.context.scene.objects)
     try:
         with bscene.quiet():
@@ -137,6 +276,10 @@ def import_file(path: str | Path) -> bpy.types.Object:
         _select_only(meshes)
         bpy.ops.object.join()
     obj = bpy.context.view_layer.objects.active if len(meshes) > 1 else meshes[0]
+    co = vertices(obj)
+    if not np.isfinite(co).all():
+        raise MeshError(f"{path}: {int((~np.isfinite(co).all(axis=1)).sum())} of {len(co)} vertices have non-finite "
+                        "coordinates (NaN/inf)")
     if suffix in (".gltf", ".glb"):
         transform_mesh(obj, np.linalg.inv(Y_UP_TO_Z_UP))
     obj.name = "frng_object"
@@ -150,7 +293,7 @@ def primitive(kind: str, rng: np.random.Generator) -> tuple[bpy.types.Object, di
     """A Blender primitive with a random anisotropic scale and orientation. Returns (object, parameters)."""
     ops = {
         "cube": lambda: bpy.ops.mesh.primitive_cube_add(calc_uvs=True),
-        "uv_sphere": lambda: bpy.ops.mesh.primitive_uv_sphere_add(segments=48, ring_count=24, calc_uvs=True),
+        "uv_sphere": lambda: _uv_sphere(segments=48, rings=24),  # not Blender's: see _uv_sphere
         "ico_sphere": lambda: bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=2, calc_uvs=True),
         "cylinder": lambda: bpy.ops.mesh.primitive_cylinder_add(vertices=48, calc_uvs=True),
         "cone": lambda: bpy.ops.mesh.primitive_cone_add(vertices=48, calc_uvs=True),
@@ -160,8 +303,8 @@ def primitive(kind: str, rng: np.random.Generator) -> tuple[bpy.types.Object, di
     }
     if kind not in ops:
         raise MeshError(f"unknown primitive {kind!r}")
-    ops[kind]()
-    obj = bpy.context.active_object
+    built = ops[kind]()
+    obj = built if isinstance(built, bpy.types.Object) else bpy.context.active_object
     scale = rng.uniform(0.6, 1.4, 3)
     euler = rng.uniform(-math.pi, math.pi, 3) if kind not in ("monkey",) else np.array([0.0, 0.0, rng.uniform(-math.pi, math.pi)])
     m = Matrix.LocRotScale(None, __import__("mathutils").Euler(euler.tolist()), scale.tolist())
@@ -317,8 +460,11 @@ def load(spec, rng: np.random.Generator, pybullet_dir: Path | None, radius: floa
         m = np.eye(4)
     else:
         raise MeshError(f"object {spec.id}: unknown source {spec.source!r}")
+    co = vertices(obj)
+    if not np.isfinite(co).all():
+        raise MeshError(f"object {spec.id} ({spec.mesh}): vertices with non-finite coordinates (NaN/inf)")
     try:
-        norm = normalisation(vertices(obj), radius)
+        norm = normalisation(co, radius)
     except MeshError as e:
         raise MeshError(f"object {spec.id} ({spec.mesh}): {e}") from e
     transform_mesh(obj, norm)

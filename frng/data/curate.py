@@ -21,14 +21,22 @@ Normals, albedo, roughness and metallic are divided by A (un-premultiplied) wher
 the surface's value, not a blend with the empty background.
 
 Everything is written into ``objects/.tmp-{obj}-*`` and renamed to ``objects/{obj}`` at the end, so a failed
-job (mesh that does not load, empty render, corrupt env map) leaves nothing that looks valid.
+job (mesh that does not load, empty render, corrupt env map) leaves nothing that looks valid. SIGINT (Ctrl-C) and
+SIGTERM (scancel, a killed job) stop the job at once, also mid-render (:class:`StopGuard`), remove the staging
+folder and exit 130 / 143; staging folders of the same object left by a SIGKILLed job are removed when its
+curation starts.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
+import re
 import shutil
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -46,6 +54,68 @@ META_VERSION = 1
 
 class CurationError(RuntimeError):
     """Curation of one object failed; the message names the object and file."""
+
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class StopGuard:
+    """SIGINT (Ctrl-C) and SIGTERM (scancel, a job killed by its scheduler) end the process at once -- also in the
+    middle of a Cycles render -- after removing the paths registered in :attr:`paths`; exit status 128 + signal.
+
+    Why not Python's ordinary handlers: ``import bpy`` installs Blender's own SIGINT handler (in background mode it
+    only cancels the image being rendered, so a curation ran on and exited 0), and re-installing Python's does not
+    help either: Cycles renders through Python (``cycles.engine.render``), so the KeyboardInterrupt is raised
+    inside Blender's callback, which prints it and carries on. Here the C-level handler only writes the signal
+    number to a pipe (``signal.set_wakeup_fd``); a thread waiting on it (Blender releases the GIL while it renders)
+    takes :attr:`lock`, removes the paths and calls ``os._exit``. The main thread holds :attr:`lock` while it
+    writes into a registered path, so the removal never races a write.
+
+    Installed by the CLI only (``run``): a library caller of :func:`curate` keeps its own handlers.
+    """
+
+    def __init__(self, name: str):
+        self.name = name
+        self.lock = threading.RLock()
+        self.paths: list[Path] = []
+
+    def install(self) -> "StopGuard":
+        r, w = os.pipe()
+        os.set_blocking(w, False)
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, lambda signum, frame: None)  # Python's C handler (replacing Blender's) + wakeup fd
+        signal.set_wakeup_fd(w, warn_on_full_buffer=False)
+        threading.Thread(target=self._watch, args=(r,), name="frng-stop-guard", daemon=True).start()
+        return self
+
+    def _watch(self, fd: int) -> None:
+        while True:
+            stops = [b for b in os.read(fd, 64) if b in STOP_SIGNALS]
+            if stops:
+                break
+        signum = stops[0]
+        self.lock.acquire()  # never released: nothing is written after this
+        for path in self.paths:
+            shutil.rmtree(path, ignore_errors=True)
+        os.write(2, f"{self.name}: stopped by {signal.Signals(signum).name}; removed the partial output\n".encode())
+        os._exit(128 + signum)
+
+
+class _NoGuard:
+    """:class:`StopGuard`'s interface without signal handling (library use of :func:`curate`)."""
+
+    def __init__(self):
+        self.lock = contextlib.nullcontext()
+        self.paths: list[Path] = []
+
+
+def stale_temp_dirs(out_root: Path, oid: str) -> list[Path]:
+    """Staging folders ``.tmp-{oid}-XXXXXXXX`` of object ``oid`` (never another object's, even one whose id
+    starts with ``oid``) that a killed curation left behind."""
+    if not out_root.is_dir():
+        return []
+    pattern = re.compile(rf"\.tmp-{re.escape(oid)}-[a-z0-9_]{{8}}")
+    return sorted(d for d in out_root.iterdir() if pattern.fullmatch(d.name) and d.is_dir())
 
 
 def gbuffer_from_passes(passes: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -83,10 +153,14 @@ def check_envmaps(spec: catalog.ObjectSpec, env_dir: Path) -> dict[str, dict]:
     return out
 
 
-def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print) -> Path:
-    """Render object ``oid`` into ``out_root/oid`` (atomically). Returns the final folder."""
+def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print, guard: StopGuard | None = None) -> Path:
+    """Render object ``oid`` into ``out_root/oid`` (atomically). Returns the final folder.
+
+    ``guard``: a :class:`StopGuard` (installed after ``import bpy``) that removes the staging folders on SIGINT /
+    SIGTERM; every write into them happens under its lock."""
     import bpy  # noqa: F401  (fail early, clearly, if bpy is missing)
 
+    guard = guard or _NoGuard()
     from frng.blender import materials, objects
     from frng.blender import scene as bscene
     from frng.blender import world
@@ -101,7 +175,16 @@ def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print) -> 
 
     out_root.mkdir(parents=True, exist_ok=True)
     final = out_root / oid
-    tmp = io.temp_dir(f".tmp-{oid}-", out_root)
+    for stale in stale_temp_dirs(out_root, oid):  # left by a SIGKILLed run of this object (only one runs at a time)
+        log(f"[{oid}] removing {stale.name}, left by an earlier run that was killed")
+        shutil.rmtree(stale, ignore_errors=True)
+    with guard.lock:
+        tmp = io.temp_dir(f".tmp-{oid}-", out_root)
+        guard.paths.append(tmp)
+        # Blender writes each render into a folder of its own: a render that finishes while the guard removes the
+        # staging folder cannot create that folder again (a stale scratch folder is removed by the next run)
+        scratch = io.temp_dir(f".tmp-{oid}-", out_root)
+        guard.paths.append(scratch)
     t_start = time.perf_counter()
     try:
         scene = bscene.new_scene(render["resolution"], render["spp"], render["threads"], spec.seed)
@@ -120,7 +203,7 @@ def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print) -> 
             f"{len(targets)} target views x {len(spec.target_lights)} lights at {render['resolution']} px, "
             f"{render['spp']} spp")
 
-        raw = tmp / "raw.exr"
+        raw = scratch / "raw.exr"
         times: dict[str, dict[str, float]] = {}
         done_gbuffer: set[str] = set()
         n_total = len(inputs) * len(spec.input_lights) + len(targets) * len(spec.target_lights)
@@ -138,17 +221,15 @@ def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print) -> 
                     if rgba[..., 3].max() <= 0.0:
                         raise CurationError(f"object {oid} ({spec.source}:{spec.mesh}): {kind}/{light}/{view.name} "
                                             "rendered empty (all alpha 0)")
-                    io.write_exr(tmp / kind / light / f"{view.name}.exr", rgba, ["R", "G", "B", "A"])
-                    if view.name not in done_gbuffer:
-                        io.write_exr(tmp / "gbuffer" / f"{view.name}.exr", gbuffer_from_passes(passes))
-                        done_gbuffer.add(view.name)
+                    with guard.lock:
+                        io.write_exr(tmp / kind / light / f"{view.name}.exr", rgba, ["R", "G", "B", "A"])
+                        if view.name not in done_gbuffer:
+                            io.write_exr(tmp / "gbuffer" / f"{view.name}.exr", gbuffer_from_passes(passes))
+                            done_gbuffer.add(view.name)
                     times.setdefault(light, {})[view.name] = round(dt, 4)
                     n_done += 1
                     log(f"[{oid}] {n_done:4d}/{n_total} {kind}/{light}/{view.name} "
                         f"render {dt:.3f} s  coverage {rgba[..., 3].mean():.3f}")
-        raw.unlink(missing_ok=True)
-        for f in tmp.glob("raw*"):
-            f.unlink()
 
         meta = {
             "version": META_VERSION,
@@ -173,13 +254,15 @@ def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print) -> 
             "render_seconds": times,
             "total_seconds": round(time.perf_counter() - t_start, 3),
         }
-        io.write_json(tmp / "meta.json", meta)
-        if final.exists():
-            shutil.rmtree(final)
-        tmp.rename(final)
+        with guard.lock:
+            io.write_json(tmp / "meta.json", meta)
+            if final.exists():
+                shutil.rmtree(final)
+            tmp.rename(final)
     finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
+        with guard.lock:
+            for path in (tmp, scratch):
+                shutil.rmtree(path, ignore_errors=True)
     return final
 
 
@@ -198,8 +281,11 @@ def run(args: argparse.Namespace) -> int:
     env_dir = Path(args.envmaps) if args.envmaps else results / "envmaps"
     out = Path(args.out) if args.out else results / "objects"
     t0 = time.perf_counter()
+    import bpy  # noqa: F401  (before the guard: the import installs Blender's SIGINT handler)
+
+    guard = StopGuard(f"frng curate {args.object}").install()
     try:
-        final = curate(config, args.object, env_dir, out, log=lambda m: print(m, flush=True))
+        final = curate(config, args.object, env_dir, out, log=lambda m: print(m, flush=True), guard=guard)
     except (CurationError, catalog.CatalogError, envmap.EnvMapError, io.ImageError) as e:
         print(f"frng curate: error: {e}", file=sys.stderr, flush=True)
         return 1

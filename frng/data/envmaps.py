@@ -13,12 +13,15 @@ Outputs (``--out``, default ``{results}/envmaps``):
     {name}.json   the map's record (as in the index)
     index.json    {"width", "height", "normalize", "maps": [record, ...]}; a record has name, base, source,
                   split, rotation_deg, licence, origin, sky, scale (applied factor), mean_luminance (after).
+
+All or nothing (see :func:`prepare`): a failed or killed run leaves no record without its map.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import shutil
 import sys
 import tempfile
 import time
@@ -66,36 +69,77 @@ def load_base(spec: catalog.EnvMapSpec, work: Path, threads: int) -> np.ndarray:
     raise ValueError(f"unknown env-map source {spec.source!r}")
 
 
-def prepare(config: dict, out: Path, log=print) -> list[dict]:
-    """Write every planned map into ``out`` (see the module docstring). Returns the index records."""
+def prepare(config: dict, out: Path, log=print, guard=None) -> list[dict]:
+    """Write every planned map into ``out`` (see the module docstring). Returns the index records.
+
+    All-or-nothing: the maps and records are written into a staging folder ``out/.tmp-envmaps-*`` and moved into
+    place only once every map succeeded, each EXR before its record, the index last -- so a failed or killed run
+    never leaves a record without its map (nor a half-written map). Records whose map is missing (left by older
+    runs, or by Snakemake deleting a failed job's maps) and staging folders of killed runs are removed first.
+    ``guard``: a :class:`frng.data.curate.StopGuard` that removes the staging folder on SIGINT/SIGTERM.
+    """
+    from frng.data.curate import _NoGuard  # (curate imports this module)
+
+    guard = guard or _NoGuard()
     env = config["envmaps"]
     specs = catalog.envmap_plan(config)
     out.mkdir(parents=True, exist_ok=True)
+    remove_stale(out, log)
     records: list[dict] = []
     bases: dict[str, np.ndarray] = {}
     threads = config["render"]["threads"]
-    with tempfile.TemporaryDirectory(prefix=".tmp-bake-", dir=out) as work:
+    with guard.lock:
+        staging = io.temp_dir(".tmp-envmaps-", out)
+        guard.paths.append(staging)
+        work = Path(tempfile.mkdtemp(prefix="frng-envmaps-bake-"))  # Blender renders skies here
+        guard.paths.append(work)
+    try:
         for spec in specs:
             t0 = time.perf_counter()
             if spec.base not in bases:
                 bases.clear()  # keep one base in memory
-                bases[spec.base] = load_base(spec, Path(work), threads)
+                bases[spec.base] = load_base(spec, work, threads)
             img = envmap.resize(envmap.rotate_z(bases[spec.base], spec.rotation_deg), env["width"])
             raw = mean_luminance(img)
-            if raw <= 0.0:
-                raise envmap.EnvMapError(f"{spec.origin}: environment map {spec.name} is black (mean luminance 0)")
+            if not np.isfinite(raw) or raw <= 0.0:
+                raise envmap.EnvMapError(f"{spec.origin}: environment map {spec.name} is black or not finite "
+                                         f"(mean luminance {raw})")
             scale = 1.0 if env["normalize"] is None else float(env["normalize"]) / raw
             img = img * np.float32(scale)
             rec = spec.to_dict() | {"scale": scale, "mean_luminance": mean_luminance(img),
                                     "file": f"{spec.name}.exr"}
-            envmap.write(out / f"{spec.name}.exr", img)
-            io.write_json(out / f"{spec.name}.json", rec)
+            with guard.lock:
+                envmap.write(staging / f"{spec.name}.exr", img)
+                io.write_json(staging / f"{spec.name}.json", rec)
             records.append(rec)
             log(f"[envmaps] {spec.name:<32} {spec.split:<5} rot {spec.rotation_deg:7.2f} deg  "
                 f"scale {scale:9.4f}  {time.perf_counter() - t0:.2f} s")
-    io.write_json(out / "index.json", {"width": env["width"], "height": env["width"] // 2,
-                                       "normalize": env["normalize"], "maps": records})
+        with guard.lock:
+            io.write_json(staging / "index.json", {"width": env["width"], "height": env["width"] // 2,
+                                                   "normalize": env["normalize"], "maps": records})
+            for rec in records:  # the map first: a record never exists without it
+                name = rec["name"]
+                (staging / f"{name}.exr").replace(out / f"{name}.exr")
+                (staging / f"{name}.json").replace(out / f"{name}.json")
+            (staging / "index.json").replace(out / "index.json")
+    finally:
+        with guard.lock:
+            for path in (staging, work):
+                shutil.rmtree(path, ignore_errors=True)
     return records
+
+
+def remove_stale(out: Path, log=print) -> None:
+    """Remove what an earlier failed or killed run left in ``out``: staging folders and temporary files
+    (``.tmp-*``; only one env-map job writes a results folder at a time) and records ``{name}.json`` whose map
+    ``{name}.exr`` is missing."""
+    for p in sorted(out.glob(".tmp-*")):
+        log(f"[envmaps] removing {p.name}, left by an earlier run that failed or was killed")
+        shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
+    for rec in sorted(out.glob("*.json")):
+        if rec.name != "index.json" and not rec.with_suffix(".exr").exists():
+            log(f"[envmaps] removing {rec.name}: its map {rec.with_suffix('.exr').name} is missing")
+            rec.unlink(missing_ok=True)
 
 
 def read_index(path: str | Path) -> dict:
@@ -120,9 +164,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     config = frng_config.load(args.config)
     out = Path(args.out) if args.out else Path(config["results"]) / "envmaps"
+    from frng.data.curate import StopGuard
+
+    try:
+        import bpy  # noqa: F401  (before the guard: the import installs Blender's SIGINT handler)
+    except ImportError:
+        pass  # users' maps need no Blender; load_base says so otherwise
+    guard = StopGuard("frng envmaps").install()
     t0 = time.perf_counter()
     try:
-        records = prepare(config, out, log=lambda m: print(m, flush=True))
+        records = prepare(config, out, log=lambda m: print(m, flush=True), guard=guard)
     except (envmap.EnvMapError, catalog.CatalogError, io.ImageError) as e:
         print(f"frng envmaps: error: {e}", file=sys.stderr)
         return 1
