@@ -51,7 +51,7 @@ from frng.model.frng import FRNG, FRNGConfig, all_variants, canonical_variant, t
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
 
 CACHE_KEYS = ("t_geo", "raw_prior", "means", "quats", "scales", "opacities", "keep", "c2w", "intr")  # + light{j}.t_app
-LOSS_NAMES = ["total", "l2", "perceptual", "ind", "ind_cos", "ind_kld"]
+LOSS_NAMES = ["total", "l2", "alpha", "perceptual", "ind", "ind_cos", "ind_kld"]
 
 
 @dataclass
@@ -74,8 +74,8 @@ class TrainConfig:
     l2_pixels: str = "target"
     bf16: bool = True
     checkpoint_every: int = 25
-    loss: dict = field(default_factory=lambda: {"lambda_1": 1.0, "lambda_per": 0.5, "lambda_c": 0.2,
-                                                "lambda_kld": 0.2, "temperature": 1.0})
+    loss: dict = field(default_factory=lambda: {"lambda_1": 1.0, "lambda_alpha": 0.0, "lambda_per": 0.5,
+                                                "lambda_c": 0.2, "lambda_kld": 0.2, "temperature": 1.0})
 
     @classmethod
     def from_config(cls, config: dict) -> "TrainConfig":
@@ -174,6 +174,16 @@ def l2_loss(out: torch.Tensor, tgt: torch.Tensor, background, space: str = "disp
     return diff.sum() / (3 * fg.sum()).clamp_min(1.0), rgb_out, rgb_tgt
 
 
+def alpha_loss(out: torch.Tensor, tgt: torch.Tensor) -> torch.Tensor:
+    """L_alpha: mean squared error of the render's alpha against the target's over EVERY pixel (out, tgt: (B, H, W, 4)).
+
+    Not in the paper. L_2 only looks at the target's foreground, so nothing there stops fine Gaussians from
+    drifting outside the silhouette (a faint halo around the object); this term does, through their opacity and
+    position, the only geometry F-RNG trains."""
+    assert out.shape == tgt.shape and out.shape[-1] == 4, (out.shape, tgt.shape)
+    return ((out[..., 3] - tgt[..., 3]) ** 2).mean()
+
+
 class StepLoss(nn.Module):
     """One training step's loss over a list of objects; a module so DDP can wrap it (its forward is the step)."""
 
@@ -183,7 +193,7 @@ class StepLoss(nn.Module):
         self.model, self.ind, self.tcfg, self.bf16 = model, ind, tcfg, bf16
         self.perceptual = perceptual  # frozen (no parameters require grad)
         w = tcfg.loss
-        self.lambda_1, self.lambda_per = w["lambda_1"], w["lambda_per"]
+        self.lambda_1, self.lambda_per, self.lambda_alpha = w["lambda_1"], w["lambda_per"], w["lambda_alpha"]
         self.step = 0  # set by the training loop (L_per starts at ``tcfg.perceptual_after``)
 
     @property
@@ -211,6 +221,10 @@ class StepLoss(nn.Module):
             l2, rgb_out, rgb_tgt = l2_loss(out, tgt, self.tcfg.background, self.tcfg.l2_space, self.tcfg.l2_pixels)
             loss = self.lambda_1 * l2
             logs["l2"] += float(l2.detach())
+            if self.lambda_alpha > 0:
+                a = alpha_loss(out, tgt)
+                loss = loss + self.lambda_alpha * a
+                logs["alpha"] += float(a.detach())
             if self.perceptual is not None and self.lambda_per > 0 and self.step >= self.tcfg.perceptual_after:
                 per = self.perceptual(rgb_out.permute(0, 3, 1, 2), rgb_tgt.permute(0, 3, 1, 2))
                 loss = loss + self.lambda_per * per
