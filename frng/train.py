@@ -175,13 +175,17 @@ def l2_loss(out: torch.Tensor, tgt: torch.Tensor, background, space: str = "disp
 
 
 def alpha_loss(out: torch.Tensor, tgt: torch.Tensor) -> torch.Tensor:
-    """L_alpha: mean squared error of the render's alpha against the target's over EVERY pixel (out, tgt: (B, H, W, 4)).
+    """L_alpha: squared error of the render's alpha against the target's, summed over EVERY pixel (faint stray
+    splats outside the silhouette included) and divided by the number of pixels either image covers (alpha > 0.5),
+    so that small and large objects weigh alike. out, tgt: (B, H, W, 4) -> scalar.
 
     Not in the paper. L_2 only looks at the target's foreground, so nothing there stops fine Gaussians from
     drifting outside the silhouette (a faint halo around the object); this term does, through their opacity and
     position, the only geometry F-RNG trains."""
     assert out.shape == tgt.shape and out.shape[-1] == 4, (out.shape, tgt.shape)
-    return ((out[..., 3] - tgt[..., 3]) ** 2).mean()
+    a_o, a_t = out[..., 3], tgt[..., 3].to(out.dtype)
+    covered = ((a_t > 0.5) | (a_o.detach() > 0.5)).sum().clamp_min(1)
+    return ((a_o - a_t) ** 2).sum() / covered
 
 
 class StepLoss(nn.Module):

@@ -214,3 +214,17 @@ def test_l2_pixels_target_ignores_over_coverage():
     assert float(l2_loss(out, tgt, (1.0, 1.0, 1.0), pixels="union")[0]) > 0.05
     with pytest.raises(ValueError, match="l2_pixels"):
         l2_loss(out, tgt, (1.0, 1.0, 1.0), pixels="all")
+
+
+def test_alpha_loss_counts_faint_stray_coverage():
+    """train.loss.lambda_alpha's term: zero for the target's own alpha, and it sees faint coverage outside the
+    silhouette (alpha < 0.5 everywhere there) that the target-foreground L_2 ignores."""
+    from frng.train import alpha_loss, l2_loss
+
+    tgt = torch.zeros(1, 4, 4, 4)
+    tgt[:, :2, :, :3], tgt[:, :2, :, 3] = 0.3, 1.0
+    halo = tgt.clone()
+    halo[:, 2:, :, 3] = 0.1
+    assert float(alpha_loss(tgt, tgt)) == 0.0
+    assert float(alpha_loss(halo, tgt)) == pytest.approx(0.01)
+    assert float(l2_loss(halo, tgt, (1.0, 1.0, 1.0), pixels="target")[0]) == 0.0
