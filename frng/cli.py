@@ -19,9 +19,9 @@ import sys
 # name -> (module, one-line help). Order is the pipeline order.
 STAGES: dict[str, tuple[str, str]] = {
     "config": ("frng.config", "validate a config file and print it with defaults filled in"),
-    "envmaps": ("frng.data.envmaps", "collect, bake and rotate the environment maps (train/test split)"),
-    "curate": ("frng.data.curate", "render one object's views x lights + G-buffers with Blender Cycles"),
-    "dataset": ("frng.data.preview", "inspect the curated dataset (contact sheets)"),
+    "envmaps": ("frng.stages.envmaps", "collect, bake and rotate the environment maps (train/test split)"),
+    "curate": ("frng.stages.curate", "render one object's views x lights + G-buffers with Blender Cycles"),
+    "dataset": ("frng.stages.dataset_preview", "inspect the curated dataset (contact sheets)"),
     "bench": ("frng.bench", "benchmarks: rasterizer, shading, relighting"),
     "backbone-train": ("frng.priors.backbone_train", "train the RelitLRM-style backbone (training split), then freeze"),
     "idm-train": ("frng.priors.idm_train", "train the learned IDM on the training split's G-buffers"),
