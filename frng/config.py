@@ -323,7 +323,7 @@ RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     # rules/train.smk: indexes of the training split's files
     "training_set_caches": PLAN_KEYS,
     "training_set_priors": PLAN_KEYS,
-    # frng/train.py + variant_config: train.*, the architecture (frng.* but the variant lists), decoder and
+    # frng/model/train.py + variant_config: train.*, the architecture (frng.* but the variant lists), decoder and
     # training shading (not the inference-only spp_infer / bf16_infer: relight takes those from the config),
     # rasterizer, idm.kind (which priors file), the training split, the models' seed, device
     "train": (*PLAN_KEYS, "train_seed", "device", "train", "frng", "!frng.variants", "!frng.k_sweep",
