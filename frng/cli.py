@@ -29,8 +29,8 @@ STAGES: dict[str, tuple[str, str]] = {
     "idm-priors": ("frng.stages.idm_priors", "write one object's IDM priors for its input views"),
     "eval-backbone": ("frng.stages.eval_backbone", "backbone NVS/relighting and IDM accuracy vs trivial baselines"),
     "train": ("frng.stages.train", "train one F-RNG variant from the cached priors (training split)"),
-    "relight": ("frng.relight", "relight one test object with every F-RNG run and the backbone; timings"),
-    "evaluate": ("frng.evaluate", "per-image PSNR/SSIM/LPIPS of every relit image (configured protocol)"),
+    "relight": ("frng.stages.relight", "relight one test object with every F-RNG run and the backbone; timings"),
+    "evaluate": ("frng.stages.evaluate", "per-image PSNR/SSIM/LPIPS of every relit image (configured protocol)"),
     "tables": ("frng.paper_tables", "the paper's tables (vs backbone, ablation, #views, K, timing)"),
     "figures": ("frng.paper_figures", "comparison grids, ablation grid, saliency maps, loss curves"),
 }

@@ -334,7 +334,7 @@ RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     # build_idm, shading.spp_infer + inference shading, seeds, device
     "relight": (*PLAN_KEYS, "device", "render.resolution", "render.extra_input_views", "idm", "!idm.train",
                 "backbone.near", "backbone.far", "shading", "frng"),
-    # frng/evaluate.py: eval.protocol/background and the planned runs
+    # frng/stages/evaluate.py: eval.protocol/background and the planned runs
     "evaluate": ("eval", "frng", "idm.kind", "render.extra_input_views"),
     # frng/paper_tables.py: tier and eval.background in the captions
     "tables": ("tier", "eval"),
