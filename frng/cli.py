@@ -31,8 +31,8 @@ STAGES: dict[str, tuple[str, str]] = {
     "train": ("frng.stages.train", "train one F-RNG variant from the cached priors (training split)"),
     "relight": ("frng.stages.relight", "relight one test object with every F-RNG run and the backbone; timings"),
     "evaluate": ("frng.stages.evaluate", "per-image PSNR/SSIM/LPIPS of every relit image (configured protocol)"),
-    "tables": ("frng.paper_tables", "the paper's tables (vs backbone, ablation, #views, K, timing)"),
-    "figures": ("frng.paper_figures", "comparison grids, ablation grid, saliency maps, loss curves"),
+    "tables": ("frng.stages.tables", "the paper's tables (vs backbone, ablation, #views, K, timing)"),
+    "figures": ("frng.stages.figures", "comparison grids, ablation grid, saliency maps, loss curves"),
 }
 
 

@@ -336,9 +336,9 @@ RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
                 "backbone.near", "backbone.far", "shading", "frng"),
     # frng/stages/evaluate.py: eval.protocol/background and the planned runs
     "evaluate": ("eval", "frng", "idm.kind", "render.extra_input_views"),
-    # frng/paper_tables.py: tier and eval.background in the captions
+    # frng/report/paper_tables.py: tier and eval.background in the captions
     "tables": ("tier", "eval"),
-    # frng/paper_figures.py: patch size (saliency), the ablation variants
+    # frng/report/paper_figures.py: patch size (saliency), the ablation variants
     "figures": ("model.patch_size", "frng.variants"),
 }
 """Rule name -> the config keys its stage reads (see the comment above)."""
