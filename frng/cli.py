@@ -1,12 +1,14 @@
 """The ``frng`` command line: one subcommand per pipeline stage.
 
-Each stage lives in its own module, which provides two functions::
+Each stage lives in its own module, ``frng/stages/<rule>.py`` named after the Snakemake rule that runs it
+(:mod:`frng.stages`; ``frng config`` is :mod:`frng.config` itself), which provides two functions::
 
     def configure(parser: argparse.ArgumentParser) -> None   # add arguments (or sub-subcommands)
     def run(args: argparse.Namespace) -> int | None           # do the work
 
 Modules are imported lazily so that ``frng --help`` stays fast (no torch/bpy import).
-Snakemake rules call these subcommands; users can call them directly too.
+Snakemake rules call these subcommands; users can call them directly too (``tests/test_stages.py`` checks the
+rule -> subcommand -> stage module map).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ STAGES: dict[str, tuple[str, str]] = {
     "envmaps": ("frng.stages.envmaps", "collect, bake and rotate the environment maps (train/test split)"),
     "curate": ("frng.stages.curate", "render one object's views x lights + G-buffers with Blender Cycles"),
     "dataset": ("frng.stages.dataset_preview", "inspect the curated dataset (contact sheets)"),
-    "bench": ("frng.bench", "benchmarks: rasterizer, shading, relighting"),
+    "bench": ("frng.stages.bench", "benchmarks: rasterizer, shading, relighting"),
     "backbone-train": ("frng.stages.backbone_train", "train the RelitLRM-style backbone (training split), then freeze"),
     "idm-train": ("frng.stages.idm_train", "train the learned IDM on the training split's G-buffers"),
     "backbone-cache": ("frng.stages.backbone_cache", "cache one object's backbone tokens + Gaussians"),
