@@ -1,12 +1,14 @@
 """The ``frng`` command line: one subcommand per pipeline stage.
 
-Each stage lives in its own module, which provides two functions::
+Each stage lives in its own module, ``frng/stages/<rule>.py`` named after the Snakemake rule that runs it
+(:mod:`frng.stages`; ``frng config`` is :mod:`frng.config` itself), which provides two functions::
 
     def configure(parser: argparse.ArgumentParser) -> None   # add arguments (or sub-subcommands)
     def run(args: argparse.Namespace) -> int | None           # do the work
 
 Modules are imported lazily so that ``frng --help`` stays fast (no torch/bpy import).
-Snakemake rules call these subcommands; users can call them directly too.
+Snakemake rules call these subcommands; users can call them directly too (``tests/test_stages.py`` checks the
+rule -> subcommand -> stage module map).
 """
 
 from __future__ import annotations
@@ -19,20 +21,20 @@ import sys
 # name -> (module, one-line help). Order is the pipeline order.
 STAGES: dict[str, tuple[str, str]] = {
     "config": ("frng.config", "validate a config file and print it with defaults filled in"),
-    "envmaps": ("frng.data.envmaps", "collect, bake and rotate the environment maps (train/test split)"),
-    "curate": ("frng.data.curate", "render one object's views x lights + G-buffers with Blender Cycles"),
-    "dataset": ("frng.data.preview", "inspect the curated dataset (contact sheets)"),
-    "bench": ("frng.bench", "benchmarks: rasterizer, shading, relighting"),
-    "backbone-train": ("frng.priors.backbone_train", "train the RelitLRM-style backbone (training split), then freeze"),
-    "idm-train": ("frng.priors.idm_train", "train the learned IDM on the training split's G-buffers"),
-    "backbone-cache": ("frng.priors.backbone_cache", "cache one object's backbone tokens + Gaussians"),
-    "idm-priors": ("frng.priors.idm_priors", "write one object's IDM priors for its input views"),
-    "eval-backbone": ("frng.priors.evaluate", "backbone NVS/relighting and IDM accuracy vs trivial baselines"),
-    "train": ("frng.train", "train one F-RNG variant from the cached priors (training split)"),
-    "relight": ("frng.relight", "relight one test object with every F-RNG run and the backbone; timings"),
-    "evaluate": ("frng.evaluate", "per-image PSNR/SSIM/LPIPS of every relit image (configured protocol)"),
-    "tables": ("frng.paper_tables", "the paper's tables (vs backbone, ablation, #views, K, timing)"),
-    "figures": ("frng.paper_figures", "comparison grids, ablation grid, saliency maps, loss curves"),
+    "envmaps": ("frng.stages.envmaps", "collect, bake and rotate the environment maps (train/test split)"),
+    "curate": ("frng.stages.curate", "render one object's views x lights + G-buffers with Blender Cycles"),
+    "dataset": ("frng.stages.dataset_preview", "inspect the curated dataset (contact sheets)"),
+    "bench": ("frng.stages.bench", "benchmarks: rasterizer, shading, relighting"),
+    "backbone-train": ("frng.stages.backbone_train", "train the RelitLRM-style backbone (training split), then freeze"),
+    "idm-train": ("frng.stages.idm_train", "train the learned IDM on the training split's G-buffers"),
+    "backbone-cache": ("frng.stages.backbone_cache", "cache one object's backbone tokens + Gaussians"),
+    "idm-priors": ("frng.stages.idm_priors", "write one object's IDM priors for its input views"),
+    "eval-backbone": ("frng.stages.eval_backbone", "backbone NVS/relighting and IDM accuracy vs trivial baselines"),
+    "train": ("frng.stages.train", "train one F-RNG variant from the cached priors (training split)"),
+    "relight": ("frng.stages.relight", "relight one test object with every F-RNG run and the backbone; timings"),
+    "evaluate": ("frng.stages.evaluate", "per-image PSNR/SSIM/LPIPS of every relit image (configured protocol)"),
+    "tables": ("frng.stages.tables", "the paper's tables (vs backbone, ablation, #views, K, timing)"),
+    "figures": ("frng.stages.figures", "comparison grids, ablation grid, saliency maps, loss curves"),
 }
 
 

@@ -323,7 +323,7 @@ RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     # rules/train.smk: indexes of the training split's files
     "training_set_caches": PLAN_KEYS,
     "training_set_priors": PLAN_KEYS,
-    # frng/train.py + variant_config: train.*, the architecture (frng.* but the variant lists), decoder and
+    # frng/model/train.py + variant_config: train.*, the architecture (frng.* but the variant lists), decoder and
     # training shading (not the inference-only spp_infer / bf16_infer: relight takes those from the config),
     # rasterizer, idm.kind (which priors file), the training split, the models' seed, device
     "train": (*PLAN_KEYS, "train_seed", "device", "train", "frng", "!frng.variants", "!frng.k_sweep",
@@ -334,11 +334,11 @@ RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     # build_idm, shading.spp_infer + inference shading, seeds, device
     "relight": (*PLAN_KEYS, "device", "render.resolution", "render.extra_input_views", "idm", "!idm.train",
                 "backbone.near", "backbone.far", "shading", "frng"),
-    # frng/evaluate.py: eval.protocol/background and the planned runs
+    # frng/stages/evaluate.py: eval.protocol/background and the planned runs
     "evaluate": ("eval", "frng", "idm.kind", "render.extra_input_views"),
-    # frng/paper_tables.py: tier and eval.background in the captions
+    # frng/report/paper_tables.py: tier and eval.background in the captions
     "tables": ("tier", "eval"),
-    # frng/paper_figures.py: patch size (saliency), the ablation variants
+    # frng/report/paper_figures.py: patch size (saliency), the ablation variants
     "figures": ("model.patch_size", "frng.variants"),
 }
 """Rule name -> the config keys its stage reads (see the comment above)."""

@@ -1,4 +1,5 @@
-"""Stage ``frng relight --object OBJ``: relight one held-out object with every F-RNG run and with the backbone.
+"""Relight one held-out object with every F-RNG run and with the backbone (stage :mod:`frng.stages.relight`,
+``frng relight --object OBJ``).
 
 What one job does (one test object, all runs, so the paper-scale DAG stays at one job per test object):
 
@@ -40,8 +41,6 @@ no light sampling: SH radiance).
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import shutil
 import tempfile
@@ -52,7 +51,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from frng import config as frng_config
 from frng import envmap, io
 from frng.layout import Layout
 from frng.variants import BACKBONE, RIG_VIEWS, Run, model_variants, runs  # noqa: F401
@@ -332,27 +330,3 @@ def relight(config: dict, oid: str, models_dir: Path | None = None, device: str 
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return timing
-
-
-# -- CLI ------------------------------------------------------------------------------------------------
-
-def configure(parser: argparse.ArgumentParser) -> None:
-    frng_config.add_config_argument(parser)
-    parser.add_argument("--object", required=True, help="test object id")
-    parser.add_argument("--models", help="folder of trained variants (default {results}/models)")
-    parser.add_argument("--device", help="override the config's device")
-
-
-def run(args: argparse.Namespace) -> int:
-    config = frng_config.load(args.config)
-    try:
-        timing = relight(config, args.object, args.models, args.device)
-    except RelightError as e:
-        print(f"frng relight: error: {e}")
-        return 2
-    f, b = timing["F-RNG"], timing[BACKBONE]
-    print(f"relight {args.object}: F-RNG {f['relight_ms_per_image']:.1f} ms/image, backbone "
-          f"{b['relight_ms_per_image']:.1f} ms/image ({timing['speedup']:.1f}x) at {timing['resolution']} px, "
-          f"F-RNG reconstruction {f['reconstruction_s']:.2f} s")
-    print(json.dumps(timing, indent=1))
-    return 0

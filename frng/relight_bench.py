@@ -122,7 +122,7 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
     from frng.priors import freeze
     from frng.priors import backbone as backbone_mod
     from frng.priors import idm as idm_mod
-    from frng.priors.data import Views
+    from frng.priors.dataset import Views
     from frng.render.shading import ShadingConfig
 
     config = frng_config.load(path)

@@ -472,16 +472,7 @@ def fit(step_fn: Callable[[int], dict[str, float]], tcfg, *, model: torch.nn.Mod
     return path
 
 
-# -- the priors' training stages (``frng backbone-train``, ``frng idm-train``) ---------------------------------------
-
-def configure_priors_stage(parser, folder: str, steps_key: str) -> None:
-    """Arguments of a priors training stage: ``--config``, ``--out`` (default ``{results}/<folder>``), ``--steps``."""
-    from frng import config as frng_config
-
-    frng_config.add_config_argument(parser)
-    parser.add_argument("--out", help=f"output folder (default {{results}}/{folder})")
-    parser.add_argument("--steps", type=int, help=f"override {steps_key}")
-
+# -- the priors' trainers (:mod:`frng.priors.backbone_train`, :mod:`frng.priors.idm_train`) -----------------------
 
 def check_training_split(objects: list, stage: str) -> None:
     """A priors trainer sees training objects only, and at least one."""
@@ -489,18 +480,3 @@ def check_training_split(objects: list, stage: str) -> None:
         raise ValueError(f"{stage} must only see training objects")
     if not objects:
         raise ValueError(f"{stage}: no training objects")
-
-
-def run_priors_stage(args, stage: str, folder: str, train: Callable, **load_kw) -> int:
-    """Load the config and the training split (:func:`frng.priors.dataset.load_split` with ``load_kw``), train
-    with ``train(config, objects, out, steps=...)`` and say where the model went."""
-    from frng import config as frng_config
-    from frng.priors.dataset import load_split
-
-    config = frng_config.load(args.config)
-    out = Path(args.out or Path(config["results"], folder))
-    t0 = time.time()
-    objects = load_split(config, "train", **load_kw)
-    print(f"{stage}: {len(objects)} training objects loaded in {time.time() - t0:.1f}s")
-    print(f"{stage}: wrote {train(config, objects, out, steps=args.steps)}")
-    return 0

@@ -1,8 +1,9 @@
-# Evaluation (frng/evaluate.py), the paper's tables (frng/paper_tables.py) and figures (frng/paper_figures.py).
+# Evaluation (frng/stages/evaluate.py), the paper's tables and figures (stages frng/stages/{tables,figures}.py, drawn
+# by frng/report/).
 # Tables and figures are wrapped in report(...) for `snakemake --report` (captions in workflow/report/).
-from frng.tables import TABLE_COLUMNS
+from frng.report.tables import TABLE_COLUMNS
 
-TABLE_NAMES = list(TABLE_COLUMNS)  # the paper's five tables (frng/tables.py)
+TABLE_NAMES = list(TABLE_COLUMNS)  # the paper's five tables (frng/report/tables.py)
 _TABLE_CAPTIONS = {"vs_backbone": "F-RNG vs backbone", "ablation": "ablation", "views": "number of input views",
                    "k": "top-K patches", "timing": "timing", "ladder": "quality ladder"}
 

@@ -1,10 +1,10 @@
-"""Figure helpers (frng.figures): exact grid layout, labels drawn, saliency rectangles, loss curves from CSV."""
+"""Figure helpers (frng.report.figures): exact grid layout, labels drawn, saliency rectangles, loss curves from CSV."""
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from frng import figures as F
+from frng.report import figures as F
 from frng.io import read_png, tonemap
 
 

@@ -11,7 +11,7 @@ import torch
 
 from frng import camera
 from frng.priors import idm_train
-from frng.priors.data import PriorObject, Views
+from frng.priors.dataset import PriorObject, Views
 from frng.priors.idm import IDMConfig, LearnedIDM, idm_loss
 from frng.priors.intrinsics import IntrinsicPriors
 from frng.priors.multiview import geometry_cues

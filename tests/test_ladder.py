@@ -1,4 +1,4 @@
-"""The quality ladder table (frng.paper_tables.ladder_table) and the colour-repair statistic it reports."""
+"""The quality ladder table (frng.report.paper_tables.ladder_table) and the colour-repair statistic it reports."""
 
 import math
 
@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 
 from frng import metrics as M
-from frng.paper_tables import LADDER_STEPS, ladder_table
+from frng.report.paper_tables import LADDER_STEPS, ladder_table
 
 
 def _rows(n, psnr, scale, **kw):
@@ -48,7 +48,7 @@ def test_ladder_skips_rows_it_has_no_data_for():
 
 
 def test_oracle_run_stays_out_of_the_paper_tables():
-    from frng.paper_tables import ablation_rows, k_rows, views_rows
+    from frng.report.paper_tables import ablation_rows, k_rows, views_rows
 
     rows = []
     for run, variant, psnr in (("full", "full", 18.0), ("full-oracle", "full", 30.0), ("no-fine", "no-fine", 17.0)):

@@ -216,7 +216,7 @@ def test_smoke_workflow_on_slurm(cluster, tmp_path):
     # the paper's tables came out of the cluster run with their columns and at least one row each
     import pandas as pd
 
-    from frng.tables import TABLE_COLUMNS
+    from frng.report.tables import TABLE_COLUMNS
 
     for name, cols in TABLE_COLUMNS.items():
         table = pd.read_csv(results / "tables" / f"{name}.csv")

@@ -37,7 +37,7 @@ def smoke_run(tmp_path_factory):
 
 def test_every_target_and_table(smoke_run):
     from frng.data import catalog
-    from frng.tables import TABLE_COLUMNS
+    from frng.report.tables import TABLE_COLUMNS
     from frng.variants import BASE_VARIANTS, runs
 
     results, config = smoke_run

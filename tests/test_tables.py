@@ -1,9 +1,9 @@
-"""frng.tables: best-value marking direction, Markdown shape, LaTeX booktabs structure, per-table helpers."""
+"""frng.report.tables: best-value marking direction, Markdown shape, LaTeX booktabs structure, per-table helpers."""
 
 import pandas as pd
 import pytest
 
-from frng import tables as T
+from frng.report import tables as T
 
 
 def _ablation():

@@ -1,4 +1,4 @@
-"""F-RNG training on the smoke tier (frng/train.py): frozen backbone gets no gradient, no-idm never reads priors,
+"""F-RNG training on the smoke tier (frng/model/train.py): frozen backbone gets no gradient, no-idm never reads priors,
 a short run lowers the relighting loss, kill + rerun resumes. Priors: a tiny backbone trained here + oracle IDM
 priors (G-buffers), on the session's shared smoke dataset (tests/conftest.py)."""
 
@@ -35,7 +35,7 @@ def frng_smoke(smoke_dataset, tmp_path_factory):
 
 def _objects(config, use_priors=True):
     from frng.data import catalog
-    from frng.train import load_objects
+    from frng.model.train import load_objects
 
     res = Path(config["results"])
     return load_objects(config, catalog.plan(config).split("train"), res / "backbone" / "model.pt", use_priors, 6)
@@ -44,7 +44,7 @@ def _objects(config, use_priors=True):
 def _fixed_loss(model, objects, config) -> float:
     """Mean L_2 (the training loss's term, over the training background) over every object's first two target
     views of each target light, fixed light-sample seeds, no gradient."""
-    from frng.train import TrainConfig, l2_loss
+    from frng.model.train import TrainConfig, l2_loss
 
     bg = TrainConfig.from_config(config).background
     vals = []
@@ -61,7 +61,7 @@ def _fixed_loss(model, objects, config) -> float:
 def test_frozen_backbone_gets_no_gradient(frng_smoke):
     from frng.model.light_independence import LightIndependenceConfig
     from frng.priors import load_backbone
-    from frng.train import StepLoss, TrainConfig, build_model
+    from frng.model.train import StepLoss, TrainConfig, build_model
 
     _, config = frng_smoke
     res = Path(config["results"])
@@ -91,7 +91,7 @@ def test_frozen_backbone_gets_no_gradient(frng_smoke):
 
 def test_no_idm_never_reads_priors(frng_smoke, tmp_path, monkeypatch):
     import frng.priors.cache as cache_mod
-    from frng import train as train_mod
+    from frng.model import train as train_mod
 
     _, config = frng_smoke
     res = Path(config["results"])
@@ -122,7 +122,7 @@ STEPS = 80  # the smoke tier's 20 steps only start the descent
 def test_training_overfits_one_object(frng_smoke, tmp_path):
     """F-RNG fits one object: its fixed-sample relighting L_2 falls well below where the untrained model (already a
     Lambertian relighting of its input views) starts."""
-    from frng import train as train_mod
+    from frng.model import train as train_mod
     from frng.model.frng import FRNG
 
     _, config = frng_smoke
@@ -146,7 +146,7 @@ def test_training_overfits_one_object(frng_smoke, tmp_path):
 def test_no_neural_ablation_starts_at_the_same_lambertian_relighting(frng_smoke):
     """The no-neural (GGX) variant's pixel head starts where the full model's does -- a rough dielectric of albedo
     pi c / E(n) with the pixel's normal -- so the ablation compares appearance models, not initialisations."""
-    from frng import train as train_mod
+    from frng.model import train as train_mod
 
     _, config = frng_smoke
     config = {**config, "train": {**config["train"], "l2_pixels": "union"}}  # every pixel either image covers
@@ -189,7 +189,7 @@ def test_train_killed_then_resumed(frng_smoke, tmp_path):
 
 
 def test_l2_loss_composites_over_the_training_background():
-    from frng.train import l2_loss
+    from frng.model.train import l2_loss
 
     tgt = torch.zeros(1, 4, 4, 4)
     tgt[..., :3], tgt[..., 3] = 0.2, 1.0
@@ -204,7 +204,7 @@ def test_l2_loss_composites_over_the_training_background():
 def test_l2_pixels_target_ignores_over_coverage():
     """train.l2_pixels: target averages over the target's foreground only (the metric's mask): a render that also
     covers background pixels is not pulled towards the white background there; union counts those pixels."""
-    from frng.train import l2_loss
+    from frng.model.train import l2_loss
 
     tgt = torch.zeros(1, 4, 4, 4)
     tgt[:, :2, :, :3], tgt[:, :2, :, 3] = 0.3, 1.0  # top half opaque
@@ -219,7 +219,7 @@ def test_l2_pixels_target_ignores_over_coverage():
 def test_alpha_loss_counts_faint_stray_coverage():
     """train.loss.lambda_alpha's term: zero for the target's own alpha, and it sees faint coverage outside the
     silhouette (alpha < 0.5 everywhere there) that the target-foreground L_2 ignores."""
-    from frng.train import alpha_loss, l2_loss
+    from frng.model.train import alpha_loss, l2_loss
 
     tgt = torch.zeros(1, 4, 4, 4)
     tgt[:, :2, :, :3], tgt[:, :2, :, 3] = 0.3, 1.0

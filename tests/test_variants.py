@@ -38,7 +38,7 @@ def test_variant_config_applies_the_table():
 
 
 def test_labels_and_priors_come_from_the_table():
-    from frng.paper_tables import VARIANT_LABELS
+    from frng.report.paper_tables import VARIANT_LABELS
 
     assert VARIANT_LABELS == {n: v.label for n, v in V.VARIANTS.items()}
     assert [n for n in V.BASE_VARIANTS if not V.reads_priors(n)] == ["no-idm"]

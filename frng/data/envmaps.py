@@ -1,4 +1,4 @@
-"""Stage ``frng envmaps``: prepare every environment map of the dataset plan.
+"""Every environment map of the dataset plan (stage :mod:`frng.stages.envmaps`, ``frng envmaps``).
 
 For each base map of :func:`frng.data.catalog.envmap_plan` -- one of Blender's 8 bundled CC0 HDRIs, a
 Preetham / Hosek-Wilkie sky baked with Cycles (lower hemisphere darkened to a 0.3-albedo ground), or a
@@ -19,17 +19,14 @@ All or nothing (see :func:`prepare`): a failed or killed run leaves no record wi
 
 from __future__ import annotations
 
-import argparse
 import math
 import shutil
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from frng import config as frng_config
 from frng import envmap, io
 from frng.data import catalog
 
@@ -152,32 +149,3 @@ def read_index(path: str | Path) -> dict:
     if "maps" not in index:
         raise envmap.EnvMapError(f"{path}: env-map index has no 'maps' key")
     return index
-
-
-# -- CLI ------------------------------------------------------------------------------------------------
-
-def configure(parser: argparse.ArgumentParser) -> None:
-    frng_config.add_config_argument(parser)
-    parser.add_argument("--out", help="output folder (default: {results}/envmaps)")
-
-
-def run(args: argparse.Namespace) -> int:
-    config = frng_config.load(args.config)
-    out = Path(args.out) if args.out else Path(config["results"]) / "envmaps"
-    from frng.data.curate import StopGuard
-
-    try:
-        import bpy  # noqa: F401  (before the guard: the import installs Blender's SIGINT handler)
-    except ImportError:
-        pass  # users' maps need no Blender; load_base says so otherwise
-    guard = StopGuard("frng envmaps").install()
-    t0 = time.perf_counter()
-    try:
-        records = prepare(config, out, log=lambda m: print(m, flush=True), guard=guard)
-    except (envmap.EnvMapError, catalog.CatalogError, io.ImageError) as e:
-        print(f"frng envmaps: error: {e}", file=sys.stderr)
-        return 1
-    n_test = sum(r["split"] == "test" for r in records)
-    print(f"[envmaps] wrote {len(records)} maps ({len(records) - n_test} train, {n_test} test) to {out} "
-          f"in {time.perf_counter() - t0:.1f} s", flush=True)
-    return 0

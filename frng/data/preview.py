@@ -1,4 +1,5 @@
-"""Stage ``frng dataset preview``: one PNG contact sheet per curated object, for people to look at.
+"""One PNG contact sheet per curated object, for people to look at (stage :mod:`frng.stages.dataset_preview`,
+``frng dataset preview``).
 
 Sheet layout (cells of ``--cell`` px; at most ``--max-views`` columns and ``--max-lights`` rows per block):
 
@@ -12,16 +13,12 @@ Output: ``{results}/previews/{obj}.png``.
 
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from frng import config as frng_config
 from frng import io
-from frng.data import catalog
-from frng.data.dataset import DatasetError, ObjectData
+from frng.data.dataset import ObjectData
 from frng.layout import Layout
 
 BACKGROUND = (0.18, 0.18, 0.18)  # linear grey behind the renders
@@ -114,30 +111,3 @@ def write_previews(config: dict, objects: list[str], out: Path, cell: int, max_v
         log(f"[preview] {path}")
         paths.append(path)
     return paths
-
-
-# -- CLI ---------------------------------------------------------------------------------------------------
-
-def configure(parser: argparse.ArgumentParser) -> None:
-    sub = parser.add_subparsers(dest="action", required=True)
-    p = sub.add_parser("preview", help="PNG contact sheet per object (views x lights + G-buffers)",
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    frng_config.add_config_argument(p)
-    p.add_argument("--objects", nargs="*", help="object ids (default: every object of the plan)")
-    p.add_argument("--out", help="output folder (default: {results}/previews)")
-    p.add_argument("--cell", type=int, default=128, help="cell size in pixels")
-    p.add_argument("--max-views", type=int, default=10, help="columns per block")
-    p.add_argument("--max-lights", type=int, default=6, help="rows per block")
-
-
-def run(args: argparse.Namespace) -> int:
-    config = frng_config.load(args.config)
-    objects = args.objects or catalog.plan(config).object_ids
-    out = Path(args.out) if args.out else Path(Layout(config["results"]).previews_dir())
-    try:
-        write_previews(config, objects, out, args.cell, args.max_views, args.max_lights,
-                       log=lambda m: print(m, flush=True))
-    except (DatasetError, io.ImageError) as e:
-        print(f"frng dataset preview: error: {e}", file=sys.stderr)
-        return 1
-    return 0

@@ -71,7 +71,7 @@ class IDMPrior(Protocol):
     kind: str
 
     def priors(self, oid: str, views, gbuffer=None):  # -> IntrinsicPriors
-        """views: :class:`frng.priors.data.Views` (the object's input views, in order); gbuffer: the object's
+        """views: :class:`frng.priors.dataset.Views` (the object's input views, in order); gbuffer: the object's
         G-buffers of the same views (IntrinsicPriors) where available."""
 
 

@@ -1,4 +1,5 @@
-"""Stage ``frng backbone-train``: train the RelitLRM-style backbone on the training split, then freeze it.
+"""Train the RelitLRM-style backbone on the training split, then freeze it (stage :mod:`frng.stages.backbone_train`,
+``frng backbone-train``).
 
 One step = one training object (``backbone.train.batch`` objects accumulated):
 
@@ -28,7 +29,6 @@ checkpoint when the config and data are unchanged; after a finished run it train
 
 from __future__ import annotations
 
-import argparse
 import random
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,7 +38,7 @@ import torch.nn.functional as F
 
 from frng.priors import backbone as bb
 from frng import training as tr
-from frng.priors.data import PriorObject, Views
+from frng.priors.dataset import PriorObject, Views
 from frng.priors.diffusion import to_diffusion_space
 
 
@@ -199,13 +199,3 @@ def train(config: dict, objects: list[PriorObject], out: Path, steps: int | None
                   loss_names=LOSS_NAMES, save_model=save_model, title="backbone training loss", desc="backbone", postfix=("total", "l2"),
                   summary=lambda run: tr.run_summary(run, device, objects, tcfg.bf16, model), rngs={"sample": rng},
                   device=device, stop_after=stop_after)
-
-
-# -- CLI ------------------------------------------------------------------------------------------------
-
-def configure(parser: argparse.ArgumentParser) -> None:
-    tr.configure_priors_stage(parser, "backbone", "backbone.train.steps")
-
-
-def run(args: argparse.Namespace) -> int:
-    return tr.run_priors_stage(args, "backbone-train", "backbone", train)

@@ -1,7 +1,8 @@
 """Per-object caches of the frozen priors: what F-RNG training reads instead of running them.
 
-Stages (one job per object): ``frng backbone-cache --object OBJ`` -> ``{results}/backbone/cache/{obj}.safetensors``
-and ``frng idm-priors --object OBJ`` -> ``{results}/priors/idm/{obj}.safetensors``.
+Stages (one job per object): ``frng backbone-cache --object OBJ`` (:mod:`frng.stages.backbone_cache`) ->
+``{results}/backbone/cache/{obj}.safetensors`` and ``frng idm-priors --object OBJ`` (:mod:`frng.stages.idm_priors`)
+-> ``{results}/priors/idm/{obj}.safetensors``.
 
 Backbone cache schema (safetensors; version :data:`BACKBONE_CACHE_VERSION`)
 --------------------------------------------------------------------------------
@@ -42,14 +43,12 @@ the current model file and raise :class:`StaleCacheError` on mismatch; they are 
 
 from __future__ import annotations
 
-import argparse
 import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
-from frng import config as frng_config
 from frng import envmap, io
 from frng.data import catalog
 from frng.layout import Layout
@@ -196,37 +195,3 @@ def load_idm_priors(path: str | Path, model_path: str | Path | None = None) -> t
     meta = dict(meta)
     meta["view_names"] = json.loads(meta["view_names"])
     return IntrinsicPriors.from_dict(tensors), meta
-
-
-# -- CLI -----------------------------------------------------------------------------------------------------
-
-def configure_backbone(parser: argparse.ArgumentParser) -> None:
-    frng_config.add_config_argument(parser)
-    parser.add_argument("--object", required=True)
-    parser.add_argument("--model", help="backbone model file (default {results}/backbone/model.pt)")
-    parser.add_argument("--out", help="cache file (default {results}/backbone/cache/{obj}.safetensors)")
-
-
-def run_backbone(args: argparse.Namespace) -> int:
-    config = frng_config.load(args.config)
-    L = Layout(config["results"])
-    model = Path(args.model or L.backbone_model())
-    out = Path(args.out or L.backbone_cache(args.object))
-    device = tr.resolve_device(config["device"])
-    print(f"backbone-cache: wrote {make_backbone_cache(config, args.object, model, out, device)}")
-    return 0
-
-
-def configure_idm(parser: argparse.ArgumentParser) -> None:
-    frng_config.add_config_argument(parser)
-    parser.add_argument("--object", required=True)
-    parser.add_argument("--kind", help="override idm.kind")
-    parser.add_argument("--out", help="priors file (default {results}/priors/idm/{obj}.safetensors)")
-
-
-def run_idm(args: argparse.Namespace) -> int:
-    config = frng_config.load(args.config)
-    out = Path(args.out or Layout(config["results"]).idm_priors(args.object))
-    device = tr.resolve_device(config["device"])
-    print(f"idm-priors: wrote {make_idm_priors(config, args.object, out, device, args.kind)}")
-    return 0

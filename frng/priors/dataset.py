@@ -1,13 +1,21 @@
-"""Curated objects as :class:`frng.priors.data.PriorObject` (what the prior trainers, caches and evaluation read).
+"""Curated objects in the tensors the priors train and run on (what the prior trainers, caches and evaluation read).
+
+:class:`Views` is a set of images of one object under one light at a set of cameras; :class:`PriorObject` holds
+everything the priors read of one object (input views per input light, target views per target light, G-buffers
+of the input views, env maps). :func:`load_object` / :func:`load_split` read them from the curated dataset.
 
 All file access goes through the project's dataset reader :mod:`frng.data.dataset` (``open_object``: cameras,
-images per light, G-buffers, env-map paths); this module only converts to the priors' tensors: RGB
-(premultiplied, clamped >= 0) and alpha (clamped to [0, 1]) split, G-buffers as :class:`IntrinsicPriors`
-(albedo clamped to [0, 1], every pass zeroed outside the coverage mask).
+images per light, G-buffers, env-map paths), so no stage guesses file paths; this module only converts to the
+priors' tensors: RGB (premultiplied, clamped >= 0) and alpha (clamped to [0, 1]) split, G-buffers as
+:class:`IntrinsicPriors` (albedo clamped to [0, 1], every pass zeroed outside the coverage mask).
+
+Image tensors: linear premultiplied RGB (V, H, W, 3) and alpha (V, H, W, 1), float32; cameras c2w (V, 4, 4)
+OpenCV, intrinsics (V, 4) = fx, fy, cx, cy; env maps (He, We, 3) linear HDR.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
@@ -15,10 +23,45 @@ import torch
 from frng import envmap
 from frng.data import catalog
 from frng.data.dataset import ObjectData, open_object
-from frng.priors.data import PriorObject, Views
 from frng.priors.intrinsics import IntrinsicPriors
 
 RIG_VIEWS = 6
+
+
+@dataclass
+class Views:
+    names: list[str]
+    rgb: torch.Tensor
+    alpha: torch.Tensor
+    c2w: torch.Tensor
+    intr: torch.Tensor
+
+    def select(self, idx) -> "Views":
+        idx = list(idx)
+        it = torch.as_tensor(idx, dtype=torch.long)
+        return Views([self.names[i] for i in idx], self.rgb[it], self.alpha[it], self.c2w[it], self.intr[it])
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+
+@dataclass
+class PriorObject:
+    id: str
+    split: str
+    inputs: dict[str, Views]                   # input light -> all input views (rig first, then extras)
+    targets: dict[str, Views]                  # target light -> target views
+    gbuffer: IntrinsicPriors | None            # G-buffers of all input views (same order), or None
+    envs: dict[str, torch.Tensor] = field(default_factory=dict)  # light name -> (He, We, 3)
+    rig_views: int = 6                         # the first rig_views input views are the paper's rig
+
+    @property
+    def input_lights(self) -> list[str]:
+        return list(self.inputs)
+
+    @property
+    def target_lights(self) -> list[str]:
+        return list(self.targets)
 
 
 def _views(obj: ObjectData, kind: str, light: str) -> Views:

@@ -1,4 +1,4 @@
-"""Stage ``frng eval-backbone``: quality of the frozen priors on held-out (test) objects, beside trivial baselines.
+"""Quality of the frozen priors on held-out (test) objects, beside trivial baselines.
 
 Backbone (``{results}/metrics/backbone.csv``, one row per image, columns ``task, method, object, light, view,
 psnr, ssim``), metrics from :func:`frng.metrics.evaluate_pair` with the ``aligned`` protocol (per-channel
@@ -22,23 +22,18 @@ IDM (``{results}/metrics/idm.csv``, one row per object and method): on each test
 ``roughness_mae``, ``metallic_mae``, ``depth_mae``; baseline ``constant``: the training split's foreground mean
 albedo/roughness/metallic/depth, and normals facing the camera.
 
-A summary (means per task/method) is printed.
+The stage that writes both files and prints a summary (means per task/method): :mod:`frng.stages.eval_backbone`
+(``frng eval-backbone``).
 """
 
 from __future__ import annotations
 
-import argparse
 import math
-from pathlib import Path
 
 import numpy as np
 import torch
 
-from frng import config as frng_config
-from frng.layout import Layout
-from frng.priors import build_idm, load_backbone
-from frng import training as tr
-from frng.priors.data import PriorObject
+from frng.priors.dataset import PriorObject
 from frng.priors.intrinsics import IntrinsicPriors
 
 
@@ -54,7 +49,7 @@ def _score(pred: np.ndarray, gt: np.ndarray) -> dict:
 
 
 def oracle_colour_render(gauss, keep: torch.Tensor, out, max_radius_px: float | None) -> tuple[torch.Tensor, torch.Tensor]:
-    """Render Gaussians at the views of ``out`` (a :class:`frng.priors.data.Views`), each Gaussian coloured with that
+    """Render Gaussians at the views of ``out`` (a :class:`frng.priors.dataset.Views`), each Gaussian coloured with that
     view's ground truth (unpremultiplied linear colour, bilinear) where its mean projects -- an oracle appearance
     that isolates the geometry. gauss: N Gaussians; keep (N,) bool. Returns linear premultiplied RGB (Vo, H, W, 3)
     and alpha (Vo, H, W, 1)."""
@@ -174,33 +169,3 @@ def eval_idm(config: dict, idm, test: list[PriorObject], train_objects: list[Pri
         rows.append({"object": obj.id, "method": "constant"} |
                     idm_scores(constant_priors(train_objects, views, obj.gbuffer), obj.gbuffer))
     return rows
-
-
-def configure(parser: argparse.ArgumentParser) -> None:
-    frng_config.add_config_argument(parser)
-    parser.add_argument("--model", help="backbone model (default {results}/backbone/model.pt)")
-    parser.add_argument("--backbone-csv", help="default {results}/metrics/backbone.csv")
-    parser.add_argument("--idm-csv", help="default {results}/metrics/idm.csv")
-
-
-def run(args: argparse.Namespace) -> int:
-    import pandas as pd
-
-    from frng import io
-    from frng.priors.dataset import load_split
-
-    config = frng_config.load(args.config)
-    L = Layout(config["results"])
-    device = tr.resolve_device(config["device"])
-    train_objs = load_split(config, "train")
-    test = load_split(config, "test")
-    model = load_backbone(Path(args.model or L.backbone_model()), device)
-    bb = pd.DataFrame(eval_backbone(config, model, test, mean_image(train_objs), device))
-    idm = pd.DataFrame(eval_idm(config, build_idm(config, device), test, train_objs))
-    for df, path in ((bb, args.backbone_csv or L.metrics("backbone")), (idm, args.idm_csv or L.metrics("idm"))):
-        with io.atomic_path(path) as tmp:
-            df.to_csv(tmp, index=False, float_format="%.5g")
-    print(bb.groupby(["task", "method"])[["psnr", "ssim"]].mean().round(3).to_string())
-    print(idm.groupby("method")[["normal_deg", "albedo_psnr", "roughness_mae", "metallic_mae", "depth_mae"]]
-          .mean().round(3).to_string())
-    return 0

@@ -1,4 +1,5 @@
-"""Stage ``frng idm-train``: train the learned IDM on the training split's G-buffers, then freeze it.
+"""Train the learned IDM on the training split's G-buffers, then freeze it (stage :mod:`frng.stages.idm_train`,
+``frng idm-train``).
 
 One step = one training object, one of its input lights, its input views (ALL of them -- what the IDM sees at
 inference, ``frng idm-priors`` / ``relight`` -- with probability ``all_views``, else a random subset of 2..all input
@@ -17,7 +18,6 @@ gradient norm, checkpoints). Outputs in ``--out`` (default ``{results}/idm``): `
 
 from __future__ import annotations
 
-import argparse
 import random
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,7 +28,7 @@ from frng import camera
 from frng.priors import idm as idm_mod
 from frng import training as tr
 from frng.priors import multiview
-from frng.priors.data import PriorObject, Views
+from frng.priors.dataset import PriorObject, Views
 
 
 @dataclass
@@ -160,11 +160,3 @@ def train(config: dict, objects: list[PriorObject], out: Path, steps: int | None
                   loss_names=LOSS_NAMES, save_model=save_model, title="IDM training loss", desc="idm",
                   summary=lambda run: tr.run_summary(run, device, objects, tcfg.bf16, model), rngs={"sample": rng},
                   device=device, stop_after=stop_after)
-
-
-def configure(parser: argparse.ArgumentParser) -> None:
-    tr.configure_priors_stage(parser, "idm", "idm.train.steps")
-
-
-def run(args: argparse.Namespace) -> int:
-    return tr.run_priors_stage(args, "idm-train", "idm", train, with_targets=False)

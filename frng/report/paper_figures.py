@@ -1,4 +1,5 @@
-"""Stage ``frng figures``: the paper-style figures from the relit images (drawn with :mod:`frng.figures`).
+"""The paper-style figures from the relit images, drawn with :mod:`frng.report.figures` (stage
+:mod:`frng.stages.figures`, ``frng figures``).
 
 Outputs (``{results}/figures/``):
 
@@ -13,16 +14,15 @@ Outputs (``{results}/figures/``):
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from frng import config as frng_config
-from frng import envmap, figures, io
+from frng import envmap, io
 from frng.layout import Layout
-from frng.relight import BACKBONE
+from frng.report import figures
+from frng.variants import BACKBONE
 
 
 def _psnr_lookup(per_image: pd.DataFrame):
@@ -106,20 +106,3 @@ def make_figures(config: dict, objects: list[str], out_dir: Path) -> list[Path]:
     ablation(results, objects, variants, out_dir / "ablation.png", psnr)
     loss_curves(results, out_dir / "loss_curves.png")
     return written + [out_dir / "ablation.png", out_dir / "loss_curves.png"]
-
-
-def configure(parser: argparse.ArgumentParser) -> None:
-    frng_config.add_config_argument(parser)
-    parser.add_argument("--objects", nargs="*", help="test objects (default: the config's test split)")
-    parser.add_argument("--out", help="figures folder (default {results}/figures)")
-
-
-def run(args: argparse.Namespace) -> int:
-    from frng.data import catalog
-
-    config = frng_config.load(args.config)
-    objects = args.objects or catalog.plan(config).split("test")
-    out = Path(args.out or Layout(config["results"]).figures_dir())
-    for p in make_figures(config, objects, out):
-        print(f"figures: wrote {p}")
-    return 0

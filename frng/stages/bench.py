@@ -1,5 +1,7 @@
-"""``frng bench <name>``: benchmarks (not timed tests). Each benchmark is a module with
-``configure(parser)`` and ``run(args)``, registered in :data:`BENCHES` (add yours with one line)."""
+"""``frng bench <name>``: benchmarks (not timed tests). Each benchmark is a module with ``configure(parser)`` and
+``run(args)``, registered in :data:`BENCHES` (add yours with one line).
+
+The one stage without a rule: benchmarks are run by hand (``make bench``), never by the workflow."""
 
 from __future__ import annotations
 

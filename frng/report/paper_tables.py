@@ -1,8 +1,9 @@
-"""Stage ``frng tables``: the paper's five tables from the per-image metrics and the relighting timings.
+"""The paper's five tables from the per-image metrics and the relighting timings (stage :mod:`frng.stages.tables`,
+``frng tables``).
 
 Inputs: ``{results}/metrics/relight_per_image.csv`` (``frng evaluate``) and ``{results}/relight/timing/{obj}.json``
-(``frng relight``). Outputs, each as ``.csv`` + ``.md`` + ``.tex`` (:func:`frng.tables.write_table`, best value
-marked, the metric protocol and the tier named in the caption), in ``{results}/tables/``:
+(``frng relight``). Outputs, each as ``.csv`` + ``.md`` + ``.tex`` (:func:`frng.report.tables.write_table`, best
+value marked, the metric protocol and the tier named in the caption), in ``{results}/tables/``:
 
 ================ =================================================== =====================================
 table            rows                                                columns
@@ -27,17 +28,14 @@ Metric values are means of per-image values (PSNR averaged in dB) over all test 
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from frng import config as frng_config
 from frng import io
 from frng import metrics as M
-from frng import tables as T
-from frng.layout import Layout
+from frng.report import tables as T
 from frng.variants import BACKBONE, BASE_VARIANTS, ORACLE_RUN, RIG_VIEWS, VARIANTS
 
 TABLES = tuple(T.TABLE_COLUMNS)
@@ -194,27 +192,3 @@ def write_tables(config: dict, per_image_csv: Path, timing_files: list[Path], ou
                  f"object(s); F-RNG renders with {t['spp'].iloc[0]:.0f} light samples per pixel, the backbone "
                  f"runs one full denoising pass per light. Tier {config['tier']}."), label="tab:timing")
     return out
-
-
-def configure(parser: argparse.ArgumentParser) -> None:
-    frng_config.add_config_argument(parser)
-    parser.add_argument("--metrics", help="per-image CSV (default {results}/metrics/relight_per_image.csv)")
-    parser.add_argument("--timing", nargs="*", help="timing JSONs (default {results}/relight/timing/*.json of "
-                                                    "the test objects)")
-    parser.add_argument("--out", help="tables folder (default {results}/tables)")
-    parser.add_argument("--prior-metrics", help="the priors' evaluation CSV for the quality ladder "
-                                                "(default {results}/metrics/backbone.csv)")
-
-
-def run(args: argparse.Namespace) -> int:
-    from frng.data import catalog
-
-    config = frng_config.load(args.config)
-    L = Layout(config["results"])
-    timing = args.timing or [L.relight_timing(o) for o in catalog.plan(config).split("test")]
-    out = write_tables(config, Path(args.metrics or L.metrics("relight_per_image")),
-                       [Path(p) for p in timing], Path(args.out or L.tables_dir()),
-                       Path(args.prior_metrics or L.metrics("backbone")))
-    for name, paths in out.items():
-        print(f"== {name} ({paths['md']})\n{paths['md'].read_text()}")
-    return 0

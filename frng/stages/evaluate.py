@@ -1,4 +1,4 @@
-"""Stage ``frng evaluate``: per-image relighting metrics of every run of every test object.
+"""Stage ``frng evaluate`` (rule ``evaluate``): per-image relighting metrics of every run of every test object.
 
 Reads what ``frng relight`` wrote (``{results}/relight/{run}/{obj}/run.json`` and ``{light}/{view}.exr``) and
 the ground truth (``{results}/objects/{obj}/targets/{light}/{view}.exr``), scores every image with

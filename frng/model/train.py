@@ -1,4 +1,5 @@
-"""Stage ``frng train``: train one F-RNG variant on the training split from the frozen priors' caches.
+"""Train one F-RNG variant on the training split from the frozen priors' caches (stage :mod:`frng.stages.train`,
+``frng train``).
 
 Loss (supplement, "Model and training details")::
 
@@ -36,7 +37,6 @@ wall time, device, step time). Seeds are fixed
 
 from __future__ import annotations
 
-import argparse
 import random
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -44,10 +44,9 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from frng import config as frng_config
 from frng import distributed, envmap, io
 from frng import training as tr
-from frng.model.frng import FRNG, FRNGConfig, all_variants, canonical_variant, trained_variants, variant_config
+from frng.model.frng import FRNG, FRNGConfig, canonical_variant, variant_config
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
 
 CACHE_KEYS = ("t_geo", "raw_prior", "means", "quats", "scales", "opacities", "keep", "c2w", "intr")  # + light{j}.t_app
@@ -328,30 +327,3 @@ def train(config: dict, variant: str, out: Path, backbone_path: Path | None = No
                   fingerprint=fingerprint, loss_names=LOSS_NAMES, save_model=save_model, summary=summary,
                   title=f"F-RNG {variant} training loss", desc=f"train {variant}", postfix=("total", "l2"),
                   rngs={"sample": rng}, device=device, stop_after=stop_after, hooks=hooks)
-
-
-# -- CLI -----------------------------------------------------------------------------------------------------
-
-def configure(parser: argparse.ArgumentParser) -> None:
-    frng_config.add_config_argument(parser)
-    parser.add_argument("--variant", default="full", help="full, no-fine, no-idm, no-ind, no-neural, k<percent>")
-    parser.add_argument("--out", help="output folder (default {results}/models/{variant})")
-    parser.add_argument("--backbone", help="frozen backbone file (default {results}/backbone/model.pt)")
-    parser.add_argument("--steps", type=int, help="override train.steps / train.ablation_steps")
-    parser.add_argument("--list-variants", action="store_true", help="print the config's variants and exit")
-
-
-def run(args: argparse.Namespace) -> int:
-    config = frng_config.load(args.config)
-    if args.list_variants:
-        for v in all_variants(config):
-            c = canonical_variant(config, v)
-            print(v if c == v else f"{v} (= {c})")
-        return 0
-    if args.variant not in all_variants(config) and canonical_variant(config, args.variant) not in trained_variants(config):
-        variant_config(config, args.variant)  # raises for unknown names; other k<percent> values are allowed
-    out = Path(args.out or Path(config["results"], "models", args.variant))
-    path = train(config, args.variant, out, args.backbone, steps=args.steps)
-    print(f"train: wrote {path}")
-    distributed.cleanup()
-    return 0

@@ -1,0 +1,14 @@
+"""The pipeline's stages: one module per Snakemake rule, named after it (``rules/*.smk``).
+
+A stage is what a rule runs, the ``frng <stage>`` subcommand (:data:`frng.cli.STAGES`): it holds only argument
+parsing and orchestration, two functions::
+
+    def configure(parser: argparse.ArgumentParser) -> None   # add arguments (or sub-subcommands)
+    def run(args: argparse.Namespace) -> int | None           # do the work
+
+``run`` reads the config, loops over objects, calls the libraries (:mod:`frng.data`, :mod:`frng.priors`,
+:mod:`frng.model`, :mod:`frng.render`, :mod:`frng.report`, ...) and writes the outputs; the algorithms live in the
+libraries. ``tests/test_stages.py`` checks that every rule's stage exists and every stage has a rule; the one
+stage without a rule is :mod:`.bench` (benchmarks, run by hand: ``make bench``). Modules whose name starts with
+``_`` are helpers shared by stages, not stages.
+"""

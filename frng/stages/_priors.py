@@ -1,0 +1,31 @@
+"""What the two priors' training stages share (:mod:`.backbone_train`, :mod:`.idm_train`); not a stage itself."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Callable
+
+from frng import config as frng_config
+
+
+def configure_training(parser: argparse.ArgumentParser, folder: str, steps_key: str) -> None:
+    """Arguments of a priors training stage: ``--config``, ``--out`` (default ``{results}/<folder>``), ``--steps``."""
+    frng_config.add_config_argument(parser)
+    parser.add_argument("--out", help=f"output folder (default {{results}}/{folder})")
+    parser.add_argument("--steps", type=int, help=f"override {steps_key}")
+
+
+def run_training(args: argparse.Namespace, stage: str, folder: str, train: Callable, **load_kw) -> int:
+    """Load the config and the training split (:func:`frng.priors.dataset.load_split` with ``load_kw``), train
+    with ``train(config, objects, out, steps=...)`` and say where the model went."""
+    from frng.priors.dataset import load_split
+
+    config = frng_config.load(args.config)
+    out = Path(args.out or Path(config["results"], folder))
+    t0 = time.time()
+    objects = load_split(config, "train", **load_kw)
+    print(f"{stage}: {len(objects)} training objects loaded in {time.time() - t0:.1f}s")
+    print(f"{stage}: wrote {train(config, objects, out, steps=args.steps)}")
+    return 0

@@ -1,0 +1,21 @@
+"""Stage ``frng backbone-train`` (rule ``backbone_train``): train the RelitLRM-style backbone on the training split,
+then freeze it.
+
+The training step, the loss and the outputs (``model.pt``, ``checkpoint.pt``, ``loss.csv/png``, ``train.json``):
+:mod:`frng.priors.backbone_train`; the loop: :func:`frng.training.fit`.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from frng.priors.backbone_train import train
+from frng.stages._priors import configure_training, run_training
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    configure_training(parser, "backbone", "backbone.train.steps")
+
+
+def run(args: argparse.Namespace) -> int:
+    return run_training(args, "backbone-train", "backbone", train)

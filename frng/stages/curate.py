@@ -1,0 +1,42 @@
+"""Stage ``frng curate --object OBJ`` (rule ``curate``, one job per object): ONE Blender process renders ONE
+object's views x lights and G-buffers.
+
+The work, the outputs and how a failed or stopped job cleans up: :mod:`frng.data.curate`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from frng import config as frng_config
+from frng import envmap, io
+from frng.data import catalog
+from frng.data.curate import CurationError, StopGuard, curate
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    frng_config.add_config_argument(parser)
+    parser.add_argument("--object", required=True, help="object id from the dataset plan (obj_0000, user_<stem>, ...)")
+    parser.add_argument("--envmaps", help="prepared env-map folder (default: {results}/envmaps)")
+    parser.add_argument("--out", help="objects folder (default: {results}/objects)")
+
+
+def run(args: argparse.Namespace) -> int:
+    config = frng_config.load(args.config)
+    results = Path(config["results"])
+    env_dir = Path(args.envmaps) if args.envmaps else results / "envmaps"
+    out = Path(args.out) if args.out else results / "objects"
+    t0 = time.perf_counter()
+    import bpy  # noqa: F401  (before the guard: the import installs Blender's SIGINT handler)
+
+    guard = StopGuard(f"frng curate {args.object}").install()
+    try:
+        final = curate(config, args.object, env_dir, out, log=lambda m: print(m, flush=True), guard=guard)
+    except (CurationError, catalog.CatalogError, envmap.EnvMapError, io.ImageError) as e:
+        print(f"frng curate: error: {e}", file=sys.stderr, flush=True)
+        return 1
+    print(f"[{args.object}] done: {final} in {time.perf_counter() - t0:.1f} s", flush=True)
+    return 0

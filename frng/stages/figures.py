@@ -1,0 +1,31 @@
+"""Stage ``frng figures`` (rule ``figures``): the paper-style figures from the relit images ->
+``{results}/figures/`` (comparison grids, ablation grid, saliency maps, loss curves).
+
+Which figures and what they show: :mod:`frng.report.paper_figures`; how they are drawn: :mod:`frng.report.figures`.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from frng import config as frng_config
+from frng.layout import Layout
+from frng.report.paper_figures import make_figures
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    frng_config.add_config_argument(parser)
+    parser.add_argument("--objects", nargs="*", help="test objects (default: the config's test split)")
+    parser.add_argument("--out", help="figures folder (default {results}/figures)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from frng.data import catalog
+
+    config = frng_config.load(args.config)
+    objects = args.objects or catalog.plan(config).split("test")
+    out = Path(args.out or Layout(config["results"]).figures_dir())
+    for p in make_figures(config, objects, out):
+        print(f"figures: wrote {p}")
+    return 0

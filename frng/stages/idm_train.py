@@ -1,0 +1,21 @@
+"""Stage ``frng idm-train`` (rule ``idm_train``): train the learned IDM on the training split's G-buffers, then
+freeze it.
+
+The training step, the cue cache and the outputs: :mod:`frng.priors.idm_train`; the loop:
+:func:`frng.training.fit`.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from frng.priors.idm_train import train
+from frng.stages._priors import configure_training, run_training
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    configure_training(parser, "idm", "idm.train.steps")
+
+
+def run(args: argparse.Namespace) -> int:
+    return run_training(args, "idm-train", "idm", train, with_targets=False)

@@ -1,0 +1,35 @@
+"""Stage ``frng relight --object OBJ`` (rule ``relight``, one job per test object): relight one held-out object with
+every F-RNG run and with the backbone, timed side by side; prints the timing.
+
+What one job does, the runs, the outputs and the timing file: :mod:`frng.relight`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from frng import config as frng_config
+from frng.relight import BACKBONE, RelightError, relight
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    frng_config.add_config_argument(parser)
+    parser.add_argument("--object", required=True, help="test object id")
+    parser.add_argument("--models", help="folder of trained variants (default {results}/models)")
+    parser.add_argument("--device", help="override the config's device")
+
+
+def run(args: argparse.Namespace) -> int:
+    config = frng_config.load(args.config)
+    try:
+        timing = relight(config, args.object, args.models, args.device)
+    except RelightError as e:
+        print(f"frng relight: error: {e}")
+        return 2
+    f, b = timing["F-RNG"], timing[BACKBONE]
+    print(f"relight {args.object}: F-RNG {f['relight_ms_per_image']:.1f} ms/image, backbone "
+          f"{b['relight_ms_per_image']:.1f} ms/image ({timing['speedup']:.1f}x) at {timing['resolution']} px, "
+          f"F-RNG reconstruction {f['reconstruction_s']:.2f} s")
+    print(json.dumps(timing, indent=1))
+    return 0

@@ -1,0 +1,41 @@
+"""Stage ``frng train --variant V`` (rule ``train``, one job per variant; under torchrun/srun one process per
+rank): train one F-RNG variant on the training split from the frozen priors' caches.
+
+The loss, the step and the outputs (``model.pt``, ``checkpoint.pt``, ``loss.csv/png``, ``train.json``):
+:mod:`frng.model.train`; the loop: :func:`frng.training.fit`; ranks: :mod:`frng.distributed`.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from frng import config as frng_config
+from frng import distributed
+from frng.model.frng import all_variants, canonical_variant, trained_variants, variant_config
+from frng.model.train import train
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    frng_config.add_config_argument(parser)
+    parser.add_argument("--variant", default="full", help="full, no-fine, no-idm, no-ind, no-neural, k<percent>")
+    parser.add_argument("--out", help="output folder (default {results}/models/{variant})")
+    parser.add_argument("--backbone", help="frozen backbone file (default {results}/backbone/model.pt)")
+    parser.add_argument("--steps", type=int, help="override train.steps / train.ablation_steps")
+    parser.add_argument("--list-variants", action="store_true", help="print the config's variants and exit")
+
+
+def run(args: argparse.Namespace) -> int:
+    config = frng_config.load(args.config)
+    if args.list_variants:
+        for v in all_variants(config):
+            c = canonical_variant(config, v)
+            print(v if c == v else f"{v} (= {c})")
+        return 0
+    if args.variant not in all_variants(config) and canonical_variant(config, args.variant) not in trained_variants(config):
+        variant_config(config, args.variant)  # raises for unknown names; other k<percent> values are allowed
+    out = Path(args.out or Path(config["results"], "models", args.variant))
+    path = train(config, args.variant, out, args.backbone, steps=args.steps)
+    print(f"train: wrote {path}")
+    distributed.cleanup()
+    return 0
