@@ -52,7 +52,7 @@ import numpy as np
 import torch
 
 from frng import envmap, io
-from frng.layout import Layout
+from frng.layout import Layout, RelightFolder, TrainingFolder
 from frng.variants import BACKBONE, RIG_VIEWS, Run, model_variants, runs  # noqa: F401
 
 
@@ -70,19 +70,19 @@ def validate_inputs(config: dict, oid: str) -> dict:
     masks are part of the input), an input view that is not ``render.resolution`` square, a missing or non-2:1
     env map."""
     L = Layout(config["results"])
-    root = Path(L.object_dir(oid))
+    meta_path = Path(L.object_meta(oid))
     try:
-        meta = io.read_json(root / "meta.json")
+        meta = io.read_json(meta_path)
     except (FileNotFoundError, ValueError) as e:
-        raise RelightError(f"{root / 'meta.json'}: cannot read object metadata ({e})") from e
+        raise RelightError(f"{meta_path}: cannot read object metadata ({e})") from e
     for key in ("views", "input_lights", "target_lights"):
         if key not in meta:
-            raise RelightError(f"{root / 'meta.json'}: missing key {key!r}")
-    check_test_split(config, oid, meta, root / "meta.json")
+            raise RelightError(f"{meta_path}: missing key {key!r}")
+    check_test_split(config, oid, meta, meta_path)
     res = int(config["render"]["resolution"])
     light_in = meta["input_lights"][0]
     for cam in meta["views"]["inputs"]:
-        path = root / "inputs" / light_in / f"{cam['name']}.exr"
+        path = L.object_image(oid, "inputs", light_in, cam["name"])
         try:
             img = io.read_rgba(path, require_alpha=True)
         except io.ImageError as e:
@@ -163,7 +163,7 @@ def _write_images(folder: Path, light: str, names: list[str], rgba: torch.Tensor
     """rgba (Vt, H, W, 4) linear premultiplied -> folder/light/{view}.exr."""
     arr = rgba.detach().float().cpu().numpy()
     for k, name in enumerate(names):
-        io.write_exr(folder / light / f"{name}.exr", arr[k], channels=["R", "G", "B", "A"])
+        io.write_exr(RelightFolder(folder).image(light, name), arr[k], channels=["R", "G", "B", "A"])
 
 
 def relight_object(config: dict, oid: str, models: dict[str, Path], backbone_path: Path, out_root: Path,
@@ -267,14 +267,14 @@ def relight_object(config: dict, oid: str, models: dict[str, Path], backbone_pat
                               "relight_ms_per_light_image": per_light_ms}
         if run.method != BACKBONE:
             info |= {"raster_ms_per_view": raster_ms, "shade_ms_per_image": float(np.mean(shade_ms))}
-        io.write_json(folder / "run.json", info)
+        io.write_json(RelightFolder(folder).record(), info)
         if run.name in ("full", BACKBONE):
             timing[run.method] = {"reconstruction_s": rec_s, "relight_ms_per_image": float(np.mean(per_light_ms)),
                                   "spp": info["spp"]}
             if run.method != BACKBONE:
                 timing[run.method] |= {"raster_ms_per_view": raster_ms, "shade_ms_per_image": float(np.mean(shade_ms))}
     timing["speedup"] = timing[BACKBONE]["relight_ms_per_image"] / timing["F-RNG"]["relight_ms_per_image"]
-    io.write_json(out_root / "timing.json", timing)
+    io.write_json(staged_timing(out_root), timing)
     return timing
 
 
@@ -285,10 +285,16 @@ def _save_full_extras(folder: Path, model, rec, p: dict, oid: str, run: Run) -> 
     if rec.features is not None:
         meta = {"object_id": oid, "source_views": p["names"], "decoder": model.decoder_meta(),
                 "variant": run.variant, "k_percent": run.k_percent}
-        save_asset(folder / "asset", rec.gaussians, rec.features, model.decoder.state_dict(), meta)
-    np.savez_compressed(folder / "saliency.npz", saliency=rec.saliency.detach().float().cpu().numpy(),
+        save_asset(RelightFolder(folder).asset(), rec.gaussians, rec.features, model.decoder.state_dict(), meta)
+    np.savez_compressed(RelightFolder(folder).saliency(), saliency=rec.saliency.detach().float().cpu().numpy(),
                         patch_idx=rec.patch_idx.detach().cpu().numpy(),
                         image=p["images"].detach().float().cpu().numpy())
+
+
+def staged_timing(staging: Path) -> Path:
+    """Where :func:`relight_object` writes the timing in its staging folder (:func:`publish` moves it to
+    ``{results}/relight/timing/{oid}.json``)."""
+    return Path(staging) / "timing.json"
 
 
 def publish(staging: Path, results: Path, oid: str) -> None:
@@ -303,7 +309,7 @@ def publish(staging: Path, results: Path, oid: str) -> None:
         os.replace(folder, dest)
     timing = Path(L.relight_timing(oid))
     timing.parent.mkdir(parents=True, exist_ok=True)
-    os.replace(staging / "timing.json", timing)
+    os.replace(staged_timing(staging), timing)
 
 
 def relight(config: dict, oid: str, models_dir: Path | None = None, device: str | None = None) -> dict:
@@ -314,7 +320,7 @@ def relight(config: dict, oid: str, models_dir: Path | None = None, device: str 
     L = Layout(results)
     validate_inputs(config, oid)
     models_dir = Path(models_dir or L.models_dir())
-    models = {v: models_dir / v / "model.pt" for v in model_variants(config)}
+    models = {v: Path(TrainingFolder(models_dir / v).model()) for v in model_variants(config)}
     missing = [str(p) for p in models.values() if not p.exists()]
     if missing:
         raise RelightError(f"trained F-RNG model(s) missing: {missing}; run the train rules first")

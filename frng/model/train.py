@@ -46,6 +46,7 @@ from torch import nn
 
 from frng import distributed, envmap, io
 from frng import training as tr
+from frng.layout import Layout
 from frng.model.frng import FRNG, FRNGConfig, canonical_variant, variant_config
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
 
@@ -105,31 +106,31 @@ def load_objects(config: dict, ids: list[str], backbone_path: Path, use_priors: 
     from frng.data.dataset import open_object
     from frng.priors.cache import load_backbone_cache, load_idm_priors
 
-    res = Path(config["results"])
-    idm_model = res / "idm" / "model.pt" if config["idm"]["kind"] == "learned" else None
+    L = Layout(config["results"])
+    idm_model = L.idm_model() if config["idm"]["kind"] == "learned" else None
     envs: dict[str, torch.Tensor] = {}
     out = []
     for oid in ids:
-        cache = load_backbone_cache(res / "backbone" / "cache" / f"{oid}.safetensors", backbone_path)
+        cache = load_backbone_cache(L.backbone_cache(oid), backbone_path)
         allv = cache.views(V)
         lights = len(cache.lights)
         views = {k: allv[k] for k in CACHE_KEYS}
         views.update({f"light{j}.t_app": allv[f"light{j}.t_app"] for j in range(lights)})
         priors = None
         if use_priors:
-            priors, _ = load_idm_priors(res / "priors" / "idm" / f"{oid}.safetensors", idm_model)
+            priors, _ = load_idm_priors(L.idm_priors(oid), idm_model)
             priors = priors.select(slice(0, V))
-        obj = open_object(res, oid)
+        obj = open_object(L.root, oid)
         light_in = cache.meta["input_light"]
         names = cache.meta["view_names"][str(V)]
         images = obj.images("inputs", light_in, names, torch=True)
         if light_in not in envs:
-            envs[light_in] = torch.from_numpy(envmap.read(obj.envmap_path(light_in, res))).float()
+            envs[light_in] = torch.from_numpy(envmap.read(obj.envmap_path(light_in, L.root))).float()
         targets = []
         kinds = [("targets", l) for l in obj.target_lights] + [("inputs", l) for l in obj.input_lights if l != light_in]
         for kind, light in kinds:
             if light not in envs:
-                envs[light] = torch.from_numpy(envmap.read(obj.envmap_path(light, res))).float()
+                envs[light] = torch.from_numpy(envmap.read(obj.envmap_path(light, L.root))).float()
             c2w, K = obj.cameras(kind, None, torch=True)
             targets.append((light, envs[light], c2w, K, obj.images(kind, light, None, torch=True)))
         out.append(TrainObject(oid, views, lights, priors, images, envs[light_in], targets))
@@ -269,8 +270,7 @@ def train(config: dict, variant: str, out: Path, backbone_path: Path | None = No
     """Train (or resume) one variant; returns ``out/model.pt`` (or the checkpoint when stopped by ``stop_after``,
     which tests use to simulate an interruption)."""
     variant = canonical_variant(config, variant)
-    res = Path(config["results"])
-    backbone_path = Path(backbone_path or res / "backbone" / "model.pt")
+    backbone_path = Path(backbone_path or Layout(config["results"]).backbone_model())
     tcfg = TrainConfig.from_config(config)
     total = steps or tcfg.steps_for(variant)
     info = distributed.init(config.get("device", "auto"))

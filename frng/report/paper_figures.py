@@ -14,6 +14,7 @@ Outputs (``{results}/figures/``):
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -67,7 +68,7 @@ def ablation(results: Path, objects: list[str], variants: list[str], out_png: Pa
 
 def saliency(results: Path, oid: str, out_png: Path, patch: int) -> None:
     """Input view 0, its saliency map and the selected top-K patches of the full run."""
-    d = np.load(Path(Layout(results).relight_run("full", oid)) / "saliency.npz")
+    d = np.load(Layout(results).relight_saliency("full", oid))
     image, sal, idx = d["image"][0], d["saliency"][0], d["patch_idx"][0]
     H, W = image.shape[:2]
     sel = np.zeros((H // patch) * (W // patch), bool)
@@ -80,7 +81,7 @@ def loss_curves(results: Path, out_png: Path) -> None:
     """Every training run's loss.csv: F-RNG variants, backbone, IDM."""
     L = Layout(results)
     runs = {}
-    for p in sorted(Path(L.models_dir()).glob("*/loss.csv")):
+    for p in sorted(Path(L.models_dir()).glob(os.path.relpath(L.model_curve("*"), L.models_dir()))):
         runs[f"F-RNG {p.parent.name}"] = pd.read_csv(p)
     for name, p in (("backbone", Path(L.backbone_curve())), ("idm", Path(L.idm_curve()))):
         if p.exists():

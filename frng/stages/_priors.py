@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Callable
 
 from frng import config as frng_config
+from frng.layout import Layout
 
 
 def configure_training(parser: argparse.ArgumentParser, folder: str, steps_key: str) -> None:
@@ -23,7 +24,7 @@ def run_training(args: argparse.Namespace, stage: str, folder: str, train: Calla
     from frng.priors.dataset import load_split
 
     config = frng_config.load(args.config)
-    out = Path(args.out or Path(config["results"], folder))
+    out = Path(args.out or getattr(Layout(config["results"]), f"{folder}_dir")())
     t0 = time.time()
     objects = load_split(config, "train", **load_kw)
     print(f"{stage}: {len(objects)} training objects loaded in {time.time() - t0:.1f}s")

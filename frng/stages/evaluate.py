@@ -22,7 +22,7 @@ from pathlib import Path
 from frng import config as frng_config
 from frng import io
 from frng import metrics as M
-from frng.layout import Layout
+from frng.layout import Layout, RelightFolder
 
 PER_IMAGE = "relight_per_image.csv"
 SUMMARY = "relight_summary.csv"
@@ -32,14 +32,15 @@ COLUMNS = ("dataset", "object", "run", "method", "variant", "views", "k", "light
 
 def evaluate_run(results: Path, run_dir: Path, protocol: str, background, device: str = "cpu") -> list[dict]:
     """Rows of one ``{results}/relight/{run}/{obj}`` folder (see the module docstring)."""
-    info = io.read_json(run_dir / "run.json")
+    run_files = RelightFolder(run_dir)
+    info = io.read_json(run_files.record())
     oid = info["object"]
     L = Layout(results)
     meta = io.read_json(L.object_meta(oid))
     rows = []
     for light in info["lights"]:
         for view in info["target_views"]:
-            pred = run_dir / light / f"{view}.exr"
+            pred = run_files.image(light, view)
             gt = L.object_image(oid, "targets", light, view)
             m = M.evaluate_files(pred, gt, protocol=protocol, background=background, device=device)
             rows.append({"dataset": meta["material_class"], "object": oid, "run": info["name"],
