@@ -46,6 +46,7 @@ import torch
 from tqdm import tqdm
 
 from frng import io
+from frng.config import Config, typed
 from frng.layout import TrainingFolder
 
 
@@ -85,10 +86,10 @@ def autocast(device: torch.device, bf16: bool):
     return torch.autocast(device_type=device.type, dtype=torch.bfloat16)
 
 
-def train_seed(config: dict) -> int:
-    """The learned models' seed: ``train_seed``, or the data's ``seed`` when it is null/absent."""
-    s = config.get("train_seed")
-    return int(config["seed"] if s is None else s)
+def train_seed(config: Config | dict) -> int:
+    """The learned models' seed: ``train_seed``, or the data's ``seed`` when it is null
+    (:attr:`frng.config.Config.model_seed`)."""
+    return typed(config).model_seed
 
 
 def seed_everything(seed: int) -> None:

@@ -49,7 +49,7 @@ def test_zero_head_decodes_hull_depth_and_normals():
     torch.manual_seed(0)
     obj = sphere_object()
     v = obj.inputs["l0"]
-    model = LearnedIDM(IDMConfig(**TINY))
+    model = LearnedIDM(IDMConfig.from_dict(TINY))
     raw = model(v.rgb[None], v.alpha[None], v.c2w[None], v.intr[None])
     out = model.decode(raw, v.alpha[None], v.c2w[None])
     # the hull, computed independently of the model
@@ -68,7 +68,7 @@ def test_cue_cache_reuses_the_hull_under_another_light():
     v0 = obj.inputs["l0"]
     v1 = Views(v0.names, v0.rgb * torch.tensor([0.5, 1.0, 2.0]), v0.alpha, v0.c2w, v0.intr)
     obj.inputs["l1"] = v1
-    model = LearnedIDM(IDMConfig(**TINY))
+    model = LearnedIDM(IDMConfig.from_dict(TINY))
     cache = idm_train.CueCache()
     idx = list(range(len(v0)))
     cache.get(model, obj, "l0", idx, v0)

@@ -221,7 +221,7 @@ def test_cue_cache_is_bit_identical_whatever_the_light_order():
     from frng.priors.idm import IDMConfig, LearnedIDM
 
     obj = _objects()[0]
-    model = LearnedIDM(IDMConfig(**TINY))
+    model = LearnedIDM(IDMConfig.from_dict(TINY))
     idx = list(range(len(obj.inputs["l0"])))
     warm = idm_train.CueCache()
     warm.get(model, obj, "l0", idx, obj.inputs["l0"])

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from frng.config import Config, as_dict
 from frng.layout import Layout
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".gltf", ".glb")
@@ -51,6 +52,19 @@ PYBULLET_BROKEN = frozenset({168})
 PRIMITIVES = ("cube", "uv_sphere", "ico_sphere", "cylinder", "cone", "torus", "monkey")
 PROCEDURAL = ("superquadric", "lathe", "blob", "twisted_box", "cluster")
 MATERIALS = ("diffuse", "specular", "fur")
+
+
+@dataclass(frozen=True)
+class ObjectsConfig:
+    """The config's ``objects`` section (frng.config.section; defaults: config/schema.yaml). ``material_mix`` maps a
+    material class to its fraction; ``extra`` holds the user's entries as mappings (path, split, up, material,
+    licence)."""
+
+    count: int
+    test_count: int
+    sources: tuple[str, ...]
+    material_mix: dict
+    extra: tuple[dict, ...]
 
 
 class CatalogError(ValueError):
@@ -331,9 +345,10 @@ def _plan_cached(config_json: str) -> Catalog:
     return Catalog(tuple(envmaps), tuple(object_plan(config, envmaps)))
 
 
-def plan(config: dict) -> Catalog:
-    """The whole dataset plan of a validated config (cached per config content)."""
-    return _plan_cached(json.dumps(config, sort_keys=True, default=str))
+def plan(config: Config | dict) -> Catalog:
+    """The whole dataset plan of a validated config (cached per config content). Reads the config mapping (the
+    Snakemake rule files plan with it, torch-free); a :class:`frng.config.Config` is turned back into it."""
+    return _plan_cached(json.dumps(as_dict(config), sort_keys=True, default=str))
 
 
 def pybullet_data_dir() -> Path:

@@ -36,11 +36,13 @@ import shutil
 import signal
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from frng import envmap, io
+from frng.config import Config, typed
 from frng.data import catalog, rig
 from frng.data.envmaps import read_index
 from frng.layout import EnvmapFolder, Layout, ObjectFolder
@@ -48,6 +50,24 @@ from frng.layout import EnvmapFolder, Layout, ObjectFolder
 GBUFFER_CHANNELS = ("A", "normal.X", "normal.Y", "normal.Z", "depth.Z", "albedo.R", "albedo.G", "albedo.B",
                     "roughness.Y", "metallic.Y")
 META_VERSION = 1
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """The config's ``render`` section: Cycles settings, the camera rig (:mod:`frng.data.rig`) and the lights per
+    object (frng.config.section; defaults: config/schema.yaml)."""
+
+    resolution: int
+    spp: int
+    input_views: int
+    extra_input_views: int
+    target_views: int
+    input_lights: int
+    target_lights: int
+    camera_distance: float
+    fov_deg: float
+    threads: int
+    fur_strands: int
 
 
 class CurationError(RuntimeError):
@@ -152,7 +172,7 @@ def check_envmaps(spec: catalog.ObjectSpec, env_dir: Path) -> dict[str, dict]:
     return out
 
 
-def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print, guard: StopGuard | None = None) -> Path:
+def curate(config: Config | dict, oid: str, env_dir: Path, out_root: Path, log=print, guard: StopGuard | None = None) -> Path:
     """Render object ``oid`` into ``out_root/oid`` (atomically). Returns the final folder.
 
     ``guard``: a :class:`StopGuard` (installed after ``import bpy``) that removes the staging folders on SIGINT /
@@ -164,9 +184,10 @@ def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print, gua
     from frng.blender import scene as bscene
     from frng.blender import world
 
+    config = typed(config)
     cat = catalog.plan(config)
     spec = cat.object(oid)
-    render = config["render"]
+    render = config.render
     lights = check_envmaps(spec, env_dir)
     rng = np.random.default_rng(spec.seed)
     rig_rng, shape_rng, mat_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(spec.seed).spawn(3))
@@ -187,10 +208,10 @@ def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print, gua
         guard.paths.append(scratch)
     t_start = time.perf_counter()
     try:
-        scene = bscene.new_scene(render["resolution"], render["spp"], render["threads"], spec.seed)
+        scene = bscene.new_scene(render.resolution, render.spp, render.threads, spec.seed)
         bscene.enable_gbuffer_passes(scene)
-        cam = bscene.add_camera(scene, render["fov_deg"])
-        mat = materials.sample(mat_rng, spec.material, render["fur_strands"])
+        cam = bscene.add_camera(scene, render.fov_deg)
+        mat = materials.sample(mat_rng, spec.material, render.fur_strands)
         radius = 1.0 - mat["hair"]["length"] if "hair" in mat else 1.0  # fur stays inside the unit sphere
         pybullet_dir = catalog.pybullet_data_dir() if spec.source == "pybullet" else None
         try:
@@ -200,8 +221,8 @@ def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print, gua
         materials.apply(obj, mat, spec.seed)
         log(f"[{oid}] {spec.source}:{spec.mesh} material={spec.material} split={spec.split} "
             f"{shape['vertices']} verts; {len(inputs)} input views x {len(spec.input_lights)} lights, "
-            f"{len(targets)} target views x {len(spec.target_lights)} lights at {render['resolution']} px, "
-            f"{render['spp']} spp")
+            f"{len(targets)} target views x {len(spec.target_lights)} lights at {render.resolution} px, "
+            f"{render.spp} spp")
 
         raw = scratch / "raw.exr"
         times: dict[str, dict[str, float]] = {}
@@ -210,7 +231,7 @@ def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print, gua
         n_done = 0
         for kind, views, light_names in (("inputs", inputs, spec.input_lights), ("targets", targets, spec.target_lights)):
             for light in light_names:
-                world.set_envmap(scene, Path(EnvmapFolder(env_dir).envmap(light)), sample_map_resolution=max(64, config["envmaps"]["width"]))
+                world.set_envmap(scene, Path(EnvmapFolder(env_dir).envmap(light)), sample_map_resolution=max(64, config.envmaps.width))
                 for view in views:
                     bscene.set_camera_pose(cam, view.c2w)
                     dt = bscene.render_to(scene, raw)
@@ -243,7 +264,7 @@ def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print, gua
             "shape": shape,
             "material_class": spec.material,
             "material": mat,
-            "render": {k: render[k] for k in ("resolution", "spp", "camera_distance", "fov_deg", "threads")}
+            "render": {k: getattr(render, k) for k in ("resolution", "spp", "camera_distance", "fov_deg", "threads")}
                       | {"engine": "CYCLES", "device": "CPU", "blender": __import__("bpy").app.version_string},
             "input_lights": list(spec.input_lights),
             "target_lights": list(spec.target_lights),

@@ -24,13 +24,38 @@ import os
 import shutil
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from frng import envmap, io
+from frng.config import Config, as_dict, typed
 from frng.data import catalog
 from frng.layout import EnvmapFolder
+
+@dataclass(frozen=True)
+class SkiesConfig:
+    """The config's ``envmaps.skies`` section (frng.config.section; defaults: config/schema.yaml)."""
+
+    models: tuple[str, ...]
+    sun_elevations_deg: tuple[float, ...]
+    turbidity: float
+
+
+@dataclass(frozen=True)
+class EnvmapsConfig:
+    """The config's ``envmaps`` section (frng.config.section; defaults: config/schema.yaml). ``extra`` holds the
+    user's entries as mappings (path, split, licence)."""
+
+    width: int
+    bundled: tuple[str, ...]
+    skies: SkiesConfig
+    rotations: int
+    test_fraction: float
+    extra: tuple[dict, ...]
+    normalize: float | None
+
 
 SKY_BAKE_WIDTH = 512  # skies are smooth; baked at this width then resized
 GROUND_ALBEDO = 0.3
@@ -68,7 +93,7 @@ def load_base(spec: catalog.EnvMapSpec, work: Path, threads: int) -> np.ndarray:
     raise ValueError(f"unknown env-map source {spec.source!r}")
 
 
-def prepare(config: dict, out: Path, log=print, guard=None) -> list[dict]:
+def prepare(config: Config | dict, out: Path, log=print, guard=None) -> list[dict]:
     """Write every planned map into ``out`` (see the module docstring). Returns the index records.
 
     All-or-nothing: the maps and records are written into a staging folder ``out/.tmp-envmaps-*`` and moved into
@@ -80,13 +105,14 @@ def prepare(config: dict, out: Path, log=print, guard=None) -> list[dict]:
     from frng.data.curate import _NoGuard  # (curate imports this module)
 
     guard = guard or _NoGuard()
-    env = config["envmaps"]
-    specs = catalog.envmap_plan(config)
+    config = typed(config)
+    env = config.envmaps
+    specs = catalog.envmap_plan(as_dict(config))
     out.mkdir(parents=True, exist_ok=True)
     remove_stale(out, log)
     records: list[dict] = []
     bases: dict[str, np.ndarray] = {}
-    threads = config["render"]["threads"]
+    threads = config.render.threads
     with guard.lock:
         staging = io.temp_dir(".tmp-envmaps-", out)
         guard.paths.append(staging)
@@ -99,12 +125,12 @@ def prepare(config: dict, out: Path, log=print, guard=None) -> list[dict]:
             if spec.base not in bases:
                 bases.clear()  # keep one base in memory
                 bases[spec.base] = load_base(spec, work, threads)
-            img = envmap.resize(envmap.rotate_z(bases[spec.base], spec.rotation_deg), env["width"])
+            img = envmap.resize(envmap.rotate_z(bases[spec.base], spec.rotation_deg), env.width)
             raw = mean_luminance(img)
             if not np.isfinite(raw) or raw <= 0.0:
                 raise envmap.EnvMapError(f"{spec.origin}: environment map {spec.name} is black or not finite "
                                          f"(mean luminance {raw})")
-            scale = 1.0 if env["normalize"] is None else float(env["normalize"]) / raw
+            scale = 1.0 if env.normalize is None else float(env.normalize) / raw
             img = img * np.float32(scale)
             rec = spec.to_dict() | {"scale": scale, "mean_luminance": mean_luminance(img),
                                     "file": EnvmapFolder(".").envmap(spec.name)}
@@ -115,8 +141,8 @@ def prepare(config: dict, out: Path, log=print, guard=None) -> list[dict]:
             log(f"[envmaps] {spec.name:<32} {spec.split:<5} rot {spec.rotation_deg:7.2f} deg  "
                 f"scale {scale:9.4f}  {time.perf_counter() - t0:.2f} s")
         with guard.lock:
-            io.write_json(staged.index(), {"width": env["width"], "height": env["width"] // 2,
-                                                   "normalize": env["normalize"], "maps": records})
+            io.write_json(staged.index(), {"width": env.width, "height": env.width // 2,
+                                                   "normalize": env.normalize, "maps": records})
             for rec in records:  # the map first: a record never exists without it
                 name = rec["name"]
                 os.replace(staged.envmap(name), final.envmap(name))

@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from frng import envmap, io
+from frng.config import Config, typed
 from frng.layout import Layout
 from frng.report import figures
 from frng.variants import BACKBONE
@@ -91,19 +92,20 @@ def loss_curves(results: Path, out_png: Path) -> None:
     figures.loss_curves(runs, out_png, title="Training losses (all runs)")
 
 
-def make_figures(config: dict, objects: list[str], out_dir: Path) -> list[Path]:
+def make_figures(config: Config | dict, objects: list[str], out_dir: Path) -> list[Path]:
     from frng.metrics import read_csv
 
-    results = Path(config["results"])
+    config = typed(config)
+    results = Path(config.results)
     psnr = _psnr_lookup(read_csv(Layout(results).metrics("relight_per_image")))
     written = []
     for oid in objects:
         p = out_dir / "comparison" / f"{oid}.png"
         comparison(results, oid, p, psnr)
         s = out_dir / "saliency" / f"{oid}.png"
-        saliency(results, oid, s, int(config["model"]["patch_size"]))
+        saliency(results, oid, s, int(config.model.patch_size))
         written += [p, s]
-    variants = list(dict.fromkeys(["full", *config["frng"]["variants"]]))
+    variants = list(dict.fromkeys(["full", *config.frng.variants]))
     ablation(results, objects, variants, out_dir / "ablation.png", psnr)
     loss_curves(results, out_dir / "loss_curves.png")
     return written + [out_dir / "ablation.png", out_dir / "loss_curves.png"]

@@ -26,8 +26,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    config = frng_config.load(args.config)
-    L = Layout(config["results"])
+    config = frng_config.typed(frng_config.load(args.config))
+    L = Layout(config.results)
     env_dir = Path(args.envmaps or L.envmaps_dir())
     out = Path(args.out or L.objects_dir())
     t0 = time.perf_counter()

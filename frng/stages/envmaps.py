@@ -23,8 +23,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    config = frng_config.load(args.config)
-    out = Path(args.out) if args.out else Path(Layout(config["results"]).envmaps_dir())
+    config = frng_config.typed(frng_config.load(args.config))
+    out = Path(args.out) if args.out else Path(Layout(config.results).envmaps_dir())
     from frng.data.curate import StopGuard
 
     try:
