@@ -478,8 +478,11 @@ def unknown_digest_keys(schema: dict | None = None) -> list[str]:
 # config (:func:`section_dict` leaves them out).
 #
 # The architecture records stored in model files (BackboneConfig, IDMConfig: a section's architecture keys plus the
-# patch size and near/far; FRNGConfig, MaterialFormerConfig, ...) are built with the same helper, so loading a
-# model file whose ``config`` has a key the code does not know fails, naming it.
+# patch size and near/far, no defaults; FRNGConfig: every field set by frng.model.frng.variant_config, no defaults)
+# are built with the same helper, so loading a model file whose ``config`` has a key the code does not know (or
+# lacks one it needs) fails, naming it. The module settings derived from them (MaterialFormerConfig,
+# FineGeometryConfig, GaussianDecodeConfig, LightIndependenceConfig) map to no section: the pipeline sets every field;
+# their defaults serve direct use (tests, notebooks) only; their ``from_dict`` is strict too.
 #
 # The Snakemake rule files keep the validated dict (and so do the helpers they call while planning, which must not
 # import torch: frng.data.catalog, frng.variants; they take a Config too, see :func:`as_dict`). Config digests
@@ -634,6 +637,14 @@ def typed(config: Config | Mapping) -> Config:
     if isinstance(config, Config):
         return config
     return section(Config, config, "")
+
+
+def config_section(config: Config | Mapping, key: str):
+    """The section at top-level ``key`` of a :class:`Config`, or built (:func:`section`) from the section of a config
+    mapping, which may be partial (missing keys take the schema's defaults)."""
+    if isinstance(config, Config):
+        return getattr(config, key)
+    return section(section_class(key), config.get(key, {}), key)
 
 
 def as_dict(config: Config | Mapping) -> Mapping:

@@ -46,7 +46,7 @@ from torch import nn
 
 from frng import distributed, envmap, io
 from frng import training as tr
-from frng.config import Config, section, typed
+from frng.config import Config, config_section, typed
 from frng.layout import Layout
 from frng.model.frng import FRNG, FRNGConfig, canonical_variant, variant_config
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
@@ -94,8 +94,7 @@ class TrainConfig:
 
     @classmethod
     def from_config(cls, config: Config | dict) -> "TrainConfig":
-        """The ``train`` section of a pipeline config (a :class:`frng.config.Config` or a config mapping)."""
-        return config.train if isinstance(config, Config) else section(cls, config.get("train", {}), "train")
+        return config_section(config, "train")
 
     def steps_for(self, variant: str) -> int:
         return self.steps if variant == "full" or self.ablation_steps is None else self.ablation_steps

@@ -6,7 +6,7 @@ from dataclasses import dataclass, fields
 
 import torch
 
-from frng.config import Config, section
+from frng.config import Config, config_section, section
 from frng.render import gsplat_backend
 from frng.render.project import project_gaussians
 from frng.render.reference import rasterize_reference
@@ -30,14 +30,12 @@ class RasterConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "RasterConfig":
-        """Strict (:func:`frng.config.section`): unknown keys are errors, missing ones take the schema's defaults
-        (``{}``: the defaults; a model file's ``raster``)."""
+        """Strict (:func:`frng.config.section`; ``{}``: the schema's defaults; a model file's ``raster``)."""
         return section(cls, d, "raster")
 
     @classmethod
     def from_config(cls, config: Config | dict) -> "RasterConfig":
-        """The ``raster`` section of a pipeline config (a :class:`frng.config.Config` or a config mapping)."""
-        return config.raster if isinstance(config, Config) else cls.from_dict(config.get("raster", {}))
+        return config_section(config, "raster")
 
     def kwargs(self) -> dict:
         """Keyword arguments for :func:`rasterize`."""

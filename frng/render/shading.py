@@ -26,7 +26,7 @@ import torch
 from torch import nn
 
 from frng import camera, envmap
-from frng.config import Config, section
+from frng.config import Config, config_section, section
 from frng.envmap import EnvSamples
 
 
@@ -59,14 +59,12 @@ class ShadingConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "ShadingConfig":
-        """Strict (:func:`frng.config.section`): unknown keys are errors, missing ones take the schema's defaults
-        (``{}``: the defaults; a model file's ``shading``)."""
+        """Strict (:func:`frng.config.section`; ``{}``: the schema's defaults; a model file's ``shading``)."""
         return section(cls, d, "shading")
 
     @classmethod
     def from_config(cls, config: Config | dict) -> "ShadingConfig":
-        """The ``shading`` section of a pipeline config (a :class:`frng.config.Config` or a config mapping)."""
-        return config.shading if isinstance(config, Config) else cls.from_dict(config.get("shading", {}))
+        return config_section(config, "shading")
 
 
 def encode_dirs(d: torch.Tensor, freqs: int) -> torch.Tensor:
