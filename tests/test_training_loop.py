@@ -25,7 +25,7 @@ import torch.multiprocessing as mp
 
 from frng import training as tr
 from frng.priors import idm_train
-from test_idm_generalise import FAR, NEAR, TINY, sphere_object
+from test_idm_generalise import TINY, sphere_object, trainer_config
 
 HERE = Path(__file__).resolve().parent
 STEPS = 10
@@ -33,8 +33,7 @@ STEPS = 10
 
 def _config(**train) -> dict:
     t = {"steps": STEPS, "lr": 3e-3, "warmup": 2, "bf16": False, "checkpoint_every": 3} | train
-    return {"seed": 0, "device": "cpu", "model": {"patch_size": 8}, "backbone": {"near": NEAR, "far": FAR},
-            "idm": {k: v for k, v in TINY.items() if k not in ("patch", "near", "far")} | {"train": t}}
+    return trainer_config(t)
 
 
 def _objects():
