@@ -26,9 +26,7 @@ from typing import TYPE_CHECKING, Any
 import yaml
 
 if TYPE_CHECKING:  # the sections' classes live beside the code that reads them; typed() imports them
-    from frng.data.catalog import ObjectsConfig
-    from frng.data.curate import RenderConfig
-    from frng.data.envmaps import EnvmapsConfig
+    from frng.data.catalog import EnvmapsConfig, ObjectsConfig, RenderConfig
     from frng.metrics import EvalConfig
     from frng.model.frng import FRNGSection
     from frng.model.train import TrainConfig
@@ -484,16 +482,17 @@ def unknown_digest_keys(schema: dict | None = None) -> list[str]:
 # FineGeometryConfig, GaussianDecodeConfig, LightIndependenceConfig) map to no section: the pipeline sets every field;
 # their defaults serve direct use (tests, notebooks) only; their ``from_dict`` is strict too.
 #
-# The Snakemake rule files keep the validated dict (and so do the helpers they call while planning, which must not
-# import torch: frng.data.catalog, frng.variants; they take a Config too, see :func:`as_dict`). Config digests
+# The Snakemake rule files keep the validated dict, and the helpers they call while planning, which must not import
+# torch, take it as well as a Config: frng.data.catalog reads its torch-free sections through :func:`config_section`,
+# frng.variants reads the dict (:func:`as_dict`; its frng and idm sections live beside torch code). Config digests
 # (:func:`rule_digest`) read the dict.
 
 SECTION_CLASSES: dict[str, tuple[str, str]] = {
     "": ("frng.config", "Config"),
-    "envmaps": ("frng.data.envmaps", "EnvmapsConfig"),
-    "envmaps.skies": ("frng.data.envmaps", "SkiesConfig"),
+    "envmaps": ("frng.data.catalog", "EnvmapsConfig"),
+    "envmaps.skies": ("frng.data.catalog", "SkiesConfig"),
     "objects": ("frng.data.catalog", "ObjectsConfig"),
-    "render": ("frng.data.curate", "RenderConfig"),
+    "render": ("frng.data.catalog", "RenderConfig"),
     "backbone": ("frng.priors.backbone", "BackboneSection"),
     "backbone.train": ("frng.priors.backbone_train", "BackboneTrainConfig"),
     "idm": ("frng.priors.idm", "IDMSection"),
@@ -640,10 +639,14 @@ def typed(config: Config | Mapping) -> Config:
 
 
 def config_section(config: Config | Mapping, key: str):
-    """The section at top-level ``key`` of a :class:`Config`, or built (:func:`section`) from the section of a config
-    mapping, which may be partial (missing keys take the schema's defaults)."""
+    """The top-level entry ``key`` of a :class:`Config`, or of a config mapping: a section is built from it
+    (:func:`section`; the mapping may be partial: missing keys take the schema's defaults), a scalar (``seed``,
+    ``results``, ...) is returned as it is. Only that section's class is imported: the planning helpers that the rule
+    files call with the dict (frng.data.catalog) stay torch-free."""
     if isinstance(config, Config):
         return getattr(config, key)
+    if key not in SECTION_CLASSES:
+        return config[key]
     return section(section_class(key), config.get(key, {}), key)
 
 

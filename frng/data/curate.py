@@ -36,7 +36,6 @@ import shutil
 import signal
 import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -50,24 +49,6 @@ from frng.layout import EnvmapFolder, Layout, ObjectFolder
 GBUFFER_CHANNELS = ("A", "normal.X", "normal.Y", "normal.Z", "depth.Z", "albedo.R", "albedo.G", "albedo.B",
                     "roughness.Y", "metallic.Y")
 META_VERSION = 1
-
-
-@dataclass(frozen=True)
-class RenderConfig:
-    """The config's ``render`` section: Cycles settings, the camera rig (:mod:`frng.data.rig`) and the lights per
-    object (frng.config.section; defaults: config/schema.yaml)."""
-
-    resolution: int
-    spp: int
-    input_views: int
-    extra_input_views: int
-    target_views: int
-    input_lights: int
-    target_lights: int
-    camera_distance: float
-    fov_deg: float
-    threads: int
-    fur_strands: int
 
 
 class CurationError(RuntimeError):

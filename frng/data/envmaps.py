@@ -24,7 +24,6 @@ import os
 import shutil
 import tempfile
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -33,29 +32,6 @@ from frng import envmap, io
 from frng.config import Config, as_dict, typed
 from frng.data import catalog
 from frng.layout import EnvmapFolder
-
-@dataclass(frozen=True)
-class SkiesConfig:
-    """The config's ``envmaps.skies`` section (frng.config.section; defaults: config/schema.yaml)."""
-
-    models: tuple[str, ...]
-    sun_elevations_deg: tuple[float, ...]
-    turbidity: float
-
-
-@dataclass(frozen=True)
-class EnvmapsConfig:
-    """The config's ``envmaps`` section (frng.config.section; defaults: config/schema.yaml). ``extra`` holds the
-    user's entries as mappings (path, split, licence)."""
-
-    width: int
-    bundled: tuple[str, ...]
-    skies: SkiesConfig
-    rotations: int
-    test_fraction: float
-    extra: tuple[dict, ...]
-    normalize: float | None
-
 
 SKY_BAKE_WIDTH = 512  # skies are smooth; baked at this width then resized
 GROUND_ALBEDO = 0.3
