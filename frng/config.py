@@ -519,7 +519,7 @@ def section_class(where: str) -> type:
 
 def _schema_node(where: str | None) -> dict:
     node = _schema()
-    for part in (where or "").split(".") if where else ():
+    for part in where.split(".") if where else ():
         node = node["properties"][part]
     return node
 

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from frng import envmap, io
-from frng.config import Config, as_dict, typed
+from frng.config import Config, typed
 from frng.data import catalog
 from frng.layout import EnvmapFolder
 
@@ -83,7 +83,7 @@ def prepare(config: Config | dict, out: Path, log=print, guard=None) -> list[dic
     guard = guard or _NoGuard()
     config = typed(config)
     env = config.envmaps
-    specs = catalog.envmap_plan(as_dict(config))
+    specs = catalog.envmap_plan(config)
     out.mkdir(parents=True, exist_ok=True)
     remove_stale(out, log)
     records: list[dict] = []
