@@ -123,3 +123,20 @@ def test_config_module_stays_torch_free():
             "d = fc.load('config/smoke.yaml'); cat.plan(d); v.runs(d); print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_every_config_from_dict_is_strict():
+    """No lenient copy is left: every ``from_dict`` of a config dataclass builds through frng.config.section (the
+    one exception, IntrinsicPriors.from_dict, reads tensors, not a config), and nothing filters keys by the
+    dataclass's fields."""
+    import re
+
+    lenient, not_strict = [], []
+    for f in sorted((ROOT / "frng").rglob("*.py")):
+        text = f.read_text()
+        if "__dataclass_fields__" in text:
+            lenient.append(str(f.relative_to(ROOT)))
+        for m in re.finditer(r"def from_dict\(cls[^\n]*\n((?:[ \t]+[^\n]*\n){1,6})", text):
+            if "section(" not in m.group(1) and "IntrinsicPriors" not in m.group(0):
+                not_strict.append(f"{f.relative_to(ROOT)}: {m.group(0).splitlines()[0].strip()}")
+    assert not lenient and not not_strict, (lenient, not_strict)
