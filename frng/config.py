@@ -12,13 +12,29 @@ from __future__ import annotations
 
 import argparse
 import copy
+import dataclasses
+import functools
 import hashlib
+import importlib
 import json
 import os
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import yaml
+
+if TYPE_CHECKING:  # the sections' classes live beside the code that reads them; typed() imports them
+    from frng.data.catalog import EnvmapsConfig, ObjectsConfig, RenderConfig
+    from frng.metrics import EvalConfig
+    from frng.model.frng import FRNGSection
+    from frng.model.train import TrainConfig
+    from frng.nn import ModelConfig
+    from frng.priors.backbone import BackboneSection
+    from frng.priors.idm import IDMSection
+    from frng.render.raster import RasterConfig
+    from frng.render.shading import ShadingConfig
 
 SCHEMA_PATH = Path(__file__).resolve().parent.parent / "config" / "schema.yaml"
 
@@ -35,6 +51,11 @@ def _key(path) -> str:
 def load_schema(path: Path | str = SCHEMA_PATH) -> dict:
     with open(path) as f:
         return yaml.safe_load(f)
+
+
+@functools.lru_cache(maxsize=1)
+def _schema() -> dict:
+    return load_schema()
 
 
 def _validator_with_defaults(schema: dict):
@@ -441,6 +462,198 @@ def unknown_digest_keys(schema: dict | None = None) -> list[str]:
             if node is None or key.lstrip("!").split(".")[0] in _NEVER_DIGESTED:
                 bad.append(f"{rule}: {key}")
     return bad
+
+
+# -- the typed config -----------------------------------------------------------------------------------
+#
+# Stages read the validated config through one frozen :class:`Config`, built once at the stage's entry point
+# (:func:`typed`): one frozen dataclass per schema section, defined beside the code that reads it and listed in
+# :data:`SECTION_CLASSES`. Building a section is strict (:func:`section`): an unknown key is a ConfigError naming it,
+# a missing key takes the schema's default -- config/schema.yaml is the one place defaults are written; a section
+# class's fields have no defaults of their own (tests/test_config_typed.py checks both). A class may hold fields
+# the schema does not have ("internal" fields: values the code sets, e.g. SaliencyConfig.top_k from frng.top_k_percent,
+# the IDM trainer's fixed weight decay); those keep a Python default or are always passed, and are not part of the
+# config (:func:`section_dict` leaves them out).
+#
+# The architecture records stored in model files (BackboneConfig, IDMConfig: a section's architecture keys plus the
+# patch size and near/far, no defaults; FRNGConfig: every field set by frng.model.frng.variant_config, no defaults)
+# are built with the same helper, so loading a model file whose ``config`` has a key the code does not know (or
+# lacks one it needs) fails, naming it. The module settings derived from them (MaterialFormerConfig,
+# FineGeometryConfig, GaussianDecodeConfig, LightIndependenceConfig) map to no section: the pipeline sets every field;
+# their defaults serve direct use (tests, notebooks) only; their ``from_dict`` is strict too.
+#
+# The Snakemake rule files keep the validated dict, and the helpers they call while planning, which must not import
+# torch, take it as well as a Config: frng.data.catalog reads its torch-free sections through :func:`config_section`,
+# frng.variants reads the dict (:func:`as_dict`; its frng and idm sections live beside torch code). Config digests
+# (:func:`rule_digest`) read the dict.
+
+SECTION_CLASSES: dict[str, tuple[str, str]] = {
+    "": ("frng.config", "Config"),
+    "envmaps": ("frng.data.catalog", "EnvmapsConfig"),
+    "envmaps.skies": ("frng.data.catalog", "SkiesConfig"),
+    "objects": ("frng.data.catalog", "ObjectsConfig"),
+    "render": ("frng.data.catalog", "RenderConfig"),
+    "backbone": ("frng.priors.backbone", "BackboneSection"),
+    "backbone.train": ("frng.priors.backbone_train", "BackboneTrainConfig"),
+    "idm": ("frng.priors.idm", "IDMSection"),
+    "idm.train": ("frng.priors.idm_train", "IDMTrainConfig"),
+    "eval": ("frng.metrics", "EvalConfig"),
+    "raster": ("frng.render.raster", "RasterConfig"),
+    "shading": ("frng.render.shading", "ShadingConfig"),
+    "model": ("frng.nn", "ModelConfig"),
+    "frng": ("frng.model.frng", "FRNGSection"),
+    "frng.saliency": ("frng.model.saliency", "SaliencyConfig"),
+    "train": ("frng.model.train", "TrainConfig"),
+    "train.loss": ("frng.model.train", "LossConfig"),
+}
+"""Dotted schema key of every object-valued config section ("" = the whole config) -> (module, class) of the frozen
+dataclass that holds it. Sections not listed (objects.material_mix) and list items (objects.extra, envmaps.extra)
+stay plain values."""
+
+
+def section_class(where: str) -> type:
+    """The dataclass of the section at dotted key ``where`` (imports its module)."""
+    module, name = SECTION_CLASSES[where]
+    return getattr(importlib.import_module(module), name)
+
+
+def _schema_node(where: str | None) -> dict:
+    node = _schema()
+    for part in where.split(".") if where else ():
+        node = node["properties"][part]
+    return node
+
+
+def schema_keys(where: str) -> list[str]:
+    """The keys of the schema's section at dotted key ``where`` ("" = the top level)."""
+    return list(_schema_node(where).get("properties", {}))
+
+
+def schema_defaults(where: str) -> dict[str, Any]:
+    """The schema's defaults of the section at dotted key ``where`` (deep copies)."""
+    props = _schema_node(where).get("properties", {})
+    return {k: copy.deepcopy(v["default"]) for k, v in props.items() if "default" in v}
+
+
+def _dotted(where: str | None, key: str) -> str:
+    return f"{where}.{key}" if where else key
+
+
+def _frozen_value(value: Any) -> Any:
+    """Lists become tuples (a frozen section holds no list); dicts and scalars stay."""
+    return tuple(_frozen_value(v) for v in value) if isinstance(value, list) else value
+
+
+def section(cls: type, d: Mapping | None, where: str | None = None):
+    """Build the dataclass ``cls`` from the mapping ``d`` strictly.
+
+    ``where``: the dotted schema key the mapping is (``"train"``, ``"backbone.train"``; None for a class that maps
+    to no section, e.g. a model file's architecture record). A key of ``d`` that is no field of ``cls`` raises
+    :class:`ConfigError` naming it (``train.stepz: unknown key; known: ...``); a missing field takes the schema's
+    default at ``where``, else its dataclass default (internal fields only), else raises naming it. A field whose
+    dotted key is a section of :data:`SECTION_CLASSES` is built from its mapping the same way; lists become tuples.
+    """
+    d = dict(d or {})
+    names = [f.name for f in dataclasses.fields(cls)]
+    unknown = sorted(set(d) - set(names), key=str)
+    label = where if where is not None else cls.__name__
+    if unknown:
+        raise ConfigError(f"{_dotted(label, str(unknown[0]))}: unknown key; known: {', '.join(sorted(names))}")
+    defaults = schema_defaults(where) if where is not None else {}
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        if f.name in d:
+            value = d[f.name]
+        elif f.name in defaults:
+            value = defaults[f.name]
+        elif f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING:
+            continue
+        else:
+            raise ConfigError(f"{_dotted(label, f.name)}: missing key")
+        key = _dotted(where, f.name) if where is not None else None
+        if key in SECTION_CLASSES and isinstance(value, Mapping):
+            value = section(section_class(key), value, key)
+        kwargs[f.name] = _frozen_value(value)
+    return cls(**kwargs)
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, (tuple, list)):
+        return [_plain(v) for v in value]
+    if isinstance(value, Mapping):
+        return {k: _plain(v) for k, v in value.items()}
+    return copy.deepcopy(value)
+
+
+def section_dict(obj, where: str) -> dict:
+    """The config mapping of a section dataclass ``obj`` at dotted key ``where``: its schema keys only (internal
+    fields left out), in the schema's order, nested sections as mappings, tuples as lists."""
+    out = {}
+    for key in schema_keys(where):
+        value = getattr(obj, key)
+        if dataclasses.is_dataclass(value):
+            value = section_dict(value, _dotted(where, key))
+        out[key] = _plain(value)
+    return out
+
+
+@dataclass(frozen=True)
+class Config:
+    """The validated pipeline config, typed: one frozen section per top-level key (see :data:`SECTION_CLASSES`).
+
+    Build it once per stage with :func:`typed`; ``config.train.steps``, ``config.render.resolution``, ..."""
+
+    tier: str
+    seed: int
+    train_seed: int | None
+    results: str
+    device: str
+    envmaps: EnvmapsConfig
+    objects: ObjectsConfig
+    render: RenderConfig
+    backbone: BackboneSection
+    idm: IDMSection
+    eval: EvalConfig
+    raster: RasterConfig
+    shading: ShadingConfig
+    model: ModelConfig
+    frng: FRNGSection
+    train: TrainConfig
+
+    @property
+    def model_seed(self) -> int:
+        """The learned models' seed: ``train_seed``, or the data's ``seed`` when it is null."""
+        return int(self.seed if self.train_seed is None else self.train_seed)
+
+    def to_dict(self) -> dict:
+        """The config mapping again (equal to the validated dict it was built from)."""
+        return section_dict(self, "")
+
+
+def typed(config: Config | Mapping) -> Config:
+    """The :class:`Config` of a validated config mapping (:func:`load`, :func:`validate`); a Config is returned as
+    it is, so a library function may call ``typed`` on what it is given."""
+    if isinstance(config, Config):
+        return config
+    return section(Config, config, "")
+
+
+def config_section(config: Config | Mapping, key: str):
+    """The top-level entry ``key`` of a :class:`Config`, or of a config mapping: a section is built from it
+    (:func:`section`; the mapping may be partial: missing keys take the schema's defaults), a scalar (``seed``,
+    ``results``, ...) is returned as it is. Only that section's class is imported: the planning helpers that the rule
+    files call with the dict (frng.data.catalog) stay torch-free."""
+    if isinstance(config, Config):
+        return getattr(config, key)
+    if key not in SECTION_CLASSES:
+        return config[key]
+    return section(section_class(key), config.get(key, {}), key)
+
+
+def as_dict(config: Config | Mapping) -> Mapping:
+    """The config mapping of a Config (or the mapping itself): for the helpers that the Snakemake rule files call
+    with the validated dict while planning (frng.data.catalog, frng.variants)."""
+    return config.to_dict() if isinstance(config, Config) else config
 
 
 def add_config_argument(parser: argparse.ArgumentParser) -> None:

@@ -28,6 +28,7 @@ import torch
 import torch.nn.functional as F
 
 from frng import camera
+from frng.config import section
 
 RAW_CHANNELS = 9  # distance 1, scale 3, rotation 4, opacity 1
 RAW_SPLIT = (1, 3, 4, 1)
@@ -50,7 +51,9 @@ class GaussianDecodeConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "GaussianDecodeConfig":
-        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+        """Strict (:func:`frng.config.section`): unknown keys are errors; a module setting, not a config section:
+        missing keys take the field defaults."""
+        return section(cls, d)
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -20,6 +20,11 @@ writes ``L.object_meta()`` for ``{results}/objects/{obj}/meta.json`` and a stage
     metrics/{name}.csv                            backbone, idm, relight_per_image, relight_summary
     tables/{name}.{csv,md,tex}, figures/...       the paper's tables and figures (rules tables, figures)
     logs/{rule}.log, logs/{rule}/{obj}.log        one log per job
+
+The files inside a folder that a stage may be pointed at elsewhere (``--out``, ``--envmaps``: a staging folder, a
+user's folder) are named by the folder classes :class:`EnvmapFolder`, :class:`ObjectFolder`, :class:`TrainingFolder`
+and :class:`RelightFolder`; :class:`Layout` places those folders in the results folder and asks them for the names,
+so every name is spelled once.
 """
 
 from __future__ import annotations
@@ -27,14 +32,81 @@ from __future__ import annotations
 from pathlib import Path
 
 
-class Layout:
-    """The results folder ``root``'s artefact paths (see the module docstring)."""
+class _Folder:
+    """A folder's files as ``str`` paths (``root`` joined with their names)."""
 
     def __init__(self, root: str | Path):
         self.root = Path(root)
 
     def _p(self, *parts: str) -> str:
         return str(self.root.joinpath(*parts))
+
+
+class EnvmapFolder(_Folder):
+    """A prepared env-map folder (``{results}/envmaps``, ``frng curate --envmaps``, the staging folder of
+    :func:`frng.data.envmaps.prepare`)."""
+
+    def index(self) -> str:
+        return self._p("index.json")
+
+    def envmap(self, env: str = "{env}") -> str:
+        return self._p(f"{env}.exr")
+
+    def record(self, env: str = "{env}") -> str:
+        """The map's record ``{env}.json`` (as in the index)."""
+        return self._p(f"{env}.json")
+
+
+class ObjectFolder(_Folder):
+    """One curated object's folder (``{results}/objects/{obj}``, or the staging folder curation writes)."""
+
+    def meta(self) -> str:
+        return self._p("meta.json")
+
+    def image(self, kind: str, light: str, view: str) -> str:
+        """A curated view: kind ``inputs`` or ``targets``."""
+        return self._p(kind, light, f"{view}.exr")
+
+    def gbuffer(self, view: str) -> str:
+        return self._p("gbuffer", f"{view}.exr")
+
+
+class TrainingFolder(_Folder):
+    """What a training run writes into its ``--out`` folder (:func:`frng.training.fit`): the backbone's, the IDM's,
+    an F-RNG variant's."""
+
+    def model(self) -> str:
+        return self._p("model.pt")
+
+    def checkpoint(self) -> str:
+        return self._p("checkpoint.pt")
+
+    def curve(self, ext: str = "csv") -> str:
+        """The loss log (``csv``) or plot (``png``)."""
+        return self._p(f"loss.{ext}")
+
+    def summary(self) -> str:
+        return self._p("train.json")
+
+
+class RelightFolder(_Folder):
+    """One relighting run's folder for one object (``{results}/relight/{run}/{obj}``, or its staging folder)."""
+
+    def record(self) -> str:
+        return self._p("run.json")
+
+    def image(self, light: str, view: str) -> str:
+        return self._p(light, f"{view}.exr")
+
+    def saliency(self) -> str:
+        return self._p("saliency.npz")
+
+    def asset(self) -> str:
+        return self._p("asset")
+
+
+class Layout(_Folder):
+    """The results folder ``root``'s artefact paths (see the module docstring)."""
 
     # -- configuration and logs ---------------------------------------------------------------------------------
     def config(self) -> str:
@@ -49,10 +121,10 @@ class Layout:
         return self._p("envmaps")
 
     def envmap_index(self) -> str:
-        return self._p("envmaps", "index.json")
+        return EnvmapFolder(self.envmaps_dir()).index()
 
     def envmap(self, env: str = "{env}") -> str:
-        return self._p("envmaps", f"{env}.exr")
+        return EnvmapFolder(self.envmaps_dir()).envmap(env)
 
     def objects_dir(self) -> str:
         return self._p("objects")
@@ -61,11 +133,14 @@ class Layout:
         return self._p("objects", obj)
 
     def object_meta(self, obj: str = "{obj}") -> str:
-        return self._p("objects", obj, "meta.json")
+        return ObjectFolder(self.object_dir(obj)).meta()
 
     def object_image(self, obj: str, kind: str, light: str, view: str) -> str:
         """A curated view: kind ``inputs`` or ``targets``."""
-        return self._p("objects", obj, kind, light, f"{view}.exr")
+        return ObjectFolder(self.object_dir(obj)).image(kind, light, view)
+
+    def object_gbuffer(self, obj: str, view: str) -> str:
+        return ObjectFolder(self.object_dir(obj)).gbuffer(view)
 
     def previews_dir(self) -> str:
         return self._p("previews")
@@ -78,11 +153,11 @@ class Layout:
         return self._p("backbone")
 
     def backbone_model(self) -> str:
-        return self._p("backbone", "model.pt")
+        return TrainingFolder(self.backbone_dir()).model()
 
     def backbone_curve(self, ext: str = "csv") -> str:
         """The backbone's loss log (``csv``) or plot (``png``)."""
-        return self._p("backbone", f"loss.{ext}")
+        return TrainingFolder(self.backbone_dir()).curve(ext)
 
     def backbone_cache(self, obj: str = "{obj}") -> str:
         return self._p("backbone", "cache", f"{obj}.safetensors")
@@ -94,10 +169,10 @@ class Layout:
         return self._p("idm")
 
     def idm_model(self) -> str:
-        return self._p("idm", "model.pt")
+        return TrainingFolder(self.idm_dir()).model()
 
     def idm_curve(self, ext: str = "csv") -> str:
-        return self._p("idm", f"loss.{ext}")
+        return TrainingFolder(self.idm_dir()).curve(ext)
 
     def idm_priors(self, obj: str = "{obj}") -> str:
         return self._p("priors", "idm", f"{obj}.safetensors")
@@ -113,10 +188,10 @@ class Layout:
         return self._p("models", variant)
 
     def model(self, variant: str = "{variant}") -> str:
-        return self._p("models", variant, "model.pt")
+        return TrainingFolder(self.model_dir(variant)).model()
 
     def model_curve(self, variant: str = "{variant}", ext: str = "csv") -> str:
-        return self._p("models", variant, f"loss.{ext}")
+        return TrainingFolder(self.model_dir(variant)).curve(ext)
 
     def model_file(self, variant: str, name: str) -> str:
         """Another file of a variant's folder (``train.log``, ``alias.log``, ...)."""
@@ -131,10 +206,13 @@ class Layout:
         return self._p("relight", run, obj)
 
     def relight_record(self, run: str = "{run}", obj: str = "{obj}") -> str:
-        return self._p("relight", run, obj, "run.json")
+        return RelightFolder(self.relight_run(run, obj)).record()
 
     def relight_image(self, run: str, obj: str, light: str, view: str) -> str:
-        return self._p("relight", run, obj, light, f"{view}.exr")
+        return RelightFolder(self.relight_run(run, obj)).image(light, view)
+
+    def relight_saliency(self, run: str = "{run}", obj: str = "{obj}") -> str:
+        return RelightFolder(self.relight_run(run, obj)).saliency()
 
     def relight_timing(self, obj: str = "{obj}") -> str:
         return self._p("relight", "timing", f"{obj}.json")

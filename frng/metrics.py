@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import math
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
@@ -63,6 +64,17 @@ DEFAULT_PROTOCOL = "aligned"
 DEFAULT_BACKGROUND = (1.0, 1.0, 1.0)
 METRICS = ("psnr", "ssim", "lpips")
 HIGHER_IS_BETTER = {"psnr": True, "ssim": True, "lpips": False}
+
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """The config's ``eval`` section: the protocol and background of the relighting metrics (frng.config.section;
+    defaults: config/schema.yaml)."""
+
+    protocol: str
+    background: tuple[float, ...]
+
 
 # skimage structural_similarity settings (Wang et al. 2004 Gaussian SSIM).
 SSIM_KWARGS = dict(gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=1.0, channel_axis=-1)

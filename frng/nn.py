@@ -7,10 +7,19 @@ share one tested implementation. Tensors are channels-last: tokens (B, L, D).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """The config's ``model`` section: the patch size of every tokenizer (frng.config.section; defaults:
+    config/schema.yaml)."""
+
+    patch_size: int
 
 
 class Attention(nn.Module):

@@ -52,7 +52,8 @@ import numpy as np
 import torch
 
 from frng import envmap, io
-from frng.layout import Layout
+from frng.config import Config, typed
+from frng.layout import Layout, RelightFolder, TrainingFolder
 from frng.variants import BACKBONE, RIG_VIEWS, Run, model_variants, runs  # noqa: F401
 
 
@@ -62,27 +63,28 @@ class RelightError(ValueError):
 
 # -- validation --------------------------------------------------------------------------------------
 
-def validate_inputs(config: dict, oid: str) -> dict:
+def validate_inputs(config: Config | dict, oid: str) -> dict:
     """Check everything ``relight`` reads, before anything is written. Returns the object's meta.json.
 
     Raises :class:`RelightError` naming the file: missing/unreadable meta.json, an object of the training split
     (relighting evaluates held-out objects), a missing, corrupt or non-RGBA input view (no alpha channel: the
     masks are part of the input), an input view that is not ``render.resolution`` square, a missing or non-2:1
     env map."""
-    L = Layout(config["results"])
-    root = Path(L.object_dir(oid))
+    config = typed(config)
+    L = Layout(config.results)
+    meta_path = Path(L.object_meta(oid))
     try:
-        meta = io.read_json(root / "meta.json")
+        meta = io.read_json(meta_path)
     except (FileNotFoundError, ValueError) as e:
-        raise RelightError(f"{root / 'meta.json'}: cannot read object metadata ({e})") from e
+        raise RelightError(f"{meta_path}: cannot read object metadata ({e})") from e
     for key in ("views", "input_lights", "target_lights"):
         if key not in meta:
-            raise RelightError(f"{root / 'meta.json'}: missing key {key!r}")
-    check_test_split(config, oid, meta, root / "meta.json")
-    res = int(config["render"]["resolution"])
+            raise RelightError(f"{meta_path}: missing key {key!r}")
+    check_test_split(config, oid, meta, meta_path)
+    res = int(config.render.resolution)
     light_in = meta["input_lights"][0]
     for cam in meta["views"]["inputs"]:
-        path = root / "inputs" / light_in / f"{cam['name']}.exr"
+        path = L.object_image(oid, "inputs", light_in, cam["name"])
         try:
             img = io.read_rgba(path, require_alpha=True)
         except io.ImageError as e:
@@ -100,7 +102,7 @@ def validate_inputs(config: dict, oid: str) -> dict:
     return meta
 
 
-def check_test_split(config: dict, oid: str, meta: dict, meta_path: Path) -> None:
+def check_test_split(config: Config | dict, oid: str, meta: dict, meta_path: Path) -> None:
     """Refuse an object of the training split: its split as curated (``meta.json``'s ``split``) and as the config
     plans it must both be ``test``. Raises :class:`RelightError` naming the object and the file."""
     from frng.data import catalog
@@ -139,7 +141,7 @@ class Timer:
         self.s = time.perf_counter() - self.t0
 
 
-def backbone_views(config: dict, backbone, oid: str, views, env_in: torch.Tensor, light_in: str, device) -> dict:
+def backbone_views(config: Config, backbone, oid: str, views, env_in: torch.Tensor, light_in: str, device) -> dict:
     """The backbone's tokens for V input views, live, keyed as a cache entry (:class:`frng.priors.cache.
     BackboneCache.views`): t_geo (V, h, w, D), raw (V, H, W, 9), means/quats/scales/opacities, keep (N,) uint8,
     c2w, intr, light0.t_app (V, h, w, D), light0.sh (N, K, 3); light 0 = the input light, with the DDIM seed
@@ -150,7 +152,7 @@ def backbone_views(config: dict, backbone, oid: str, views, env_in: torch.Tensor
     H, W = rgb.shape[1:3]
     t_geo, raw, gauss, keep, raw_prior, pixels = backbone.reconstruct(rgb, a, c2w, intr)
     nd = backbone.cfg.den_views
-    g = torch.Generator(device=device).manual_seed(catalog.derive_seed(config["seed"], "cache", oid, light_in))
+    g = torch.Generator(device=device).manual_seed(catalog.derive_seed(config.seed, "cache", oid, light_in))
     sh, t_app = backbone.denoise(t_geo, gauss, keep, env_in.to(device)[None], c2w[:nd], intr[:nd], H, W,
                                  generator=g, pixels=pixels)
     return {"t_geo": t_geo[0].float(), "raw": raw.float(), "raw_prior": raw_prior.float(), "means": gauss.means,
@@ -163,22 +165,22 @@ def _write_images(folder: Path, light: str, names: list[str], rgba: torch.Tensor
     """rgba (Vt, H, W, 4) linear premultiplied -> folder/light/{view}.exr."""
     arr = rgba.detach().float().cpu().numpy()
     for k, name in enumerate(names):
-        io.write_exr(folder / light / f"{name}.exr", arr[k], channels=["R", "G", "B", "A"])
+        io.write_exr(RelightFolder(folder).image(light, name), arr[k], channels=["R", "G", "B", "A"])
 
 
-def relight_object(config: dict, oid: str, models: dict[str, Path], backbone_path: Path, out_root: Path,
+def relight_object(config: Config | dict, oid: str, models: dict[str, Path], backbone_path: Path, out_root: Path,
                    device: torch.device) -> dict:
     """Do the whole job for one object (see the module docstring). ``models``: variant -> model.pt.
 
     Writes into ``out_root`` (a staging folder): ``{run}/...`` folders and ``timing.json``. Returns the timing."""
     from frng.data import catalog
     from frng.model.frng import FRNG
-    from frng.render.shading import ShadingConfig
     from frng.priors import build_idm, load_backbone
     from frng.priors.dataset import load_object
 
+    config = typed(config)
     idm = build_idm(config, device)
-    meta = io.read_json(Layout(config["results"]).object_meta(oid))
+    meta = io.read_json(Layout(config.results).object_meta(oid))
     the_runs = runs(config, len(meta["views"]["inputs"]))
     need_gbuffer = idm.kind == "oracle" or any(r.priors == "oracle" for r in the_runs)
     obj = load_object(config, oid, with_targets=False, with_gbuffer=need_gbuffer)
@@ -191,7 +193,7 @@ def relight_object(config: dict, oid: str, models: dict[str, Path], backbone_pat
     H, W = views_all.rgb.shape[1:3]
     lights = obj.target_lights or list(meta["target_lights"])
     envs = {l: obj.envs[l].to(device) for l in lights}
-    spp = int(config["shading"]["spp_infer"])
+    spp = int(config.shading.spp_infer)
     backbone = load_backbone(backbone_path, device)
 
     # live priors per view count (shared by every run with that V)
@@ -226,7 +228,7 @@ def relight_object(config: dict, oid: str, models: dict[str, Path], backbone_pat
                     t_geo, _, gauss, keep, _, pixels = backbone.reconstruct(rgb, a, c2w, intr)
                 for light in lights:
                     g = torch.Generator(device=device).manual_seed(
-                        catalog.derive_seed(config["seed"], "relight", oid, light))
+                        catalog.derive_seed(config.seed, "relight", oid, light))
                     with Timer(device) as t_l:
                         sh, _ = backbone.denoise(t_geo, gauss, keep, envs[light][None], c2w[:nd], intr[:nd], H, W,
                                                  generator=g, pixels=pixels)
@@ -238,7 +240,7 @@ def relight_object(config: dict, oid: str, models: dict[str, Path], backbone_pat
         else:
             if run.variant not in loaded:
                 loaded[run.variant] = FRNG.load(models[run.variant], device).set_inference_shading(
-                    ShadingConfig.from_config(config))
+                    config.shading)
             model = loaded[run.variant]
             priors = (p["oracle"] if run.priors == "oracle" else p["priors"]) if model.cfg.uses_priors else None
             with torch.no_grad():
@@ -250,7 +252,7 @@ def relight_object(config: dict, oid: str, models: dict[str, Path], backbone_pat
                 shade_ms = []
                 for i, light in enumerate(lights):
                     g = torch.Generator(device=device).manual_seed(
-                        catalog.derive_seed(config["seed"], "relight-frng", oid, light))
+                        catalog.derive_seed(config.seed, "relight-frng", oid, light))
                     with Timer(device) as t_l:
                         rgba = model.shade(raster, envs[light], spp, generator=g)
                     shade_ms.append(1000.0 * t_l.s / len(t_names))
@@ -267,14 +269,14 @@ def relight_object(config: dict, oid: str, models: dict[str, Path], backbone_pat
                               "relight_ms_per_light_image": per_light_ms}
         if run.method != BACKBONE:
             info |= {"raster_ms_per_view": raster_ms, "shade_ms_per_image": float(np.mean(shade_ms))}
-        io.write_json(folder / "run.json", info)
+        io.write_json(RelightFolder(folder).record(), info)
         if run.name in ("full", BACKBONE):
             timing[run.method] = {"reconstruction_s": rec_s, "relight_ms_per_image": float(np.mean(per_light_ms)),
                                   "spp": info["spp"]}
             if run.method != BACKBONE:
                 timing[run.method] |= {"raster_ms_per_view": raster_ms, "shade_ms_per_image": float(np.mean(shade_ms))}
     timing["speedup"] = timing[BACKBONE]["relight_ms_per_image"] / timing["F-RNG"]["relight_ms_per_image"]
-    io.write_json(out_root / "timing.json", timing)
+    io.write_json(staged_timing(out_root), timing)
     return timing
 
 
@@ -285,10 +287,16 @@ def _save_full_extras(folder: Path, model, rec, p: dict, oid: str, run: Run) -> 
     if rec.features is not None:
         meta = {"object_id": oid, "source_views": p["names"], "decoder": model.decoder_meta(),
                 "variant": run.variant, "k_percent": run.k_percent}
-        save_asset(folder / "asset", rec.gaussians, rec.features, model.decoder.state_dict(), meta)
-    np.savez_compressed(folder / "saliency.npz", saliency=rec.saliency.detach().float().cpu().numpy(),
+        save_asset(RelightFolder(folder).asset(), rec.gaussians, rec.features, model.decoder.state_dict(), meta)
+    np.savez_compressed(RelightFolder(folder).saliency(), saliency=rec.saliency.detach().float().cpu().numpy(),
                         patch_idx=rec.patch_idx.detach().cpu().numpy(),
                         image=p["images"].detach().float().cpu().numpy())
+
+
+def staged_timing(staging: Path) -> Path:
+    """Where :func:`relight_object` writes the timing in its staging folder (:func:`publish` moves it to
+    ``{results}/relight/timing/{oid}.json``)."""
+    return Path(staging) / "timing.json"
 
 
 def publish(staging: Path, results: Path, oid: str) -> None:
@@ -303,25 +311,26 @@ def publish(staging: Path, results: Path, oid: str) -> None:
         os.replace(folder, dest)
     timing = Path(L.relight_timing(oid))
     timing.parent.mkdir(parents=True, exist_ok=True)
-    os.replace(staging / "timing.json", timing)
+    os.replace(staged_timing(staging), timing)
 
 
-def relight(config: dict, oid: str, models_dir: Path | None = None, device: str | None = None) -> dict:
+def relight(config: Config | dict, oid: str, models_dir: Path | None = None, device: str | None = None) -> dict:
     """Validate, relight into a staging folder, publish. Returns the timing dict."""
     from frng import training as tr
 
-    results = Path(config["results"])
+    config = typed(config)
+    results = Path(config.results)
     L = Layout(results)
     validate_inputs(config, oid)
     models_dir = Path(models_dir or L.models_dir())
-    models = {v: models_dir / v / "model.pt" for v in model_variants(config)}
+    models = {v: Path(TrainingFolder(models_dir / v).model()) for v in model_variants(config)}
     missing = [str(p) for p in models.values() if not p.exists()]
     if missing:
         raise RelightError(f"trained F-RNG model(s) missing: {missing}; run the train rules first")
     backbone = Path(L.backbone_model())
     if not backbone.exists():
         raise RelightError(f"{backbone}: backbone model missing")
-    dev = tr.resolve_device(device or config["device"])
+    dev = tr.resolve_device(device or config.device)
     Path(L.relight_dir()).mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".staging-{oid}-", dir=L.relight_dir()))
     try:

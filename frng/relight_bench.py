@@ -33,6 +33,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from frng.config import Config
+
 DEFAULT_CONFIGS = ["config/config.yaml", "config/paper.yaml"]
 
 
@@ -69,7 +71,7 @@ def _timed(fn, dev: torch.device, repeats: int):
     return statistics.median(ts), out
 
 
-def synthetic_object(config: dict, res: int, n_targets: int, seed: int, dev: torch.device) -> dict:
+def synthetic_object(config: Config, res: int, n_targets: int, seed: int, dev: torch.device) -> dict:
     """A checker-textured Lambertian sphere (radius 0.6) under a fixed directional light, seen by the 6-view rig.
 
     Returns rgb (6, H, W, 3) and alpha (6, H, W, 1) linear premultiplied, c2w (6, 4, 4), intr (6, 4), and the
@@ -78,8 +80,8 @@ def synthetic_object(config: dict, res: int, n_targets: int, seed: int, dev: tor
     from frng.data import rig
 
     rng = np.random.default_rng(seed)
-    r = config["render"]
-    args = (r["camera_distance"], r["fov_deg"], res)
+    r = config.render
+    args = (r.camera_distance, r.fov_deg, res)
     ins, tgts = rig.input_views(rng, 0, *args), rig.target_views(rng, n_targets, *args)
 
     def cams(views):
@@ -122,27 +124,26 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
     from frng.priors import freeze
     from frng.priors import backbone as backbone_mod
     from frng.priors import idm as idm_mod
+    from frng.priors.backbone_train import backbone_config
     from frng.priors.dataset import Views
-    from frng.render.shading import ShadingConfig
+    from frng.priors.idm_train import idm_config
 
-    config = frng_config.load(path)
+    config = frng_config.typed(frng_config.load(path))
     res = args.resolution
-    patch = int(config["model"]["patch_size"])
+    patch = int(config.model.patch_size)
     if res % patch:
         raise SystemExit(f"--resolution {res} is not a multiple of the patch size {patch} ({path})")
     torch.manual_seed(args.seed)
-    bcfg = {**config["backbone"], "patch": patch}
-    backbone = freeze(backbone_mod.build(bcfg).to(dev))
-    idm_cfg = {k: v for k, v in config["idm"].items() if k in idm_mod.IDMConfig.__dataclass_fields__}
-    idm = freeze(idm_mod.build({**idm_cfg, "patch": patch}).to(dev))
+    backbone = freeze(backbone_mod.build(backbone_config(config)).to(dev))
+    idm = freeze(idm_mod.build(idm_config(config)).to(dev))
     fcfg, _ = variant_config(config, "full", backbone.cfg.to_dict())
-    shading = ShadingConfig.from_config(config)
+    shading = config.shading
     if args.bf16:
         shading = replace(shading, bf16_infer=True)
     model = FRNG.from_backbone(fcfg, backbone, shading=shading).to(dev).eval()
-    spp = args.spp or int(config["shading"]["spp_infer"])
+    spp = args.spp or int(config.shading.spp_infer)
     obj = synthetic_object(config, res, args.target_views, args.seed, dev)
-    env_h = max(16, int(config["envmaps"]["width"]) // 2)
+    env_h = max(16, int(config.envmaps.width) // 2)
     env_in = synthetic_env(env_h, args.seed, dev)
     envs = [synthetic_env(env_h, args.seed + 1 + i, dev) for i in range(args.lights)]
     rgb, alpha, c2w, intr, t_c2w, t_intr = (obj[k] for k in ("rgb", "alpha", "c2w", "intr", "t_c2w", "t_intr"))
@@ -185,7 +186,7 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
     bb_ms = 1000 * t_bb_s / (L * Vt)
     n_params = lambda m: sum(p.numel() for p in m.parameters())  # noqa: E731
     return {
-        "config": path, "tier": config["tier"], "device": str(dev), "threads": torch.get_num_threads(),
+        "config": path, "tier": config.tier, "device": str(dev), "threads": torch.get_num_threads(),
         "bf16": bool(args.bf16), "bf16_decoder": shading.bf16_infer, "resolution": res, "spp": spp, "lights": L, "target_views": Vt,
         "gaussians": int(rec.gaussians.means.shape[0]),
         "backbone_params_m": n_params(backbone) / 1e6, "frng_params_m": n_params(model) / 1e6,

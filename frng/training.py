@@ -46,6 +46,8 @@ import torch
 from tqdm import tqdm
 
 from frng import io
+from frng.config import Config, typed
+from frng.layout import TrainingFolder
 
 
 def resolve_device(name: str = "auto") -> torch.device:
@@ -84,10 +86,10 @@ def autocast(device: torch.device, bf16: bool):
     return torch.autocast(device_type=device.type, dtype=torch.bfloat16)
 
 
-def train_seed(config: dict) -> int:
-    """The learned models' seed: ``train_seed``, or the data's ``seed`` when it is null/absent."""
-    s = config.get("train_seed")
-    return int(config["seed"] if s is None else s)
+def train_seed(config: Config | dict) -> int:
+    """The learned models' seed: ``train_seed``, or the data's ``seed`` when it is null
+    (:attr:`frng.config.Config.model_seed`)."""
+    return typed(config).model_seed
 
 
 def seed_everything(seed: int) -> None:
@@ -118,8 +120,9 @@ class LossLog:
     from it at once."""
 
     def __init__(self, out: str | os.PathLike, names: list[str], rows: list[dict] | None = None):
-        self.csv = Path(out) / "loss.csv"
-        self.png = Path(out) / "loss.png"
+        files = TrainingFolder(out)
+        self.csv = Path(files.curve("csv"))
+        self.png = Path(files.curve("png"))
         self.names = list(names)
         self.rows: list[dict] = [dict(r) for r in rows or []]
         self._rewrite()
@@ -188,7 +191,6 @@ class Timer:
 
 # -- the training loop ------------------------------------------------------------------------------------------
 
-CHECKPOINT = "checkpoint.pt"
 CHECKPOINT_FORMAT = 2  # checkpoints of another format (or none) are never resumed
 
 
@@ -351,7 +353,7 @@ def load_resumable(out: str | os.PathLike, digest: str, total: int) -> tuple[dic
     (``step == total``: the run that wrote it went on to save its model) means the model was asked for again --
     ``snakemake -f``/``-R`` deletes the model but not the checkpoint, or the command was rerun by hand -- and a
     run asked for again trains again, from step 0."""
-    path = Path(out) / CHECKPOINT
+    path = Path(TrainingFolder(out).checkpoint())
     if not path.exists():
         return None, None
     try:
@@ -393,7 +395,7 @@ def fit(step_fn: Callable[[int], dict[str, float]], tcfg, *, model: torch.nn.Mod
     - ``loss.csv`` / ``loss.png`` (:class:`LossLog`, rank 0), the progress bar (rank 0);
     - atomic checkpoints every ``checkpoint_every`` steps, at ``stop_after`` (tests of resumption), and once the
       model is saved a final one (``step == total``, the marker of a finished run);
-    - at the end (rank 0): ``save_model(out/"model.pt")`` then ``train.json`` = ``summary(FitRun)``.
+    - at the end (rank 0): ``save_model(TrainingFolder(out).model())`` then ``train.json`` = ``summary(FitRun)``.
 
     ``hooks``: data parallelism (:class:`FitHooks`); the trainer's ``step_fn`` runs its DDP-wrapped module.
     """
@@ -402,7 +404,8 @@ def fit(step_fn: Callable[[int], dict[str, float]], tcfg, *, model: torch.nn.Mod
     lr, warmup, grad_clip = tcfg.lr, tcfg.warmup, tcfg.grad_clip
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    ckpt_path = out / CHECKPOINT
+    files = TrainingFolder(out)
+    ckpt_path = Path(files.checkpoint())
     digest = config_digest({"fingerprint": fingerprint, "world_size": hooks.world_size})
     state, why = load_resumable(out, digest, total)
     hooks.barrier()  # every rank has read the checkpoint before rank 0 may delete it
@@ -462,12 +465,12 @@ def fit(step_fn: Callable[[int], dict[str, float]], tcfg, *, model: torch.nn.Mod
         if stop:
             return ckpt_path
     bar.close()
-    path = out / "model.pt"
+    path = Path(files.model())
     if hooks.is_main:
         log.plot(title)
         save_model(path)
         run.wall_s = timer.elapsed()
-        io.write_json(out / "train.json", summary(run))
+        io.write_json(files.summary(), summary(run))
     checkpoint(total)  # after the model: a finished checkpoint is never resumed (load_resumable)
     return path
 

@@ -17,6 +17,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from frng.config import Config, as_dict
+
 
 @dataclass(frozen=True)
 class Variant:
@@ -55,9 +57,9 @@ def k_variant(percent: float) -> str:
     return f"k{percent:g}"
 
 
-def all_variants(config: dict) -> list[str]:
+def all_variants(config: Config | dict) -> list[str]:
     """Every variant the config asks for: ``frng.variants`` then the K sweep (``frng.k_sweep``, percent)."""
-    f = config["frng"]
+    f = as_dict(config)["frng"]
     out = list(f["variants"])
     out += [k_variant(p) for p in f["k_sweep"] if k_variant(p) not in out]
     return out
@@ -92,16 +94,16 @@ def reads_priors(name: str) -> bool:
     return variant(name).reads_priors
 
 
-def canonical_variant(config: dict, name: str) -> str:
+def canonical_variant(config: Config | dict, name: str) -> str:
     """The variant whose training produces ``name``'s model: the K-sweep entry equal to the full model's K is the
     full model itself (``k2`` -> ``full`` with the paper's K = 2%), so it is not trained twice."""
     pct = k_percent(name)
-    if pct is not None and pct == float(config["frng"]["top_k_percent"]):
+    if pct is not None and pct == float(as_dict(config)["frng"]["top_k_percent"]):
         return "full"
     return name
 
 
-def trained_variants(config: dict) -> list[str]:
+def trained_variants(config: Config | dict) -> list[str]:
     """The variants that get a ``train`` job (aliases resolved, order kept, duplicates dropped)."""
     return list(dict.fromkeys(canonical_variant(config, v) for v in all_variants(config)))
 
@@ -125,11 +127,12 @@ class Run:
     priors: str = "idm"  # "idm" (the configured IDM) or "oracle" (the rendered G-buffers: the quality ladder's (f))
 
 
-def runs(config: dict, n_input_views: int | None = None) -> list[Run]:
+def runs(config: Config | dict, n_input_views: int | None = None) -> list[Run]:
     """All runs of one test object (``n_input_views`` None: the views the config gives every test object).
 
     ``frng.variants`` at 6 views, the K sweep ``frng.k_sweep`` (the entry equal to ``frng.top_k_percent`` is the
     full run itself), the #views sweep ``full-v{V}``, and the backbone."""
+    config = as_dict(config)
     if n_input_views is None:
         n_input_views = RIG_VIEWS + int(config["render"].get("extra_input_views", 0))
     f = config["frng"]
@@ -147,7 +150,7 @@ def runs(config: dict, n_input_views: int | None = None) -> list[Run]:
     return out
 
 
-def model_variants(config: dict) -> list[str]:
+def model_variants(config: Config | dict) -> list[str]:
     """The trained variants (``{results}/models/{variant}/model.pt``) the runs read."""
     return list(dict.fromkeys(r.variant for r in runs(config) if r.method != BACKBONE))
 

@@ -21,6 +21,17 @@ TINY = dict(width=32, heads=2, depth=1, patch=8, pixel_features=8, near=NEAR, fa
             cue_bins=24)
 
 
+def trainer_config(train: dict) -> dict:
+    """A validated pipeline config for the IDM trainer on the sphere: TINY's architecture, ``idm.train`` = ``train``,
+    the schema's defaults for the rest (objects, envmaps and render are required but unused here)."""
+    from frng import config as frng_config
+
+    return frng_config.validate({
+        "tier": "custom", "seed": 0, "device": "cpu", "objects": {"count": 2, "test_count": 1}, "envmaps": {},
+        "render": {"resolution": 32}, "model": {"patch_size": 8}, "backbone": {"near": NEAR, "far": FAR},
+        "idm": {k: v for k, v in TINY.items() if k not in ("patch", "near", "far")} | {"train": train}})
+
+
 def sphere_object(V: int = 4, H: int = 32, light: str = "l0") -> PriorObject:
     """A sphere of radius RADIUS at the origin, V views on a ring (elevation 15 deg, distance 2.6), exact
     G-buffers (albedo (0.8, 0.4, 0.2), roughness 0.3, metallic 0) and a Lambert-shaded image."""
@@ -49,7 +60,7 @@ def test_zero_head_decodes_hull_depth_and_normals():
     torch.manual_seed(0)
     obj = sphere_object()
     v = obj.inputs["l0"]
-    model = LearnedIDM(IDMConfig(**TINY))
+    model = LearnedIDM(IDMConfig.from_dict(TINY))
     raw = model(v.rgb[None], v.alpha[None], v.c2w[None], v.intr[None])
     out = model.decode(raw, v.alpha[None], v.c2w[None])
     # the hull, computed independently of the model
@@ -68,7 +79,7 @@ def test_cue_cache_reuses_the_hull_under_another_light():
     v0 = obj.inputs["l0"]
     v1 = Views(v0.names, v0.rgb * torch.tensor([0.5, 1.0, 2.0]), v0.alpha, v0.c2w, v0.intr)
     obj.inputs["l1"] = v1
-    model = LearnedIDM(IDMConfig(**TINY))
+    model = LearnedIDM(IDMConfig.from_dict(TINY))
     cache = idm_train.CueCache()
     idx = list(range(len(v0)))
     cache.get(model, obj, "l0", idx, v0)
@@ -79,9 +90,7 @@ def test_cue_cache_reuses_the_hull_under_another_light():
 
 
 def test_overfits_one_object(tmp_path):
-    config = {"seed": 0, "device": "cpu", "model": {"patch_size": 8}, "backbone": {"near": NEAR, "far": FAR},
-              "idm": {k: v for k, v in TINY.items() if k not in ("patch", "near", "far")}
-              | {"train": {"steps": 60, "lr": 3e-3, "warmup": 2, "bf16": False, "checkpoint_every": 60}}}
+    config = trainer_config({"steps": 60, "lr": 3e-3, "warmup": 2, "bf16": False, "checkpoint_every": 60})
     torch.manual_seed(0)
     path = idm_train.train(config, [sphere_object()], tmp_path / "idm")
     with open(tmp_path / "idm" / "loss.csv") as f:

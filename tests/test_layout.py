@@ -28,3 +28,32 @@ def test_rule_files_spell_no_results_paths():
     offenders = [f"{f.name}:{i}: {line.strip()}" for f in files
                  for i, line in enumerate(f.read_text().splitlines(), 1) if pattern.search(line)]
     assert not offenders, "results paths spelled outside frng/layout.py:\n" + "\n".join(offenders)
+
+
+def test_folders_name_the_files_layout_places():
+    """The files inside a folder a stage may be pointed at elsewhere (--out, --envmaps, staging folders) are named by
+    the folder classes, and Layout asks them: one spelling of each name."""
+    from frng.layout import EnvmapFolder, ObjectFolder, RelightFolder, TrainingFolder
+
+    L = Layout("res")
+    assert EnvmapFolder("stage").index() == "stage/index.json" and L.envmap_index() == "res/envmaps/index.json"
+    assert EnvmapFolder("stage").envmap("sky") == "stage/sky.exr" and EnvmapFolder("stage").record("sky") == "stage/sky.json"
+    assert EnvmapFolder(".").envmap("sky") == "sky.exr" and Layout(".").envmap("sky") == "envmaps/sky.exr"
+    assert ObjectFolder("t").image("inputs", "l0", "in_00") == "t/inputs/l0/in_00.exr"
+    assert L.object_gbuffer("obj_0001", "in_00") == "res/objects/obj_0001/gbuffer/in_00.exr"
+    assert TrainingFolder("o").checkpoint() == "o/checkpoint.pt" and TrainingFolder("o").summary() == "o/train.json"
+    assert L.backbone_model() == TrainingFolder(L.backbone_dir()).model() == "res/backbone/model.pt"
+    assert L.idm_curve("png") == "res/idm/loss.png" and L.model("k4") == "res/models/k4/model.pt"
+    assert L.relight_saliency("full", "obj_0001") == "res/relight/full/obj_0001/saliency.npz"
+    assert RelightFolder("s/full").image("l0", "tgt_000") == "s/full/l0/tgt_000.exr"
+    assert RelightFolder("s/full").record() == "s/full/run.json" and RelightFolder("s").asset() == "s/asset"
+
+
+def test_library_spells_no_file_names():
+    """No module of frng/ but frng/layout.py quotes a results file name ("meta.json", "model.pt", ...)."""
+    pattern = re.compile(r"""["'](meta|index|run|train)\.json["']|["'](model|checkpoint)\.pt["']|["']loss\.(csv|png)["']"""
+                         r"""|["']saliency\.npz["']""")
+    files = [f for f in (ROOT / "frng").rglob("*.py") if f.name != "layout.py"]
+    offenders = [f"{f.relative_to(ROOT)}:{i}: {line.strip()}" for f in files
+                 for i, line in enumerate(f.read_text().splitlines(), 1) if pattern.search(line)]
+    assert not offenders, "results file names spelled outside frng/layout.py:\n" + "\n".join(offenders)

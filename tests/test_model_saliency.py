@@ -5,6 +5,7 @@ import math
 import pytest
 import torch
 
+from frng.config import ConfigError
 from frng.model.saliency import (
     SaliencyConfig, boundary_weight, local_std, num_selected, patch_scores, saliency_map, salient_patches,
     select_top_k,
@@ -26,7 +27,7 @@ def textured_square(size=64, lo=16, hi=48, seed=0):
 
 def test_silhouette_suppressed():
     img = textured_square()[None]  # (1, 64, 64, 4), square covers patches 2..5
-    cfg = SaliencyConfig()
+    cfg = SaliencyConfig.from_dict({})
     s = saliency_map(img, cfg=cfg)
     raw = local_std(img[..., :3].mean(-1).clamp(0, 1) ** (1 / 2.2), cfg.box_size)  # S_raw, no suppression
     scores = patch_scores(s, 8)[0]
@@ -40,7 +41,7 @@ def test_silhouette_suppressed():
     # the background and the silhouette pixels themselves score ~0
     assert s[0, :14].abs().max() < 1e-3 and s[0, 16, 16:48].abs().max() < 1e-3
     # selection picks interior patches
-    idx = salient_patches(img, patch=8, cfg=SaliencyConfig(top_k=0.04))  # ceil(2.56) = 3 of the 4 interior ones
+    idx = salient_patches(img, patch=8, cfg=SaliencyConfig.from_dict({"top_k": 0.04}))  # ceil(2.56) = 3 of the 4 interior ones
     rows, cols = idx // 8, idx % 8
     assert idx.shape == (1, 3) and ((rows >= 3) & (rows <= 4) & (cols >= 3) & (cols <= 4)).all()
 
@@ -48,11 +49,11 @@ def test_silhouette_suppressed():
 def test_boundary_weight_monotone_and_mask_sources():
     mask = torch.zeros(1, 40, 40, dtype=torch.bool)
     mask[0, 5:35, 5:35] = True
-    w = boundary_weight(mask, SaliencyConfig(sigma=0.0))
+    w = boundary_weight(mask, SaliencyConfig.from_dict({"sigma": 0.0}))
     row = w[0, 20, 5:21]
     assert row[0] == 0 and row[-1] == 1 and (row[1:] >= row[:-1]).all()
     # no background -> no suppression; explicit mask overrides alpha
-    torch.testing.assert_close(boundary_weight(torch.ones(1, 8, 8, dtype=torch.bool), SaliencyConfig()),
+    torch.testing.assert_close(boundary_weight(torch.ones(1, 8, 8, dtype=torch.bool), SaliencyConfig.from_dict({})),
                                torch.ones(1, 8, 8))
     img = textured_square(32, 8, 24)[None]
     a = saliency_map(img)
@@ -82,7 +83,9 @@ def test_top_k_exact_count(k, hw):
 
 def test_config_validation():
     with pytest.raises(ValueError):
-        SaliencyConfig(box_size=4)
+        SaliencyConfig.from_dict({"box_size": 4})
     with pytest.raises(ValueError):
-        SaliencyConfig(top_k=2.0)
-    assert SaliencyConfig.from_dict({"box_size": 7, "unknown": 1}).effective_margin == 4.0
+        SaliencyConfig.from_dict({"top_k": 2.0})
+    assert SaliencyConfig.from_dict({"box_size": 7}).effective_margin == 4.0
+    with pytest.raises(ConfigError, match=r"frng\.saliency\.unknown: unknown key"):  # strict: no key is dropped
+        SaliencyConfig.from_dict({"box_size": 7, "unknown": 1})

@@ -1,5 +1,6 @@
 """Unit tests of the priors that need no curated data: frozen loading, DiffusionRenderer adapter, SH, IDM, DDIM."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -14,7 +15,8 @@ from frng.priors.diffusion_renderer import DiffusionRendererError, read_priors
 from frng.priors.idm import IDMConfig, LearnedIDM, idm_loss
 from frng.render.sh import eval_sh
 
-TINY = {"width": 32, "heads": 2, "geo_depth": 1, "app_depth": 1, "env_height": 8, "sh_degree": 1, "den_views": 2}
+TINY = {"width": 32, "heads": 2, "geo_depth": 1, "app_depth": 1, "env_height": 8, "sh_degree": 1, "den_views": 2,
+        "patch": 8}
 
 
 def _rig(V=3, H=16):
@@ -76,7 +78,7 @@ def test_relight_variable_views_and_guidance(tiny_backbone_file):
         rgb, a = out[0]
         assert rgb.shape == (1, 16, 16, 3) and a.shape == (1, 16, 16, 1)
         assert torch.isfinite(rgb).all() and rgb.min() >= 0
-    model.cfg.guidance = 3.0
+    model.cfg = dataclasses.replace(model.cfg, guidance=3.0)  # the config is frozen
     out2 = model.relight(imgs, alpha, c2w, intr, [torch.rand(8, 16, 3)], c2w[:1], intr[:1])
     assert torch.isfinite(out2[0][0]).all()
 
@@ -93,7 +95,8 @@ def test_sh_degree0_and_1_match_closed_form():
 
 def test_learned_idm_shapes_and_loss_decreases():
     torch.manual_seed(0)
-    m = LearnedIDM(IDMConfig(width=32, heads=2, depth=1, pixel_features=8))
+    m = LearnedIDM(IDMConfig.from_dict({"width": 32, "heads": 2, "depth": 1, "pixel_features": 8, "patch": 8, "near": 1.0,
+                                           "far": 4.5}))
     c2w, intr = _rig(2)
     imgs, alpha = torch.rand(1, 2, 16, 16, 3), torch.ones(1, 2, 16, 16, 1)
     n = torch.nn.functional.normalize(torch.randn(1, 2, 16, 16, 3), dim=-1)

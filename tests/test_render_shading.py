@@ -184,4 +184,4 @@ def test_grad_split_value_and_gradient():
 
 def test_shading_config_from_config():
     cfg = ShadingConfig.from_config({"shading": {"spp_train": 64, "spp_grad": 24, "decoder_width": 256}})
-    assert (cfg.spp_train, cfg.spp_grad, cfg.decoder_width, cfg.spp_infer) == (64, 24, 256, ShadingConfig().spp_infer)
+    assert (cfg.spp_train, cfg.spp_grad, cfg.decoder_width, cfg.spp_infer) == (64, 24, 256, ShadingConfig.from_dict({}).spp_infer)

@@ -25,7 +25,7 @@ import torch.multiprocessing as mp
 
 from frng import training as tr
 from frng.priors import idm_train
-from test_idm_generalise import FAR, NEAR, TINY, sphere_object
+from test_idm_generalise import TINY, sphere_object, trainer_config
 
 HERE = Path(__file__).resolve().parent
 STEPS = 10
@@ -33,8 +33,7 @@ STEPS = 10
 
 def _config(**train) -> dict:
     t = {"steps": STEPS, "lr": 3e-3, "warmup": 2, "bf16": False, "checkpoint_every": 3} | train
-    return {"seed": 0, "device": "cpu", "model": {"patch_size": 8}, "backbone": {"near": NEAR, "far": FAR},
-            "idm": {k: v for k, v in TINY.items() if k not in ("patch", "near", "far")} | {"train": t}}
+    return trainer_config(t)
 
 
 def _objects():
@@ -221,7 +220,7 @@ def test_cue_cache_is_bit_identical_whatever_the_light_order():
     from frng.priors.idm import IDMConfig, LearnedIDM
 
     obj = _objects()[0]
-    model = LearnedIDM(IDMConfig(**TINY))
+    model = LearnedIDM(IDMConfig.from_dict(TINY))
     idx = list(range(len(obj.inputs["l0"])))
     warm = idm_train.CueCache()
     warm.get(model, obj, "l0", idx, obj.inputs["l0"])

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from frng.config import Config, as_dict, config_section
 from frng.layout import Layout
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".gltf", ".glb")
@@ -51,6 +52,60 @@ PYBULLET_BROKEN = frozenset({168})
 PRIMITIVES = ("cube", "uv_sphere", "ico_sphere", "cylinder", "cone", "torus", "monkey")
 PROCEDURAL = ("superquadric", "lathe", "blob", "twisted_box", "cluster")
 MATERIALS = ("diffuse", "specular", "fur")
+
+
+@dataclass(frozen=True)
+class SkiesConfig:
+    """The config's ``envmaps.skies`` section (frng.config.section; defaults: config/schema.yaml)."""
+
+    models: tuple[str, ...]
+    sun_elevations_deg: tuple[float, ...]
+    turbidity: float
+
+
+@dataclass(frozen=True)
+class EnvmapsConfig:
+    """The config's ``envmaps`` section (frng.config.section; defaults: config/schema.yaml). ``extra`` holds the
+    user's entries as mappings (path, split, licence)."""
+
+    width: int
+    bundled: tuple[str, ...]
+    skies: SkiesConfig
+    rotations: int
+    test_fraction: float
+    extra: tuple[dict, ...]
+    normalize: float | None
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """The config's ``render`` section: Cycles settings, the camera rig (:mod:`frng.data.rig`) and the lights per
+    object (frng.config.section; defaults: config/schema.yaml)."""
+
+    resolution: int
+    spp: int
+    input_views: int
+    extra_input_views: int
+    target_views: int
+    input_lights: int
+    target_lights: int
+    camera_distance: float
+    fov_deg: float
+    threads: int
+    fur_strands: int
+
+
+@dataclass(frozen=True)
+class ObjectsConfig:
+    """The config's ``objects`` section (frng.config.section; defaults: config/schema.yaml). ``material_mix`` maps a
+    material class to its fraction; ``extra`` holds the user's entries as mappings (path, split, up, material,
+    licence)."""
+
+    count: int
+    test_count: int
+    sources: tuple[str, ...]
+    material_mix: dict
+    extra: tuple[dict, ...]
 
 
 class CatalogError(ValueError):
@@ -139,19 +194,19 @@ def _split_bases(bases: list[str], fraction: float, seed: int) -> dict[str, str]
     return {b: ("test" if b in test else "train") for b in bases}
 
 
-def envmap_plan(config: dict) -> list[EnvMapSpec]:
+def envmap_plan(config: Config | dict) -> list[EnvMapSpec]:
     """Every environment map the ``envmaps`` stage writes, in a fixed order."""
-    env, seed = config["envmaps"], config["seed"]
+    env, seed = config_section(config, "envmaps"), config_section(config, "seed")
     bases: list[tuple[str, str, str, str, dict | None]] = []  # base, source, licence, origin, sky
-    for name in env["bundled"]:
+    for name in env.bundled:
         bases.append((name, "bundled", BUNDLED_LICENCE, f"{name}.exr", None))
-    skies = env["skies"]
-    for model in skies["models"]:
-        for el in skies["sun_elevations_deg"]:
-            sky = {"model": model, "sun_elevation_deg": float(el), "turbidity": float(skies["turbidity"])}
+    skies = env.skies
+    for model in skies.models:
+        for el in skies.sun_elevations_deg:
+            sky = {"model": model, "sun_elevation_deg": float(el), "turbidity": float(skies.turbidity)}
             bases.append((_sky_base(model, el), "sky", GENERATED_LICENCE, f"Blender Sky Texture ({model})", sky))
-    split = _split_bases([b[0] for b in bases], env["test_fraction"], seed)
-    user = _user_files(env["extra"], ENVMAP_SUFFIXES, "envmaps.extra")
+    split = _split_bases([b[0] for b in bases], env.test_fraction, seed)
+    user = _user_files(env.extra, ENVMAP_SUFFIXES, "envmaps.extra")
     for (f, entry), uid in zip(user, _unique_user_ids(user, "envmaps.extra")):
         if uid in split:
             raise CatalogError(f"config key 'envmaps.extra': {f} gives id {uid!r} twice")
@@ -159,7 +214,7 @@ def envmap_plan(config: dict) -> list[EnvMapSpec]:
         split[uid] = entry["split"]
     specs = []
     for base, source, licence, origin, sky in bases:
-        for k in range(env["rotations"]):
+        for k in range(env.rotations):
             name = f"{base}_r{k}"
             rot = float(rng_for(seed, "envmap-rotation", name).uniform(0.0, 360.0))
             specs.append(EnvMapSpec(name, base, source, split[base], round(rot, 4), licence, origin, sky))
@@ -244,20 +299,21 @@ def _assign_lights(rng: np.random.Generator, pool: list[str], n_in: int, n_tgt: 
     return tuple(inputs), tuple(targets)
 
 
-def object_plan(config: dict, envmaps: list[EnvMapSpec] | None = None) -> list[ObjectSpec]:
+def object_plan(config: Config | dict, envmaps: list[EnvMapSpec] | None = None) -> list[ObjectSpec]:
     """Every object of the dataset, built-ins first (``obj_0000 ..``), then users' meshes (``user_<stem>``)."""
-    seed, objects, render = config["seed"], config["objects"], config["render"]
+    seed, objects = config_section(config, "seed"), config_section(config, "objects")
+    render = config_section(config, "render")
     envmaps = envmap_plan(config) if envmaps is None else envmaps
     pools = {s: sorted(e.name for e in envmaps if e.split == s) for s in ("train", "test")}
-    n = objects["count"]
+    n = objects.count
     ids = [f"obj_{i:04d}" for i in range(n)]
-    test_ids = {ids[i] for i in rng_for(seed, "object-split").permutation(n)[: objects["test_count"]]}
+    test_ids = {ids[i] for i in rng_for(seed, "object-split").permutation(n)[: objects.test_count]}
 
-    counts = _material_counts(n, objects["material_mix"])
+    counts = _material_counts(n, objects.material_mix)
     materials = [c for c in MATERIALS for _ in range(counts[c])]
     materials = [materials[i] for i in rng_for(seed, "object-materials").permutation(n)]
 
-    sources = objects["sources"]
+    sources = objects.sources
     if not sources and n:
         raise CatalogError("config key 'objects.sources': empty, but objects.count > 0")
     pybullet = _pybullet_pool(seed) if "pybullet" in sources else []
@@ -274,8 +330,8 @@ def object_plan(config: dict, envmaps: list[EnvMapSpec] | None = None) -> list[O
             mesh, up, prescale, licence = kinds[source][k % len(kinds[source])], "z", (1.0, 1.0, 1.0), GENERATED_LICENCE
         specs.append((oid, "test" if oid in test_ids else "train", source, mesh, up, prescale, licence, materials[i]))
 
-    user = _user_files(objects["extra"], MESH_SUFFIXES, "objects.extra")
-    mix = objects["material_mix"]
+    user = _user_files(objects.extra, MESH_SUFFIXES, "objects.extra")
+    mix = objects.material_mix
     probs = np.array([mix.get(c, 0.0) for c in MATERIALS], dtype=float)
     for (f, entry), uid in zip(user, _unique_user_ids(user, "objects.extra")):
         up = entry.get("up") or ("y" if f.suffix.lower() in (".obj", ".gltf", ".glb") else "z")
@@ -287,7 +343,7 @@ def object_plan(config: dict, envmaps: list[EnvMapSpec] | None = None) -> list[O
     for oid, split, source, mesh, up, prescale, licence, material in specs:
         oseed = derive_seed(seed, "object", oid)
         ins, tgts = _assign_lights(np.random.default_rng(derive_seed(oseed, "lights")), pools[split],
-                                   render["input_lights"], render["target_lights"], oid, split)
+                                   render.input_lights, render.target_lights, oid, split)
         out.append(ObjectSpec(oid, split, source, mesh, up, tuple(float(x) for x in prescale), licence, material,
                               oseed, ins, tgts))
     return out
@@ -331,9 +387,10 @@ def _plan_cached(config_json: str) -> Catalog:
     return Catalog(tuple(envmaps), tuple(object_plan(config, envmaps)))
 
 
-def plan(config: dict) -> Catalog:
-    """The whole dataset plan of a validated config (cached per config content)."""
-    return _plan_cached(json.dumps(config, sort_keys=True, default=str))
+def plan(config: Config | dict) -> Catalog:
+    """The whole dataset plan of a validated config (cached per config content). Reads the config mapping (the
+    Snakemake rule files plan with it, torch-free); a :class:`frng.config.Config` is turned back into it."""
+    return _plan_cached(json.dumps(as_dict(config), sort_keys=True, default=str))
 
 
 def pybullet_data_dir() -> Path:
@@ -347,24 +404,24 @@ def pybullet_data_dir() -> Path:
 
 # -- workflow helpers (rules/curate.smk) ---------------------------------------------------------------------
 
-def images_per_object(config: dict, spec: ObjectSpec) -> int:
+def images_per_object(config: Config | dict, spec: ObjectSpec) -> int:
     """Number of RGBA images one curation job renders."""
-    r = config["render"]
-    return (r["input_views"] + r["extra_input_views"]) * len(spec.input_lights) + r["target_views"] * len(spec.target_lights)
+    r = config_section(config, "render")
+    return (r.input_views + r.extra_input_views) * len(spec.input_lights) + r.target_views * len(spec.target_lights)
 
 
-def curate_minutes(config: dict, spec: ObjectSpec) -> int:
+def curate_minutes(config: Config | dict, spec: ObjectSpec) -> int:
     """Runtime estimate of one curation job in minutes: ~0.1 s per 64 px / 32 spp image on 2 threads
     (measured), scaled by pixels x samples / threads, times 3 for margin, plus 5 min start-up slack."""
-    r = config["render"]
-    per_image = 0.1 * (r["resolution"] / 64) ** 2 * (r["spp"] / 32) * 2 / r["threads"]
+    r = config_section(config, "render")
+    per_image = 0.1 * (r.resolution / 64) ** 2 * (r.spp / 32) * 2 / r.threads
     return max(5, int(3 * images_per_object(config, spec) * per_image / 60) + 5)
 
 
-def curate_inputs(config: dict, spec: ObjectSpec) -> dict:
+def curate_inputs(config: Config | dict, spec: ObjectSpec) -> dict:
     """Input files of one curation job: the env-map index (it changes whenever any map changes; listing every
     light map instead would give the paper-scale DAG 100k inputs and minutes of planning) and a user's mesh."""
-    inputs = {"index": Layout(config["results"]).envmap_index()}
+    inputs = {"index": Layout(config_section(config, "results")).envmap_index()}
     if spec.source == "user":
         inputs["mesh"] = spec.mesh
     return inputs

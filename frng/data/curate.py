@@ -41,8 +41,10 @@ from pathlib import Path
 import numpy as np
 
 from frng import envmap, io
+from frng.config import Config, typed
 from frng.data import catalog, rig
 from frng.data.envmaps import read_index
+from frng.layout import EnvmapFolder, Layout, ObjectFolder
 
 GBUFFER_CHANNELS = ("A", "normal.X", "normal.Y", "normal.Z", "depth.Z", "albedo.R", "albedo.G", "albedo.B",
                     "roughness.Y", "metallic.Y")
@@ -135,22 +137,23 @@ def gbuffer_from_passes(passes: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 def check_envmaps(spec: catalog.ObjectSpec, env_dir: Path) -> dict[str, dict]:
     """Every light of the object exists, is readable and is in the index; returns index records by name."""
-    index = read_index(env_dir / "index.json")
+    folder = EnvmapFolder(env_dir)
+    index = read_index(folder.index())
     records = {m["name"]: m for m in index["maps"]}
     out = {}
     for light in dict.fromkeys(spec.input_lights + spec.target_lights):
         if light not in records:
-            raise CurationError(f"object {spec.id}: light {light!r} is not in {env_dir / 'index.json'}; "
+            raise CurationError(f"object {spec.id}: light {light!r} is not in {folder.index()}; "
                                 "re-run `frng envmaps` with the same config")
         try:
-            envmap.read(env_dir / f"{light}.exr")  # raises naming the file if missing/corrupt
+            envmap.read(folder.envmap(light))  # raises naming the file if missing/corrupt
         except envmap.EnvMapError as e:
             raise CurationError(f"object {spec.id}: {e}") from e
         out[light] = records[light]
     return out
 
 
-def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print, guard: StopGuard | None = None) -> Path:
+def curate(config: Config | dict, oid: str, env_dir: Path, out_root: Path, log=print, guard: StopGuard | None = None) -> Path:
     """Render object ``oid`` into ``out_root/oid`` (atomically). Returns the final folder.
 
     ``guard``: a :class:`StopGuard` (installed after ``import bpy``) that removes the staging folders on SIGINT /
@@ -162,9 +165,10 @@ def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print, gua
     from frng.blender import scene as bscene
     from frng.blender import world
 
+    config = typed(config)
     cat = catalog.plan(config)
     spec = cat.object(oid)
-    render = config["render"]
+    render = config.render
     lights = check_envmaps(spec, env_dir)
     rng = np.random.default_rng(spec.seed)
     rig_rng, shape_rng, mat_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(spec.seed).spawn(3))
@@ -178,16 +182,17 @@ def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print, gua
     with guard.lock:
         tmp = io.temp_dir(f".tmp-{oid}-", out_root)
         guard.paths.append(tmp)
+        staged = ObjectFolder(tmp)
         # Blender writes each render into a folder of its own: a render that finishes while the guard removes the
         # staging folder cannot create that folder again (a stale scratch folder is removed by the next run)
         scratch = io.temp_dir(f".tmp-{oid}-", out_root)
         guard.paths.append(scratch)
     t_start = time.perf_counter()
     try:
-        scene = bscene.new_scene(render["resolution"], render["spp"], render["threads"], spec.seed)
+        scene = bscene.new_scene(render.resolution, render.spp, render.threads, spec.seed)
         bscene.enable_gbuffer_passes(scene)
-        cam = bscene.add_camera(scene, render["fov_deg"])
-        mat = materials.sample(mat_rng, spec.material, render["fur_strands"])
+        cam = bscene.add_camera(scene, render.fov_deg)
+        mat = materials.sample(mat_rng, spec.material, render.fur_strands)
         radius = 1.0 - mat["hair"]["length"] if "hair" in mat else 1.0  # fur stays inside the unit sphere
         pybullet_dir = catalog.pybullet_data_dir() if spec.source == "pybullet" else None
         try:
@@ -197,8 +202,8 @@ def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print, gua
         materials.apply(obj, mat, spec.seed)
         log(f"[{oid}] {spec.source}:{spec.mesh} material={spec.material} split={spec.split} "
             f"{shape['vertices']} verts; {len(inputs)} input views x {len(spec.input_lights)} lights, "
-            f"{len(targets)} target views x {len(spec.target_lights)} lights at {render['resolution']} px, "
-            f"{render['spp']} spp")
+            f"{len(targets)} target views x {len(spec.target_lights)} lights at {render.resolution} px, "
+            f"{render.spp} spp")
 
         raw = scratch / "raw.exr"
         times: dict[str, dict[str, float]] = {}
@@ -207,7 +212,7 @@ def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print, gua
         n_done = 0
         for kind, views, light_names in (("inputs", inputs, spec.input_lights), ("targets", targets, spec.target_lights)):
             for light in light_names:
-                world.set_envmap(scene, env_dir / f"{light}.exr", sample_map_resolution=max(64, config["envmaps"]["width"]))
+                world.set_envmap(scene, Path(EnvmapFolder(env_dir).envmap(light)), sample_map_resolution=max(64, config.envmaps.width))
                 for view in views:
                     bscene.set_camera_pose(cam, view.c2w)
                     dt = bscene.render_to(scene, raw)
@@ -219,9 +224,9 @@ def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print, gua
                         raise CurationError(f"object {oid} ({spec.source}:{spec.mesh}): {kind}/{light}/{view.name} "
                                             "rendered empty (all alpha 0)")
                     with guard.lock:
-                        io.write_exr(tmp / kind / light / f"{view.name}.exr", rgba, ["R", "G", "B", "A"])
+                        io.write_exr(staged.image(kind, light, view.name), rgba, ["R", "G", "B", "A"])
                         if view.name not in done_gbuffer:
-                            io.write_exr(tmp / "gbuffer" / f"{view.name}.exr", gbuffer_from_passes(passes))
+                            io.write_exr(staged.gbuffer(view.name), gbuffer_from_passes(passes))
                             done_gbuffer.add(view.name)
                     times.setdefault(light, {})[view.name] = round(dt, 4)
                     n_done += 1
@@ -240,19 +245,19 @@ def curate(config: dict, oid: str, env_dir: Path, out_root: Path, log=print, gua
             "shape": shape,
             "material_class": spec.material,
             "material": mat,
-            "render": {k: render[k] for k in ("resolution", "spp", "camera_distance", "fov_deg", "threads")}
+            "render": {k: getattr(render, k) for k in ("resolution", "spp", "camera_distance", "fov_deg", "threads")}
                       | {"engine": "CYCLES", "device": "CPU", "blender": __import__("bpy").app.version_string},
             "input_lights": list(spec.input_lights),
             "target_lights": list(spec.target_lights),
             "lights": {name: {k: rec[k] for k in ("base", "source", "split", "rotation_deg", "licence", "scale")}
-                       | {"file": f"envmaps/{name}.exr"} for name, rec in lights.items()},
+                       | {"file": Layout(".").envmap(name)} for name, rec in lights.items()},
             "views": {"inputs": [v.to_dict() for v in inputs], "targets": [v.to_dict() for v in targets]},
             "gbuffer_channels": list(GBUFFER_CHANNELS),
             "render_seconds": times,
             "total_seconds": round(time.perf_counter() - t_start, 3),
         }
         with guard.lock:
-            io.write_json(tmp / "meta.json", meta)
+            io.write_json(staged.meta(), meta)
             if final.exists():
                 shutil.rmtree(final)
             tmp.rename(final)

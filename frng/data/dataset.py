@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from frng import io
-from frng.layout import Layout
+from frng.layout import Layout, ObjectFolder
 
 GBUFFER_LAYOUT = {  # key -> EXR channels (see frng.data.curate.GBUFFER_CHANNELS)
     "alpha": ("A",),
@@ -53,7 +53,7 @@ class ObjectData:
     @classmethod
     def open(cls, root: str | Path) -> "ObjectData":
         root = Path(root)
-        path = root / "meta.json"
+        path = Path(ObjectFolder(root).meta())
         try:
             meta = io.read_json(path)
         except (FileNotFoundError, ValueError) as e:
@@ -62,6 +62,10 @@ class ObjectData:
             if key not in meta:
                 raise DatasetError(f"{path}: missing key {key!r}")
         return cls(root, meta)
+
+    @property
+    def files(self) -> ObjectFolder:
+        return ObjectFolder(self.root)
 
     @property
     def id(self) -> str:
@@ -82,13 +86,13 @@ class ObjectData:
     def view_names(self, kind: str) -> list[str]:
         """kind: "inputs" or "targets"."""
         if kind not in self.meta["views"]:
-            raise DatasetError(f"{self.root / 'meta.json'}: no views of kind {kind!r} (inputs/targets)")
+            raise DatasetError(f"{self.files.meta()}: no views of kind {kind!r} (inputs/targets)")
         return [v["name"] for v in self.meta["views"][kind]]
 
     def _select(self, kind: str, views: list[str] | int | None) -> list[dict]:
         all_views = self.meta["views"][kind] if kind in self.meta["views"] else None
         if all_views is None:
-            raise DatasetError(f"{self.root / 'meta.json'}: no views of kind {kind!r} (inputs/targets)")
+            raise DatasetError(f"{self.files.meta()}: no views of kind {kind!r} (inputs/targets)")
         if views is None:
             return list(all_views)
         if isinstance(views, int):  # the first n (6 = the paper's rig)
@@ -98,7 +102,7 @@ class ObjectData:
         by_name = {v["name"]: v for v in all_views}
         missing = [v for v in views if v not in by_name]
         if missing:
-            raise DatasetError(f"{self.root / 'meta.json'}: unknown {kind} view(s) {missing}")
+            raise DatasetError(f"{self.files.meta()}: unknown {kind} view(s) {missing}")
         return [by_name[v] for v in views]
 
     def cameras(self, kind: str = "inputs", views=None, torch: bool = False):
@@ -114,7 +118,7 @@ class ObjectData:
         if light not in lights:
             raise DatasetError(f"{self.root}: {light!r} is not one of the object's {kind} lights {lights}")
         sel = self._select(kind, views)
-        imgs = [io.read_rgba(self.root / kind / light / f"{v['name']}.exr") for v in sel]
+        imgs = [io.read_rgba(self.files.image(kind, light, v["name"])) for v in sel]
         return _to(np.stack(imgs).astype(np.float32), torch)
 
     def gbuffer(self, kind: str = "inputs", views=None, torch: bool = False) -> dict:
@@ -122,7 +126,7 @@ class ObjectData:
         sel = self._select(kind, views)
         out: dict[str, list] = {k: [] for k in GBUFFER_LAYOUT}
         for v in sel:
-            path = self.root / "gbuffer" / f"{v['name']}.exr"
+            path = self.files.gbuffer(v["name"])
             ch = io.read_exr_channels(path)
             for key, names in GBUFFER_LAYOUT.items():
                 missing = [n for n in names if n not in ch]
@@ -134,7 +138,7 @@ class ObjectData:
     def envmap_path(self, light: str, results: str | Path) -> Path:
         """Path of a light's equirect EXR (lights are stored relative to the results folder)."""
         if light not in self.meta.get("lights", {}):
-            raise DatasetError(f"{self.root / 'meta.json'}: unknown light {light!r}")
+            raise DatasetError(f"{self.files.meta()}: unknown light {light!r}")
         return Path(results) / self.meta["lights"][light]["file"]
 
 

@@ -20,6 +20,7 @@ All or nothing (see :func:`prepare`): a failed or killed run leaves no record wi
 from __future__ import annotations
 
 import math
+import os
 import shutil
 import tempfile
 import time
@@ -28,7 +29,9 @@ from pathlib import Path
 import numpy as np
 
 from frng import envmap, io
+from frng.config import Config, typed
 from frng.data import catalog
+from frng.layout import EnvmapFolder
 
 SKY_BAKE_WIDTH = 512  # skies are smooth; baked at this width then resized
 GROUND_ALBEDO = 0.3
@@ -66,7 +69,7 @@ def load_base(spec: catalog.EnvMapSpec, work: Path, threads: int) -> np.ndarray:
     raise ValueError(f"unknown env-map source {spec.source!r}")
 
 
-def prepare(config: dict, out: Path, log=print, guard=None) -> list[dict]:
+def prepare(config: Config | dict, out: Path, log=print, guard=None) -> list[dict]:
     """Write every planned map into ``out`` (see the module docstring). Returns the index records.
 
     All-or-nothing: the maps and records are written into a staging folder ``out/.tmp-envmaps-*`` and moved into
@@ -78,16 +81,18 @@ def prepare(config: dict, out: Path, log=print, guard=None) -> list[dict]:
     from frng.data.curate import _NoGuard  # (curate imports this module)
 
     guard = guard or _NoGuard()
-    env = config["envmaps"]
+    config = typed(config)
+    env = config.envmaps
     specs = catalog.envmap_plan(config)
     out.mkdir(parents=True, exist_ok=True)
     remove_stale(out, log)
     records: list[dict] = []
     bases: dict[str, np.ndarray] = {}
-    threads = config["render"]["threads"]
+    threads = config.render.threads
     with guard.lock:
         staging = io.temp_dir(".tmp-envmaps-", out)
         guard.paths.append(staging)
+        staged, final = EnvmapFolder(staging), EnvmapFolder(out)
         work = Path(tempfile.mkdtemp(prefix="frng-envmaps-bake-"))  # Blender renders skies here
         guard.paths.append(work)
     try:
@@ -96,29 +101,29 @@ def prepare(config: dict, out: Path, log=print, guard=None) -> list[dict]:
             if spec.base not in bases:
                 bases.clear()  # keep one base in memory
                 bases[spec.base] = load_base(spec, work, threads)
-            img = envmap.resize(envmap.rotate_z(bases[spec.base], spec.rotation_deg), env["width"])
+            img = envmap.resize(envmap.rotate_z(bases[spec.base], spec.rotation_deg), env.width)
             raw = mean_luminance(img)
             if not np.isfinite(raw) or raw <= 0.0:
                 raise envmap.EnvMapError(f"{spec.origin}: environment map {spec.name} is black or not finite "
                                          f"(mean luminance {raw})")
-            scale = 1.0 if env["normalize"] is None else float(env["normalize"]) / raw
+            scale = 1.0 if env.normalize is None else float(env.normalize) / raw
             img = img * np.float32(scale)
             rec = spec.to_dict() | {"scale": scale, "mean_luminance": mean_luminance(img),
-                                    "file": f"{spec.name}.exr"}
+                                    "file": EnvmapFolder(".").envmap(spec.name)}
             with guard.lock:
-                envmap.write(staging / f"{spec.name}.exr", img)
-                io.write_json(staging / f"{spec.name}.json", rec)
+                envmap.write(staged.envmap(spec.name), img)
+                io.write_json(staged.record(spec.name), rec)
             records.append(rec)
             log(f"[envmaps] {spec.name:<32} {spec.split:<5} rot {spec.rotation_deg:7.2f} deg  "
                 f"scale {scale:9.4f}  {time.perf_counter() - t0:.2f} s")
         with guard.lock:
-            io.write_json(staging / "index.json", {"width": env["width"], "height": env["width"] // 2,
-                                                   "normalize": env["normalize"], "maps": records})
+            io.write_json(staged.index(), {"width": env.width, "height": env.width // 2,
+                                                   "normalize": env.normalize, "maps": records})
             for rec in records:  # the map first: a record never exists without it
                 name = rec["name"]
-                (staging / f"{name}.exr").replace(out / f"{name}.exr")
-                (staging / f"{name}.json").replace(out / f"{name}.json")
-            (staging / "index.json").replace(out / "index.json")
+                os.replace(staged.envmap(name), final.envmap(name))
+                os.replace(staged.record(name), final.record(name))
+            os.replace(staged.index(), final.index())
     finally:
         with guard.lock:
             for path in (staging, work):
@@ -134,7 +139,7 @@ def remove_stale(out: Path, log=print) -> None:
         log(f"[envmaps] removing {p.name}, left by an earlier run that failed or was killed")
         shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
     for rec in sorted(out.glob("*.json")):
-        if rec.name != "index.json" and not rec.with_suffix(".exr").exists():
+        if str(rec) != EnvmapFolder(out).index() and not rec.with_suffix(".exr").exists():
             log(f"[envmaps] removing {rec.name}: its map {rec.with_suffix('.exr').name} is missing")
             rec.unlink(missing_ok=True)
 

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from frng import io
+from frng.config import Config, typed
 from frng.data.dataset import ObjectData
 from frng.layout import Layout
 
@@ -100,9 +101,9 @@ def _draw_labels(sheet: np.ndarray, names: list[str], cell: int, title: str) -> 
     return np.asarray(img).astype(np.float32) / 255.0
 
 
-def write_previews(config: dict, objects: list[str], out: Path, cell: int, max_views: int, max_lights: int,
+def write_previews(config: Config | dict, objects: list[str], out: Path, cell: int, max_views: int, max_lights: int,
                    log=print) -> list[Path]:
-    L = Layout(config["results"])
+    L = Layout(typed(config).results)
     paths = []
     for oid in objects:
         obj = ObjectData.open(L.object_dir(oid))

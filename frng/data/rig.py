@@ -76,9 +76,10 @@ def target_views(rng: np.random.Generator, count: int, distance: float, fov_deg:
     return views
 
 
-def object_views(rng: np.random.Generator, render: dict) -> tuple[list[View], list[View]]:
-    """Input and target views of one object from the ``render`` config section."""
-    args = (render["camera_distance"], render["fov_deg"], render["resolution"])
-    inputs = input_views(rng, render["extra_input_views"], *args)
-    targets = target_views(rng, render["target_views"], *args)
+def object_views(rng: np.random.Generator, render) -> tuple[list[View], list[View]]:
+    """Input and target views of one object from the ``render`` config section
+    (:class:`frng.data.catalog.RenderConfig`)."""
+    args = (render.camera_distance, render.fov_deg, render.resolution)
+    inputs = input_views(rng, render.extra_input_views, *args)
+    targets = target_views(rng, render.target_views, *args)
     return inputs, targets

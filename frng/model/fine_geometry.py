@@ -45,6 +45,7 @@ import torch
 from torch import nn
 
 from frng import camera
+from frng.config import section
 from frng.gaussians import RAW_CHANNELS, SCALE_OFFSET, GaussianDecodeConfig, Gaussians, decode_raw
 
 
@@ -64,7 +65,9 @@ class FineGeometryConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "FineGeometryConfig":
-        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+        """Strict (:func:`frng.config.section`): unknown keys are errors; a module setting, not a config section:
+        missing keys take the field defaults."""
+        return section(cls, d)
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -27,13 +27,14 @@ FineGeoDetokenizer at construction (:meth:`FRNG.from_backbone`); its outputs com
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import torch
 from torch import nn
 
 from frng import envmap
+from frng.config import Config, section, section_dict, typed
 from frng.training import bf16_ok
 from frng.gaussians import GaussianDecodeConfig, Gaussians
 from frng.model.fine_geometry import FineGeometry, FineGeometryConfig, fine_keep_mask, sample_pixels
@@ -56,34 +57,55 @@ from frng.variants import BASE_VARIANTS, all_variants, canonical_variant, k_vari
 MODEL_KIND = "frng"
 
 
+@dataclass(frozen=True)
+class FRNGSection:
+    """The config's ``frng`` section: the variants to train and the architecture (see config/README.md; defaults:
+    config/schema.yaml). :func:`variant_config` turns it into a variant's :class:`FRNGConfig`."""
+
+    variants: tuple[str, ...]
+    k_sweep: tuple[float, ...]
+    top_k_percent: float
+    upsample: int
+    prior_dim: int
+    hidden: int
+    depth: int
+    heads: int
+    feature_dim: int
+    pixel_head: int
+    saliency: SaliencyConfig
+
+
 @dataclass
 class FRNGConfig:
-    """Architecture of one F-RNG variant (everything needed to rebuild it from ``model.pt``)."""
+    """Architecture of one F-RNG variant (everything needed to rebuild it from ``model.pt``). Not a config section:
+    :func:`variant_config` sets every field from the config (and the frozen backbone), so none has a default."""
 
-    patch: int = 8
-    geo_dim: int = 256  # the backbone's token width (T_geo and T_app)
-    prior_dim: int = 64  # 0 = no-idm
-    fine: bool = True  # latent-interpolated fine geometry on/off (no-fine)
-    top_k: float = 0.02  # K as a fraction of patches per view (paper 2%)
-    upsample: int = 2  # fine tokens per selected patch = upsample^2
-    hidden: int = 256  # MaterialFormer width (paper 1024)
-    depth: int = 4  # MaterialFormer layers (paper 4)
-    heads: int = 4
-    feature_dim: int = 16  # neural material features per Gaussian
-    head: str = "neural"  # "neural" | "pbr" (no-neural)
-    decoder_width: int = 64  # universal decoder (paper 4 x 256)
-    decoder_depth: int = 3
-    dir_freqs: int = 0
-    near: float = 1.0  # the backbone's ray-distance bounds (Gaussian decoding)
-    far: float = 4.5
-    max_radius_px: float | None = 12.0  # footprint cap at render time (the backbone's, unless raster sets one)
-    saliency: dict = field(default_factory=dict)  # SaliencyConfig fields (top_k is taken from ``top_k``)
-    pixel_head: int = 32  # hidden width of the per-Gaussian pixel head (0 = off: the paper's linear detokenizer only)
-    decoder_cosine: bool = False  # decoder output x max(0, n.w_i), n = features 0:3 (shading.decoder_cosine)
+    patch: int
+    geo_dim: int  # the backbone's token width (T_geo and T_app)
+    prior_dim: int  # 0 = no-idm
+    fine: bool  # latent-interpolated fine geometry on/off (no-fine)
+    top_k: float  # K as a fraction of patches per view (paper 2%)
+    upsample: int  # fine tokens per selected patch = upsample^2
+    hidden: int  # MaterialFormer width (paper 1024)
+    depth: int  # MaterialFormer layers (paper 4)
+    heads: int
+    feature_dim: int  # neural material features per Gaussian
+    head: str  # "neural" | "pbr" (no-neural)
+    decoder_width: int  # universal decoder (paper 4 x 256)
+    decoder_depth: int
+    dir_freqs: int
+    near: float  # the backbone's ray-distance bounds (Gaussian decoding)
+    far: float
+    max_radius_px: float | None  # footprint cap at render time (the backbone's, unless raster sets one)
+    saliency: dict  # the frng.saliency keys (SaliencyConfig; top_k is taken from ``top_k``)
+    pixel_head: int  # hidden width of the per-Gaussian pixel head (0 = off: the paper's linear detokenizer only)
+    decoder_cosine: bool  # decoder output x max(0, n.w_i), n = features 0:3 (shading.decoder_cosine)
 
     @classmethod
     def from_dict(cls, d: dict) -> "FRNGConfig":
-        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+        """Strict (:func:`frng.config.section`): a model file's ``config`` with a key this code does not know, or
+        without one it needs, is an error naming it."""
+        return section(cls, d)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -235,8 +257,8 @@ class FRNG(nn.Module):
     def __init__(self, cfg: FRNGConfig, raster: RasterConfig | None = None, shading: ShadingConfig | None = None):
         super().__init__()
         self.cfg = cfg
-        self.raster_cfg = raster or RasterConfig()
-        self.shading_cfg = shading or ShadingConfig()
+        self.raster_cfg = raster or RasterConfig.from_dict({})
+        self.shading_cfg = shading or ShadingConfig.from_dict({})
         self.tokenizer = PriorTokenizer(cfg.prior_dim, cfg.patch) if cfg.uses_priors else None
         decode = GaussianDecodeConfig(near=cfg.near, far=cfg.far)
         self.fine = FineGeometry(FineGeometryConfig(upsample=cfg.upsample, patch=cfg.patch, geo_dim=cfg.geo_dim,
@@ -285,8 +307,8 @@ class FRNG(nn.Module):
         state = torch.load(path, map_location="cpu", weights_only=False)
         if state.get("kind") != MODEL_KIND:
             raise ValueError(f"{path}: not an F-RNG model file (kind {state.get('kind')!r})")
-        model = cls(FRNGConfig.from_dict(state["config"]), RasterConfig(**state.get("raster", {})),
-                    ShadingConfig(**state.get("shading", {})))
+        model = cls(FRNGConfig.from_dict(state["config"]), RasterConfig.from_dict(state.get("raster", {})),
+                    ShadingConfig.from_dict(state.get("shading", {})))
         model.load_state_dict(state["state_dict"])
         model.meta = {k: v for k, v in state.items() if k not in ("state_dict",)}
         return model.to(device).eval()
@@ -501,27 +523,30 @@ def _ggx_diffuse_sh(maps: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, 
 
 # -- variants from the pipeline config --------------------------------------------------------------------------
 
-def variant_config(config: dict, name: str, backbone_cfg: dict | None = None) -> tuple[FRNGConfig, LightIndependenceConfig]:
+def variant_config(config: Config | dict, name: str, backbone_cfg: dict | None = None
+                   ) -> tuple[FRNGConfig, LightIndependenceConfig]:
     """(architecture, L_ind weights) of a variant from a validated pipeline config.
 
     ``backbone_cfg``: the frozen backbone's architecture dict (its ``model.pt`` ``config``); the token width and
     near/far/max_radius_px come from it (default: the config's ``backbone`` section).
     """
-    f = config["frng"]
-    bb = backbone_cfg or config["backbone"]
+    from frng.priors.backbone import BackboneConfig
+
+    c = typed(config)
+    f, sh = c.frng, c.shading
+    bb = BackboneConfig.from_dict(backbone_cfg) if backbone_cfg else c.backbone
     cfg = FRNGConfig(
-        patch=config["model"]["patch_size"], geo_dim=bb["width"], prior_dim=f["prior_dim"], fine=True,
-        top_k=f["top_k_percent"] / 100.0, upsample=f["upsample"], hidden=f["hidden"], depth=f["depth"],
-        heads=f["heads"], feature_dim=f["feature_dim"], head="neural",
-        decoder_width=config["shading"]["decoder_width"], decoder_depth=config["shading"]["decoder_depth"],
-        dir_freqs=config["shading"]["dir_freqs"], near=bb.get("near", 1.0), far=bb.get("far", 4.5),
-        max_radius_px=bb.get("max_radius_px", 12.0), saliency=dict(f.get("saliency", {})),
-        pixel_head=f.get("pixel_head", 32), decoder_cosine=config["shading"].get("decoder_cosine", False),
+        patch=c.model.patch_size, geo_dim=bb.width, prior_dim=f.prior_dim, fine=True,
+        top_k=f.top_k_percent / 100.0, upsample=f.upsample, hidden=f.hidden, depth=f.depth,
+        heads=f.heads, feature_dim=f.feature_dim, head="neural",
+        decoder_width=sh.decoder_width, decoder_depth=sh.decoder_depth,
+        dir_freqs=sh.dir_freqs, near=bb.near, far=bb.far,
+        max_radius_px=bb.max_radius_px, saliency=section_dict(f.saliency, "frng.saliency"),
+        pixel_head=f.pixel_head, decoder_cosine=sh.decoder_cosine,
     )
-    loss = config["train"]["loss"]
-    ind = LightIndependenceConfig(lambda_c=loss["lambda_c"], lambda_kld=loss["lambda_kld"],
-                                  temperature=loss.get("temperature", 1.0))
-    v = variant(canonical_variant(config, name))
+    loss = c.train.loss
+    ind = LightIndependenceConfig(lambda_c=loss.lambda_c, lambda_kld=loss.lambda_kld, temperature=loss.temperature)
+    v = variant(canonical_variant(c, name))
     return replace(cfg, **v.arch), replace(ind, **v.loss)
 
 

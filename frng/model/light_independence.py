@@ -30,6 +30,8 @@ from dataclasses import asdict, dataclass
 import torch
 import torch.nn.functional as F
 
+from frng.config import section
+
 
 @dataclass
 class LightIndependenceConfig:
@@ -45,7 +47,9 @@ class LightIndependenceConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "LightIndependenceConfig":
-        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+        """Strict (:func:`frng.config.section`): unknown keys are errors; a module setting, not a config section:
+        missing keys take the field defaults."""
+        return section(cls, d)
 
     def to_dict(self) -> dict:
         return asdict(self)

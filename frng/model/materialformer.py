@@ -34,6 +34,7 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 
+from frng.config import section
 from frng.nn import Transformer, unpatchify
 
 PBR_CHANNELS = 8  # albedo 3, roughness 1, metallic 1, normal 3
@@ -65,7 +66,9 @@ class MaterialFormerConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "MaterialFormerConfig":
-        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+        """Strict (:func:`frng.config.section`): unknown keys are errors; a module setting, not a config section:
+        missing keys take the field defaults."""
+        return section(cls, d)
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -41,19 +41,23 @@ import torch
 import torch.nn.functional as F
 from scipy import ndimage
 
+from frng.config import section
+
 LUMA = (0.2126, 0.7152, 0.0722)  # Rec. 709 on linear RGB
 
 
-@dataclass
+@dataclass(frozen=True)
 class SaliencyConfig:
-    """Saliency / patch-selection parameters (proposed config section ``model.saliency``)."""
+    """Saliency / patch-selection parameters: the config's ``frng.saliency`` section (defaults:
+    config/schema.yaml) plus two internal fields, ``margin`` (not a config key) and ``top_k`` (set from
+    ``frng.top_k_percent`` by :meth:`frng.model.frng.FRNGConfig.saliency_config`)."""
 
-    box_size: int = 5  # beta, odd, pixels
-    margin: float | None = None  # pixels from the background with W = 0; None -> box_size // 2 + 1
-    ramp: float = 4.0  # pixels over which W rises linearly from 0 to 1 after the margin
-    sigma: float = 1.0  # Gaussian blur of W_linear, pixels
-    tonemap: bool = True
-    top_k: float = 0.02  # K as a fraction of the patches of one view (paper 2%)
+    box_size: int  # beta, odd, pixels
+    ramp: float  # pixels over which W rises linearly from 0 to 1 after the margin
+    sigma: float  # Gaussian blur of W_linear, pixels
+    tonemap: bool
+    margin: float | None = None  # internal: pixels from the background with W = 0; None -> box_size // 2 + 1
+    top_k: float = 0.02  # internal: K as a fraction of the patches of one view (paper 2%)
 
     def __post_init__(self):
         if self.box_size < 1 or self.box_size % 2 == 0:
@@ -69,7 +73,9 @@ class SaliencyConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "SaliencyConfig":
-        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+        """Strict (:func:`frng.config.section`): unknown keys are errors, missing ones take the schema's defaults
+        (``{}``: the defaults)."""
+        return section(cls, d, "frng.saliency")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -147,7 +153,7 @@ def saliency_map(images: torch.Tensor, mask: torch.Tensor | None = None, cfg: Sa
     images: (V, H, W, 3 or 4) linear (premultiplied) RGB or RGBA; mask: (V, H, W) foreground (bool or [0, 1]) or
     None (see :func:`foreground_mask`). Returns (V, H, W) float32, >= 0.
     """
-    cfg = cfg or SaliencyConfig()
+    cfg = cfg or SaliencyConfig.from_dict({})
     images = images.float()
     s_raw = local_std(grayscale(images, cfg.tonemap), cfg.box_size)
     w = boundary_weight(foreground_mask(images, mask), cfg)
@@ -190,7 +196,7 @@ def salient_patches(
     images: torch.Tensor, mask: torch.Tensor | None = None, patch: int = 8, cfg: SaliencyConfig | None = None
 ) -> torch.Tensor:
     """Convenience: images (V, H, W, 3|4) [+ mask (V, H, W)] -> selected flat patch indices (V, n)."""
-    cfg = cfg or SaliencyConfig()
+    cfg = cfg or SaliencyConfig.from_dict({})
     return select_top_k(patch_scores(saliency_map(images, mask, cfg), patch), cfg.top_k)
 
 

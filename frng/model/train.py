@@ -38,7 +38,7 @@ wall time, device, step time). Seeds are fixed
 from __future__ import annotations
 
 import random
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import torch
@@ -46,6 +46,8 @@ from torch import nn
 
 from frng import distributed, envmap, io
 from frng import training as tr
+from frng.config import Config, config_section, typed
+from frng.layout import Layout
 from frng.model.frng import FRNG, FRNGConfig, canonical_variant, variant_config
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
 
@@ -53,35 +55,46 @@ CACHE_KEYS = ("t_geo", "raw_prior", "means", "quats", "scales", "opacities", "ke
 LOSS_NAMES = ["total", "l2", "alpha", "perceptual", "ind", "ind_cos", "ind_kld"]
 
 
-@dataclass
-class TrainConfig:
-    """Typed view of the config's ``train`` section (see config/README.md)."""
+@dataclass(frozen=True)
+class LossConfig:
+    """The config's ``train.loss`` section: the loss weights (see config/README.md; defaults: config/schema.yaml)."""
 
-    steps: int = 300
-    ablation_steps: int | None = None
-    lr: float = 1e-3
-    warmup: int = 20
-    weight_decay: float = 0.01
-    grad_clip: float = 1.0
-    batch: int = 1
-    target_views: int = 2
-    views: int = 6
-    perceptual_net: str = "vgg"
-    perceptual_after: int = 0
-    background: tuple = (1.0, 1.0, 1.0)
-    l2_space: str = "display"
-    l2_pixels: str = "target"
-    bf16: bool = True
-    checkpoint_every: int = 25
-    loss: dict = field(default_factory=lambda: {"lambda_1": 1.0, "lambda_alpha": 0.0, "lambda_per": 0.5,
-                                                "lambda_c": 0.2, "lambda_kld": 0.2, "temperature": 1.0})
+    lambda_1: float
+    lambda_alpha: float
+    lambda_per: float
+    lambda_c: float
+    lambda_kld: float
+    temperature: float
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """The config's ``train`` section (see config/README.md; defaults: config/schema.yaml)."""
+
+    steps: int
+    ablation_steps: int | None
+    lr: float
+    warmup: int
+    weight_decay: float
+    grad_clip: float
+    batch: int
+    target_views: int
+    views: int
+    perceptual_net: str
+    perceptual_after: int
+    background: tuple[float, ...]
+    l2_space: str
+    l2_pixels: str
+    bf16: bool
+    checkpoint_every: int
+    loss: LossConfig
+
+    def __post_init__(self):
+        object.__setattr__(self, "background", tuple(float(c) for c in self.background))
 
     @classmethod
-    def from_config(cls, config: dict) -> "TrainConfig":
-        d = dict(config.get("train", {}))
-        if "background" in d:
-            d["background"] = tuple(float(c) for c in d["background"])
-        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+    def from_config(cls, config: Config | dict) -> "TrainConfig":
+        return config_section(config, "train")
 
     def steps_for(self, variant: str) -> int:
         return self.steps if variant == "full" or self.ablation_steps is None else self.ablation_steps
@@ -100,36 +113,38 @@ class TrainObject:
     targets: list  # [(light name, env (He, We, 3), c2w (Vt, 4, 4), intr (Vt, 4), rgba (Vt, H, W, 4))]
 
 
-def load_objects(config: dict, ids: list[str], backbone_path: Path, use_priors: bool, V: int) -> list[TrainObject]:
+def load_objects(config: Config | dict, ids: list[str], backbone_path: Path, use_priors: bool, V: int
+                 ) -> list[TrainObject]:
     """Read caches + curated images of ``ids``. IDM priors are opened only when ``use_priors``."""
     from frng.data.dataset import open_object
     from frng.priors.cache import load_backbone_cache, load_idm_priors
 
-    res = Path(config["results"])
-    idm_model = res / "idm" / "model.pt" if config["idm"]["kind"] == "learned" else None
+    config = typed(config)
+    L = Layout(config.results)
+    idm_model = L.idm_model() if config.idm.kind == "learned" else None
     envs: dict[str, torch.Tensor] = {}
     out = []
     for oid in ids:
-        cache = load_backbone_cache(res / "backbone" / "cache" / f"{oid}.safetensors", backbone_path)
+        cache = load_backbone_cache(L.backbone_cache(oid), backbone_path)
         allv = cache.views(V)
         lights = len(cache.lights)
         views = {k: allv[k] for k in CACHE_KEYS}
         views.update({f"light{j}.t_app": allv[f"light{j}.t_app"] for j in range(lights)})
         priors = None
         if use_priors:
-            priors, _ = load_idm_priors(res / "priors" / "idm" / f"{oid}.safetensors", idm_model)
+            priors, _ = load_idm_priors(L.idm_priors(oid), idm_model)
             priors = priors.select(slice(0, V))
-        obj = open_object(res, oid)
+        obj = open_object(L.root, oid)
         light_in = cache.meta["input_light"]
         names = cache.meta["view_names"][str(V)]
         images = obj.images("inputs", light_in, names, torch=True)
         if light_in not in envs:
-            envs[light_in] = torch.from_numpy(envmap.read(obj.envmap_path(light_in, res))).float()
+            envs[light_in] = torch.from_numpy(envmap.read(obj.envmap_path(light_in, L.root))).float()
         targets = []
         kinds = [("targets", l) for l in obj.target_lights] + [("inputs", l) for l in obj.input_lights if l != light_in]
         for kind, light in kinds:
             if light not in envs:
-                envs[light] = torch.from_numpy(envmap.read(obj.envmap_path(light, res))).float()
+                envs[light] = torch.from_numpy(envmap.read(obj.envmap_path(light, L.root))).float()
             c2w, K = obj.cameras(kind, None, torch=True)
             targets.append((light, envs[light], c2w, K, obj.images(kind, light, None, torch=True)))
         out.append(TrainObject(oid, views, lights, priors, images, envs[light_in], targets))
@@ -196,7 +211,7 @@ class StepLoss(nn.Module):
         self.model, self.ind, self.tcfg, self.bf16 = model, ind, tcfg, bf16
         self.perceptual = perceptual  # frozen (no parameters require grad)
         w = tcfg.loss
-        self.lambda_1, self.lambda_per, self.lambda_alpha = w["lambda_1"], w["lambda_per"], w["lambda_alpha"]
+        self.lambda_1, self.lambda_per, self.lambda_alpha = w.lambda_1, w.lambda_per, w.lambda_alpha
         self.step = 0  # set by the training loop (L_per starts at ``tcfg.perceptual_after``)
 
     @property
@@ -252,28 +267,27 @@ def sample(obj: TrainObject, rng: random.Random, n_views: int) -> tuple[int, int
     return j, ti, vidx
 
 
-def build_model(config: dict, variant: str, backbone_path: Path, device) -> tuple[FRNG, LightIndependenceConfig]:
+def build_model(config: Config | dict, variant: str, backbone_path: Path, device) -> tuple[FRNG, LightIndependenceConfig]:
     """A fresh variant model, FineGeoDetokenizer initialised from the frozen backbone's GeoDetokenizer."""
     from frng.priors import load_backbone
-    from frng.render import RasterConfig
-    from frng.render.shading import ShadingConfig
 
+    config = typed(config)
     backbone = load_backbone(backbone_path, "cpu")
     cfg, ind = variant_config(config, variant, backbone.cfg.to_dict())
-    model = FRNG.from_backbone(cfg, backbone, RasterConfig.from_config(config), ShadingConfig.from_config(config))
+    model = FRNG.from_backbone(cfg, backbone, config.raster, config.shading)
     return model.to(device), ind
 
 
-def train(config: dict, variant: str, out: Path, backbone_path: Path | None = None, steps: int | None = None,
+def train(config: Config | dict, variant: str, out: Path, backbone_path: Path | None = None, steps: int | None = None,
           stop_after: int | None = None, objects: list[TrainObject] | None = None) -> Path:
     """Train (or resume) one variant; returns ``out/model.pt`` (or the checkpoint when stopped by ``stop_after``,
     which tests use to simulate an interruption)."""
+    config = typed(config)
     variant = canonical_variant(config, variant)
-    res = Path(config["results"])
-    backbone_path = Path(backbone_path or res / "backbone" / "model.pt")
-    tcfg = TrainConfig.from_config(config)
+    backbone_path = Path(backbone_path or Layout(config.results).backbone_model())
+    tcfg = config.train
     total = steps or tcfg.steps_for(variant)
-    info = distributed.init(config.get("device", "auto"))
+    info = distributed.init(config.device)
     device = info.device
     distributed.seed_everything(tr.train_seed(config), info, per_rank=False)  # identical init on every rank
     model, ind = build_model(config, variant, backbone_path, device)
@@ -285,7 +299,7 @@ def train(config: dict, variant: str, out: Path, backbone_path: Path | None = No
     if not objects:
         raise ValueError("frng train: no training objects on this rank")
     perceptual = None
-    if tcfg.loss["lambda_per"] > 0:
+    if tcfg.loss.lambda_per > 0:
         from frng.perceptual import PerceptualLoss
 
         perceptual = PerceptualLoss("lpips", net=tcfg.perceptual_net, srgb=True,

@@ -21,6 +21,8 @@ from typing import Callable, Protocol
 import torch
 from torch import nn
 
+from frng.config import Config, typed
+
 BACKBONES: dict[str, Callable[..., nn.Module]] = {}
 IDMS: dict[str, Callable[..., "IDMPrior"]] = {}
 
@@ -119,29 +121,29 @@ class DiffusionRendererIDMPrior:
                            self.normal_space, self.depth_invert)
 
 
-def _learned(config: dict, device="cpu") -> IDMPrior:
+def _learned(config: Config, device="cpu") -> IDMPrior:
     from frng.layout import Layout
 
-    return LearnedIDMPrior(Path(Layout(config["results"]).idm_model()), device)
+    return LearnedIDMPrior(Path(Layout(config.results).idm_model()), device)
 
 
-def _oracle(config: dict, device="cpu") -> IDMPrior:
+def _oracle(config: Config, device="cpu") -> IDMPrior:
     return OracleIDMPrior()
 
 
-def _diffusion_renderer(config: dict, device="cpu") -> IDMPrior:
-    c = config["idm"]
-    if not c.get("diffusion_renderer_dir"):
+def _diffusion_renderer(config: Config, device="cpu") -> IDMPrior:
+    c = config.idm
+    if not c.diffusion_renderer_dir:
         raise ValueError("config key 'idm.diffusion_renderer_dir': required for idm.kind = diffusion-renderer")
-    return DiffusionRendererIDMPrior(c["diffusion_renderer_dir"], config["backbone"]["near"],
-                                     config["backbone"]["far"], c["normal_space"], c["depth_invert"])
+    return DiffusionRendererIDMPrior(c.diffusion_renderer_dir, config.backbone.near, config.backbone.far,
+                                     c.normal_space, c.depth_invert)
 
 
-def build_idm(config: dict, device="cpu", kind: str | None = None) -> IDMPrior:
-    kind = kind or config["idm"]["kind"]
+def build_idm(config: Config | dict, device="cpu", kind: str | None = None) -> IDMPrior:
+    kind = kind or typed(config).idm.kind
     if kind not in IDMS:
         raise KeyError(f"unknown IDM kind {kind!r}; registered: {sorted(IDMS)}")
-    return IDMS[kind](config, device)
+    return IDMS[kind](typed(config), device)
 
 
 register_backbone("relitlrm", _load_relitlrm)

@@ -63,12 +63,13 @@ same as mixing x0-hats); guidance 1.0 runs only the conditional pass.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import torch
 from torch import nn
 
 from frng import camera
+from frng.config import section
 from frng.gaussians import GaussianDecodeConfig, Gaussians, isotropic_raw, pixel_gaussians
 from frng.nn import PatchDetokenizer, PatchTokenizer, Transformer, timestep_embedding
 from frng.priors.diffusion import NoiseSchedule, from_diffusion_space, to_diffusion_space
@@ -77,37 +78,59 @@ from frng.priors.multiview import CUE_CHANNELS, geometry_cues
 from frng.render.sh import C0, eval_sh
 from frng.render import rasterize
 
+if TYPE_CHECKING:
+    from frng.priors.backbone_train import BackboneTrainConfig
+
 GEO_CHANNELS = 9  # distance 1, scale 3, rotation 4, opacity 1 (RelitLRM's split)
 
 
-@dataclass
-class BackboneConfig:
-    """Architecture of the backbone (``backbone`` config section)."""
+@dataclass(frozen=True)
+class BackboneArch:
+    """The architecture keys of the config's ``backbone`` section (defaults: config/schema.yaml), shared by the
+    section (:class:`BackboneSection`) and a model's architecture record (:class:`BackboneConfig`)."""
 
-    width: int = 256
-    heads: int = 4
-    geo_depth: int = 4
-    app_depth: int = 2
-    patch: int = 8
-    sh_degree: int = 2
-    env_height: int = 32
-    env_patch: int = 8
-    near: float = 1.0
-    far: float = 4.5
-    denoise_steps: int = 5
-    den_views: int = 4
-    guidance: float = 1.0
-    cond_drop: float = 0.1
-    max_radius_px: float = 16.0
-    cues: bool = True
-    hull_bins: int = 48
-    footprint_px: float = 0.7
-    pixel_features: int = 16
+    width: int
+    heads: int
+    geo_depth: int
+    app_depth: int
+    sh_degree: int
+    env_height: int
+    env_patch: int
+    near: float
+    far: float
+    denoise_steps: int
+    den_views: int
+    guidance: float
+    cond_drop: float
+    max_radius_px: float
+    cues: bool
+    hull_bins: int
+    footprint_px: float
+    pixel_features: int
+
+
+@dataclass(frozen=True)
+class BackboneSection(BackboneArch):
+    """The config's ``backbone`` section: the architecture, the registry name, the extra lights of the token cache and
+    the training (``backbone.train``; :class:`frng.priors.backbone_train.BackboneTrainConfig`)."""
+
+    kind: str
+    cache_extra_lights: int
+    train: BackboneTrainConfig
+
+
+@dataclass(frozen=True)
+class BackboneConfig(BackboneArch):
+    """Architecture of a backbone model (``model.pt``'s ``config``): the section's architecture keys plus ``patch``
+    (``model.patch_size``)."""
+
+    patch: int
 
     @classmethod
     def from_dict(cls, d: dict) -> "BackboneConfig":
-        known = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
-        return cls(**known)
+        """Strict (:func:`frng.config.section`): unknown keys are errors, missing architecture keys take the
+        schema's defaults; ``patch`` must be given."""
+        return section(cls, d, "backbone")
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -30,7 +30,7 @@ checkpoint when the config and data are unchanged; after a finished run it train
 from __future__ import annotations
 
 import random
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import torch
@@ -38,39 +38,41 @@ import torch.nn.functional as F
 
 from frng.priors import backbone as bb
 from frng import training as tr
+from frng.config import Config, section, typed
 from frng.priors.dataset import PriorObject, Views
 from frng.priors.diffusion import to_diffusion_space
 
 
-@dataclass
+@dataclass(frozen=True)
 class BackboneTrainConfig:
-    """``backbone.train`` config section."""
+    """The config's ``backbone.train`` section (defaults: config/schema.yaml)."""
 
-    steps: int = 600
-    batch: int = 1
-    lr: float = 4e-4
-    warmup: int = 50
-    weight_decay: float = 0.05
-    grad_clip: float = 1.0
-    lambda_alpha: float = 1.0
-    lambda_depth: float = 0.5
-    lambda_per: float = 0.5
-    perceptual_after: int = 200
-    perceptual_net: str = "vgg"
-    supervision_views: int = 2
-    bf16: bool = True
-    checkpoint_every: int = 50
+    steps: int
+    batch: int
+    lr: float
+    warmup: int
+    weight_decay: float
+    grad_clip: float
+    lambda_alpha: float
+    lambda_depth: float
+    lambda_per: float
+    perceptual_after: int
+    perceptual_net: str
+    supervision_views: int
+    bf16: bool
+    checkpoint_every: int
 
     @classmethod
     def from_dict(cls, d: dict) -> "BackboneTrainConfig":
-        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+        """Strict (:func:`frng.config.section`): unknown keys are errors, missing ones take the schema's defaults."""
+        return section(cls, d, "backbone.train")
 
 
-def backbone_config(config: dict) -> bb.BackboneConfig:
+def backbone_config(config: Config | dict) -> bb.BackboneConfig:
     """The backbone architecture from a validated pipeline config (patch size from ``model.patch_size``)."""
-    d = {k: v for k, v in config["backbone"].items() if k not in ("train", "kind")}
-    d["patch"] = config["model"]["patch_size"]
-    return bb.BackboneConfig.from_dict(d)
+    c = typed(config)
+    arch = {f.name: getattr(c.backbone, f.name) for f in fields(bb.BackboneArch)}
+    return bb.BackboneConfig(**arch, patch=c.model.patch_size)
 
 
 def _gamma(rgb: torch.Tensor) -> torch.Tensor:
@@ -156,7 +158,7 @@ def step_loss(model: bb.RelitLRMBackbone, obj: PriorObject, tcfg: BackboneTrainC
 LOSS_NAMES = ["total", "l2", "alpha", "depth", "perceptual"]
 
 
-def train(config: dict, objects: list[PriorObject], out: Path, steps: int | None = None,
+def train(config: Config | dict, objects: list[PriorObject], out: Path, steps: int | None = None,
           stop_after: int | None = None) -> Path:
     """Train (or resume, :func:`frng.training.fit`) the backbone on ``objects`` (training split only); returns the
     model path.
@@ -164,10 +166,11 @@ def train(config: dict, objects: list[PriorObject], out: Path, steps: int | None
     ``stop_after``: stop (after checkpointing) once this many steps have run in this call -- for tests of
     resumption. ``steps`` overrides ``backbone.train.steps``."""
     tr.check_training_split(objects, "backbone-train")
-    tcfg = BackboneTrainConfig.from_dict(config["backbone"].get("train", {}))
+    config = typed(config)
+    tcfg = config.backbone.train
     total = steps or tcfg.steps
     cfg = backbone_config(config)
-    device = tr.resolve_device(config.get("device", "auto"))
+    device = tr.resolve_device(config.device)
     tr.seed_everything(tr.train_seed(config))
     model = bb.RelitLRMBackbone(cfg).to(device)
     opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, betas=(0.9, 0.95), weight_decay=tcfg.weight_decay)
@@ -192,7 +195,7 @@ def train(config: dict, objects: list[PriorObject], out: Path, steps: int | None
         return acc
 
     def save_model(path: Path) -> None:
-        tr.save_torch({"kind": config["backbone"].get("kind", "relitlrm"), "config": cfg.to_dict(),
+        tr.save_torch({"kind": config.backbone.kind, "config": cfg.to_dict(),
                        "state_dict": model.state_dict(), "steps": total}, path)
 
     return tr.fit(step_fn, tcfg, model=model, optimizer=opt, out=out, total=total, fingerprint=fingerprint,

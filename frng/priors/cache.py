@@ -50,6 +50,7 @@ from pathlib import Path
 import torch
 
 from frng import envmap, io
+from frng.config import Config, typed
 from frng.data import catalog
 from frng.layout import Layout
 from frng.priors import build_idm, load_backbone
@@ -81,26 +82,27 @@ def _load(path: Path) -> tuple[dict[str, torch.Tensor], dict[str, str]]:
         return {k: f.get_tensor(k) for k in f.keys()}, dict(f.metadata() or {})
 
 
-def extra_training_lights(config: dict, oid: str, exclude: str, count: int) -> list[str]:
+def extra_training_lights(config: Config | dict, oid: str, exclude: str, count: int) -> list[str]:
     """``count`` random training env maps (not ``exclude``), seeded by the config seed and the object id."""
     pool = sorted(e.name for e in catalog.plan(config).envmaps if e.split == "train" and e.name != exclude)
     if len(pool) < count:
         raise ValueError(f"only {len(pool)} training env maps besides {exclude}; need {count} extra lights")
-    rng = catalog.rng_for(config["seed"], "cache-lights", oid)
+    rng = catalog.rng_for(typed(config).seed, "cache-lights", oid)
     return [pool[i] for i in rng.choice(len(pool), count, replace=False)]
 
 
 # -- backbone cache ------------------------------------------------------------------------------------
 
-def make_backbone_cache(config: dict, oid: str, model_path: Path, out: Path, device="cpu") -> Path:
+def make_backbone_cache(config: Config | dict, oid: str, model_path: Path, out: Path, device="cpu") -> Path:
     from frng.priors.dataset import load_object
 
+    config = typed(config)
     model = load_backbone(model_path, device)
     sha = tr.file_sha256(model_path)
     obj = load_object(config, oid, with_targets=False, with_gbuffer=False)
     light_in = obj.input_lights[0]
-    lights = [light_in] + extra_training_lights(config, oid, light_in, config["backbone"]["cache_extra_lights"])
-    envs = {l: torch.from_numpy(envmap.read(Layout(config["results"]).envmap(l))) for l in lights}
+    lights = [light_in] + extra_training_lights(config, oid, light_in, config.backbone.cache_extra_lights)
+    envs = {l: torch.from_numpy(envmap.read(Layout(config.results).envmap(l))) for l in lights}
     views = obj.inputs[light_in]
     H, W = views.rgb.shape[1:3]
     tensors: dict[str, torch.Tensor] = {}
@@ -118,7 +120,7 @@ def make_backbone_cache(config: dict, oid: str, model_path: Path, out: Path, dev
                         p + "keep": keep.to(torch.uint8), p + "c2w": v.c2w, p + "intr": v.intr})
         nd = model.cfg.den_views
         for j, light in enumerate(lights):
-            g = torch.Generator(device=device).manual_seed(catalog.derive_seed(config["seed"], "cache", oid, light))
+            g = torch.Generator(device=device).manual_seed(catalog.derive_seed(config.seed, "cache", oid, light))
             sh, t_app = model.denoise(t_geo, gauss, keep, envs[light].to(device)[None], c2w[:nd], intr[:nd], H, W,
                                       generator=g, pixels=pixels)
             tensors[f"{p}light{j}.t_app"] = t_app[0].float()
@@ -168,7 +170,7 @@ def load_backbone_cache(path: str | Path, model_path: str | Path) -> BackboneCac
 
 # -- IDM priors ------------------------------------------------------------------------------------------
 
-def make_idm_priors(config: dict, oid: str, out: Path, device="cpu", kind: str | None = None) -> Path:
+def make_idm_priors(config: Config | dict, oid: str, out: Path, device="cpu", kind: str | None = None) -> Path:
     from frng.priors.dataset import load_object
 
     idm = build_idm(config, device, kind)

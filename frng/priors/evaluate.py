@@ -33,6 +33,7 @@ import math
 import numpy as np
 import torch
 
+from frng.config import Config, typed
 from frng.priors.dataset import PriorObject
 from frng.priors.intrinsics import IntrinsicPriors
 
@@ -91,7 +92,7 @@ def mean_image(train_objects: list[PriorObject]) -> np.ndarray:
     return torch.cat(imgs).mean(0).numpy()
 
 
-def eval_backbone(config: dict, model, test: list[PriorObject], mean_img: np.ndarray, device="cpu") -> list[dict]:
+def eval_backbone(config: Config | dict, model, test: list[PriorObject], mean_img: np.ndarray, device="cpu") -> list[dict]:
     rows = []
     nd = model.cfg.den_views
     for obj in test:
@@ -110,7 +111,7 @@ def eval_backbone(config: dict, model, test: list[PriorObject], mean_img: np.nda
                                                getattr(model.cfg, "footprint_px", 0.7), model.decode_config())
         mr = model.cfg.max_radius_px
         for i, (task, light, out) in enumerate(jobs):
-            g = torch.Generator(device=device).manual_seed(config["seed"] + i)
+            g = torch.Generator(device=device).manual_seed(typed(config).seed + i)
             env = obj.envs[light].to(device)[None]
             sh, _ = model.denoise(t_geo, gauss, keep, env, c2w[:nd], intr[:nd], H, W, generator=g, pixels=pixels)
             pred, pa, _ = model.render(gauss, sh, out.c2w.to(device), out.intr.to(device), H, W, keep)
@@ -160,7 +161,7 @@ def constant_priors(train_objects: list[PriorObject], views, gt: IntrinsicPriors
                            metallic=mean["metallic"].expand(V, H, W, 1).clone(), mask=gt.mask)
 
 
-def eval_idm(config: dict, idm, test: list[PriorObject], train_objects: list[PriorObject]) -> list[dict]:
+def eval_idm(config: Config | dict, idm, test: list[PriorObject], train_objects: list[PriorObject]) -> list[dict]:
     rows = []
     for obj in test:
         views = obj.inputs[obj.input_lights[0]]

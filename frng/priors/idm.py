@@ -48,42 +48,69 @@ Every kind returns :class:`frng.priors.intrinsics.IntrinsicPriors` (shapes and c
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from frng import camera
+from frng.config import section
 from frng.nn import PatchDetokenizer, PatchTokenizer, Transformer
 from frng.priors.diffusion import to_diffusion_space
 from frng.priors.intrinsics import IntrinsicPriors
 from frng.priors.multiview import CUE_CHANNELS, geometry_cues
 
+if TYPE_CHECKING:
+    from frng.priors.idm_train import IDMTrainConfig
+
 RAW_CHANNELS = 9
 
 
-@dataclass
-class IDMConfig:
-    """Architecture of the learned IDM (``idm`` config section)."""
+@dataclass(frozen=True)
+class IDMArch:
+    """The learned IDM's architecture keys of the config's ``idm`` section (defaults: config/schema.yaml), shared by
+    the section (:class:`IDMSection`) and a model's architecture record (:class:`IDMConfig`)."""
 
-    width: int = 128
-    heads: int = 4
-    depth: int = 4
-    patch: int = 8
-    pixel_features: int = 16
-    near: float = 1.0
-    far: float = 4.5
-    cues: bool = True  # visual-hull geometry cues in, depth/normals decoded as hull + residual
-    depth_range: float = 0.5  # bound of the learned camera-z residual on the hull depth (world units)
-    head_hidden: int = 64  # pixel head width
-    head_layers: int = 2  # hidden layers of the pixel head
-    head_kernel: int = 1  # pixel head kernel size (1 = per-pixel MLP, 3 = 3x3 convs)
-    cue_bins: int = 48  # plane-sweep samples per ray of the hull (frng.priors.multiview)
-    head_global: bool = True  # pixel head also sees object-level statistics of its inputs (object_context)
+    width: int
+    heads: int
+    depth: int
+    pixel_features: int
+    cues: bool  # visual-hull geometry cues in, depth/normals decoded as hull + residual
+    cue_bins: int  # plane-sweep samples per ray of the hull (frng.priors.multiview)
+    depth_range: float  # bound of the learned camera-z residual on the hull depth (world units)
+    head_hidden: int  # pixel head width
+    head_layers: int  # hidden layers of the pixel head
+    head_kernel: int  # pixel head kernel size (1 = per-pixel MLP, 3 = 3x3 convs)
+    head_global: bool  # pixel head also sees object-level statistics of its inputs (object_context)
+
+
+@dataclass(frozen=True)
+class IDMSection(IDMArch):
+    """The config's ``idm`` section: which IDM (``kind``), the learned one's architecture, the DiffusionRenderer
+    adapter's settings and the training (``idm.train``; :class:`frng.priors.idm_train.IDMTrainConfig`)."""
+
+    kind: str
+    diffusion_renderer_dir: str | None
+    normal_space: str
+    depth_invert: bool
+    train: IDMTrainConfig
+
+
+@dataclass(frozen=True)
+class IDMConfig(IDMArch):
+    """Architecture of a learned IDM model (``model.pt``'s ``config``): the section's architecture keys plus
+    ``patch`` (``model.patch_size``) and ``near``/``far`` (``backbone.near``/``far``)."""
+
+    patch: int
+    near: float
+    far: float
 
     @classmethod
     def from_dict(cls, d: dict) -> "IDMConfig":
-        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+        """Strict (:func:`frng.config.section`): unknown keys are errors, missing architecture keys take the
+        schema's defaults; ``patch``, ``near`` and ``far`` must be given."""
+        return section(cls, d, "idm")
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -19,7 +19,7 @@ gradient norm, checkpoints). Outputs in ``--out`` (default ``{results}/idm``): `
 from __future__ import annotations
 
 import random
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import torch
@@ -27,34 +27,39 @@ import torch
 from frng import camera
 from frng.priors import idm as idm_mod
 from frng import training as tr
+from frng.config import Config, section, typed
 from frng.priors import multiview
 from frng.priors.dataset import PriorObject, Views
 
 
-@dataclass
+@dataclass(frozen=True)
 class IDMTrainConfig:
-    steps: int = 400
-    lr: float = 1e-3
-    warmup: int = 30
-    bf16: bool = True
-    checkpoint_every: int = 50
-    all_views: float = 0.75  # probability of a step on all input views, else a random subset of 2..all
-    head_lr: float = 10.0  # learning-rate multiplier of the pixel head except its geometry output (param_groups)
-    geo_lr: float = 0.3  # learning-rate multiplier of the head's geometry-residual output layer
-    # not config keys (config/schema.yaml has none for the IDM): the values the IDM has always trained with
+    """The config's ``idm.train`` section (defaults: config/schema.yaml) plus two internal fields."""
+
+    steps: int
+    lr: float
+    warmup: int
+    bf16: bool
+    checkpoint_every: int
+    all_views: float  # probability of a step on all input views, else a random subset of 2..all
+    head_lr: float  # learning-rate multiplier of the pixel head except its geometry output (param_groups)
+    geo_lr: float  # learning-rate multiplier of the head's geometry-residual output layer
+    # internal, not config keys (config/schema.yaml has none for the IDM): the values the IDM has always trained with
     weight_decay: float = 0.01
     grad_clip: float = 1.0
 
     @classmethod
     def from_dict(cls, d: dict) -> "IDMTrainConfig":
-        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+        """Strict (:func:`frng.config.section`): unknown keys are errors, missing ones take the schema's defaults."""
+        return section(cls, d, "idm.train")
 
 
-def idm_config(config: dict) -> idm_mod.IDMConfig:
-    d = {k: v for k, v in config["idm"].items() if k in idm_mod.IDMConfig.__dataclass_fields__}
-    d["patch"] = config["model"]["patch_size"]
-    d["near"], d["far"] = config["backbone"]["near"], config["backbone"]["far"]
-    return idm_mod.IDMConfig.from_dict(d)
+def idm_config(config: Config | dict) -> idm_mod.IDMConfig:
+    """The learned IDM's architecture from a validated pipeline config (patch size from ``model.patch_size``,
+    near/far from the backbone's)."""
+    c = typed(config)
+    arch = {f.name: getattr(c.idm, f.name) for f in fields(idm_mod.IDMArch)}
+    return idm_mod.IDMConfig(**arch, patch=c.model.patch_size, near=c.backbone.near, far=c.backbone.far)
 
 
 def sample_views(obj: PriorObject, rng: random.Random, all_views: float) -> tuple[str, list[int]]:
@@ -119,15 +124,16 @@ def param_groups(model: idm_mod.LearnedIDM, tcfg: IDMTrainConfig) -> list[dict]:
 LOSS_NAMES = ["total", "normal", "depth", "albedo", "roughness", "metallic"]
 
 
-def train(config: dict, objects: list[PriorObject], out: Path, steps: int | None = None,
+def train(config: Config | dict, objects: list[PriorObject], out: Path, steps: int | None = None,
           stop_after: int | None = None) -> Path:
     """Train (or resume, :func:`frng.training.fit`) the learned IDM; returns the model path (or the checkpoint
     when stopped early)."""
     tr.check_training_split(objects, "idm-train")
-    tcfg = IDMTrainConfig.from_dict(config["idm"].get("train", {}))
+    config = typed(config)
+    tcfg = config.idm.train
     total = steps or tcfg.steps
     cfg = idm_config(config)
-    device = tr.resolve_device(config.get("device", "auto"))
+    device = tr.resolve_device(config.device)
     tr.seed_everything(tr.train_seed(config) + 1)
     model = idm_mod.LearnedIDM(cfg).to(device)
     opt = torch.optim.AdamW(param_groups(model, tcfg), lr=tcfg.lr, weight_decay=tcfg.weight_decay)

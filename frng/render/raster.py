@@ -6,6 +6,7 @@ from dataclasses import dataclass, fields
 
 import torch
 
+from frng.config import Config, config_section, section
 from frng.render import gsplat_backend
 from frng.render.project import project_gaussians
 from frng.render.reference import rasterize_reference
@@ -16,22 +17,25 @@ BACKENDS = ("auto", "torch", "gsplat", "reference")
 
 @dataclass(frozen=True)
 class RasterConfig:
-    """Typed view of the config's ``raster`` section (see config/README.md)."""
+    """The config's ``raster`` section (see config/README.md; defaults: config/schema.yaml)."""
 
-    backend: str = "auto"
-    tile_size: int = 4
-    chunk: int = 64
-    compile: bool = False
-    max_radius_px: float | None = None
-    min_transmittance: float = 1e-4
-    eps2d: float = 0.3
-    near: float = 0.01
+    backend: str
+    tile_size: int
+    chunk: int
+    compile: bool
+    max_radius_px: float | None
+    min_transmittance: float
+    eps2d: float
+    near: float
 
     @classmethod
-    def from_config(cls, config: dict) -> "RasterConfig":
-        section = dict(config.get("raster", {}))
-        known = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in section.items() if k in known})
+    def from_dict(cls, d: dict) -> "RasterConfig":
+        """Strict (:func:`frng.config.section`; ``{}``: the schema's defaults; a model file's ``raster``)."""
+        return section(cls, d, "raster")
+
+    @classmethod
+    def from_config(cls, config: Config | dict) -> "RasterConfig":
+        return config_section(config, "raster")
 
     def kwargs(self) -> dict:
         """Keyword arguments for :func:`rasterize`."""

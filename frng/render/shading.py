@@ -19,13 +19,14 @@ gradient at 24/64 of the backward cost). Inference uses spp_infer (paper 128).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import torch
 from torch import nn
 
 from frng import camera, envmap
+from frng.config import Config, config_section, section
 from frng.envmap import EnvSamples
 
 
@@ -34,21 +35,21 @@ DIFFUSE_MODES = ("sh", "mc")
 
 @dataclass(frozen=True)
 class ShadingConfig:
-    """Typed view of the config's ``shading`` section (see config/README.md)."""
+    """The config's ``shading`` section (see config/README.md; defaults: config/schema.yaml)."""
 
-    spp_train: int = 16
-    spp_grad: int = 8
-    spp_infer: int = 32
-    decoder_width: int = 64
-    decoder_depth: int = 3
-    dir_freqs: int = 0
-    decoder_cosine: bool = True
-    diffuse: str = "sh"
-    sampling: str = "sobol"
-    alpha_eps: float = 1e-3
-    chunk_pixels: int = 4096
-    chunk_pairs: int = 16384
-    bf16_infer: bool = False
+    spp_train: int
+    spp_grad: int
+    spp_infer: int
+    decoder_width: int
+    decoder_depth: int
+    dir_freqs: int
+    decoder_cosine: bool
+    diffuse: str
+    sampling: str
+    alpha_eps: float
+    chunk_pixels: int
+    chunk_pairs: int
+    bf16_infer: bool
 
     def __post_init__(self):
         if self.spp_grad > self.spp_train:
@@ -57,10 +58,13 @@ class ShadingConfig:
             raise ValueError(f"shading.diffuse must be one of {DIFFUSE_MODES}, got {self.diffuse!r}")
 
     @classmethod
-    def from_config(cls, config: dict) -> "ShadingConfig":
-        section = dict(config.get("shading", {}))
-        known = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in section.items() if k in known})
+    def from_dict(cls, d: dict) -> "ShadingConfig":
+        """Strict (:func:`frng.config.section`; ``{}``: the schema's defaults; a model file's ``shading``)."""
+        return section(cls, d, "shading")
+
+    @classmethod
+    def from_config(cls, config: Config | dict) -> "ShadingConfig":
+        return config_section(config, "shading")
 
 
 def encode_dirs(d: torch.Tensor, freqs: int) -> torch.Tensor:

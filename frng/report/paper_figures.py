@@ -14,12 +14,14 @@ Outputs (``{results}/figures/``):
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from frng import envmap, io
+from frng.config import Config, typed
 from frng.layout import Layout
 from frng.report import figures
 from frng.variants import BACKBONE
@@ -67,7 +69,7 @@ def ablation(results: Path, objects: list[str], variants: list[str], out_png: Pa
 
 def saliency(results: Path, oid: str, out_png: Path, patch: int) -> None:
     """Input view 0, its saliency map and the selected top-K patches of the full run."""
-    d = np.load(Path(Layout(results).relight_run("full", oid)) / "saliency.npz")
+    d = np.load(Layout(results).relight_saliency("full", oid))
     image, sal, idx = d["image"][0], d["saliency"][0], d["patch_idx"][0]
     H, W = image.shape[:2]
     sel = np.zeros((H // patch) * (W // patch), bool)
@@ -80,7 +82,7 @@ def loss_curves(results: Path, out_png: Path) -> None:
     """Every training run's loss.csv: F-RNG variants, backbone, IDM."""
     L = Layout(results)
     runs = {}
-    for p in sorted(Path(L.models_dir()).glob("*/loss.csv")):
+    for p in sorted(Path(L.models_dir()).glob(os.path.relpath(L.model_curve("*"), L.models_dir()))):
         runs[f"F-RNG {p.parent.name}"] = pd.read_csv(p)
     for name, p in (("backbone", Path(L.backbone_curve())), ("idm", Path(L.idm_curve()))):
         if p.exists():
@@ -90,19 +92,20 @@ def loss_curves(results: Path, out_png: Path) -> None:
     figures.loss_curves(runs, out_png, title="Training losses (all runs)")
 
 
-def make_figures(config: dict, objects: list[str], out_dir: Path) -> list[Path]:
+def make_figures(config: Config | dict, objects: list[str], out_dir: Path) -> list[Path]:
     from frng.metrics import read_csv
 
-    results = Path(config["results"])
+    config = typed(config)
+    results = Path(config.results)
     psnr = _psnr_lookup(read_csv(Layout(results).metrics("relight_per_image")))
     written = []
     for oid in objects:
         p = out_dir / "comparison" / f"{oid}.png"
         comparison(results, oid, p, psnr)
         s = out_dir / "saliency" / f"{oid}.png"
-        saliency(results, oid, s, int(config["model"]["patch_size"]))
+        saliency(results, oid, s, int(config.model.patch_size))
         written += [p, s]
-    variants = list(dict.fromkeys(["full", *config["frng"]["variants"]]))
+    variants = list(dict.fromkeys(["full", *config.frng.variants]))
     ablation(results, objects, variants, out_dir / "ablation.png", psnr)
     loss_curves(results, out_dir / "loss_curves.png")
     return written + [out_dir / "ablation.png", out_dir / "loss_curves.png"]

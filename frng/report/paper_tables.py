@@ -35,6 +35,7 @@ import pandas as pd
 
 from frng import io
 from frng import metrics as M
+from frng.config import Config, typed
 from frng.report import tables as T
 from frng.variants import BACKBONE, BASE_VARIANTS, ORACLE_RUN, RIG_VIEWS, VARIANTS
 
@@ -43,11 +44,11 @@ VARIANT_LABELS = {name: v.label for name, v in VARIANTS.items()}
 METHOD_LABELS = {"F-RNG": "F-RNG (ours)", BACKBONE: "backbone (RelitLRM-style)"}
 
 
-def _caption(title: str, config: dict, df: pd.DataFrame) -> str:
+def _caption(title: str, config: Config, df: pd.DataFrame) -> str:
     n_obj = df["object"].nunique()
-    return (f"{title} Tier {config['tier']}: {n_obj} test object(s), {len(df)} images; "
+    return (f"{title} Tier {config.tier}: {n_obj} test object(s), {len(df)} images; "
             f"{df['protocol'].iloc[0]} metric protocol (see frng/metrics.py), background "
-            f"{list(config['eval']['background'])}; mean over test objects, lights and views.")
+            f"{list(config.eval.background)}; mean over test objects, lights and views.")
 
 
 def _metrics(df: pd.DataFrame, by: list[str]) -> pd.DataFrame:
@@ -148,9 +149,10 @@ def timing_table(timings: list[dict]) -> pd.DataFrame:
     return T.timing(pd.DataFrame(rows), reference=METHOD_LABELS[BACKBONE])
 
 
-def write_tables(config: dict, per_image_csv: Path, timing_files: list[Path], out_dir: Path,
+def write_tables(config: Config | dict, per_image_csv: Path, timing_files: list[Path], out_dir: Path,
                  prior_csv: Path) -> dict[str, dict]:
     """Write the tables (see the module docstring). Returns {table: {"csv"|"md"|"tex": path}}."""
+    config = typed(config)
     df = M.read_csv(per_image_csv)
     missing = [c for c in ("dataset", "object", "run", "method", "variant", "views", "k", "psnr", "ssim", "lpips",
                            "protocol") if c not in df.columns]
@@ -183,12 +185,12 @@ def write_tables(config: dict, per_image_csv: Path, timing_files: list[Path], ou
         ladder_table(df, prior), out_dir / "ladder", decimals={"scale_log2": 2},
         caption=(f"Quality ladder: where the dB go. Aligned protocol on the held-out relighting images (row c: the "
                  f"held-out input-light views); scale_log2 = median over images and channels of |log2| of the "
-                 f"per-channel scale the protocol applied. Tier {config['tier']}."), label="tab:ladder")
+                 f"per-channel scale the protocol applied. Tier {config.tier}."), label="tab:ladder")
     t = timing_table(timings)
     out["timing"] = T.write_table(
         t, out_dir / "timing",
         caption=(f"Reconstruction and relighting time per image, measured side by side in the same job on "
                  f"{', '.join(device)} at {int(t['resolution'].iloc[0])} px, mean over {len(timings)} test "
                  f"object(s); F-RNG renders with {t['spp'].iloc[0]:.0f} light samples per pixel, the backbone "
-                 f"runs one full denoising pass per light. Tier {config['tier']}."), label="tab:timing")
+                 f"runs one full denoising pass per light. Tier {config.tier}."), label="tab:timing")
     return out

@@ -20,10 +20,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    config = frng_config.load(args.config)
-    L = Layout(config["results"])
+    config = frng_config.typed(frng_config.load(args.config))
+    L = Layout(config.results)
     model = Path(args.model or L.backbone_model())
     out = Path(args.out or L.backbone_cache(args.object))
-    device = tr.resolve_device(config["device"])
+    device = tr.resolve_device(config.device)
     print(f"backbone-cache: wrote {make_backbone_cache(config, args.object, model, out, device)}")
     return 0

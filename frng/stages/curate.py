@@ -15,6 +15,7 @@ from frng import config as frng_config
 from frng import envmap, io
 from frng.data import catalog
 from frng.data.curate import CurationError, StopGuard, curate
+from frng.layout import Layout
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -25,10 +26,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    config = frng_config.load(args.config)
-    results = Path(config["results"])
-    env_dir = Path(args.envmaps) if args.envmaps else results / "envmaps"
-    out = Path(args.out) if args.out else results / "objects"
+    config = frng_config.typed(frng_config.load(args.config))
+    L = Layout(config.results)
+    env_dir = Path(args.envmaps or L.envmaps_dir())
+    out = Path(args.out or L.objects_dir())
     t0 = time.perf_counter()
     import bpy  # noqa: F401  (before the guard: the import installs Blender's SIGINT handler)
 

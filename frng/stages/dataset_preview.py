@@ -30,9 +30,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    config = frng_config.load(args.config)
+    config = frng_config.typed(frng_config.load(args.config))
     objects = args.objects or catalog.plan(config).object_ids
-    out = Path(args.out) if args.out else Path(Layout(config["results"]).previews_dir())
+    out = Path(args.out) if args.out else Path(Layout(config.results).previews_dir())
     try:
         write_previews(config, objects, out, args.cell, args.max_views, args.max_lights,
                        log=lambda m: print(m, flush=True))

@@ -14,6 +14,7 @@ from frng import config as frng_config
 from frng import envmap, io
 from frng.data import catalog
 from frng.data.envmaps import prepare
+from frng.layout import Layout
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -22,8 +23,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    config = frng_config.load(args.config)
-    out = Path(args.out) if args.out else Path(config["results"]) / "envmaps"
+    config = frng_config.typed(frng_config.load(args.config))
+    out = Path(args.out) if args.out else Path(Layout(config.results).envmaps_dir())
     from frng.data.curate import StopGuard
 
     try:

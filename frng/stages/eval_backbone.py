@@ -30,9 +30,9 @@ def run(args: argparse.Namespace) -> int:
     from frng import io
     from frng.priors.dataset import load_split
 
-    config = frng_config.load(args.config)
-    L = Layout(config["results"])
-    device = tr.resolve_device(config["device"])
+    config = frng_config.typed(frng_config.load(args.config))
+    L = Layout(config.results)
+    device = tr.resolve_device(config.device)
     train_objs = load_split(config, "train")
     test = load_split(config, "test")
     model = load_backbone(Path(args.model or L.backbone_model()), device)

@@ -20,9 +20,10 @@ import argparse
 from pathlib import Path
 
 from frng import config as frng_config
+from frng.config import Config
 from frng import io
 from frng import metrics as M
-from frng.layout import Layout
+from frng.layout import Layout, RelightFolder
 
 PER_IMAGE = "relight_per_image.csv"
 SUMMARY = "relight_summary.csv"
@@ -32,14 +33,15 @@ COLUMNS = ("dataset", "object", "run", "method", "variant", "views", "k", "light
 
 def evaluate_run(results: Path, run_dir: Path, protocol: str, background, device: str = "cpu") -> list[dict]:
     """Rows of one ``{results}/relight/{run}/{obj}`` folder (see the module docstring)."""
-    info = io.read_json(run_dir / "run.json")
+    run_files = RelightFolder(run_dir)
+    info = io.read_json(run_files.record())
     oid = info["object"]
     L = Layout(results)
     meta = io.read_json(L.object_meta(oid))
     rows = []
     for light in info["lights"]:
         for view in info["target_views"]:
-            pred = run_dir / light / f"{view}.exr"
+            pred = run_files.image(light, view)
             gt = L.object_image(oid, "targets", light, view)
             m = M.evaluate_files(pred, gt, protocol=protocol, background=background, device=device)
             rows.append({"dataset": meta["material_class"], "object": oid, "run": info["name"],
@@ -48,11 +50,12 @@ def evaluate_run(results: Path, run_dir: Path, protocol: str, background, device
     return rows
 
 
-def evaluate(config: dict, run_dirs: list[Path], out_dir: Path) -> tuple[Path, Path]:
+def evaluate(config: Config | dict, run_dirs: list[Path], out_dir: Path) -> tuple[Path, Path]:
     """Score every run folder; write the per-image CSV and the per-run summary into ``out_dir``."""
-    results = Path(config["results"])
-    protocol = config["eval"]["protocol"]
-    background = tuple(config["eval"]["background"])
+    config = frng_config.typed(config)
+    results = Path(config.results)
+    protocol = config.eval.protocol
+    background = tuple(config.eval.background)
     rows = []
     for d in run_dirs:
         rows += evaluate_run(results, Path(d), protocol, background)
@@ -67,11 +70,11 @@ def evaluate(config: dict, run_dirs: list[Path], out_dir: Path) -> tuple[Path, P
     return per_image, M.write_csv(summary, out_dir / SUMMARY)
 
 
-def run_dirs_of(config: dict, objects: list[str]) -> list[Path]:
+def run_dirs_of(config: Config | dict, objects: list[str]) -> list[Path]:
     """Every ``{results}/relight/{run}/{obj}`` folder the config plans for these test objects."""
     from frng.variants import runs
 
-    L = Layout(config["results"])
+    L = Layout(frng_config.typed(config).results)
     return [Path(L.relight_run(r.name, oid)) for oid in objects for r in runs(config)]
 
 
@@ -84,10 +87,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from frng.data import catalog
 
-    config = frng_config.load(args.config)
+    config = frng_config.typed(frng_config.load(args.config))
     objects = args.objects or catalog.plan(config).split("test")
-    out = Path(args.out or Layout(config["results"]).metrics_dir())
+    out = Path(args.out or Layout(config.results).metrics_dir())
     per_image, summary = evaluate(config, run_dirs_of(config, objects), out)
-    print(f"evaluate ({config['eval']['protocol']} protocol): wrote {per_image} and {summary}")
+    print(f"evaluate ({config.eval.protocol} protocol): wrote {per_image} and {summary}")
     print(M.read_csv(summary).to_string(index=False))
     return 0

@@ -23,9 +23,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from frng.data import catalog
 
-    config = frng_config.load(args.config)
+    config = frng_config.typed(frng_config.load(args.config))
     objects = args.objects or catalog.plan(config).split("test")
-    out = Path(args.out or Layout(config["results"]).figures_dir())
+    out = Path(args.out or Layout(config.results).figures_dir())
     for p in make_figures(config, objects, out):
         print(f"figures: wrote {p}")
     return 0

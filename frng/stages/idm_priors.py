@@ -20,8 +20,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    config = frng_config.load(args.config)
-    out = Path(args.out or Layout(config["results"]).idm_priors(args.object))
-    device = tr.resolve_device(config["device"])
+    config = frng_config.typed(frng_config.load(args.config))
+    out = Path(args.out or Layout(config.results).idm_priors(args.object))
+    device = tr.resolve_device(config.device)
     print(f"idm-priors: wrote {make_idm_priors(config, args.object, out, device, args.kind)}")
     return 0

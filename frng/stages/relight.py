@@ -21,7 +21,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    config = frng_config.load(args.config)
+    config = frng_config.typed(frng_config.load(args.config))
     try:
         timing = relight(config, args.object, args.models, args.device)
     except RelightError as e:

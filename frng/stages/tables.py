@@ -28,8 +28,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from frng.data import catalog
 
-    config = frng_config.load(args.config)
-    L = Layout(config["results"])
+    config = frng_config.typed(frng_config.load(args.config))
+    L = Layout(config.results)
     timing = args.timing or [L.relight_timing(o) for o in catalog.plan(config).split("test")]
     out = write_tables(config, Path(args.metrics or L.metrics("relight_per_image")),
                        [Path(p) for p in timing], Path(args.out or L.tables_dir()),

@@ -13,6 +13,7 @@ from pathlib import Path
 from frng import config as frng_config
 from frng import distributed
 from frng.model.frng import all_variants, canonical_variant, trained_variants, variant_config
+from frng.layout import Layout
 from frng.model.train import train
 
 
@@ -26,7 +27,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    config = frng_config.load(args.config)
+    config = frng_config.typed(frng_config.load(args.config))
     if args.list_variants:
         for v in all_variants(config):
             c = canonical_variant(config, v)
@@ -34,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.variant not in all_variants(config) and canonical_variant(config, args.variant) not in trained_variants(config):
         variant_config(config, args.variant)  # raises for unknown names; other k<percent> values are allowed
-    out = Path(args.out or Path(config["results"], "models", args.variant))
+    out = Path(args.out or Layout(config.results).model_dir(args.variant))
     path = train(config, args.variant, out, args.backbone, steps=args.steps)
     print(f"train: wrote {path}")
     distributed.cleanup()

@@ -1,0 +1,142 @@
+"""The typed config (frng/config.py ``Config``, ``typed``, ``section``): one frozen dataclass per schema section,
+strict (unknown keys are errors), with config/schema.yaml as the one place defaults are written."""
+
+import dataclasses
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from frng import config as fc
+from frng.config import SECTION_CLASSES, Config, ConfigError, schema_defaults, schema_keys, section, section_class
+
+ROOT = Path(__file__).resolve().parents[1]
+SHIPPED = ("config/config.yaml", "config/smoke.yaml", "config/paper.yaml")
+
+INTERNAL = {  # fields a section class holds that are no config keys (documented at the class); each has a default
+    "frng.saliency": {"margin", "top_k"},  # top_k is set from frng.top_k_percent by FRNGConfig.saliency_config
+    "idm.train": {"weight_decay", "grad_clip"},  # the IDM trainer's fixed values (no config keys)
+}
+
+
+def _has_default(f: dataclasses.Field) -> bool:
+    return f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
+
+
+def _records():
+    """Architecture records of model files built with ``section``: (class, schema section or None, fields that are
+    no keys of that section)."""
+    from frng.model.frng import FRNGConfig
+    from frng.priors.backbone import BackboneConfig
+    from frng.priors.idm import IDMConfig
+
+    return [(BackboneConfig, "backbone", {"patch"}), (IDMConfig, "idm", {"patch", "near", "far"}),
+            (FRNGConfig, None, None)]
+
+
+@pytest.mark.parametrize("where", sorted(SECTION_CLASSES))
+def test_section_fields_are_the_schema_keys(where):
+    cls = section_class(where)
+    fields = {f.name for f in dataclasses.fields(cls)}
+    keys = set(schema_keys(where))
+    assert fields - INTERNAL.get(where, set()) == keys, f"{cls.__name__} vs schema section {where or '<root>'}"
+    assert dataclasses.is_dataclass(cls) and cls.__dataclass_params__.frozen
+    for f in dataclasses.fields(cls):
+        key = f"{where}.{f.name}" if where else f.name
+        if key in SECTION_CLASSES:  # a nested section is built as its own class
+            assert section_class(key) is not None
+
+
+@pytest.mark.parametrize("where", sorted(SECTION_CLASSES))
+def test_no_python_default_for_a_schema_key(where):
+    """The schema's defaults are the only defaults: a field that is a schema key has none of its own; internal
+    fields (no schema key) have one."""
+    keys = set(schema_keys(where))
+    for f in dataclasses.fields(section_class(where)):
+        if f.name in keys:
+            assert not _has_default(f), f"{where}.{f.name}: default written twice (schema and Python)"
+        else:
+            assert _has_default(f), f"{where}.{f.name}: an internal field needs a default"
+
+
+def test_model_records_have_no_defaults_and_their_keys():
+    for cls, where, extra in _records():
+        fields = dataclasses.fields(cls)
+        assert not any(_has_default(f) for f in fields), cls.__name__
+        if where is not None:
+            assert {f.name for f in fields} - extra <= set(schema_keys(where)), cls.__name__
+
+
+@pytest.mark.parametrize("where", sorted(SECTION_CLASSES))
+def test_unknown_key_is_an_error_naming_it(where):
+    dotted = f"{where}.stepz" if where else "stepz"
+    with pytest.raises(ConfigError, match=rf"^{dotted.replace('.', '[.]')}: unknown key; known: "):
+        section(section_class(where), {"stepz": 1}, where)
+
+
+def test_unknown_nested_key_and_model_records():
+    d = fc.load(ROOT / "config/smoke.yaml")
+    bad = fc.merge(d, {"train": {"loss": {"lambda_x": 1.0}}})
+    with pytest.raises(ConfigError, match=r"^train[.]loss[.]lambda_x: unknown key"):
+        fc.typed(bad)
+    from frng.model.frng import FRNGConfig, variant_config
+    from frng.priors.backbone import BackboneConfig
+
+    cfg, _ = variant_config(d, "full")
+    assert FRNGConfig.from_dict(cfg.to_dict()) == cfg  # a model file's config loads back
+    with pytest.raises(ConfigError, match=r"^FRNGConfig[.]bogus: unknown key"):
+        FRNGConfig.from_dict({**cfg.to_dict(), "bogus": 1})
+    with pytest.raises(ConfigError, match=r"^FRNGConfig[.]head: missing key"):
+        FRNGConfig.from_dict({k: v for k, v in cfg.to_dict().items() if k != "head"})
+    with pytest.raises(ConfigError, match=r"^backbone[.]kind: unknown key"):
+        BackboneConfig.from_dict({"patch": 8, "kind": "relitlrm"})  # an architecture record, not the section
+
+
+def test_missing_keys_take_the_schema_defaults():
+    from frng.model.train import TrainConfig
+    from frng.render.shading import ShadingConfig
+
+    t = TrainConfig.from_config({"train": {"steps": 7}})
+    assert t.steps == 7 and t.lr == schema_defaults("train")["lr"]
+    assert t.loss.lambda_c == schema_defaults("train.loss")["lambda_c"]
+    assert ShadingConfig.from_dict({}).spp_infer == schema_defaults("shading")["spp_infer"]
+
+
+@pytest.mark.parametrize("path", SHIPPED)
+def test_shipped_configs_round_trip(path):
+    d = fc.load(ROOT / path)
+    c = fc.typed(d)
+    assert isinstance(c, Config) and fc.typed(c) is c
+    assert c.to_dict() == d
+    assert c.train.steps == d["train"]["steps"] and c.render.resolution == d["render"]["resolution"]
+    assert c.backbone.train.lr == d["backbone"]["train"]["lr"] and c.frng.saliency.box_size == d["frng"]["saliency"]["box_size"]
+    assert fc.as_dict(c) == d and fc.as_dict(d) is d
+    assert fc.rule_digest(c.to_dict(), "train") == fc.rule_digest(d, "train")
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        c.train.steps = 1  # type: ignore[misc]
+
+
+def test_config_module_stays_torch_free():
+    """frng.config (and the planning helpers the rule files call with the dict) import no torch."""
+    code = ("import sys, frng.config as fc, frng.data.catalog as cat, frng.variants as v; "
+            "d = fc.load('config/smoke.yaml'); cat.plan(d); v.runs(d); print('torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_every_config_from_dict_is_strict():
+    """No lenient copy is left: every ``from_dict`` of a config dataclass builds through frng.config.section (the
+    one exception, IntrinsicPriors.from_dict, reads tensors, not a config), and nothing filters keys by the
+    dataclass's fields."""
+    import re
+
+    lenient, not_strict = [], []
+    for f in sorted((ROOT / "frng").rglob("*.py")):
+        text = f.read_text()
+        if "__dataclass_fields__" in text:
+            lenient.append(str(f.relative_to(ROOT)))
+        for m in re.finditer(r"def from_dict\(cls[^\n]*\n((?:[ \t]+[^\n]*\n){1,6})", text):
+            if "section(" not in m.group(1) and "IntrinsicPriors" not in m.group(0):
+                not_strict.append(f"{f.relative_to(ROOT)}: {m.group(0).splitlines()[0].strip()}")
+    assert not lenient and not not_strict, (lenient, not_strict)
