@@ -19,7 +19,10 @@ light leaves a global colour scale ambiguous):
 - before compositing, each RGB channel c of the prediction (linear, premultiplied, unclipped) is multiplied by
   the least-squares scale ``s_c = sum_m(p_c * g_c) / sum_m(p_c * p_c)`` over the foreground pixels m of the mask
   (``s_c = 1`` if the prediction is all zero there); alpha is not scaled. The scales are reported
-  (``scale_r, scale_g, scale_b``);
+  (``scale_r, scale_g, scale_b``). A least-squares gain is below 1 also when the prediction carries detail that
+  is not in the ground truth's places (it shrinks uncorrelated variation), so every protocol also reports the
+  ratio of means ``b_c = sum_m(g_c) / sum_m(p_c)`` (``brightness_r, brightness_g, brightness_b``; 1 if the
+  prediction is all zero there), which measures only how bright the prediction is;
 - PSNR: the MSE is averaged over foreground pixels only (all 3 channels), as RelitLRM / Neural Gaffer do;
 - SSIM: the SSIM map (see below) averaged over foreground pixels only (the 11x11 windows of pixels near the
   silhouette still overlap the background);
@@ -110,6 +113,17 @@ def channel_scales(pred_rgb: np.ndarray, gt_rgb: np.ndarray, mask: np.ndarray) -
     num = (p * g).sum(axis=0)
     den = (p * p).sum(axis=0)
     return np.where(den > 0, num / np.where(den > 0, den, 1.0), 1.0).astype(np.float64)
+
+
+def channel_brightness(pred_rgb: np.ndarray, gt_rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Per-channel ratio of means b (3,) = sum_mask g_c / sum_mask p_c of (H, W, 3) linear images over an (H, W)
+    mask: how much brighter the ground truth is than the prediction, blind to where the detail sits (unlike
+    :func:`channel_scales`). 1 where the prediction sums to <= 0 over the mask."""
+    assert pred_rgb.shape == gt_rgb.shape and pred_rgb.shape[-1] == 3, (pred_rgb.shape, gt_rgb.shape)
+    assert mask.shape == pred_rgb.shape[:2], (mask.shape, pred_rgb.shape)
+    p = pred_rgb[mask].astype(np.float64).sum(axis=0)
+    g = gt_rgb[mask].astype(np.float64).sum(axis=0)
+    return np.where(p > 0, g / np.where(p > 0, p, 1.0), 1.0)
 
 
 def prepare(
@@ -213,9 +227,11 @@ def evaluate_pair(
     """All metrics of one prediction against its ground truth, under ``protocol`` (see the module docstring).
 
     pred, gt: (H, W, 4) linear premultiplied RGBA (or (H, W, 3)), float; mask: (H, W) bool or None (gt alpha >
-    0.5). Returns ``{"psnr", "ssim", "lpips", "protocol", "scale_r", "scale_g", "scale_b", "fg_fraction"}``.
+    0.5). Returns ``{"psnr", "ssim", "lpips", "protocol", "scale_r", "scale_g", "scale_b", "brightness_r",
+    "brightness_g", "brightness_b", "fg_fraction"}``.
     """
     p, g, mask, scales = prepare(pred, gt, mask, protocol, background)
+    bright = channel_brightness(_as_rgba(pred, "pred")[..., :3], _as_rgba(gt, "gt")[..., :3], mask)
     region = mask if protocol == "aligned" else None
     return {
         "psnr": psnr(p, g, region),
@@ -225,6 +241,9 @@ def evaluate_pair(
         "scale_r": float(scales[0]),
         "scale_g": float(scales[1]),
         "scale_b": float(scales[2]),
+        "brightness_r": float(bright[0]),
+        "brightness_g": float(bright[1]),
+        "brightness_b": float(bright[2]),
         "fg_fraction": float(mask.mean()),
     }
 
@@ -266,14 +285,24 @@ def read_csv(path: str | os.PathLike):
     return pd.read_csv(path)
 
 
+def _median_abs_log2(df, prefix: str) -> float:
+    cols = [f"{prefix}_{c}" for c in "rgb"]
+    if not set(cols) <= set(df.columns) or not len(df):
+        return float("nan")
+    return float(np.median(np.abs(np.log2(np.clip(df[cols].to_numpy(dtype=float), 1e-6, None)))))
+
+
 def scale_log2(df) -> float:
     """How much colour repair the aligned protocol did: the median over rows (images) and channels of
     ``|log2 scale_c|`` (0 = none; 0.25 = a 19% correction). NaN without scale columns (plain protocol rows carry
     scale 1: 0)."""
-    cols = ["scale_r", "scale_g", "scale_b"]
-    if not set(cols) <= set(df.columns) or not len(df):
-        return float("nan")
-    return float(np.median(np.abs(np.log2(np.clip(df[cols].to_numpy(dtype=float), 1e-6, None)))))
+    return _median_abs_log2(df, "scale")
+
+
+def brightness_log2(df) -> float:
+    """How far off the predictions' brightness is, by the ratio of means (:func:`channel_brightness`): the median
+    over rows and channels of ``|log2 brightness_c|``. NaN without brightness columns."""
+    return _median_abs_log2(df, "brightness")
 
 
 def aggregate(df, by: Sequence[str], metrics: Sequence[str] = METRICS):

@@ -10,8 +10,8 @@ from frng.report.paper_tables import LADDER_STEPS, ladder_table
 
 
 def _rows(n, psnr, scale, **kw):
-    return [dict(kw, psnr=psnr + 0.1 * i, ssim=0.5, lpips=0.1, scale_r=scale, scale_g=1.0, scale_b=1.0)
-            for i in range(n)]
+    return [dict(kw, psnr=psnr + 0.1 * i, ssim=0.5, lpips=0.1, scale_r=scale, scale_g=1.0, scale_b=1.0,
+                 brightness_r=scale, brightness_g=scale, brightness_b=1.0) for i in range(n)]
 
 
 def test_scale_log2_is_the_median_over_images_and_channels():
@@ -39,6 +39,8 @@ def test_ladder_rows_come_from_both_evaluations():
     assert math.isnan(by.loc["a", "lpips"]) and by.loc["e", "lpips"] == 0.1  # the prior evaluation has no LPIPS
     # full: one channel of every image scaled by 2 -> |log2| values 1, 0, 0 per image -> median 0
     assert by.loc["e", "scale_log2"] == 0.0 and by.loc["d", "scale_log2"] == 0.0
+    # full: two channels of every image 2x too dark by the ratio of means -> median 1
+    assert by.loc["e", "brightness_log2"] == 1.0 and by.loc["d", "brightness_log2"] == 0.0
 
 
 def test_ladder_skips_rows_it_has_no_data_for():

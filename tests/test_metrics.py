@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 from skimage.metrics import structural_similarity
 
@@ -47,6 +48,30 @@ def test_aligned_recovers_global_scale_plain_does_not():
     assert plain["psnr"] < 25 and plain["lpips"] > 0.01
     assert plain["scale_r"] == 1.0
     assert M.evaluate_pair(gt, gt)["psnr"] == 100.0
+
+
+def test_brightness_is_the_ratio_of_means_and_ignores_where_detail_sits():
+    gt = _scene()
+    fg = gt[..., 3] > 0.5
+    # a global colour scale: both estimators recover it
+    pred = gt.copy()
+    pred[..., :3] *= np.array([0.5, 0.7, 1.3], np.float32)
+    m = M.evaluate_pair(pred, gt)
+    assert [m[f"brightness_{c}"] for c in "rgb"] == pytest.approx([2.0, 1 / 0.7, 1 / 1.3], rel=1e-5)
+    # the right mean, detail in the wrong places (the foreground's colours shuffled): the ratio of means stays 1,
+    # the least-squares scale shrinks below 1 and would read the prediction as too bright
+    rng = np.random.default_rng(0)
+    pred = gt.copy()
+    idx = np.flatnonzero(fg.ravel())
+    flat = pred.reshape(-1, 4)
+    flat[idx, :3] = flat[rng.permutation(idx), :3]
+    m = M.evaluate_pair(pred, gt)
+    assert [m[f"brightness_{c}"] for c in "rgb"] == pytest.approx([1.0, 1.0, 1.0], rel=1e-5)
+    assert max(m[f"scale_{c}"] for c in "rgb") < 0.99
+    # an all-black prediction has nothing to measure
+    assert M.evaluate_pair(np.zeros_like(gt), gt)["brightness_r"] == 1.0
+    df = pd.DataFrame({"brightness_r": [2.0, 0.5], "brightness_g": [1.0, 1.0], "brightness_b": [4.0, 1.0]})
+    assert M.brightness_log2(df) == 0.5
 
 
 def test_aligned_masking_ignores_background():

@@ -122,7 +122,8 @@ LADDER_STEPS = (  # (step, what, source, task/run, method); source "prior" = bac
 
 def ladder_table(df: pd.DataFrame, prior: pd.DataFrame) -> pd.DataFrame:
     """The quality ladder (rows of :data:`LADDER_STEPS` present in the inputs): where the dB go, on the held-out
-    relighting images (row c: the held-out input-light views). ``scale_log2``: :func:`frng.metrics.scale_log2`.
+    relighting images (row c: the held-out input-light views). ``scale_log2``: :func:`frng.metrics.scale_log2`;
+    ``brightness_log2``: :func:`frng.metrics.brightness_log2` (relighting rows only).
     LPIPS only for the relighting stage's rows (the prior evaluation does not compute it)."""
     rows = []
     for step, what, source, key, method in LADDER_STEPS:
@@ -134,7 +135,7 @@ def ladder_table(df: pd.DataFrame, prior: pd.DataFrame) -> pd.DataFrame:
             continue
         rows.append({"step": step, "what": what, "n": len(sub), "psnr": sub["psnr"].mean(),
                      "ssim": sub["ssim"].mean(), "lpips": sub["lpips"].mean() if "lpips" in sub else np.nan,
-                     "scale_log2": M.scale_log2(sub)})
+                     "scale_log2": M.scale_log2(sub), "brightness_log2": M.brightness_log2(sub)})
     return pd.DataFrame(rows, columns=list(T.TABLE_COLUMNS["ladder"]))
 
 
@@ -182,10 +183,11 @@ def write_tables(config: Config | dict, per_image_csv: Path, timing_files: list[
                          k_rows(df)), label="tab:k")
     prior = pd.read_csv(prior_csv)
     out["ladder"] = T.write_table(
-        ladder_table(df, prior), out_dir / "ladder", decimals={"scale_log2": 2},
+        ladder_table(df, prior), out_dir / "ladder", decimals={"scale_log2": 2, "brightness_log2": 2},
         caption=(f"Quality ladder: where the dB go. Aligned protocol on the held-out relighting images (row c: the "
                  f"held-out input-light views); scale_log2 = median over images and channels of |log2| of the "
-                 f"per-channel scale the protocol applied. Tier {config.tier}."), label="tab:ladder")
+                 f"per-channel least-squares scale the protocol applied; brightness_log2 = the same of the ratio of "
+                 f"means (ground truth over prediction). Tier {config.tier}."), label="tab:ladder")
     t = timing_table(timings)
     out["timing"] = T.write_table(
         t, out_dir / "timing",

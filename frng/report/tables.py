@@ -40,7 +40,7 @@ TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
     "views": ("views", "psnr", "ssim", "lpips"),
     "k": ("k_percent", "psnr", "ssim", "lpips"),
     "timing": ("method", "reconstruction_s", "relight_ms_per_image", "resolution", "spp"),
-    "ladder": ("step", "what", "n", "psnr", "ssim", "lpips", "scale_log2"),
+    "ladder": ("step", "what", "n", "psnr", "ssim", "lpips", "scale_log2", "brightness_log2"),
 }
 
 # Displayed decimals per column (others: 3 for floats, none for integers).
@@ -54,6 +54,7 @@ HEADERS: dict[str, str] = {
     "variant": "Variant", "views": "Input views", "k_percent": "K (%)", "reconstruction_s": "Reconstruction (s)",
     "relight_ms_per_image": "Relighting (ms/image)", "resolution": "Resolution", "spp": "spp",
     "speedup": "Speed-up", "n": "n", "step": "Step", "what": "What", "scale_log2": "median |log2 scale|",
+    "brightness_log2": "median |log2 mean ratio|",
 }
 
 LATEX_PREAMBLE_NOTE = (

@@ -7,9 +7,10 @@ scale, foreground PSNR/SSIM; ``plain``: whole image, no scaling) and ``eval.back
 
 - ``{results}/metrics/relight_per_image.csv``: one row per image, columns ``dataset`` (the object's material
   class: diffuse / specular / fur), ``object, run, method, variant, views, k, light, view, psnr, ssim, lpips,
-  protocol`` and the protocol's ``scale_r/g/b, fg_fraction``;
+  protocol``, the protocol's ``scale_r/g/b``, the ratio of means ``brightness_r/g/b`` and ``fg_fraction``;
 - ``{results}/metrics/relight_summary.csv``: means per ``run`` (plus ``n``), via :func:`frng.metrics.aggregate`,
-  and ``scale_log2`` (:func:`frng.metrics.scale_log2`: how much colour repair the aligned protocol did per run).
+  ``scale_log2`` (:func:`frng.metrics.scale_log2`: how much colour repair the aligned protocol did per run) and
+  ``brightness_log2`` (:func:`frng.metrics.brightness_log2`: how far off the brightness is, by the ratio of means).
 
 Every table (``frng tables``) is recomputed from the per-image CSV.
 """
@@ -67,6 +68,8 @@ def evaluate(config: Config | dict, run_dirs: list[Path], out_dir: Path) -> tupl
     summary = M.aggregate(df, ["run", "method", "variant", "views", "k"])
     scales = {run: M.scale_log2(g) for run, g in df.groupby("run", sort=False)}
     summary["scale_log2"] = summary["run"].map(scales)
+    brightness = {run: M.brightness_log2(g) for run, g in df.groupby("run", sort=False)}
+    summary["brightness_log2"] = summary["run"].map(brightness)
     return per_image, M.write_csv(summary, out_dir / SUMMARY)
 
 
