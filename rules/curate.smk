@@ -13,7 +13,7 @@ rule curate:
         config_digest=frng_config.rule_digest(config, "curate"),
         spec=lambda wildcards: json.dumps(CATALOG.object(wildcards.obj).to_dict(), sort_keys=True),
         envmaps=lambda wildcards, input: os.path.dirname(input.index),
-        objects=L.objects_dir(),
+        objects=lambda wildcards, output: os.path.dirname(os.path.dirname(output.meta)),  # {objects}/{obj}/meta.json
         py=PY,
         config=CONFIG_FILE,
     log:
@@ -40,7 +40,7 @@ rule dataset_preview:
         expand(L.preview(), obj=OBJECT_IDS),
     params:
         config_digest=frng_config.rule_digest(config, "dataset_preview"),
-        out=L.previews_dir(),
+        out=lambda wildcards, output: os.path.dirname(output[0]),
         py=PY,
         config=CONFIG_FILE,
     log:

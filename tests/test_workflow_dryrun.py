@@ -47,6 +47,16 @@ def test_smoke_dry_run_lists_dataset_jobs(tmp_path):
     assert counts["envmaps"] == 1 and counts["curate"] == 4 and counts["dataset_preview"] == 1
 
 
+@pytest.mark.parametrize("configfile", ["config/smoke.yaml", "config/config.yaml"])
+def test_snakemake_lint_is_clean(configfile, tmp_path):
+    """`snakemake --lint` (as `make lint`) reports nothing: e.g. no folder params hard-coded beside the outputs
+    they are a prefix of (they are derived from the output, so they follow it on a non-shared filesystem)."""
+    cmd = [venv_bin("snakemake"), "--snakefile", "workflow/Snakefile", "--configfile", configfile,
+           "--config", f"results={tmp_path / 'results'}", "--lint"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, (proc.stdout + proc.stderr)[-3000:]
+
+
 @pytest.mark.parametrize("path", ["config/smoke.yaml", "config/config.yaml", "config/paper.yaml"])
 def test_plan_splits_lights_and_materials(path):
     cfg = frng_config.load(ROOT / path)
