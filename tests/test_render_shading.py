@@ -4,6 +4,7 @@ spp_grad split gives the full estimate's value and the partial estimate's gradie
 
 import math
 
+import pytest
 import torch
 
 from frng import envmap
@@ -102,6 +103,33 @@ def test_cosine_decoder_closed_form_base_matches_monte_carlo():
     err = lambda x: (x[fg] - reference[fg]).abs().mean()  # noqa: E731
     assert err(split(16)) < 0.25 * err(plain16)
     assert (lambert_sh(maps, alpha, coeffs)[~fg] == 0).all()
+
+
+def test_attenuating_decoder_can_darken_its_base_and_splits_exactly():
+    """shading.decoder_attenuation: the output is (d (1 - sigmoid(t)) + softplus(r)) max(0, n.w_i) >= 0; the residual
+    used with the closed-form base is exactly the output minus d max(0, n.w_i) (so the sh split is unchanged), and
+    unlike the residual-only decoder it can go below the Lambertian base (down to 0: full shadow)."""
+    g = torch.Generator().manual_seed(0)
+    P, K = 40, 30
+    unit = lambda x: x / x.norm(dim=-1, keepdim=True)  # noqa: E731
+    feats = torch.cat([unit(torch.randn(P, 3, generator=g, dtype=DT)), torch.rand(P, 3, generator=g, dtype=DT),
+                       torch.randn(P, 2, generator=g, dtype=DT)], -1)
+    wo, wi = unit(torch.randn(P, 3, generator=g, dtype=DT)), unit(torch.randn(K, 3, generator=g, dtype=DT))
+    dec = NeuralDecoder(8, width=16, depth=2, cosine=True, attenuation=True).double().requires_grad_(False)
+    assert dec.out.out_features == 6
+    cos = (feats[:, :3] @ wi.T).clamp_min(0.0)[..., None]
+    base = feats[:, None, 3:6] * cos
+    full = dec(feats, wo, wi).double()  # the cosine decoder computes its output in float32
+    assert full.shape == (P, K, 3) and (full >= 0).all()
+    assert torch.allclose(dec.residual(feats, wo, wi).double() + base, full, atol=1e-6)
+    torch.nn.init.constant_(dec.out.bias, 0.0)
+    torch.nn.init.zeros_(dec.out.weight)  # r = t = 0: d (1 - 1/2) + log 2
+    assert torch.allclose(dec(feats, wo, wi).double(), (0.5 * feats[:, None, 3:6] + math.log(2.0)) * cos, atol=1e-6)
+    torch.nn.init.constant_(dec.out.bias[:3], -30.0)
+    torch.nn.init.constant_(dec.out.bias[3:], 30.0)  # no residual, the base fully attenuated
+    assert dec(feats, wo, wi).abs().max() < 1e-9 < base.max()
+    with pytest.raises(ValueError, match="cosine"):
+        NeuralDecoder(8, width=16, depth=2, cosine=False, attenuation=True)
 
 
 def test_ggx_lobes_split():

@@ -100,6 +100,7 @@ class FRNGConfig:
     saliency: dict  # the frng.saliency keys (SaliencyConfig; top_k is taken from ``top_k``)
     pixel_head: int  # hidden width of the per-Gaussian pixel head (0 = off: the paper's linear detokenizer only)
     decoder_cosine: bool  # decoder output x max(0, n.w_i), n = features 0:3 (shading.decoder_cosine)
+    decoder_attenuation: bool  # the decoder may also darken its Lambertian base (shading.decoder_attenuation)
 
     @classmethod
     def from_dict(cls, d: dict) -> "FRNGConfig":
@@ -273,12 +274,14 @@ class FRNG(nn.Module):
             nn.init.zeros_(self.material.detokenizer.proj.weight)
             nn.init.zeros_(self.material.detokenizer.proj.bias)
         self.decoder = NeuralDecoder(cfg.feature_dim, cfg.decoder_width, cfg.decoder_depth, cfg.dir_freqs,
-                                     cosine=cfg.decoder_cosine) \
+                                     cosine=cfg.decoder_cosine, attenuation=cfg.decoder_attenuation) \
             if cfg.head == "neural" else None
         if self.decoder is not None:  # start dim: softplus(-3) ~ 0.05 reflectance x cos, not ~0.7 (over-bright renders)
             # weights keep PyTorch's init: x0.1 froze the output. With the cosine decoder the MLP only adds to the
             # Lambertian base: start it near zero (softplus(-6) ~ 0.0025)
             nn.init.constant_(self.decoder.out.bias, -6.0 if cfg.decoder_cosine else -3.0)
+            if cfg.decoder_attenuation:  # and take away ~2 % of it (sigmoid(-4)), where the gradient still flows
+                nn.init.constant_(self.decoder.out.bias[3:], -4.0)
 
     # -- construction / files ------------------------------------------------------------------------------
 
@@ -318,9 +321,16 @@ class FRNG(nn.Module):
         enc = "raw" if self.cfg.dir_freqs == 0 else f"raw+sincos{self.cfg.dir_freqs}"
         return {"width": self.cfg.decoder_width, "depth": self.cfg.decoder_depth,
                 "input_encoding": f"[feature({self.cfg.feature_dim}), {enc}(w_o world), {enc}(w_i world)]",
-                "dir_freqs": self.cfg.dir_freqs, "feature_dim": self.cfg.feature_dim, "output": "softplus RGB x max(0, n.w_i), n = normalise(feature[0:3])" if self.cfg.decoder_cosine
-                else "softplus RGB x cos", "cosine": self.cfg.decoder_cosine,
-                "head": self.cfg.head}
+                "dir_freqs": self.cfg.dir_freqs, "feature_dim": self.cfg.feature_dim, "output": self._decoder_output(),
+                "cosine": self.cfg.decoder_cosine, "attenuation": self.cfg.decoder_attenuation, "head": self.cfg.head}
+
+    def _decoder_output(self) -> str:
+        if not self.cfg.decoder_cosine:
+            return "softplus RGB x cos"
+        base = "max(feature[3:6], 0)"
+        if self.cfg.decoder_attenuation:
+            base += " x (1 - sigmoid(MLP[3:6]))"
+        return f"({base} + softplus(MLP[0:3])) x max(0, n.w_i), n = normalise(feature[0:3])"
 
     @property
     def device(self) -> torch.device:
@@ -459,6 +469,8 @@ class FRNG(nn.Module):
                                      sc.alpha_eps, chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
                 rgb = rgb.float() + lambert_sh(maps, alpha, envmap.sh_project(env.detach().float().cpu()).float(),
                                                sc.alpha_eps)
+                if self.decoder.attenuation:  # the attenuated share is a Monte-Carlo estimate: it can overshoot
+                    rgb = rgb.clamp_min(0.0)
             elif self.cfg.head == "neural":
                 rgb = deferred_shade(self.decoder, [maps], alpha, c2w, intr, samples, spp_grad, sc.alpha_eps,
                                      chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
@@ -543,6 +555,7 @@ def variant_config(config: Config | dict, name: str, backbone_cfg: dict | None =
         dir_freqs=sh.dir_freqs, near=bb.near, far=bb.far,
         max_radius_px=bb.max_radius_px, saliency=section_dict(f.saliency, "frng.saliency"),
         pixel_head=f.pixel_head, decoder_cosine=sh.decoder_cosine,
+        decoder_attenuation=sh.decoder_cosine and sh.decoder_attenuation,
     )
     loss = c.train.loss
     ind = LightIndependenceConfig(lambda_c=loss.lambda_c, lambda_kld=loss.lambda_kld, temperature=loss.temperature)

@@ -44,6 +44,7 @@ class ShadingConfig:
     decoder_depth: int
     dir_freqs: int
     decoder_cosine: bool
+    decoder_attenuation: bool
     diffuse: str
     sampling: str
     alpha_eps: float
@@ -83,33 +84,41 @@ class NeuralDecoder(nn.Module):
     ``cosine`` (our choice at this project's data scale; ``shading.decoder_cosine``) features 0:3 carry a normal n,
     features 3:6 a diffuse BRDF value d (albedo / pi) and the output is (max(d, 0) + softplus(MLP)) max(0, n . w_i):
     a Lambertian base that the MLP refines (specular, fur, corrections) instead of learning BRDF x cosine from
-    scratch. Input:
+    scratch. With ``attenuation`` (``shading.decoder_attenuation``) the MLP has 3 more outputs t and the output is
+    (max(d, 0) (1 - sigmoid(t)) + softplus(MLP)) max(0, n . w_i): the decoder can also take light away from the
+    base per (w_o, w_i) -- shadowing, occlusion, strands -- which a residual >= 0 cannot (the paper's Theta is
+    unconstrained; ours is still >= 0). Input:
     [feature (C), enc(w_o), enc(w_i)] with :func:`encode_dirs` (raw directions by default). Because the light
     samples are shared by all pixels, the first layer is split: W [f; w_o; w_i] = (W_f f + W_o w_o)[p] +
     (W_i w_i)[k], computed per pixel and per sample and broadcast-added -- identical to the concatenated MLP
     at a fraction of the cost.
     """
 
-    def __init__(self, feature_dim: int, width: int = 256, depth: int = 4, dir_freqs: int = 0, cosine: bool = False):
+    def __init__(self, feature_dim: int, width: int = 256, depth: int = 4, dir_freqs: int = 0, cosine: bool = False,
+                 attenuation: bool = False):
         super().__init__()
         if depth < 1:
             raise ValueError("decoder depth must be >= 1")
+        if attenuation and not cosine:
+            raise ValueError("decoder attenuation scales the cosine decoder's Lambertian base: it needs cosine=True "
+                             "(shading.decoder_cosine)")
         if cosine and feature_dim < 6:
             raise ValueError("a cosine decoder reads the normal and diffuse BRDF from feature channels 0:6; "
                              "feature_dim must be >= 6")
-        self.dir_freqs, self.cosine = dir_freqs, cosine
+        self.dir_freqs, self.cosine, self.attenuation = dir_freqs, cosine, attenuation
         d_enc = 3 * (1 + 2 * dir_freqs)
         self.inp_pixel = nn.Linear(feature_dim + d_enc, width)
         self.inp_light = nn.Linear(d_enc, width, bias=False)
         self.hidden = nn.ModuleList(nn.Linear(width, width) for _ in range(depth - 1))
-        self.out = nn.Linear(width, 3)
+        self.out = nn.Linear(width, 6 if attenuation else 3)  # 0:3 residual, 3:6 attenuation logits
 
     def forward(self, features: torch.Tensor, wo: torch.Tensor, wi: torch.Tensor) -> torch.Tensor:
         """features (P, C), wo (P, 3), wi (K, 3) -> (P, K, 3): the full reflectance x cosine."""
         return self._reflectance(features, wo, wi, with_diffuse=True)
 
     def residual(self, features: torch.Tensor, wo: torch.Tensor, wi: torch.Tensor) -> torch.Tensor:
-        """The cosine decoder without its Lambertian base: softplus(MLP) max(0, n . w_i), (P, K, 3). Shading with
+        """The cosine decoder without its Lambertian base: softplus(MLP) max(0, n . w_i), minus the attenuated share
+        max(d, 0) sigmoid(t) max(0, n . w_i) with ``attenuation`` (then it can be negative), (P, K, 3). Shading with
         ``shading.diffuse: sh`` integrates this by Monte Carlo and adds the base in closed form
         (:func:`lambert_sh`)."""
         if not self.cosine:
@@ -122,12 +131,16 @@ class NeuralDecoder(nn.Module):
         h = torch.relu(a[:, None, :] + b[None, :, :])
         for layer in self.hidden:
             h = torch.relu(layer(h))
-        out = nn.functional.softplus(self.out(h))
+        raw = self.out(h)
+        out = nn.functional.softplus(raw[..., :3])
         if self.cosine:  # the rendering equation's cosine, factored out: the MLP only learns the BRDF beyond diffuse
             n = nn.functional.normalize(features[:, :3].float(), dim=-1, eps=1e-6)
             out = out.float()
+            d = features[:, 3:6].float().clamp_min(0.0)[:, None, :]  # (P, 1, 3)
+            if self.attenuation:  # the share of the base that does not arrive: d (1 - sigmoid(t)) + softplus(r)
+                out = out - d * torch.sigmoid(raw[..., 3:6].float())
             if with_diffuse:
-                out = out + features[:, 3:6].float().clamp_min(0.0)[:, None, :]
+                out = out + d
             out = out * (n @ wi.float().T).clamp_min(0.0)[..., None]
         return out
 
