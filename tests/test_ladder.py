@@ -36,11 +36,19 @@ def test_ladder_rows_come_from_both_evaluations():
     assert by.loc["c", "n"] == 2 and np.isclose(by.loc["c", "psnr"], 20.05)
     assert np.isclose(by.loc["d", "psnr"], 17.15) and np.isclose(by.loc["e", "psnr"], 18.15)
     assert np.isclose(by.loc["f", "psnr"], 18.65)
-    assert math.isnan(by.loc["a", "lpips"]) and by.loc["e", "lpips"] == 0.1  # the prior evaluation has no LPIPS
+    assert math.isnan(by.loc["a", "lpips"]) and by.loc["e", "lpips"] == 0.1  # an older prior CSV without LPIPS
     # full: one channel of every image scaled by 2 -> |log2| values 1, 0, 0 per image -> median 0
     assert by.loc["e", "scale_log2"] == 0.0 and by.loc["d", "scale_log2"] == 0.0
     # full: two channels of every image 2x too dark by the ratio of means -> median 1
     assert by.loc["e", "brightness_log2"] == 1.0 and by.loc["d", "brightness_log2"] == 0.0
+
+
+def test_ladder_takes_the_prior_rows_lpips_when_recorded():
+    relit = pd.DataFrame(_rows(2, 18.0, 1.0, run="full"))
+    prior = pd.DataFrame(_rows(2, 22.0, 1.0, task="relight", method="backbone-geometry+oracle-colour"))
+    prior["lpips"] = [0.04, 0.06]
+    by = ladder_table(relit, prior).set_index("step")
+    assert np.isclose(by.loc["b", "lpips"], 0.05) and by.loc["e", "lpips"] == 0.1
 
 
 def test_ladder_skips_rows_it_has_no_data_for():

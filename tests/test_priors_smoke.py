@@ -100,6 +100,7 @@ def test_priors_beat_trivial_baselines(smoke):
         return sum(v) / len(v)
 
     assert mean("backbone", "psnr") > mean("mean-image", "psnr") + 1.0
+    assert 0 <= mean("backbone", "lpips") < mean("mean-image", "lpips")  # recorded for the ladder's rows a-c
     idm_rows = evaluate.eval_idm(config, build_idm(config), test, train_objs)
     learned = [r for r in idm_rows if r["method"] == "idm-learned"]
     const = [r for r in idm_rows if r["method"] == "constant"]

@@ -124,7 +124,7 @@ def ladder_table(df: pd.DataFrame, prior: pd.DataFrame) -> pd.DataFrame:
     """The quality ladder (rows of :data:`LADDER_STEPS` present in the inputs): where the dB go, on the held-out
     relighting images (row c: the held-out input-light views). ``scale_log2``: :func:`frng.metrics.scale_log2`;
     ``brightness_log2``: :func:`frng.metrics.brightness_log2` (relighting rows only).
-    LPIPS only for the relighting stage's rows (the prior evaluation does not compute it)."""
+    LPIPS where the input has it (prior evaluations written before it was recorded leave it NaN)."""
     rows = []
     for step, what, source, key, method in LADDER_STEPS:
         if source == "prior":
