@@ -54,7 +54,7 @@ def test_frozen_backbone_cannot_be_updated(tiny_backbone_file):
     opt = torch.optim.AdamW([p for p in parent.parameters() if p.requires_grad], lr=1.0)
     c2w, intr = _rig()
     imgs = torch.rand(1, 3, 16, 16, 3)
-    t_geo, raw, _ = model.encode_geometry(imgs, torch.ones(1, 3, 16, 16, 1), c2w[None], intr[None])
+    t_geo, raw, _, _ = model.encode_geometry(imgs, torch.ones(1, 3, 16, 16, 1), c2w[None], intr[None])
     loss = head(t_geo).square().mean() + raw.square().mean()
     loss.backward()
     opt.step()
@@ -169,3 +169,49 @@ def test_ddim_timesteps_and_identity():
     x0 = torch.rand(2, 3)
     assert torch.allclose(s.ddim_step(x0, x0, 999, None), x0)
     assert math.isclose(float(s.alpha_bar[0]), 1 - 0.00085, rel_tol=1e-5)
+
+
+def _disc_views(V=4, H=16):
+    """A sphere of radius 0.5 seen from V views at 0 deg elevation: white, its alpha from the true silhouette."""
+    c2w, intr = _rig(V, H)
+    o, d = camera.pixel_rays(c2w, intr, H, H)
+    b = (o * d).sum(-1)
+    disc = b * b - (o * o).sum(-1) + 0.25
+    alpha = (disc > 0).float()[..., None]
+    return torch.full((V, H, H, 3), 0.5) * alpha, alpha, c2w, intr
+
+
+def test_light_ratio_is_lambertian():
+    """The light cue is the Lambertian shading ratio: 1 under a uniform map, brighter towards a bright hemisphere."""
+    n = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [0.0, 0.0, 0.0]]).reshape(1, 3, 1, 1, 3)
+    uniform = torch.ones(1, 16, 32, 3)
+    assert torch.allclose(bb.RelitLRMBackbone.light_ratio(uniform, n), torch.zeros(1, 3, 1, 1, 3), atol=1e-2)
+    sky = torch.ones(1, 16, 32, 3) * 0.05
+    sky[:, :8] = 2.0  # bright upper hemisphere (row 0 = +Z in frng.envmap's convention)
+    r = bb.RelitLRMBackbone.light_ratio(sky, n).exp()
+    assert r[0, 0, 0, 0, 0] > 1.5 and r[0, 1, 0, 0, 0] < 0.5  # up-facing lit, down-facing dark
+    assert torch.allclose(r[0, 2], torch.ones(1, 1, 3))  # no normal: ratio 1
+    assert torch.equal(bb.RelitLRMBackbone.light_ratio(None, n), torch.zeros_like(n))
+
+
+def test_untrained_backbone_relights_with_light_cue():
+    """With ``light_cue`` even an untrained backbone's renders follow the target light (the light-blind backbone
+    gave the same colours under every light); without it they do not depend on the light through the base colour."""
+    imgs, alpha, c2w, intr = _disc_views()
+    top = torch.ones(32, 64, 3) * 0.05
+    top[:16] = 2.0
+    bottom = top.flip(0)
+    means = {}
+    for cue in (True, False):
+        torch.manual_seed(0)
+        m = bb.build(dict(TINY, light_cue=cue)).eval()
+        out = m.relight(imgs, alpha, c2w, intr, [top, bottom], c2w[:1], intr[:1])
+        H = imgs.shape[1]
+        up = [float(rgb[0, : H // 2][a[0, : H // 2, :, 0] > 0.5].mean()) for rgb, a in out]
+        down = [float(rgb[0, H // 2:][a[0, H // 2:, :, 0] > 0.5].mean()) for rgb, a in out]
+        means[cue] = (up, down)
+    (up, down) = means[True]
+    assert up[0] / down[0] > 1.5 * up[1] / down[1]  # the upper half is brighter under the top light
+    assert up[0] > 1.3 * up[1]
+    (up, down) = means[False]  # the untrained light-blind head copies its input colours under every light
+    assert abs(up[0] - up[1]) < 1e-6 and abs(down[0] - down[1]) < 1e-6

@@ -62,6 +62,7 @@ same as mixing x0-hats); guidance 1.0 runs only the conditional pass.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -107,6 +108,7 @@ class BackboneArch:
     hull_bins: int
     footprint_px: float
     pixel_features: int
+    light_cue: bool
 
 
 @dataclass(frozen=True)
@@ -177,7 +179,7 @@ class RelitLRMBackbone(nn.Module):
         if cfg.cues:
             F_ = cfg.pixel_features
             self.app_detokenizer = PatchDetokenizer(D, F_, p)
-            self.pixel_head = nn.Sequential(nn.Linear(F_ + 4, 2 * F_), nn.GELU(),
+            self.pixel_head = nn.Sequential(nn.Linear(F_ + 4 + (3 if cfg.light_cue else 0), 2 * F_), nn.GELU(),
                                             nn.Linear(2 * F_, 3 * cfg.sh_coeffs + 3))
             nn.init.zeros_(self.pixel_head[-1].weight)
             nn.init.zeros_(self.pixel_head[-1].bias)
@@ -201,30 +203,35 @@ class RelitLRMBackbone(nn.Module):
         """Multi-view cues and the raw 9-vector they imply (see the module docstring), per object of the batch.
 
         images (B, V, H, W, 3), alpha (B, V, H, W, 1), c2w (B, V, 4, 4), intr (B, V, 4).
-        Returns cue features (B, V, H, W, CUE_CHANNELS) and raw (B, V, H, W, 9) such that decoding raw alone
+        Returns cue features (B, V, H, W, CUE_CHANNELS), raw (B, V, H, W, 9) such that decoding raw alone
         (:func:`frng.gaussians.decode_raw`) gives: distance = hull distance, isotropic scale = ``footprint_px`` pixels
-        at that distance, identity rotation, opacity = alpha (clamped to [0.02, 0.98])."""
+        at that distance, identity rotation, opacity = alpha (clamped to [0.02, 0.98]); and the hull normals in the
+        world frame (B, V, H, W, 3) (zero where a ray misses the hull)."""
         c = self.cfg
-        feats, raws = [], []
+        feats, raws, normals = [], [], []
         for b in range(images.shape[0]):
             cues = geometry_cues(images[b].float(), alpha[b].float(), c2w[b].float(), intr[b].float(), c.near, c.far,
                                  bins=c.hull_bins)
             feats.append(cues["features"])
             raws.append(isotropic_raw(cues["distance"], alpha[b].float(), intr[b, :, 0].float(), c.footprint_px,
                                       self.decode_config()))
-        return torch.stack(feats), torch.stack(raws)
+            rot = c2w[b, :, None, None, :3, :3].float()  # camera -> world
+            normals.append((rot @ cues["normal"][..., None])[..., 0] * cues["hit"])
+        return torch.stack(feats), torch.stack(raws), torch.stack(normals)
 
     def encode_geometry(self, images: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor):
         """Input views -> geometry tokens and raw per-pixel Gaussian parameters.
 
         images: (B, V, H, W, 3) linear premultiplied RGB; alpha (B, V, H, W, 1); c2w: (B, V, 4, 4); intr: (B, V, 4).
-        Returns T_geo (B, V, h, w, D), raw (B, V, H, W, 9) and the multi-view prior's part of raw
-        (B, V, H, W, 9; zeros with ``cues: false``), so that ``raw - prior`` is what the GeoDetokenizer added.
+        Returns T_geo (B, V, h, w, D), raw (B, V, H, W, 9), the multi-view prior's part of raw
+        (B, V, H, W, 9; zeros with ``cues: false``), so that ``raw - prior`` is what the GeoDetokenizer added, and
+        the world-frame hull normals (B, V, H, W, 3; zeros with ``cues: false``) the light cue reads.
         """
         assert images.shape[:-1] == alpha.shape[:-1] and images.shape[-1] == 3, (images.shape, alpha.shape)
         x = self._view_input(to_diffusion_space(images), c2w, intr)
+        normals = None
         if self.cfg.cues:
-            cue_feats, prior = self.prior_raw(images, alpha, c2w, intr)
+            cue_feats, prior, normals = self.prior_raw(images, alpha, c2w, intr)
             x = torch.cat([x, 2.0 * alpha.to(x.dtype) - 1.0, cue_feats.to(x.dtype)], dim=-1)
         tok = self.input_tokenizer(x)  # (B, V, h, w, D)
         B, V, h, w, D = tok.shape
@@ -232,7 +239,8 @@ class RelitLRMBackbone(nn.Module):
         raw = self.geo_detokenizer(t_geo)
         if not self.cfg.cues:
             prior = torch.zeros_like(raw, dtype=torch.float32)
-        return t_geo, raw.float() + prior, prior
+            normals = torch.zeros(*raw.shape[:-1], 3, device=raw.device)
+        return t_geo, raw.float() + prior, prior, normals
 
     # -- appearance ----------------------------------------------------------------------------------
 
@@ -262,16 +270,45 @@ class RelitLRMBackbone(nn.Module):
         return out[:, : V * h * w].reshape(B, V, h, w, D)
 
     @staticmethod
-    def pixel_inputs(images: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
-        """Per-pixel appearance inputs of one object: images (V, H, W, 3) linear premultiplied, alpha (V, H, W, 1)
-        -> (1, V, H, W, 4) = [unpremultiplied gamma-2.2 colour in [0, 1], alpha]."""
+    def pixel_inputs(images: torch.Tensor, alpha: torch.Tensor, normals: torch.Tensor | None = None) -> torch.Tensor:
+        """Per-pixel appearance inputs of one object: images (V, H, W, 3) linear premultiplied, alpha (V, H, W, 1),
+        world-frame hull normals (V, H, W, 3) or None -> (1, V, H, W, 4 or 7) = [unpremultiplied gamma-2.2 colour
+        in [0, 1], alpha(, normal)]. The normals are what the light cue (``light_cue``) reads."""
         col = (images.float() / alpha.float().clamp_min(1e-3)).clamp(0, 1) ** (1 / 2.2)
-        return torch.cat([col, alpha.float()], -1)[None]
+        parts = [col, alpha.float()] + ([] if normals is None else [normals.float()])
+        return torch.cat(parts, -1)[None]
 
-    def sh_coefficients(self, t_app: torch.Tensor, pixels: torch.Tensor | None = None) -> torch.Tensor:
+    @staticmethod
+    def light_ratio(env: torch.Tensor | None, normals: torch.Tensor) -> torch.Tensor:
+        """The light cue: log of the target light's Lambertian shading ratio at each Gaussian's hull normal.
+
+        env (B, He, We, 3) HDR or None (unconditional: zeros); normals (B, V, H, W, 3) world frame (zero = no
+        normal: ratio 1). Returns log r (B, V, H, W, 3), r = (E(n) / pi) / mean radiance of the map, per channel,
+        E from the map's degree-2 SH (:func:`frng.envmap.sh_irradiance`): r = 1 under a uniform map, and a white
+        Lambertian surface lit by the map has radiance r x its mean radiance. Clamped to [e^-4, e^2]."""
+        if env is None:
+            return torch.zeros_like(normals)
+        from frng.envmap import sh_irradiance, sh_project
+
+        out = []
+        for b in range(env.shape[0]):
+            coeffs = sh_project(env[b].float().clamp_min(0.0)).to(normals.device)  # (9, 3) float64
+            mean = (coeffs[0] / (4.0 * math.pi * C0)).clamp_min(1e-6)
+            n = normals[b].double()
+            e = sh_irradiance(coeffs, n) / math.pi
+            e = torch.where(n.norm(dim=-1, keepdim=True) > 0.5, e, mean.expand_as(e))  # no normal: ratio 1
+            out.append((e.clamp_min(1e-8) / mean).log().clamp(-4.0, 2.0).float())
+        return torch.stack(out)
+
+    def sh_coefficients(self, t_app: torch.Tensor, pixels: torch.Tensor | None = None,
+                        env: torch.Tensor | None = None) -> torch.Tensor:
         """T_app (B, V, h, w, D) -> SH coefficients per Gaussian (B, V*H*W, K, 3), K = (degree + 1)^2.
 
-        pixels (B, V, H, W, 4) from :meth:`pixel_inputs`: required with ``cues`` (the per-pixel colour path)."""
+        pixels (B, V, H, W, 4 or 7) from :meth:`pixel_inputs`: required with ``cues`` (the per-pixel colour path);
+        with ``light_cue`` it carries the normals and env (B, He, We, 3) (None: unconditional) gives the light cue
+        (:meth:`light_ratio`): the head sees log r, and the base colour is the input colour relit by it,
+        ``c_in * exp(g + log r / 2.2)`` (gamma space), so an untrained head already relights as a Lambertian
+        surface under an input light it assumes uniform."""
         B = t_app.shape[0]
         K = self.cfg.sh_coeffs
         if self.pixel_head is None:
@@ -279,10 +316,18 @@ class RelitLRMBackbone(nn.Module):
         if pixels is None:
             raise ValueError("this backbone (cues: true) needs the input pixels: sh_coefficients(t_app, pixels)")
         feat = self.app_detokenizer(t_app)  # (B, V, H, W, F)
-        assert pixels.shape[:-1] == feat.shape[:-1] and pixels.shape[-1] == 4, (pixels.shape, feat.shape)
-        out = self.pixel_head(torch.cat([feat, pixels.to(feat.dtype)], -1)).float()
+        n_in = 7 if self.cfg.light_cue else 4
+        assert pixels.shape[:-1] == feat.shape[:-1] and pixels.shape[-1] == n_in, (pixels.shape, feat.shape)
+        head_in = [feat, pixels[..., :4].to(feat.dtype)]
+        log_r = None
+        if self.cfg.light_cue:
+            log_r = self.light_ratio(env, pixels[..., 4:7])
+            head_in.append(log_r.to(feat.dtype))
+        out = self.pixel_head(torch.cat(head_in, -1)).float()
         sh = out[..., : 3 * K].reshape(B, -1, K, 3)
         gain = out[..., 3 * K:].reshape(B, -1, 3)
+        if log_r is not None:
+            gain = gain + log_r.reshape(B, -1, 3) / 2.2
         base = (pixels[..., :3].float().reshape(B, -1, 3) * gain.exp() - 0.5) / C0
         return torch.cat([sh[:, :, :1] + base[:, :, None], sh[:, :, 1:]], dim=2)
 
@@ -326,9 +371,9 @@ class RelitLRMBackbone(nn.Module):
     def guided_sh(self, t_geo, env, x_t, den_c2w, den_intr, t: torch.Tensor, guidance: float, pixels=None):
         """SH (B, N, K, 3) and conditional T_app (B, V, h, w, D) of one DiT step with guidance (see module doc)."""
         t_app = self.appearance_tokens(t_geo, env, x_t, den_c2w, den_intr, t)
-        sh = self.sh_coefficients(t_app, pixels)
+        sh = self.sh_coefficients(t_app, pixels, env)
         if guidance != 1.0 and env is not None:
-            sh_u = self.sh_coefficients(self.appearance_tokens(t_geo, None, x_t, den_c2w, den_intr, t), pixels)
+            sh_u = self.sh_coefficients(self.appearance_tokens(t_geo, None, x_t, den_c2w, den_intr, t), pixels, None)
             sh = sh_u + guidance * (sh - sh_u)
         return sh, t_app
 
@@ -374,10 +419,10 @@ class RelitLRMBackbone(nn.Module):
                     intr: torch.Tensor) -> "BackboneGeometry":
         """Geometry of one object from V input views: images (V, H, W, 3) linear premultiplied, alpha
         (V, H, W, 1), c2w (V, 4, 4), intr (V, 4). See :class:`BackboneGeometry` for what comes back."""
-        t_geo, raw, prior = self.encode_geometry(images[None], alpha[None], c2w[None], intr[None])
+        t_geo, raw, prior, normals = self.encode_geometry(images[None], alpha[None], c2w[None], intr[None])
         gauss = self.gaussians(raw[0], c2w, intr)
         return BackboneGeometry(t_geo, raw[0], gauss, alpha.reshape(-1) >= 0.5, prior[0],
-                                self.pixel_inputs(images, alpha))
+                                self.pixel_inputs(images, alpha, normals[0] if self.cfg.light_cue else None))
 
     @torch.no_grad()
     def relight(

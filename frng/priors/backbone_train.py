@@ -118,9 +118,9 @@ def step_loss(model: bb.RelitLRMBackbone, obj: PriorObject, tcfg: BackboneTrainC
     c2w_in, intr_in = inp.c2w.to(device), inp.intr.to(device)
     H, W = rgb_in.shape[1:3]
     with tr.autocast(device, tcfg.bf16):
-        t_geo, raw, _ = model.encode_geometry(rgb_in[None], a_in[None], c2w_in[None], intr_in[None])
+        t_geo, raw, _, normals = model.encode_geometry(rgb_in[None], a_in[None], c2w_in[None], intr_in[None])
     raw = raw[0].float()
-    pixels = model.pixel_inputs(rgb_in, a_in)
+    pixels = model.pixel_inputs(rgb_in, a_in, normals[0] if cfg.light_cue else None)
     gauss = model.gaussians(raw, c2w_in, intr_in)
     keep = a_in.reshape(-1) >= 0.5
 
@@ -130,7 +130,7 @@ def step_loss(model: bb.RelitLRMBackbone, obj: PriorObject, tcfg: BackboneTrainC
     env = None if rng.random() < cfg.cond_drop else obj.envs[light_b].to(device)[None]
     with tr.autocast(device, tcfg.bf16):
         t_app = model.appearance_tokens(t_geo, env, x_t, den.c2w.to(device)[None], den.intr.to(device)[None], t)
-        sh = model.sh_coefficients(t_app, pixels)[0].float()
+        sh = model.sh_coefficients(t_app, pixels, env)[0].float()
     rgb, alpha, _ = model.render(gauss, sh, sup.c2w.to(device), sup.intr.to(device), H, W, keep)
     tgt = _gamma(sup.rgb.to(device))
     losses = {
