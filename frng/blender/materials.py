@@ -225,3 +225,183 @@ def apply(obj: bpy.types.Object, p: dict, seed: int) -> None:
     obj.data.materials.append(principled("frng_surface", p))
     if p["class"] == "fur":
         add_fur(obj, p["hair"], seed)
+
+
+# -- assets' own materials (objects.extra[].material: own) ----------------------------------------------------------
+
+PLY_ROUGHNESS = 0.8             # a PLY's vertex colours carry no finish: matte dielectric
+NEUTRAL = {"base_color": [0.5, 0.5, 0.5], "roughness": 0.5, "metallic": 0.0}
+DATA_SOCKETS = ("Roughness", "Metallic", "Alpha")   # Principled inputs whose textures hold data, not colour
+
+
+def _upstream(socket, kind: str | None = None, seen=None) -> list:
+    """Nodes feeding ``socket`` (recursively), optionally only those of bl_idname ``kind``."""
+    seen = set() if seen is None else seen
+    out = []
+    for link in socket.links:
+        node = link.from_node
+        if node.name in seen:
+            continue
+        seen.add(node.name)
+        if kind is None or node.bl_idname == kind:
+            out.append(node)
+        for s in node.inputs:
+            out += _upstream(s, kind, seen)
+    return out
+
+
+def _texture_names(socket) -> list[str]:
+    return [n.image.filepath or n.image.name for n in _upstream(socket, "ShaderNodeTexImage") if n.image]
+
+
+def _describe(socket) -> object:
+    """A socket's value for meta.json: its constant, or what feeds it (textures, vertex colours, nodes)."""
+    if not socket.is_linked:
+        v = socket.default_value
+        return [round(float(x), 5) for x in v][:3] if hasattr(v, "__len__") else round(float(v), 5)
+    nodes = _upstream(socket)
+    d = {"linked": sorted({n.bl_idname.replace("ShaderNode", "") for n in nodes})}
+    tex = _texture_names(socket)
+    if tex:
+        d["textures"] = tex
+    if any(n.bl_idname in ("ShaderNodeVertexColor", "ShaderNodeAttribute") for n in nodes):
+        d["vertex_colors"] = True
+    return d
+
+
+def _active_output(nt):
+    outs = [n for n in nt.nodes if n.bl_idname == "ShaderNodeOutputMaterial"]
+    for n in outs:
+        if n.is_active_output and n.target in ("ALL", "CYCLES"):
+            return n
+    return outs[0] if outs else None
+
+
+def _neutral(name: str) -> bpy.types.Material:
+    return principled(name, {**NEUTRAL, "textured": False})
+
+
+def _vertex_colour_material(name: str, layer: str) -> bpy.types.Material:
+    mat = bpy.data.materials.new(name)
+    mat.use_nodes = True
+    nt = mat.node_tree
+    bsdf = nt.nodes["Principled BSDF"]
+    col = nt.nodes.new("ShaderNodeVertexColor")
+    col.layer_name = layer
+    nt.links.new(col.outputs["Color"], bsdf.inputs["Base Color"])
+    bsdf.inputs["Roughness"].default_value = PLY_ROUGHNESS
+    bsdf.inputs["Metallic"].default_value = 0.0
+    return mat
+
+
+def _unsupported_inputs(bsdf) -> list[str]:
+    """What a Principled BSDF does that the albedo / roughness / metallic / normal G-buffer cannot describe."""
+    def active(name: str, threshold: float = 0.0) -> bool:
+        s = bsdf.inputs.get(name)
+        return s is not None and (s.is_linked or float(s.default_value) > threshold)
+
+    reasons = []
+    if active("Transmission Weight"):
+        reasons.append("transmission (glass)")
+    em = bsdf.inputs["Emission Color"]
+    if active("Emission Strength") and (em.is_linked or max(em.default_value[:3]) > 0):
+        reasons.append("emission")
+    alpha = bsdf.inputs["Alpha"]
+    if alpha.is_linked or alpha.default_value < 1.0:
+        reasons.append("transparency (alpha " + ("texture" if alpha.is_linked else f"{alpha.default_value:.3g}") + ")")
+    for name, what in (("Coat Weight", "clear coat"), ("Sheen Weight", "sheen"), ("Subsurface Weight", "subsurface")):
+        if active(name):
+            reasons.append(what)
+    return reasons
+
+
+def _data_colourspace(bsdf, nt) -> list[str]:
+    """Image textures feeding only data inputs (roughness, metallic, alpha, normal / bump maps) are read as
+    Non-Color (Blender's OBJ importer loads map_Pr / map_Pm / bump maps as sRGB); returns the images changed."""
+    colour = {n.image.name for n in _upstream(bsdf.inputs["Base Color"], "ShaderNodeTexImage") if n.image}
+    data_sockets = [bsdf.inputs[s] for s in DATA_SOCKETS]
+    for node in _upstream(bsdf.inputs["Normal"]):
+        if node.bl_idname in ("ShaderNodeNormalMap", "ShaderNodeBump"):
+            data_sockets += [s for s in node.inputs if s.name in ("Color", "Height")]
+    changed = []
+    for sock in data_sockets:
+        for n in _upstream(sock, "ShaderNodeTexImage"):
+            img = n.image
+            if img is not None and img.name not in colour and img.colorspace_settings.name != "Non-Color":
+                img.colorspace_settings.name = "Non-Color"
+                changed.append(img.name)
+    return sorted(set(changed))
+
+
+def adopt(obj: bpy.types.Object) -> dict:
+    """Keep ``obj``'s own materials (imported from the file) and make them write the G-buffer AOVs from their
+    own inputs: ``albedo`` <- whatever feeds the Principled BSDF's Base Color (texture x factor x vertex colour
+    as the importer built it), ``roughness`` / ``metallic`` <- what feeds those inputs (the glTF
+    metallic-roughness texture's G / B channels x factors, MTL Ns / Pr / Pm / map_Pr / map_Pm); the normal pass
+    carries normal and bump maps (Cycles writes the shading normal). Data textures are switched to Non-Color.
+
+    A PLY's vertex colours (no material in the file) become a Principled base colour (roughness
+    :data:`PLY_ROUGHNESS`, metallic 0). An empty slot gets a neutral grey (reported).
+
+    What the AOVs cannot describe is reported, never guessed silently: a surface that is not a Principled BSDF
+    (custom node trees: AOVs from the tree's only Principled BSDF if it has one, else the neutral constants),
+    transmission, emission, transparency, clear coat, sheen, subsurface, volume, displacement, missing textures.
+
+    Returns the description recorded in meta.json's ``material``: ``{"class": "own", "slots": [...],
+    "unsupported": [{"slot", "material", "reasons"}], "colourspace_fixed": [...]}``.
+    """
+    me = obj.data
+    info: dict = {"class": "own", "slots": [], "unsupported": [], "colourspace_fixed": []}
+    if not len(me.materials) or all(m is None for m in me.materials):
+        layers = list(me.color_attributes.keys())
+        me.materials.clear()
+        if layers:
+            me.materials.append(_vertex_colour_material("frng_vertex_colours", layers[0]))
+            info["source"] = f"vertex colours ({layers[0]}), roughness {PLY_ROUGHNESS}, metallic 0"
+        else:
+            me.materials.append(None)
+    for i, mat in enumerate(list(me.materials)):
+        reasons: list[str] = []
+        if mat is None or not mat.use_nodes:
+            reasons.append("no material (neutral grey assigned)" if mat is None else "material without nodes "
+                           "(neutral grey assigned)")
+            mat = _neutral(f"frng_neutral_{i}")
+            me.materials[i] = mat
+        nt = mat.node_tree
+        out = _active_output(nt)
+        surface = out.inputs["Surface"].links[0].from_node if out and out.inputs["Surface"].is_linked else None
+        bsdf = surface if surface is not None and surface.bl_idname == "ShaderNodeBsdfPrincipled" else None
+        if bsdf is None:
+            found = [n for n in nt.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled"]
+            kind = surface.bl_idname if surface is not None else "nothing"
+            if len(found) == 1:
+                bsdf = found[0]
+                reasons.append(f"custom node tree (surface is {kind}; AOVs from its Principled BSDF's inputs)")
+            else:
+                reasons.append(f"custom node tree (surface is {kind}; AOVs hold neutral constants)")
+        if out is not None:
+            for name in ("Volume", "Displacement"):
+                if out.inputs[name].is_linked:
+                    reasons.append(name.lower())
+        for n in nt.nodes:
+            if n.bl_idname == "ShaderNodeTexImage" and n.image is not None and n.image.size[0] == 0:  # not loadable
+                reasons.append(f"missing texture {n.image.filepath or n.image.name}")
+        slot: dict = {"slot": i, "name": mat.name}
+        if bsdf is not None:
+            reasons += _unsupported_inputs(bsdf)
+            info["colourspace_fixed"] += _data_colourspace(bsdf, nt)
+            sockets = {k: bsdf.inputs[k] for k in ("Base Color", "Roughness", "Metallic")}
+            aov = [s.links[0].from_socket if s.is_linked else (list(s.default_value) if k == "Base Color"
+                                                              else float(s.default_value))
+                   for k, s in sockets.items()]
+            slot.update(base_color=_describe(sockets["Base Color"]), roughness=_describe(sockets["Roughness"]),
+                        metallic=_describe(sockets["Metallic"]), normal=_describe(bsdf.inputs["Normal"])
+                        if bsdf.inputs["Normal"].is_linked else None)
+        else:
+            aov = [NEUTRAL["base_color"], NEUTRAL["roughness"], NEUTRAL["metallic"]]
+        add_aov_outputs(nt, *aov)
+        info["slots"].append(slot)
+        if reasons:
+            info["unsupported"].append({"slot": i, "material": mat.name, "reasons": reasons})
+    info["colourspace_fixed"] = sorted(set(info["colourspace_fixed"]))
+    return info

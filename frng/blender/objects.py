@@ -230,10 +230,12 @@ def nonfinite_vertex(path: str | Path) -> str | None:
     return _nonfinite_ply(data)
 
 
-def import_file(path: str | Path) -> bpy.types.Object:
+def import_file(path: str | Path, keep_materials: bool = False) -> bpy.types.Object:
     """Import OBJ/PLY/STL/glTF/GLB as ONE mesh object with transforms applied, coordinates as in the file.
 
     (glTF: the importer's Y-up -> Z-up conversion is undone so that all formats behave alike.)
+    ``keep_materials``: keep the file's own materials (OBJ + MTL, glTF PBR; see
+    :func:`frng.blender.materials.adopt`), else the object comes without materials.
     """
     path = Path(path)
     if not path.is_file():
@@ -283,7 +285,8 @@ def import_file(path: str | Path) -> bpy.types.Object:
     if suffix in (".gltf", ".glb"):
         transform_mesh(obj, np.linalg.inv(Y_UP_TO_Z_UP))
     obj.name = "frng_object"
-    obj.data.materials.clear()
+    if not keep_materials:
+        obj.data.materials.clear()
     return obj
 
 
@@ -435,17 +438,22 @@ def procedural(kind: str, rng: np.random.Generator) -> tuple[bpy.types.Object, d
 
 # -- the object of a dataset entry ------------------------------------------------------------------------
 
-def load(spec, rng: np.random.Generator, pybullet_dir: Path | None, radius: float = 1.0) -> tuple[bpy.types.Object, dict]:
+def load(spec, rng: np.random.Generator, pybullet_dir: Path | None, radius: float = 1.0,
+         keep_materials: bool = False, path: Path | None = None) -> tuple[bpy.types.Object, dict]:
     """Build the object of a :class:`frng.data.catalog.ObjectSpec`, Z-up, normalised into ``radius``.
+
+    ``keep_materials``: file meshes keep their own materials (``material: own``). ``path``: the mesh file when
+    the spec names it indirectly (an Objaverse uid resolved in the local cache).
 
     Returns (object, info); info has ``file_to_world`` (4x4 list, file points -> world) for file meshes,
     ``params`` for generated shapes, ``had_uvs``, ``vertices`` and ``faces`` counts.
     """
     info: dict = {}
-    if spec.source in ("pybullet", "user"):
-        path = Path(pybullet_dir) / spec.mesh if spec.source == "pybullet" else Path(spec.mesh)
+    if spec.source in ("pybullet", "user", "objaverse"):
+        if path is None:
+            path = Path(pybullet_dir) / spec.mesh if spec.source == "pybullet" else Path(spec.mesh)
         try:
-            obj = import_file(path)
+            obj = import_file(path, keep_materials)
         except MeshError as e:
             raise MeshError(f"object {spec.id}: {e}") from e
         pre = np.diag(list(spec.prescale) + [1.0])

@@ -52,6 +52,12 @@ PYBULLET_BROKEN = frozenset({168})
 PRIMITIVES = ("cube", "uv_sphere", "ico_sphere", "cylinder", "cone", "torus", "monkey")
 PROCEDURAL = ("superquadric", "lathe", "blob", "twisted_box", "cluster")
 MATERIALS = ("diffuse", "specular", "fur")
+OWN = "own"  # objects.extra[].material: the file's own material (frng.blender.materials.adopt)
+# The class rule of own materials (the per-class tables need one): from the G-buffer AOVs the material writes, i.e.
+# its own inputs, textures included, averaged over the foreground of the input views. It is the boundary between
+# the generated classes (diffuse: roughness 0.6-1, metallic 0; specular: roughness 0.03-0.35 or metallic 0.8-1).
+OWN_SPECULAR_ROUGHNESS = 0.5  # mean roughness below this -> specular
+OWN_SPECULAR_METALLIC = 0.5   # mean metallic at or above this -> specular
 
 
 @dataclass(frozen=True)
@@ -234,17 +240,76 @@ class ObjectSpec:
     up: str                    # up axis of the mesh file: "y" (rotated to Z-up) or "z"
     prescale: tuple[float, float, float]
     licence: str
-    material: str              # "diffuse" | "specular" | "fur"
+    material: str              # "diffuse" | "specular" | "fur" | "own" (the file's own material)
     seed: int
     input_lights: tuple[str, ...]
     target_lights: tuple[str, ...] = field(default=())
+    material_class: str | None = None  # own materials: the class the config names (None: own_material_class)
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["prescale"] = list(self.prescale)
         d["input_lights"] = list(self.input_lights)
         d["target_lights"] = list(self.target_lights)
+        if self.material_class is None:  # (absent, so the specs -- and curate params -- of other objects stay)
+            del d["material_class"]
         return d
+
+
+def own_material_class(roughness: float, metallic: float) -> str:
+    """The class of an own material (for the per-class tables) from its mean roughness and metallic (the AOVs over
+    the input views' foreground): specular when metallic >= :data:`OWN_SPECULAR_METALLIC` or roughness <
+    :data:`OWN_SPECULAR_ROUGHNESS`, else diffuse. Never fur (own materials grow no hair)."""
+    return "specular" if metallic >= OWN_SPECULAR_METALLIC or roughness < OWN_SPECULAR_ROUGHNESS else "diffuse"
+
+
+def _mtl_files(path: Path) -> list[Path]:
+    """The MTL files an OBJ names (``mtllib``) that exist beside it."""
+    out = []
+    with open(path, "r", errors="replace") as fh:
+        for line in fh:
+            parts = line.split(None, 1)
+            if parts[:1] == ["mtllib"] and len(parts) == 2:
+                whole = path.parent / parts[1].strip()  # a name with spaces, else several names
+                names = [whole] if whole.is_file() else [path.parent / n for n in parts[1].split()]
+                out += [n for n in names if n.is_file()]
+    return out
+
+
+def _gltf_json(path: Path) -> dict:
+    data = path.read_bytes()
+    if path.suffix.lower() == ".glb":
+        if data[:4] != b"glTF" or len(data) < 20:
+            return {}
+        n = int.from_bytes(data[12:16], "little")
+        data = data[20:20 + n]
+    try:
+        return json.loads(data.decode("utf-8", "replace"))
+    except ValueError:
+        return {}
+
+
+def file_material(path: str | Path) -> str | None:
+    """What material a mesh file carries (read without Blender), or None: ``"mtl"`` (an OBJ whose ``mtllib``
+    exists and defines a material), ``"gltf"`` (glTF/GLB materials or COLOR_0 vertex colours), ``"ply"`` (PLY
+    vertex colours). STL carries none."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".obj":
+        for mtl in _mtl_files(path):
+            if any(line.split()[:1] == ["newmtl"] for line in mtl.read_text(errors="replace").splitlines()):
+                return "mtl"
+    elif suffix in (".gltf", ".glb"):
+        g = _gltf_json(path)
+        prims = [p for m in g.get("meshes", []) for p in m.get("primitives", [])]
+        if g.get("materials") or any("COLOR_0" in p.get("attributes", {}) for p in prims):
+            return "gltf"
+    elif suffix == ".ply":
+        with open(path, "rb") as fh:
+            head = fh.read(4096).split(b"end_header")[0].decode("ascii", "replace").split()
+        if "red" in head or "diffuse_red" in head:
+            return "ply"
+    return None
 
 
 def _material_counts(n: int, mix: dict) -> dict[str, int]:
@@ -335,17 +400,20 @@ def object_plan(config: Config | dict, envmaps: list[EnvMapSpec] | None = None) 
     probs = np.array([mix.get(c, 0.0) for c in MATERIALS], dtype=float)
     for (f, entry), uid in zip(user, _unique_user_ids(user, "objects.extra")):
         up = entry.get("up") or ("y" if f.suffix.lower() in (".obj", ".gltf", ".glb") else "z")
-        material = entry.get("material") or MATERIALS[rng_for(seed, "user-material", uid).choice(3, p=probs / probs.sum())]
+        material = entry.get("material")
+        if material is None and file_material(f) is not None:
+            material = OWN
+        material = material or MATERIALS[rng_for(seed, "user-material", uid).choice(3, p=probs / probs.sum())]
         specs.append((uid, entry["split"], "user", str(f), up, (1.0, 1.0, 1.0),
-                      entry.get("licence", "user-supplied"), material))
+                      entry.get("licence", "user-supplied"), material, entry.get("class")))
 
     out = []
-    for oid, split, source, mesh, up, prescale, licence, material in specs:
+    for oid, split, source, mesh, up, prescale, licence, material, *cls in specs:
         oseed = derive_seed(seed, "object", oid)
         ins, tgts = _assign_lights(np.random.default_rng(derive_seed(oseed, "lights")), pools[split],
                                    render.input_lights, render.target_lights, oid, split)
         out.append(ObjectSpec(oid, split, source, mesh, up, tuple(float(x) for x in prescale), licence, material,
-                              oseed, ins, tgts))
+                              oseed, ins, tgts, (cls[0] if cls else None) if material == OWN else None))
     return out
 
 

@@ -135,6 +135,24 @@ def gbuffer_from_passes(passes: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return {k: planes[k].astype(np.float32) for k in GBUFFER_CHANNELS}
 
 
+def own_class(spec: catalog.ObjectSpec, folder: ObjectFolder, views) -> tuple[str, str]:
+    """(class, how it was chosen) of an own material: the config's ``class``, else
+    :func:`frng.data.catalog.own_material_class` of the mean roughness / metallic AOVs over the foreground
+    (coverage > 0.5) of the input views' G-buffers."""
+    if spec.material_class is not None:
+        return spec.material_class, "from the config (objects.extra[].class)"
+    rough, metal = [], []
+    for view in views:
+        ch = io.read_exr_channels(folder.gbuffer(view.name))
+        fg = ch["A"] > 0.5
+        rough.append(ch["roughness.Y"][fg])
+        metal.append(ch["metallic.Y"][fg])
+    r, m = float(np.concatenate(rough).mean()), float(np.concatenate(metal).mean())
+    return catalog.own_material_class(r, m), (f"mean roughness {r:.3f}, metallic {m:.3f}: specular if metallic >= "
+                                              f"{catalog.OWN_SPECULAR_METALLIC} or roughness < "
+                                              f"{catalog.OWN_SPECULAR_ROUGHNESS}, else diffuse")
+
+
 def check_envmaps(spec: catalog.ObjectSpec, env_dir: Path) -> dict[str, dict]:
     """Every light of the object exists, is readable and is in the index; returns index records by name."""
     folder = EnvmapFolder(env_dir)
@@ -192,14 +210,22 @@ def curate(config: Config | dict, oid: str, env_dir: Path, out_root: Path, log=p
         scene = bscene.new_scene(render.resolution, render.spp, render.threads, spec.seed)
         bscene.enable_gbuffer_passes(scene)
         cam = bscene.add_camera(scene, render.fov_deg)
-        mat = materials.sample(mat_rng, spec.material, render.fur_strands)
+        own = spec.material == catalog.OWN
+        mat = {"class": catalog.OWN} if own else materials.sample(mat_rng, spec.material, render.fur_strands)
         radius = 1.0 - mat["hair"]["length"] if "hair" in mat else 1.0  # fur stays inside the unit sphere
         pybullet_dir = catalog.pybullet_data_dir() if spec.source == "pybullet" else None
+        mesh_path = catalog.objaverse_file(config, spec.mesh) if spec.source == "objaverse" else None
         try:
-            obj, shape = objects.load(spec, shape_rng, pybullet_dir, radius)
+            obj, shape = objects.load(spec, shape_rng, pybullet_dir, radius, keep_materials=own, path=mesh_path)
         except objects.MeshError as e:
             raise CurationError(str(e)) from e
-        materials.apply(obj, mat, spec.seed)
+        if own:
+            mat = materials.adopt(obj)
+            for bad in mat["unsupported"]:
+                log(f"[{oid}] material slot {bad['slot']} ({bad['material']}): the G-buffer cannot describe "
+                    f"{', '.join(bad['reasons'])}")
+        else:
+            materials.apply(obj, mat, spec.seed)
         log(f"[{oid}] {spec.source}:{spec.mesh} material={spec.material} split={spec.split} "
             f"{shape['vertices']} verts; {len(inputs)} input views x {len(spec.input_lights)} lights, "
             f"{len(targets)} target views x {len(spec.target_lights)} lights at {render.resolution} px, "
@@ -233,6 +259,10 @@ def curate(config: Config | dict, oid: str, env_dir: Path, out_root: Path, log=p
                     log(f"[{oid}] {n_done:4d}/{n_total} {kind}/{light}/{view.name} "
                         f"render {dt:.3f} s  coverage {rgba[..., 3].mean():.3f}")
 
+        material_class = spec.material
+        if own:
+            material_class, mat["class_rule"] = own_class(spec, staged, inputs)
+            log(f"[{oid}] own material: class {material_class} ({mat['class_rule']})")
         meta = {
             "version": META_VERSION,
             "id": oid,
@@ -243,7 +273,7 @@ def curate(config: Config | dict, oid: str, env_dir: Path, out_root: Path, log=p
             "licence": spec.licence,
             "up_axis": spec.up,
             "shape": shape,
-            "material_class": spec.material,
+            "material_class": material_class,
             "material": mat,
             "render": {k: getattr(render, k) for k in ("resolution", "spp", "camera_distance", "fov_deg", "threads")}
                       | {"engine": "CYCLES", "device": "CPU", "blender": __import__("bpy").app.version_string},

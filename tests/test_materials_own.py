@@ -1,0 +1,136 @@
+"""Assets keep their own materials (``objects.extra[].material: own``, issue 23 item 1).
+
+The test writes its own tiny assets (tests/asset_writers.py): a box as OBJ + MTL with a two-colour map_Kd, a
+roughness map and a normal (bump) map; a box as GLB with base-colour, metallic-roughness and normal textures; a
+glass GLB (KHR_materials_transmission); a PLY with vertex colours. It curates them with Blender and checks that
+the G-buffer AOVs hold the textures' values and that the glass is reported in meta.json and the log.
+"""
+
+import numpy as np
+import pytest
+
+from asset_writers import halves, srgb_to_linear, write_glb, write_obj, write_ply
+from data_helpers import frng, write_config
+from frng.data import catalog
+from frng.data.dataset import open_object
+
+RED, BLUE = (230, 40, 30), (30, 60, 220)          # sRGB bytes of the texture halves (u < 0.5: RED)
+NORMAL_30 = (191, 128, 238)                      # tangent-space normal (0.5, 0, 0.866): tilted 30 deg
+
+
+def _assets(root):
+    write_obj(root / "objmtl", "crate",
+              "newmtl crate\nKd 1 1 1\nKs 0.5 0.5 0.5\nNs 250\nillum 2\nmap_Kd kd.png\nmap_Pr pr.png\n"
+              "map_Bump -bm 1.0 nrm.png\n",
+              {"kd.png": halves(RED, BLUE), "pr.png": halves((51, 51, 51), (204, 204, 204)),
+               "nrm.png": halves(NORMAL_30, NORMAL_30)}, material="crate")
+    # glTF: left half rough 0.2 / metal 1, right half rough 0.8 / metal 0 (G = roughness, B = metallic)
+    write_glb(root / "pbr.glb", {"name": "pbr", "pbrMetallicRoughness": {
+        "baseColorTexture": {"index": "bc"}, "metallicRoughnessTexture": {"index": "mr"},
+        "metallicFactor": 1.0, "roughnessFactor": 1.0}, "normalTexture": {"index": "n"}},
+        {"bc": halves(RED, BLUE), "mr": halves((0, 51, 255), (0, 204, 0)), "n": halves(NORMAL_30, NORMAL_30)})
+    write_glb(root / "glass.glb", {"name": "glass", "pbrMetallicRoughness": {
+        "baseColorFactor": [1, 1, 1, 1], "roughnessFactor": 0.05, "metallicFactor": 0.0},
+        "extensions": {"KHR_materials_transmission": {"transmissionFactor": 1.0}}},
+        extensions_used=["KHR_materials_transmission"])
+    write_ply(root / "painted.ply", rgb=(40, 200, 60))
+
+
+def test_file_material_detection(tmp_path):
+    _assets(tmp_path)
+    write_obj(tmp_path / "plain", "bare", None)
+    assert catalog.file_material(tmp_path / "objmtl" / "crate.obj") == "mtl"
+    assert catalog.file_material(tmp_path / "pbr.glb") == "gltf"
+    assert catalog.file_material(tmp_path / "painted.ply") == "ply"
+    assert catalog.file_material(tmp_path / "plain" / "bare.obj") is None
+    assert catalog.own_material_class(0.2, 0.0) == "specular"
+    assert catalog.own_material_class(0.9, 0.9) == "specular"
+    assert catalog.own_material_class(0.7, 0.1) == "diffuse"
+
+
+def _halves(g, fg):
+    """Foreground pixels split by which texture half their albedo shows (nearest of RED / BLUE)."""
+    alb = g["albedo"][fg]
+    red, blue = srgb_to_linear(RED), srgb_to_linear(BLUE)
+    is_red = np.linalg.norm(alb - red, axis=1) < np.linalg.norm(alb - blue, axis=1)
+    return alb, is_red, red, blue
+
+
+def _tilt_deg(normal):
+    """Angle between each normal and the nearest box axis (the box's faces are axis-aligned in the world)."""
+    return np.degrees(np.arccos(np.clip(np.abs(normal).max(-1), -1, 1)))
+
+
+@pytest.mark.blender
+def test_own_materials_are_curated_with_their_aovs(tmp_path):
+    assets = tmp_path / "assets"
+    _assets(assets)
+    cfg = write_config(
+        tmp_path / "config.yaml", tmp_path / "results",
+        objects={"count": 1, "test_count": 1, "sources": ["primitives"],
+                 "extra": [{"path": str(assets / "objmtl"), "split": "train", "up": "z", "licence": "CC0 (test)"},
+                           {"path": str(assets / "pbr.glb"), "split": "train", "up": "z"},
+                           {"path": str(assets / "glass.glb"), "split": "train", "up": "z"},
+                           {"path": str(assets / "painted.ply"), "split": "train", "class": "diffuse"}]},
+        envmaps={"bundled": ["studio", "city"], "skies": {"models": []}, "width": 32, "rotations": 1,
+                 "test_fraction": 0.5},
+        render={"resolution": 48, "spp": 2, "extra_input_views": 0, "target_views": 1, "input_lights": 1,
+                "target_lights": 1},
+    )
+    plan = {o.id: o for o in catalog.plan(__import__("frng").config.load(cfg)).objects}
+    assert all(plan[i].material == "own" for i in ("user_crate", "user_pbr", "user_glass", "user_painted"))
+    assert plan["obj_0000"].material in catalog.MATERIALS  # generated classes stay
+    frng("envmaps", "--config", str(cfg))
+    results = tmp_path / "results"
+    logs = {oid: frng("curate", "--config", str(cfg), "--object", oid).stdout
+            for oid in ("user_crate", "user_pbr", "user_glass", "user_painted")}
+
+    # OBJ + MTL: albedo = map_Kd's texels (sRGB-decoded), roughness = map_Pr's values (data: not sRGB-decoded),
+    # metallic 0, normals tilted by the bump (normal) map
+    obj = open_object(results, "user_crate")
+    g = obj.gbuffer("inputs")
+    fg = g["alpha"][..., 0] > 0.99
+    alb, is_red, red, blue = _halves(g, fg)
+    assert 0.2 < is_red.mean() < 0.8
+    assert np.median(np.abs(alb[is_red] - red), 0).max() < 0.02
+    assert np.median(np.abs(alb[~is_red] - blue), 0).max() < 0.02
+    rough = g["roughness"][fg][:, 0]
+    assert abs(np.median(rough[is_red]) - 0.2) < 0.02 and abs(np.median(rough[~is_red]) - 0.8) < 0.02
+    assert np.abs(g["metallic"][fg]).max() < 1e-3
+    assert abs(np.median(_tilt_deg(g["normal"][fg])) - 30.0) < 4.0
+    meta = obj.meta
+    assert meta["material"]["class"] == "own" and meta["material"]["unsupported"] == []
+    assert meta["material_class"] in ("diffuse", "specular") and meta["licence"] == "CC0 (test)"
+    assert "pr.png" in meta["material"]["colourspace_fixed"]
+
+    # glTF metallic-roughness: red texels rough 0.2 / metal 1, blue texels rough 0.8 / metal 0; normal map
+    obj = open_object(results, "user_pbr")
+    g = obj.gbuffer("inputs")
+    fg = g["alpha"][..., 0] > 0.99
+    alb, is_red, red, blue = _halves(g, fg)
+    assert 0.2 < is_red.mean() < 0.8
+    assert np.median(np.abs(alb[is_red] - red), 0).max() < 0.02
+    assert np.median(np.abs(alb[~is_red] - blue), 0).max() < 0.02
+    rough, metal = g["roughness"][fg][:, 0], g["metallic"][fg][:, 0]
+    assert abs(np.median(rough[is_red]) - 0.2) < 0.02 and abs(np.median(rough[~is_red]) - 0.8) < 0.02
+    assert np.median(metal[is_red]) > 0.98 and np.median(metal[~is_red]) < 0.02
+    assert abs(np.median(_tilt_deg(g["normal"][fg])) - 30.0) < 4.0
+    slot = obj.meta["material"]["slots"][0]
+    assert slot["base_color"]["textures"] and slot["roughness"]["textures"] and slot["normal"]["textures"]
+    # the class follows the documented rule on the AOV means
+    assert obj.meta["material_class"] == catalog.own_material_class(float(rough.mean()), float(metal.mean()))
+
+    # glass: reported per object in meta.json and in the rule's log, not guessed silently
+    obj = open_object(results, "user_glass")
+    bad = obj.meta["material"]["unsupported"]
+    assert len(bad) == 1 and any("transmission" in r for r in bad[0]["reasons"])
+    assert "cannot describe transmission" in logs["user_glass"]  # (the rule's log is this output)
+    assert "cannot describe" not in logs["user_crate"] + logs["user_pbr"]
+
+    # PLY vertex colours: the albedo is the colour, matte; the class comes from the config
+    obj = open_object(results, "user_painted")
+    g = obj.gbuffer("inputs")
+    fg = g["alpha"][..., 0] > 0.99
+    assert np.abs(np.median(g["albedo"][fg], 0) - srgb_to_linear((40, 200, 60))).max() < 0.02
+    assert abs(np.median(g["roughness"][fg]) - 0.8) < 1e-3
+    assert obj.meta["material_class"] == "diffuse"
