@@ -144,8 +144,8 @@ class Timer:
 def backbone_views(config: Config, backbone, oid: str, views, env_in: torch.Tensor, light_in: str, device) -> dict:
     """The backbone's tokens for V input views, live, keyed as a cache entry (:class:`frng.priors.cache.
     BackboneCache.views`): t_geo (V, h, w, D), raw (V, H, W, 9), means/quats/scales/opacities, keep (N,) uint8,
-    c2w, intr, light0.t_app (V, h, w, D), light0.sh (N, K, 3); light 0 = the input light, with the DDIM seed
-    the cache stage uses."""
+    c2w, intr, light0.t_app (V, h, w, D), light0.sh (N, K, 3), the far-side copies back_*; light 0 = the input
+    light, with the DDIM seed the cache stage uses."""
     from frng.data import catalog
 
     rgb, a, c2w, intr = (x.to(device) for x in (views.rgb, views.alpha, views.c2w, views.intr))
@@ -158,7 +158,8 @@ def backbone_views(config: Config, backbone, oid: str, views, env_in: torch.Tens
     return {"t_geo": t_geo[0].float(), "raw": raw.float(), "raw_prior": raw_prior.float(), "means": gauss.means,
             "quats": gauss.quats,
             "scales": gauss.scales, "opacities": gauss.opacities, "keep": keep.to(torch.uint8), "c2w": c2w,
-            "intr": intr, "light0.t_app": t_app[0].float(), "light0.sh": sh.float()}
+            "intr": intr, "light0.t_app": t_app[0].float(), "light0.sh": sh.float(),
+            **{"back_" + k: t for k, t in backbone.back_gaussians(gauss, a, c2w, intr).items()}}
 
 
 def _write_images(folder: Path, light: str, names: list[str], rgba: torch.Tensor) -> None:

@@ -75,3 +75,35 @@ def test_depth_normals_of_a_plane_face_the_camera():
     t = (0.3 - o[..., 0]) / d[..., 0]
     n = depth_normals(o + d * t[..., None], c2w[:1], torch.ones(1, 16, 16, dtype=torch.bool))
     assert torch.allclose(n, torch.tensor([0.0, 0.0, -1.0]).expand_as(n), atol=1e-4)
+
+
+def test_back_completion_fills_what_few_views_miss():
+    """2 views 90 degrees apart miss half the sphere: their pixels get far-side copies on the sphere's far side,
+    facing away from their view; with the 6-view rig almost nothing is unseen."""
+    from frng.priors.multiview import back_gaussians, back_surface, mirror_normals
+
+    rgb, alpha, c2w, intr, t0, hit = _sphere_views(32)
+    _, unseen6 = back_surface(alpha, c2w, intr, far=4.0)
+    fg6 = alpha[..., 0] >= 0.5
+    assert float(unseen6.sum()) / float(fg6.sum()) < 0.08
+    two = [0, 1]
+    a2, c2, i2 = alpha[two], c2w[two], intr[two]
+    _, unseen2 = back_surface(a2, c2, i2, far=4.0)
+    assert float(unseen2.sum()) / float((a2[..., 0] >= 0.5).sum()) > 0.35
+    o, d = camera.pixel_rays(c2, i2, 32, 32)
+    means = (o + d * t0[two][..., None]).reshape(-1, 3)
+    N = means.shape[0]
+    back = back_gaussians(means, torch.tensor([1.0, 0, 0, 0]).expand(N, 4), torch.full((N, 3), 0.01),
+                          torch.full((N,), 0.9), a2, c2, i2, far=4.0)
+    M = back["means"].shape[0]
+    assert M == int(unseen2.sum()) and back["src"].max() < N
+    # on the sphere's far side (within the hull's looseness), behind the source point along its ray
+    r = back["means"].norm(dim=-1)
+    # the 2-view perspective hull is loose (its corners reach the bounding sphere), but on average near the sphere
+    assert (r <= 1.05 + 1e-4).all() and R_SPHERE - 0.05 < float(r.mean()) < R_SPHERE + 0.2
+    ahead = ((back["means"] - means[back["src"]]) * back["dirs"]).sum(-1)
+    assert (ahead > 0.15).all() and float(ahead.mean()) > 0.5
+    # the copied normal (the source's outward normal, facing its camera) is mirrored to face away from it
+    n_src = means[back["src"]] / R_SPHERE
+    n_back = mirror_normals(n_src, back["dirs"])
+    assert ((n_back * back["dirs"]).sum(-1) > 0).all() and torch.allclose(n_back.norm(dim=-1), torch.ones(M))

@@ -72,6 +72,7 @@ class FRNGSection:
     heads: int
     feature_dim: int
     pixel_head: int
+    back_completion: bool
     saliency: SaliencyConfig
 
 
@@ -101,6 +102,7 @@ class FRNGConfig:
     pixel_head: int  # hidden width of the per-Gaussian pixel head (0 = off: the paper's linear detokenizer only)
     decoder_cosine: bool  # decoder output x max(0, n.w_i), n = features 0:3 (shading.decoder_cosine)
     decoder_attenuation: bool  # the decoder may also darken its Lambertian base (shading.decoder_attenuation)
+    back_completion: bool  # Gaussians on the hull's unseen far side, copied from their pixels (frng.back_completion)
 
     @classmethod
     def from_dict(cls, d: dict) -> "FRNGConfig":
@@ -406,6 +408,7 @@ class FRNG(nn.Module):
             if fine is not None:
                 pix.append(sample_pixels(pix_map, fine.uv).reshape(-1, pix_map.shape[-1])[keep_f])
             pix = torch.cat(pix)
+        back = self._back_completion(bv, keep_c)
         out = []
         for b in range(B):
             feats = [coarse_features_to_pixels(g_coarse[b], self.cfg.patch).reshape(-1, g_mat.shape[-1])[keep_c]]
@@ -416,6 +419,9 @@ class FRNG(nn.Module):
             raw = torch.cat(feats)
             if self.pixel_head is not None:
                 raw = self.pixel_head(raw, pix)
+            if back is not None:
+                raw = torch.cat([raw, self._back_features(raw, back)])
+                parts.append(back["gaussians"])
             gauss = Gaussians.cat(parts)
             if self.cfg.head == "neural":
                 feat, pbr = raw, None
@@ -426,6 +432,31 @@ class FRNG(nn.Module):
             out.append(Reconstruction(gauss.with_features(raw), feat, pbr, patch_idx, sal, int(keep_c.sum()),
                                       t_mat[b : b + 1] if keep_tokens else None))
         return out[0] if isinstance(light, int) else out
+
+    def _back_completion(self, bv: dict, keep_c: torch.Tensor) -> dict | None:
+        """The cache entry's far-side copies (``back_*``, :func:`frng.priors.multiview.back_gaussians`) of kept
+        pixels, or None (``back_completion`` off, or a cache without them): gaussians (M), rows (M,) the source's
+        row among the kept coarse Gaussians, dirs (M, 3) the source rays."""
+        if not self.cfg.back_completion or "back_src" not in bv:
+            return None
+        src = bv["back_src"].long()
+        sel = keep_c[src]
+        rows = (torch.cumsum(keep_c.long(), 0) - 1)[src[sel]]
+        g = Gaussians(bv["back_means"][sel].float(), bv["back_quats"][sel].float(), bv["back_scales"][sel].float(),
+                      bv["back_opacities"][sel].float())
+        return {"gaussians": g, "rows": rows, "dirs": bv["back_dirs"][sel].float()}
+
+    def _back_features(self, raw: torch.Tensor, back: dict) -> torch.Tensor:
+        """Payload (M, C) of the far-side copies: their source Gaussians' rows of ``raw`` (coarse rows first), with
+        the normal channels (neural features 0:3 with the cosine decoder, Cook-Torrance 5:8) mirrored across the
+        plane normal to the source ray, so a copy faces away from the view it was copied from."""
+        from frng.priors.multiview import mirror_normals
+
+        rb = raw[back["rows"]]
+        ns = slice(5, 8) if self.cfg.head == "pbr" else (slice(0, 3) if self.cfg.decoder_cosine else None)
+        if ns is None:
+            return rb
+        return torch.cat([rb[:, :ns.start], mirror_normals(rb[:, ns], back["dirs"].to(rb.dtype)), rb[:, ns.stop:]], -1)
 
     # -- rendering --------------------------------------------------------------------------------------------
 
@@ -555,7 +586,7 @@ def variant_config(config: Config | dict, name: str, backbone_cfg: dict | None =
         dir_freqs=sh.dir_freqs, near=bb.near, far=bb.far,
         max_radius_px=bb.max_radius_px, saliency=section_dict(f.saliency, "frng.saliency"),
         pixel_head=f.pixel_head, decoder_cosine=sh.decoder_cosine,
-        decoder_attenuation=sh.decoder_cosine and sh.decoder_attenuation,
+        decoder_attenuation=sh.decoder_cosine and sh.decoder_attenuation, back_completion=f.back_completion,
     )
     loss = c.train.loss
     ind = LightIndependenceConfig(lambda_c=loss.lambda_c, lambda_kld=loss.lambda_kld, temperature=loss.temperature)

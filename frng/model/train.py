@@ -52,6 +52,7 @@ from frng.model.frng import FRNG, FRNGConfig, canonical_variant, variant_config
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
 
 CACHE_KEYS = ("t_geo", "raw_prior", "means", "quats", "scales", "opacities", "keep", "c2w", "intr")  # + light{j}.t_app
+BACK_KEYS = tuple("back_" + k for k in ("means", "quats", "scales", "opacities", "src", "dirs"))  # when cached
 LOSS_NAMES = ["total", "l2", "alpha", "perceptual", "ind", "ind_cos", "ind_kld"]
 
 
@@ -128,7 +129,7 @@ def load_objects(config: Config | dict, ids: list[str], backbone_path: Path, use
         cache = load_backbone_cache(L.backbone_cache(oid), backbone_path)
         allv = cache.views(V)
         lights = len(cache.lights)
-        views = {k: allv[k] for k in CACHE_KEYS}
+        views = {k: allv[k] for k in CACHE_KEYS + tuple(k for k in BACK_KEYS if k in allv)}
         views.update({f"light{j}.t_app": allv[f"light{j}.t_app"] for j in range(lights)})
         priors = None
         if use_priors:

@@ -366,6 +366,15 @@ class RelitLRMBackbone(nn.Module):
             height, width, max_radius_px=self.cfg.max_radius_px,
         )
 
+    @torch.no_grad()
+    def back_gaussians(self, gauss: Gaussians, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor) -> dict:
+        """Far-side copies of one object's per-pixel Gaussians where no input view sees the hull's far side
+        (:func:`frng.priors.multiview.back_gaussians`; alpha (V, H, W, 1), c2w (V, 4, 4), intr (V, 4))."""
+        from frng.priors.multiview import back_gaussians
+
+        return back_gaussians(gauss.means, gauss.quats, gauss.scales, gauss.opacities, alpha.float(), c2w.float(),
+                              intr.float(), self.cfg.far, self.cfg.hull_bins)
+
     # -- denoising (DDIM with x0 prediction, classifier-free guidance) -------------------------------------
 
     def guided_sh(self, t_geo, env, x_t, den_c2w, den_intr, t: torch.Tensor, guidance: float, pixels=None):

@@ -23,6 +23,10 @@ key                             shape           meaning
 ``scales`` / ``opacities``      (N, 3)/(N,)     order (quats (w, x, y, z), scales = std devs)
 ``v{V}.keep``                   (N,) uint8      1 where the input pixel is foreground (alpha >= 0.5)
 ``v{V}.c2w`` / ``v{V}.intr``    (V, 4, 4)/(V,4) the input cameras
+``v{V}.back_means`` / ``quats``  (M, 3)/(M, 4)/  far-side copies of per-pixel Gaussians where no input view sees
+/ ``scales`` / ``opacities``    (M, 3)/(M,)     the hull's far side (frng.priors.multiview.back_gaussians)
+``v{V}.back_src``               (M,) int64      each copy's source pixel (index into N)
+``v{V}.back_dirs``              (M, 3)          the source pixel's unit ray (to mirror the copied normal)
 ``v{V}.light{j}.t_app``         (V, h, w, D)    appearance tokens T_app of the final DDIM step under light j
 ``v{V}.light{j}.sh``            (N, K, 3)       final SH coefficients (K = (sh_degree + 1)^2) under light j
 =============================== =============== ===============================================================
@@ -58,7 +62,7 @@ from frng import training as tr
 from frng.priors.intrinsics import IntrinsicPriors
 from frng.variants import SWEEP_VIEWS, view_counts  # noqa: F401
 
-BACKBONE_CACHE_VERSION = "2"
+BACKBONE_CACHE_VERSION = "3"
 IDM_CACHE_VERSION = "1"
 
 
@@ -118,6 +122,7 @@ def make_backbone_cache(config: Config | dict, oid: str, model_path: Path, out: 
                         p + "means": gauss.means,
                         p + "quats": gauss.quats, p + "scales": gauss.scales, p + "opacities": gauss.opacities,
                         p + "keep": keep.to(torch.uint8), p + "c2w": v.c2w, p + "intr": v.intr})
+        tensors.update({p + "back_" + k: t for k, t in model.back_gaussians(gauss, a, c2w, intr).items()})
         nd = model.cfg.den_views
         for j, light in enumerate(lights):
             g = torch.Generator(device=device).manual_seed(catalog.derive_seed(config.seed, "cache", oid, light))

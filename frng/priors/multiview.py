@@ -123,6 +123,73 @@ def hull_distance(occ: torch.Tensor, t: torch.Tensor, far: float, level: float =
     return torch.where(hit, dist, torch.full_like(dist, far)), hit
 
 
+def back_surface(alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, far: float, bins: int = 48,
+                 radius: float = 1.05, tol: float | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Where the visual hull's far side lies behind each input pixel, and whether any input view sees it.
+
+    alpha (V, H, W, 1), c2w (V, 4, 4), intr (V, 4). For every foreground pixel the ray's LAST crossing of the hull
+    (its exit, :func:`hull_distance` on the reversed sweep) is a point on the hull's far side. It counts as seen
+    when, in some input view, it projects inside the image and no farther from that camera than the view's own
+    first hull crossing there plus ``tol`` (default two sweep steps): then some view already has a Gaussian on
+    that surface. Returns the exit distance (V, H, W) along the pixel's unit ray and ``unseen`` (V, H, W) bool:
+    the pixel is foreground (alpha >= 0.5), its ray enters the hull, and no input view sees its exit point. With
+    the 6-view rig almost every exit point is seen; with 2 views the whole far half of the object is unseen, which
+    is what :func:`back_gaussians` completes."""
+    V, H, W, _ = alpha.shape
+    tol = 4.0 * radius / bins if tol is None else tol
+    occ, t, o, d = occupancy(alpha, c2w, intr, bins, radius)
+    front, hit = hull_distance(occ, t, far)
+    exit_, _ = hull_distance(occ.flip(-1), t.flip(-1), far)
+    fg = (alpha[..., 0] >= 0.5) & hit & (exit_ > front + tol)
+    unseen = fg.clone()
+    if fg.any():
+        pts = (o + d * exit_[..., None])[fg]  # (R, 3)
+        c2w, intr = c2w.float(), intr.float()
+        R = c2w[:, :3, :3]
+        cam = c2w[:, :3, 3]
+        rel = pts[None] - cam[:, None]  # (V, R, 3)
+        pc = (R.transpose(-1, -2)[:, None] @ rel[..., None])[..., 0]  # camera frame (V, R, 3)
+        z = pc[..., 2]
+        u = intr[:, None, 0] * pc[..., 0] / z.clamp_min(1e-6) + intr[:, None, 2]
+        v = intr[:, None, 1] * pc[..., 1] / z.clamp_min(1e-6) + intr[:, None, 3]
+        uv = torch.stack([u, v], -1)
+        front_u = sample_image(front[..., None], uv, mode="nearest")[..., 0]  # (V, R) first crossing there
+        inside = (z > 0) & (u >= 0) & (u <= W) & (v >= 0) & (v <= H)
+        seen = inside & (rel.norm(dim=-1) <= front_u + tol)
+        unseen[fg] = ~seen.any(0)
+    return exit_, unseen
+
+
+def back_gaussians(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
+                   alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, far: float, bins: int = 48,
+                   radius: float = 1.05) -> dict[str, torch.Tensor]:
+    """Complete the surfaces no input view sees (few views) with copies of the pixels' Gaussians on the hull's
+    far side (:func:`back_surface`).
+
+    means/quats/scales/opacities: the N = V*H*W per-pixel Gaussians (N, 3)/(N, 4)/(N, 3)/(N,); alpha (V, H, W, 1);
+    c2w (V, 4, 4); intr (V, 4). Each pixel whose hull exit is unseen gets one more Gaussian at the exit point,
+    with its own rotation and opacity and its scale grown with the distance (same footprint in pixels). Returns
+    ``means`` (M, 3), ``quats`` (M, 4), ``scales`` (M, 3), ``opacities`` (M,), ``src`` (M,) int64 the source
+    pixel's index in N (whose colour or features the copy takes), ``dirs`` (M, 3) the source pixel's unit ray (a
+    copy's normal is the source normal mirrored across the plane normal to it: ``n - 2 (n . d) d``)."""
+    V, H, W, _ = alpha.shape
+    N = V * H * W
+    assert means.shape == (N, 3), (means.shape, alpha.shape)
+    exit_, unseen = back_surface(alpha, c2w, intr, far, bins, radius)
+    o, d = camera.pixel_rays(c2w.float(), intr.float(), H, W)
+    src = unseen.reshape(-1).nonzero()[:, 0]
+    o, d, t_exit = o.reshape(-1, 3)[src], d.reshape(-1, 3)[src], exit_.reshape(-1)[src]
+    t_front = (means[src] - o).norm(dim=-1).clamp_min(1e-6)
+    grow = (t_exit / t_front).clamp(0.5, 4.0)[:, None]
+    return {"means": o + d * t_exit[:, None], "quats": quats[src], "scales": scales[src] * grow,
+            "opacities": opacities[src], "src": src, "dirs": d}
+
+
+def mirror_normals(n: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+    """Mirror normals (M, 3) across the planes normal to unit directions d (M, 3): ``n - 2 (n . d) d``."""
+    return n - 2.0 * (n * d).sum(-1, keepdim=True) * d
+
+
 def depth_normals(points: torch.Tensor, c2w: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
     """Camera-frame normals (V, H, W, 3) of world points (V, H, W, 3) on a pixel grid (central differences where
     both neighbours are valid, else one-sided; facing the camera; (0, 0, -1) where nothing is valid)."""
@@ -192,5 +259,5 @@ def geometry_cues(rgb: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, int
     return {"distance": dist[..., None], "normal": normal, "agreement": agree * hitf, "hit": hitf, "features": feats}
 
 
-__all__ = ["CUE_CHANNELS", "depth_normals", "geometry_cues", "hull_distance", "occupancy", "photo_agreement",
+__all__ = ["CUE_CHANNELS", "back_gaussians", "back_surface", "mirror_normals", "depth_normals", "geometry_cues", "hull_distance", "occupancy", "photo_agreement",
            "project_rays", "ray_sphere", "sample_image", "sweep_samples"]
