@@ -347,16 +347,18 @@ RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     # frng/model/train.py + variant_config: train.*, the architecture (frng.* but the variant lists), decoder and
     # training shading (not the inference-only spp_infer / bf16_infer: relight takes those from the config),
     # rasterizer, idm.kind (which priors file), the training split, the models' seed, device
-    "train": (*PLAN_KEYS, "train_seed", "device", "train", "frng", "!frng.variants", "!frng.k_sweep",
+    "train": (*PLAN_KEYS, "train_seed", "device", "train", "!train.seeds", "frng", "!frng.variants", "!frng.k_sweep",
               "model.patch_size", "shading", "!shading.spp_infer", "!shading.bf16_infer", "raster", "idm.kind"),
     # a copy of the full model: which K-sweep entry is the full model
     "model_alias": ("frng.top_k_percent",),
-    # frng/relight.py: the runs (frng.*, idm.kind, render.extra_input_views), resolution check, split check,
+    # frng/relight.py: the runs (frng.*, idm.kind, render.extra_input_views, train.seeds), resolution check, split check,
     # build_idm, shading.spp_infer + inference shading, seeds, device
     "relight": (*PLAN_KEYS, "device", "render.resolution", "render.extra_input_views", "idm", "!idm.train",
-                "backbone.near", "backbone.far", "shading", "frng"),
-    # frng/stages/evaluate.py: eval.protocol/background and the planned runs
-    "evaluate": ("eval", "frng", "idm.kind", "render.extra_input_views"),
+                "backbone.near", "backbone.far", "shading", "frng", "train.seeds", "train_seed"),
+    # frng/stages/evaluate.py: eval.protocol/background and the planned runs (frng/variants.py: the variants, the
+    # training seeds, whether the Lambertian-base run exists)
+    "evaluate": ("eval", "frng", "idm.kind", "render.extra_input_views", "train.seeds", "train_seed", "seed",
+                 "shading.decoder_cosine"),
     # frng/report/paper_tables.py: tier and eval.background in the captions
     "tables": ("tier", "eval"),
     # frng/report/paper_figures.py: patch size (saliency), the ablation variants

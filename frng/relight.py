@@ -26,7 +26,8 @@ Runs
 ``full`` (V = 6, K = ``frng.top_k_percent``), the ablations of ``frng.variants`` (``no-fine``, ``no-idm``,
 ``no-ind``, ``no-neural``), the K sweep ``k1``, ``k4``, ``k8`` (``frng.k_sweep``; their own trained models; the
 entry equal to the full model's K is the full run), the #views sweep ``full-v{V}`` (the full model fed V input
-views), and ``backbone``.
+views), ``full-oracle``, the other training seeds ``{variant}@s{seed}`` (``train.seeds``), ``full-base`` (the full
+model's Lambertian base alone: :func:`shade_base`), and ``backbone`` (:func:`frng.variants.runs`).
 
 Timing (``timing/{obj}.json``)
 ------------------------------
@@ -255,7 +256,8 @@ def relight_object(config: Config | dict, oid: str, models: dict[str, Path], bac
                     g = torch.Generator(device=device).manual_seed(
                         catalog.derive_seed(config.seed, "relight-frng", oid, light))
                     with Timer(device) as t_l:
-                        rgba = model.shade(raster, envs[light], spp, generator=g)
+                        rgba = (shade_base(model, raster, envs[light]) if run.decoder == "base"
+                                else model.shade(raster, envs[light], spp, generator=g))
                     shade_ms.append(1000.0 * t_l.s / len(t_names))
                     _write_images(folder, light, t_names, rgba)
             raster_ms = 1000.0 * t_ras.s / len(t_names)
@@ -279,6 +281,23 @@ def relight_object(config: Config | dict, oid: str, models: dict[str, Path], bac
     timing["speedup"] = timing[BACKBONE]["relight_ms_per_image"] / timing["F-RNG"]["relight_ms_per_image"]
     io.write_json(staged_timing(out_root), timing)
     return timing
+
+
+def shade_base(model, raster: tuple, env: torch.Tensor) -> torch.Tensor:
+    """The run ``full-base`` (:data:`frng.variants.BASE_RUN`, the quality ladder's Lambertian row): what
+    :meth:`frng.model.frng.FRNG.shade` renders with the decoder's residual and attenuation dropped, i.e. only its
+    closed-form Lambertian base d E(n) (:func:`frng.render.shading.lambert_sh`, the term ``shade`` adds to the
+    Monte-Carlo residual with ``shading.diffuse: sh``). ``raster``: :meth:`FRNG.rasterize`'s output. Returns RGBA
+    (Vt, H, W, 4), linear, premultiplied over black. Needs the cosine decoder (``shading.decoder_cosine``)."""
+    from frng.render.shading import lambert_sh
+
+    if model.cfg.head != "neural" or not model.decoder.cosine:
+        raise RelightError("the Lambertian-base run needs a neural head with the cosine decoder "
+                           "(shading.decoder_cosine)")
+    maps, alpha, _, _ = raster
+    sh = envmap.sh_project(env.detach().float().cpu()).float()
+    rgb = lambert_sh(maps, alpha, sh, model.shading_cfg.alpha_eps)
+    return torch.cat([rgb.float(), alpha], -1)
 
 
 def _save_full_extras(folder: Path, model, rec, p: dict, oid: str, run: Run) -> None:

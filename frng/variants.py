@@ -7,9 +7,16 @@ Variants (``{results}/models/{variant}/``): ``frng.variants`` (``full`` and the 
 then the K sweep ``k{P}`` (``frng.k_sweep``, P in % of a view's patches). The K-sweep entry equal to
 ``frng.top_k_percent`` is the full model itself (``k2`` with the paper's 2%): it is not trained twice.
 
-Runs (``{results}/relight/{run}/{obj}/``, :func:`runs`): every variant at the 6-view rig, the K sweep, the #views
-sweep ``full-v{V}`` (the full model fed V input views), ``full-oracle`` (the full model fed the test object's
-rendered G-buffers instead of the IDM's priors: how much a perfect IDM would add) and the ``backbone`` baseline.
+Training seeds (``train.seeds``): the plain variant names are trained with the models' seed (``train_seed``, else
+``seed``); every other seed in ``train.seeds`` trains ``full`` and each ablation of ``frng.variants`` once more as
+``{variant}@s{seed}`` (:func:`seed_variant`; ``train_seed`` = that seed, everything else equal). The K sweep and the
+#views sweep are not repeated per seed.
+
+Runs (``{results}/relight/{run}/{obj}/``, :func:`runs`): every variant at the 6-view rig (and its other training
+seeds), the K sweep, the #views sweep ``full-v{V}`` (the full model fed V input views), ``full-oracle`` (the full
+model fed the test object's rendered G-buffers instead of the IDM's priors: how much a perfect IDM would add),
+``full-base`` (the full model's closed-form Lambertian base alone, the decoder's residual and attenuation dropped;
+only with ``shading.decoder_cosine``) and the ``backbone`` baseline.
 """
 
 from __future__ import annotations
@@ -50,6 +57,41 @@ RIG_VIEWS = 6  # the paper's input rig
 SWEEP_VIEWS = (2, 4, 6, 8, 10)  # the #views table
 BACKBONE = "backbone"
 ORACLE_RUN = "full-oracle"  # the full model fed the G-buffers instead of the IDM's priors (quality ladder row f)
+BASE_RUN = "full-base"  # the full model's Lambertian base alone (decoder residual and attenuation dropped)
+SEED_SEP = "@s"  # {variant}@s{seed}: a variant trained with another training seed
+
+
+def seed_variant(name: str, seed: int) -> str:
+    """Name of variant ``name`` trained with training seed ``seed`` (``full``, 1 -> ``full@s1``)."""
+    return f"{name}{SEED_SEP}{int(seed)}"
+
+
+def split_seed(name: str) -> tuple[str, int | None]:
+    """(variant, seed) of a name: ``full@s1`` -> ("full", 1), ``full`` -> ("full", None) (the models' seed)."""
+    base, sep, seed = name.partition(SEED_SEP)
+    if not sep:
+        return name, None
+    if not seed.isdigit():
+        raise ValueError(f"variant {name!r}: the training seed after {SEED_SEP!r} must be a non-negative integer")
+    return base, int(seed)
+
+
+def model_seed(config: Config | dict) -> int:
+    """The models' seed (``train_seed``, else ``seed``), as :attr:`frng.config.Config.model_seed`, from the dict."""
+    c = as_dict(config)
+    return int(c["seed"] if c.get("train_seed") is None else c["train_seed"])
+
+
+def extra_seeds(config: Config | dict) -> list[int]:
+    """The seeds of ``train.seeds`` other than the models' seed (each adds ``{variant}@s{seed}`` models)."""
+    own = model_seed(config)
+    return [int(s) for s in dict.fromkeys(as_dict(config)["train"].get("seeds", [])) if int(s) != own]
+
+
+def seeded_variants(config: Config | dict) -> list[str]:
+    """``{variant}@s{seed}`` for ``full`` and every ablation of ``frng.variants``, per :func:`extra_seeds`."""
+    f = as_dict(config)["frng"]
+    return [seed_variant(v, s) for s in extra_seeds(config) for v in dict.fromkeys(["full", *f["variants"]])]
 
 
 def k_variant(percent: float) -> str:
@@ -58,16 +100,19 @@ def k_variant(percent: float) -> str:
 
 
 def all_variants(config: Config | dict) -> list[str]:
-    """Every variant the config asks for: ``frng.variants`` then the K sweep (``frng.k_sweep``, percent)."""
+    """Every variant the config asks for: ``frng.variants``, the K sweep (``frng.k_sweep``, percent), then the other
+    training seeds (:func:`seeded_variants`)."""
     f = as_dict(config)["frng"]
     out = list(f["variants"])
     out += [k_variant(p) for p in f["k_sweep"] if k_variant(p) not in out]
+    out += [v for v in seeded_variants(config) if v not in out]
     return out
 
 
 def k_percent(name: str) -> float | None:
     """K in percent of a K-sweep variant name (``k2`` -> 2.0), None for other names; ValueError for a ``k`` name
-    whose K is not a number in (0, 100]."""
+    whose K is not a number in (0, 100]. A training-seed suffix (``k2@s1``) is ignored."""
+    name = split_seed(name)[0]
     if name in VARIANTS or not name.startswith("k"):
         return None
     try:
@@ -80,7 +125,9 @@ def k_percent(name: str) -> float | None:
 
 
 def variant(name: str) -> Variant:
-    """The table entry of ``name`` (a K-sweep name ``k{P}`` is the full model with K = P %: arch top_k)."""
+    """The table entry of ``name`` (a K-sweep name ``k{P}`` is the full model with K = P %: arch top_k; a
+    training-seed suffix ``@s{seed}`` does not change it)."""
+    name = split_seed(name)[0]
     if name in VARIANTS:
         return VARIANTS[name]
     pct = k_percent(name)
@@ -96,10 +143,12 @@ def reads_priors(name: str) -> bool:
 
 def canonical_variant(config: Config | dict, name: str) -> str:
     """The variant whose training produces ``name``'s model: the K-sweep entry equal to the full model's K is the
-    full model itself (``k2`` -> ``full`` with the paper's K = 2%), so it is not trained twice."""
-    pct = k_percent(name)
+    full model itself (``k2`` -> ``full`` with the paper's K = 2%), so it is not trained twice. A training-seed
+    suffix is kept (``k2@s1`` -> ``full@s1``)."""
+    base, seed = split_seed(name)
+    pct = k_percent(base)
     if pct is not None and pct == float(as_dict(config)["frng"]["top_k_percent"]):
-        return "full"
+        return "full" if seed is None else seed_variant("full", seed)
     return name
 
 
@@ -125,13 +174,16 @@ class Run:
     views: int  # input views fed to the reconstruction
     k_percent: float  # K of the model (NaN for the backbone)
     priors: str = "idm"  # "idm" (the configured IDM) or "oracle" (the rendered G-buffers: the quality ladder's (f))
+    seed: int | None = None  # training seed of the model (None: the models' seed, train_seed else seed)
+    decoder: str = "full"  # "full", or "base": the cosine decoder's Lambertian base alone (residual dropped)
 
 
 def runs(config: Config | dict, n_input_views: int | None = None) -> list[Run]:
     """All runs of one test object (``n_input_views`` None: the views the config gives every test object).
 
     ``frng.variants`` at 6 views, the K sweep ``frng.k_sweep`` (the entry equal to ``frng.top_k_percent`` is the
-    full run itself), the #views sweep ``full-v{V}``, and the backbone."""
+    full run itself), the #views sweep ``full-v{V}``, the oracle-prior run, the other training seeds of ``full``
+    and the ablations (:func:`seeded_variants`), the Lambertian-base run and the backbone."""
     config = as_dict(config)
     if n_input_views is None:
         n_input_views = RIG_VIEWS + int(config["render"].get("extra_input_views", 0))
@@ -146,6 +198,10 @@ def runs(config: Config | dict, n_input_views: int | None = None) -> list[Run]:
             for V in view_counts("test", n_input_views) if V != RIG_VIEWS]
     if config["idm"]["kind"] != "oracle" and int(config["frng"].get("prior_dim", 1)) > 0:
         out.append(Run(ORACLE_RUN, "F-RNG", "full", RIG_VIEWS, k_full, priors="oracle"))
+    for name in seeded_variants(config):
+        out.append(Run(name, "F-RNG", name, RIG_VIEWS, k_full, seed=split_seed(name)[1]))
+    if config.get("shading", {}).get("decoder_cosine", False):
+        out.append(Run(BASE_RUN, "F-RNG", "full", RIG_VIEWS, k_full, decoder="base"))
     out.append(Run(BACKBONE, "backbone", BACKBONE, RIG_VIEWS, float("nan")))
     return out
 

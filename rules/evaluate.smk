@@ -3,9 +3,10 @@
 # Tables and figures are wrapped in report(...) for `snakemake --report` (captions in workflow/report/).
 from frng.report.tables import TABLE_COLUMNS
 
-TABLE_NAMES = list(TABLE_COLUMNS)  # the paper's five tables (frng/report/tables.py)
+TABLE_NAMES = list(TABLE_COLUMNS)  # the paper's five tables + the ladder and its per-class part (frng/report/tables.py)
 _TABLE_CAPTIONS = {"vs_backbone": "F-RNG vs backbone", "ablation": "ablation", "views": "number of input views",
-                   "k": "top-K patches", "timing": "timing", "ladder": "quality ladder"}
+                   "k": "top-K patches", "timing": "timing", "ladder": "quality ladder",
+                   "lambertian": "Lambertian base per material class"}
 
 
 rule evaluate:
@@ -19,6 +20,7 @@ rule evaluate:
     output:
         per_image=L.metrics("relight_per_image"),
         summary=L.metrics("relight_summary"),
+        cross=L.metrics("relight_cross_light"),
     params:
         config_digest=frng_config.rule_digest(config, "evaluate"),
         py=PY,
@@ -42,6 +44,7 @@ rule tables:
         "The paper's tables: {names}".format(names=", ".join(TABLE_NAMES))
     input:
         per_image=rules.evaluate.output.per_image,
+        cross=rules.evaluate.output.cross,
         timing=expand(rules.relight.output.timing, obj=TEST_IDS),
         prior=rules.eval_backbone.output.backbone,
     output:
@@ -66,7 +69,7 @@ rule tables:
         runtime=10,
     shell:
         "{params.py} -m frng tables --config {params.config} --metrics {input.per_image} --timing {input.timing} "
-        "--prior-metrics {input.prior} --out {params.out} > {log} 2>&1"
+        "--prior-metrics {input.prior} --cross-light {input.cross} --out {params.out} > {log} 2>&1"
 
 
 rule figures:

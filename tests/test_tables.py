@@ -1,5 +1,6 @@
 """frng.report.tables: best-value marking direction, Markdown shape, LaTeX booktabs structure, per-table helpers."""
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -69,3 +70,68 @@ def test_vs_backbone_and_timing(tmp_path):
     assert t["speedup"].tolist() == pytest.approx([6826.0 / 246.0, 1.0])
     md, _ = T.render(t)
     assert "**27.7**" in md and "| 64 |" in md
+
+
+def test_intervals_render_as_one_cell(tmp_path):
+    df = pd.DataFrame({"variant": ["full", "w/o fine"], "psnr": [18.72, 18.38],
+                       "dpsnr": [float("nan"), -0.3412], "dpsnr_lo": [float("nan"), -0.5801],
+                       "dpsnr_hi": [float("nan"), -0.2549], "dlpips": [float("nan"), 0.00234],
+                       "dlpips_lo": [float("nan"), 0.0011], "dlpips_hi": [float("nan"), 0.0036],
+                       "better": [float("nan"), 0.0], "objects": [float("nan"), 16.0]})
+    out = T.write_table(df, tmp_path / "t")
+    md, tex = out["md"].read_text(), out["tex"].read_text()
+    assert "| w/o fine | 18.38 | -0.34 [-0.58, -0.25] | +0.0023 [0.0011, 0.0036] | 0/16 |" in md
+    assert "ΔPSNR [95% CI]" in md and "_lo" not in md and "objects" not in md.split("\n")[0].replace(
+        "objects higher PSNR", "")
+    assert "$\\Delta$PSNR [95\\% CI]" in tex and "-0.34 [-0.58, -0.25]" in tex and "0/16" in tex
+    assert tex.count("\\begin{tabular}{lcccc}") == 1  # variant, psnr, dpsnr, dlpips, better
+    csv = pd.read_csv(out["csv"])
+    assert list(csv.columns) == list(df.columns) and csv["dpsnr_lo"].iloc[1] == -0.5801  # unrounded
+
+
+def _per_image(run, variant, shift, seed_shift=0.0, objects=("o0", "o1", "o2"), dataset="diffuse"):
+    return [dict(dataset=dataset, object=o, run=run, method="backbone" if run == "backbone" else "F-RNG",
+                 variant=variant, views=6, k=8.0, light=l, view="v0", protocol="aligned",
+                 psnr=17.0 + shift + seed_shift + 0.5 * j + 0.25 * i, ssim=0.5 + 0.01 * shift, lpips=0.1 - 0.01 * shift)
+            for j, o in enumerate(objects) for i, l in enumerate(("l0", "l1"))]
+
+
+def test_vs_backbone_and_ablation_average_seeds_and_report_intervals():
+    from frng.report.paper_tables import ablation_table, vs_backbone_table
+
+    rows = (_per_image("backbone", "backbone", 0.0) + _per_image("full", "full", 1.0)
+            + _per_image("full@s1", "full@s1", 1.0, seed_shift=0.2)
+            + _per_image("no-fine", "no-fine", 0.7) + _per_image("no-fine@s1", "no-fine@s1", 0.7, seed_shift=-0.2))
+    df = pd.DataFrame(rows)
+    timing = [{"F-RNG": {"relight_ms_per_image": 20.0}, "backbone": {"relight_ms_per_image": 40.0}}]
+    vs, footer = vs_backbone_table(df, timing)
+    assert list(vs["dataset"]) == ["diffuse", "diffuse", "all", "all"]
+    assert list(vs["method"]) == ["F-RNG (ours)", "backbone (RelitLRM-style)"] * 2
+    f = vs.iloc[0]
+    # F-RNG = mean of seeds 0 (+1.0) and 1 (+1.2) -> +1.1 over the backbone on every image
+    assert np.isclose(f["psnr"] - vs.iloc[1]["psnr"], 1.1) and np.isclose(f["dpsnr"], 1.1)
+    assert np.isclose(f["dpsnr_lo"], 1.1) and np.isclose(f["dpsnr_hi"], 1.1) and f["better"] == 3
+    assert f["seeds"] == 2 and np.isclose(f["seed_spread_psnr"], 0.2) and np.isclose(f["seed_spread_dpsnr"], 0.2)
+    assert pd.isna(vs.iloc[1]["dpsnr"]) and len(footer) == 2
+    ab = ablation_table(df).set_index("variant")
+    nf = ab.loc["w/o fine-grained Gaussians"]
+    # no-fine seeds: +0.7, +0.5 -> 0.6; full: 1.1 -> -0.5; per seed: -0.3 (s0), -0.7 (s1) -> spread 0.4
+    assert np.isclose(nf["dpsnr"], -0.5) and np.isclose(nf["seed_spread_dpsnr"], 0.4) and nf["better"] == 0
+    assert np.isclose(ab.loc["full model", "seed_spread_psnr"], 0.2) and pd.isna(ab.loc["full model", "dpsnr"])
+    assert list(ab.index) == ["full model", "w/o fine-grained Gaussians"]
+
+
+def test_sweep_tables_compare_with_the_reference_row():
+    from frng.report.paper_tables import k_table, views_table
+
+    rows = _per_image("full", "full", 1.0) + _per_image("full@s1", "full@s1", 5.0)
+    rows += [dict(r, run="full-v4", views=4) for r in _per_image("full-v4", "full", -2.0)]
+    rows += [dict(r, k=2.0) for r in _per_image("k2", "k2", 0.5)]
+    rows += _per_image("full-base", "full", -3.0)  # the Lambertian-base run is in no sweep
+    df = pd.DataFrame(rows)
+    v = views_table(df).set_index("views")
+    assert list(v.index) == [4, 6] and np.isclose(v.loc[4, "dpsnr"], -3.0) and pd.isna(v.loc[6, "dpsnr"])
+    assert np.isclose(v.loc[6, "psnr"], 18.0 + 0.5 + 0.125)  # the models' own seed only
+    k = k_table(df).set_index("k_percent")
+    assert list(k.index) == [2.0, 8.0] and np.isclose(k.loc[2.0, "dpsnr"], -0.5) and pd.isna(k.loc[8.0, "dpsnr"])
+    assert np.isclose(k.loc[2.0, "dpsnr_lo"], -0.5) and np.isclose(k.loc[2.0, "dlpips"], 0.005)

@@ -43,3 +43,60 @@ def test_labels_and_priors_come_from_the_table():
     assert VARIANT_LABELS == {n: v.label for n, v in V.VARIANTS.items()}
     assert [n for n in V.BASE_VARIANTS if not V.reads_priors(n)] == ["no-idm"]
     assert V.reads_priors("k4")
+
+
+def _cfg(**train):
+    config = frng_config.load(ROOT / "config" / "smoke.yaml")
+    config["train"].update(train)
+    return config
+
+
+def test_training_seeds_add_seeded_variants_and_runs():
+    config = _cfg(seeds=[0, 1, 3])
+    assert V.model_seed(config) == 0 and V.extra_seeds(config) == [1, 3]
+    seeded = V.seeded_variants(config)
+    assert seeded == [V.seed_variant(v, s) for s in (1, 3) for v in dict.fromkeys(["full", *config["frng"]["variants"]])]
+    assert "full@s1" in V.trained_variants(config) and "no-fine@s3" in V.all_variants(config)
+    assert not any("@" in v for v in V.all_variants(config) if v.startswith("k"))  # the K sweep is not repeated
+    assert V.split_seed("no-fine@s3") == ("no-fine", 3) and V.split_seed("full") == ("full", None)
+    assert V.canonical_variant(config, "k" + format(config["frng"]["top_k_percent"], "g") + "@s1") == "full@s1"
+    assert V.variant("no-idm@s1") == V.VARIANTS["no-idm"] and not V.reads_priors("no-idm@s1")
+    runs = {r.name: r for r in V.runs(config)}
+    assert runs["no-ind@s3"].seed == 3 and runs["no-ind@s3"].variant == "no-ind@s3" and runs["full"].seed is None
+    assert not any(r.startswith("full-v") and "@" in r for r in runs)
+    with pytest.raises(ValueError, match="training seed"):
+        V.split_seed("full@sx")
+    # the models' seed is the plain name: train_seed 1 with seeds [0, 1] adds @s0
+    assert V.extra_seeds(_cfg(seeds=[0, 1]) | {"train_seed": 1}) == [0]
+    assert V.seeded_variants(_cfg(seeds=[0])) == []
+
+
+def test_lambertian_base_run_needs_the_cosine_decoder():
+    config = _cfg()
+    base = [r for r in V.runs(config) if r.name == V.BASE_RUN]
+    assert len(base) == 1 and base[0].decoder == "base" and base[0].variant == "full" and base[0].priors == "idm"
+    config["shading"]["decoder_cosine"] = False
+    assert V.BASE_RUN not in [r.name for r in V.runs(config)]
+
+
+def test_tier_seeds():
+    default = frng_config.load(ROOT / "config" / "config.yaml")
+    assert default["train"]["seeds"] == [0, 1] and V.extra_seeds(default) == [1]
+    for tier in ("smoke.yaml", "paper.yaml"):
+        assert V.extra_seeds(frng_config.load(ROOT / "config" / tier)) == [], tier
+
+
+def test_train_stage_trains_a_seeded_variant_with_its_seed(monkeypatch, tmp_path):
+    import argparse
+
+    from frng.stages import train as stage
+
+    seen = {}
+    monkeypatch.setattr(stage, "train", lambda config, variant, out, backbone, steps=None: seen.update(
+        variant=variant, seed=config.model_seed, out=out) or out / "model.pt")
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(yaml.safe_dump(_cfg(seeds=[0, 2]) | {"results": str(tmp_path)}))
+    args = argparse.Namespace(config=str(cfg), variant="no-fine@s2", out=None, backbone=None, steps=None,
+                              list_variants=False)
+    assert stage.run(args) == 0
+    assert seen["variant"] == "no-fine" and seen["seed"] == 2 and seen["out"].name == "no-fine@s2"

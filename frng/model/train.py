@@ -74,6 +74,7 @@ class TrainConfig:
 
     steps: int
     ablation_steps: int | None
+    seeds: tuple[int, ...]  # the training seeds of full + ablations; read while planning (frng.variants.extra_seeds)
     lr: float
     warmup: int
     weight_decay: float
@@ -92,6 +93,7 @@ class TrainConfig:
 
     def __post_init__(self):
         object.__setattr__(self, "background", tuple(float(c) for c in self.background))
+        object.__setattr__(self, "seeds", tuple(int(c) for c in self.seeds))
 
     @classmethod
     def from_config(cls, config: Config | dict) -> "TrainConfig":

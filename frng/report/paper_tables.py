@@ -1,29 +1,41 @@
-"""The paper's five tables from the per-image metrics and the relighting timings (stage :mod:`frng.stages.tables`,
-``frng tables``).
+"""The paper's five tables, the quality ladder and its per-class Lambertian part, from the per-image metrics and the
+relighting timings (stage :mod:`frng.stages.tables`, ``frng tables``).
 
-Inputs: ``{results}/metrics/relight_per_image.csv`` (``frng evaluate``) and ``{results}/relight/timing/{obj}.json``
+Inputs: ``{results}/metrics/relight_per_image.csv`` and ``relight_cross_light.csv`` (``frng evaluate``),
+``{results}/metrics/backbone.csv`` (``frng eval-backbone``) and ``{results}/relight/timing/{obj}.json``
 (``frng relight``). Outputs, each as ``.csv`` + ``.md`` + ``.tex`` (:func:`frng.report.tables.write_table`, best
 value marked, the metric protocol and the tier named in the caption), in ``{results}/tables/``:
 
 ================ =================================================== =====================================
-table            rows                                                columns
+table            rows                                                reference row of the differences
 ================ =================================================== =====================================
-``vs_backbone``  per dataset (material class, then ``all``): F-RNG   dataset, method, psnr, ssim, lpips
-                 (run ``full``) vs the backbone; footer: relighting  (+ relight_ms_per_image in the footer)
+``vs_backbone``  per dataset (material class, then ``all``): F-RNG   the backbone, same dataset
+                 (run ``full``) vs the backbone; footer: relighting
                  time per image
-``ablation``     full, w/o fine-grained Gaussians, w/o IDM priors,   variant, psnr, ssim, lpips
+``ablation``     full, w/o fine-grained Gaussians, w/o IDM priors,   the full model
                  w/o light-independence, w/o neural appearance
-``views``        the full model fed 2, 4, 6, 8, 10 input views       views, psnr, ssim, lpips
-``k``            K = 1, 2 (full), 4, 8 %                             k_percent, psnr, ssim, lpips
-``timing``       F-RNG and the backbone, mean over test objects      method, reconstruction_s,
-                                                                     relight_ms_per_image, resolution, spp,
-                                                                     speedup (vs the backbone)
-``ladder``       the quality ladder (:data:`LADDER_STEPS`): oracle   step, what, n, psnr, ssim, lpips,
-                 references, backbone, F-RNG, F-RNG + oracle priors  scale_log2
-                 (also reads ``{results}/metrics/backbone.csv``)
+``views``        the full model fed 2, 4, 6, 8, 10 input views       6 views (the rig)
+``k``            K = 1, 2, 4, 8 %                                    the full model's K
+``timing``       F-RNG and the backbone, mean over test objects      (speedup vs the backbone)
+``ladder``       the quality ladder (:data:`LADDER_STEPS`): oracle   ``vs`` column: e vs d, f and g vs e;
+                 references, backbone, F-RNG, F-RNG + oracle priors, rows ``s*``: the same method scored
+                 F-RNG's Lambertian base alone, and the light-        against the right light
+                 sensitivity rows ``s*`` (:func:`sensitivity_rows`)
+``lambertian``   per dataset: F-RNG and its Lambertian base alone    F-RNG, same dataset
+                 (run ``full-base``)
 ================ =================================================== =====================================
 
-Metric values are means of per-image values (PSNR averaged in dB) over all test objects, lights and views.
+Metric columns (psnr, ssim, lpips) are means of per-image values (PSNR averaged in dB) over all test objects,
+lights and views. Every row compared with a reference row also carries the paired difference (row minus reference,
+over the same images) with its 95% bootstrap interval over test objects (:func:`frng.report.stats.paired_bootstrap`,
+2000 resamples, seed 0) as ``d{metric}``, ``d{metric}_lo``, ``d{metric}_hi``, and ``better`` / ``objects``
+(objects where the row's mean PSNR is higher / all objects).
+
+Training seeds (``train.seeds``, :mod:`frng.variants`): ``vs_backbone`` and ``ablation`` average each image over
+the seeds of every trained row (``full``, ``full@s1``, ...) before anything else, and add ``seeds``,
+``seed_spread_psnr`` (max - min over seeds of the row's mean PSNR) and ``seed_spread_dpsnr`` (max - min over seeds
+of the row's mean PSNR difference to its reference, seed by seed where the reference has that seed). ``views``,
+``k``, ``ladder`` and ``lambertian`` use the models' own seed (the plain run names) only.
 """
 
 from __future__ import annotations
@@ -36,32 +48,113 @@ import pandas as pd
 from frng import io
 from frng import metrics as M
 from frng.config import Config, typed
+from frng.report import stats as S
 from frng.report import tables as T
-from frng.variants import BACKBONE, BASE_VARIANTS, ORACLE_RUN, RIG_VIEWS, VARIANTS
+from frng.variants import BACKBONE, BASE_RUN, BASE_VARIANTS, ORACLE_RUN, RIG_VIEWS, SEED_SEP, VARIANTS, split_seed
 
 TABLES = tuple(T.TABLE_COLUMNS)
 VARIANT_LABELS = {name: v.label for name, v in VARIANTS.items()}
 METHOD_LABELS = {"F-RNG": "F-RNG (ours)", BACKBONE: "backbone (RelitLRM-style)"}
+BASE_LABEL = "Lambertian base only"
+GROUND_TRUTH = "ground-truth"  # frng.stages.evaluate.GROUND_TRUTH (the stage imports this module's callers)
+IMAGE_KEYS = ("object", "light", "view")
+DIFF_NOTE = ("Δ = the row minus its reference row over the same images, with a 95% paired bootstrap interval over "
+             "test objects (2000 resamples); 'objects higher PSNR' counts objects whose mean PSNR is above the "
+             "reference's.")
 
 
 def _caption(title: str, config: Config, df: pd.DataFrame) -> str:
     n_obj = df["object"].nunique()
     return (f"{title} Tier {config.tier}: {n_obj} test object(s), {len(df)} images; "
             f"{df['protocol'].iloc[0]} metric protocol (see frng/metrics.py), background "
-            f"{list(config.eval.background)}; mean over test objects, lights and views.")
+            f"{list(config.eval.background)}; mean over test objects, lights and views. {DIFF_NOTE}")
 
 
 def _metrics(df: pd.DataFrame, by: list[str]) -> pd.DataFrame:
     return M.aggregate(df, by)
 
 
-def _idm_runs(df: pd.DataFrame) -> pd.DataFrame:
-    """Rows of runs fed the configured IDM's priors (drops the ladder's oracle-prior run)."""
-    return df[df["run"] != ORACLE_RUN]
+# -- runs, seeds -------------------------------------------------------------------------------------------
 
+def base_run(run: str) -> str:
+    """The run a training-seed run repeats (``full@s1`` -> ``full``; others unchanged)."""
+    return split_seed(str(run))[0] if SEED_SEP in str(run) else str(run)
+
+
+def _plain(df: pd.DataFrame) -> pd.DataFrame:
+    """Rows of the runs trained with the models' own seed (no ``@s{seed}`` runs)."""
+    return df[~df["run"].astype(str).str.contains(SEED_SEP, regex=False)]
+
+
+def _idm_runs(df: pd.DataFrame) -> pd.DataFrame:
+    """Rows of the paper's runs: the configured IDM's priors, the full decoder, the models' own seed (drops the
+    ladder's oracle-prior and Lambertian-base runs and the other training seeds)."""
+    df = _plain(df)
+    return df[~df["run"].isin([ORACLE_RUN, BASE_RUN])]
+
+
+def seed_runs(df: pd.DataFrame, run: str) -> dict[str, pd.DataFrame]:
+    """{run name: its per-image rows} of ``run`` and its training-seed repeats (``run@s{seed}``)."""
+    runs = df["run"].astype(str)
+    return {r: df[runs == r] for r in dict.fromkeys(runs[runs.map(base_run) == run])}
+
+
+def seed_mean(df: pd.DataFrame, run: str) -> pd.DataFrame:
+    """Per-image rows of ``run`` averaged over its training seeds (one row per object, light and view; metric
+    columns and the scale/brightness columns averaged; ``run`` = the plain name)."""
+    parts = seed_runs(df, run)
+    if not parts:
+        return df.iloc[:0]
+    sub = pd.concat(parts.values(), ignore_index=True)
+    num = [c for c in sub.columns if c in M.METRICS or c.startswith(("scale_", "brightness_"))]
+    first = sub.drop_duplicates(list(IMAGE_KEYS)).set_index(list(IMAGE_KEYS)).drop(columns=num)
+    mean = sub.groupby(list(IMAGE_KEYS), sort=False)[num].mean()
+    out = first.join(mean).reset_index()
+    out["run"] = run
+    if "variant" in out:
+        out["variant"] = out["variant"].astype(str).map(lambda v: split_seed(v)[0])
+    return out[[c for c in df.columns if c in out.columns]]
+
+
+def diff_to(rows: pd.DataFrame, ref: pd.DataFrame) -> dict:
+    """The paired-difference columns (:func:`frng.report.tables.diff_columns`) of ``rows`` minus ``ref``, matched
+    on object, light and view (:func:`frng.report.stats.paired`)."""
+    out = {}
+    for m in T.DIFF_METRICS:
+        r = S.paired(rows, ref, m, IMAGE_KEYS)
+        out |= {f"d{m}": r.diff, f"d{m}_lo": r.lo, f"d{m}_hi": r.hi}
+        if m == "psnr":
+            out |= {"better": r.better, "objects": r.objects}
+    return out
+
+
+def seed_columns(df: pd.DataFrame, run: str, ref_run: str | None, select=lambda d: d) -> dict:
+    """``seeds``, ``seed_spread_psnr``, ``seed_spread_dpsnr`` of ``run`` (see the module docstring); ``select``
+    narrows each seed's rows (e.g. to one dataset)."""
+    parts = {r: select(d) for r, d in seed_runs(df, run).items()}
+    parts = {r: d for r, d in parts.items() if len(d)}
+    if not parts:
+        return {"seeds": np.nan, "seed_spread_psnr": np.nan, "seed_spread_dpsnr": np.nan}
+    means = [d["psnr"].mean() for d in parts.values()]
+    out = {"seeds": len(parts), "seed_spread_psnr": float(np.ptp(means)) if len(parts) > 1 else np.nan,
+           "seed_spread_dpsnr": np.nan}
+    if ref_run is not None and len(parts) > 1:
+        refs = {r: select(d) for r, d in seed_runs(df, ref_run).items()}
+        diffs = []
+        for r, d in parts.items():
+            _, seed = split_seed(r) if SEED_SEP in r else (r, None)
+            ref = refs.get(ref_run if seed is None else f"{ref_run}{SEED_SEP}{seed}", refs.get(ref_run))
+            if ref is not None and len(ref):
+                diffs.append(S.paired(d, ref, "psnr", IMAGE_KEYS).diff)
+        if len(diffs) > 1:
+            out["seed_spread_dpsnr"] = float(np.ptp(diffs))
+    return out
+
+
+# -- row selections ----------------------------------------------------------------------------------------
 
 def ablation_rows(df: pd.DataFrame) -> pd.DataFrame:
-    """Per-image rows of the ablation runs (6 views, one of :data:`BASE_VARIANTS`)."""
+    """Per-image rows of the ablation runs (6 views, one of :data:`BASE_VARIANTS`, the models' own seed)."""
     df = _idm_runs(df)
     return df[(df["views"] == RIG_VIEWS) & df["variant"].isin(BASE_VARIANTS)]
 
@@ -79,64 +172,168 @@ def views_rows(df: pd.DataFrame) -> pd.DataFrame:
     return df[df["variant"] == "full"]
 
 
+# -- tables --------------------------------------------------------------------------------------------------
+
 def vs_backbone_table(df: pd.DataFrame, timings: list[dict]) -> tuple[pd.DataFrame, pd.DataFrame]:
-    sub = df[df["run"].isin(["full", BACKBONE])].copy()
-    sub["method"] = sub["method"].map(METHOD_LABELS)
-    per = _metrics(sub, ["dataset", "method"])
-    per = per.sort_values(["dataset", "method"], kind="stable")
-    allrows = _metrics(sub.assign(dataset="all"), ["dataset", "method"])
-    rows = pd.concat([per, allrows], ignore_index=True)
+    """Per dataset (then ``all``): F-RNG (``full``, averaged over its training seeds) and the backbone, with F-RNG's
+    paired difference to the backbone and the seed columns."""
+    frng, bb = seed_mean(df, "full"), seed_mean(df, BACKBONE)
+    rows = []
+    datasets = sorted(set(frng["dataset"]) | set(bb["dataset"])) + ["all"]
+    for ds in datasets:
+        pick = (lambda d: d) if ds == "all" else (lambda d, ds=ds: d[d["dataset"] == ds])
+        for method, sub in (("F-RNG", pick(frng)), (BACKBONE, pick(bb))):
+            if not len(sub):
+                continue
+            row = {"dataset": ds, "method": METHOD_LABELS[method], "n": len(sub), "psnr": sub["psnr"].mean(),
+                   "ssim": sub["ssim"].mean(), "lpips": sub["lpips"].mean()}
+            if method == "F-RNG":
+                row |= diff_to(sub, pick(bb)) | seed_columns(df, "full", BACKBONE, pick)
+            rows.append(row)
+    out = pd.DataFrame(rows)
     ms = {METHOD_LABELS[m]: float(np.mean([t[m]["relight_ms_per_image"] for t in timings]))
           for m in ("F-RNG", BACKBONE)}
-    return T.vs_backbone(rows, ms)
+    main, footer = T.vs_backbone(out, ms)
+    extra = [c for c in ["n", *T.diff_columns(), *T.SEED_COLUMNS] if c in out.columns]
+    return pd.concat([main, out[extra]], axis=1), footer
 
 
 def ablation_table(df: pd.DataFrame) -> pd.DataFrame:
-    out = _metrics(ablation_rows(df), ["variant"])
-    order = {v: i for i, v in enumerate(BASE_VARIANTS)}
-    out = out.sort_values("variant", key=lambda s: s.map(order))
-    out["variant"] = out["variant"].map(VARIANT_LABELS)
-    return out[list(T.TABLE_COLUMNS["ablation"])].reset_index(drop=True)
+    """Each variant of :data:`BASE_VARIANTS` averaged over its training seeds; differences to the full model."""
+    present = [v for v in BASE_VARIANTS if len(ablation_rows(df)[lambda d: d["variant"] == v])]
+    full = seed_mean(df, "full")
+    rows = []
+    for v in present:
+        sub = seed_mean(df, v)
+        sub = sub[sub["views"] == RIG_VIEWS]
+        row = {"variant": VARIANT_LABELS[v], "n": len(sub), "psnr": sub["psnr"].mean(), "ssim": sub["ssim"].mean(),
+               "lpips": sub["lpips"].mean()}
+        if v != "full":
+            row |= diff_to(sub, full)
+        row |= seed_columns(df, v, None if v == "full" else "full")
+        rows.append(row)
+    return _ordered(pd.DataFrame(rows), "ablation")
+
+
+def _ordered(out: pd.DataFrame, table: str) -> pd.DataFrame:
+    """The table's own columns first, then n, the difference and the seed columns present."""
+    main = list(T.TABLE_COLUMNS[table])
+    rest = [c for c in ["n", *T.diff_columns(), *T.SEED_COLUMNS] if c in out.columns and c not in main]
+    return out.reindex(columns=main + rest).reset_index(drop=True)
+
+
+def _sweep_table(rows: pd.DataFrame, key: str, ref_value, table: str, rename: str | None = None) -> pd.DataFrame:
+    ref = rows[rows[key] == ref_value]
+    out = []
+    for value, sub in sorted(rows.groupby(key), key=lambda kv: kv[0]):
+        row = {rename or key: value, "n": len(sub), "psnr": sub["psnr"].mean(), "ssim": sub["ssim"].mean(),
+               "lpips": sub["lpips"].mean()}
+        if value != ref_value and len(ref):
+            row |= diff_to(sub, ref)
+        out.append(row)
+    return _ordered(pd.DataFrame(out), table)
 
 
 def views_table(df: pd.DataFrame) -> pd.DataFrame:
-    out = _metrics(views_rows(df), ["views"]).sort_values("views")
-    return out[list(T.TABLE_COLUMNS["views"])].reset_index(drop=True)
+    """Per input-view count; differences to the rig's 6 views."""
+    return _sweep_table(views_rows(df), "views", RIG_VIEWS, "views")
 
 
 def k_table(df: pd.DataFrame) -> pd.DataFrame:
-    out = _metrics(k_rows(df), ["k"]).rename(columns={"k": "k_percent"}).sort_values("k_percent")
-    return out[list(T.TABLE_COLUMNS["k"])].reset_index(drop=True)
+    """Per K; differences to the full model's K (the ``full`` run's)."""
+    rows = k_rows(df)
+    full_k = rows.loc[rows["run"] == "full", "k"]
+    ref = float(full_k.iloc[0]) if len(full_k) else np.nan
+    return _sweep_table(rows, "k", ref, "k", rename="k_percent")
 
 
-LADDER_STEPS = (  # (step, what, source, task/run, method); source "prior" = backbone.csv, "relight" = per-image
-    ("a", "ground-truth depth + oracle colour (representation ceiling)", "prior", "relight", "gt-depth+oracle-colour"),
-    ("b", "backbone geometry + oracle colour", "prior", "relight", "backbone-geometry+oracle-colour"),
-    ("c", "backbone novel views (input light, held-out views)", "prior", "nvs", "backbone"),
-    ("d", "backbone relighting", "relight", BACKBONE, None),
-    ("e", "F-RNG relighting", "relight", "full", None),
-    ("f", "F-RNG relighting with oracle (G-buffer) IDM priors", "relight", ORACLE_RUN, None),
-    ("-", "trivial baseline: mean training image", "prior", "relight", "mean-image"),
+LADDER_STEPS = (  # (step, what, source, task/run, method, reference step); source "prior" = backbone.csv
+    ("a", "ground-truth depth + oracle colour (representation ceiling)", "prior", "relight", "gt-depth+oracle-colour",
+     None),
+    ("b", "backbone geometry + oracle colour", "prior", "relight", "backbone-geometry+oracle-colour", None),
+    ("c", "backbone novel views (input light, held-out views)", "prior", "nvs", "backbone", None),
+    ("d", "backbone relighting", "relight", BACKBONE, None, None),
+    ("e", "F-RNG relighting", "relight", "full", None, "d"),
+    ("f", "F-RNG relighting with oracle (G-buffer) IDM priors", "relight", ORACLE_RUN, None, "e"),
+    ("g", "F-RNG's Lambertian base alone (decoder residual and attenuation dropped)", "relight", BASE_RUN, None, "e"),
+    ("-", "trivial baseline: mean training image", "prior", "relight", "mean-image", None),
+)
+SENSITIVITY_STEPS = (  # (step, method label, run in the per-image / cross-light CSVs)
+    ("s1", "backbone", BACKBONE),
+    ("s2", "F-RNG", "full"),
+    ("s3", "ground truth", GROUND_TRUTH),
 )
 
 
-def ladder_table(df: pd.DataFrame, prior: pd.DataFrame) -> pd.DataFrame:
+def sensitivity_rows(df: pd.DataFrame, cross: pd.DataFrame | None) -> list[dict]:
+    """Light sensitivity per method (:data:`SENSITIVITY_STEPS`): psnr/ssim/lpips of the method's render for one
+    test light scored against the ground truth of another test light (same object and view; ``cross``:
+    ``relight_cross_light.csv``), and the paired difference right light minus wrong light with its interval
+    (``d*``; ``better``: objects that score higher against the right light). The ground truth's right-light score
+    is the ground truth against itself (its ``scored_against == light`` rows)."""
+    if cross is None or not len(cross):
+        return []
+    rows = []
+    for step, label, run in SENSITIVITY_STEPS:
+        c = cross[cross["run"] == run]
+        wrong = c[c["scored_against"] != c["light"]]
+        right = c[c["scored_against"] == c["light"]] if run == GROUND_TRUTH else df[df["run"] == run]
+        if not len(wrong) or not len(right):
+            continue
+        rows.append({"step": step, "what": f"light sensitivity: {label} (scored against another test light)",
+                     "n": len(wrong), "psnr": wrong["psnr"].mean(), "ssim": wrong["ssim"].mean(),
+                     "lpips": wrong["lpips"].mean(), "vs": "right light"} | diff_to(right, wrong))
+    return rows
+
+
+def ladder_table(df: pd.DataFrame, prior: pd.DataFrame, cross: pd.DataFrame | None = None) -> pd.DataFrame:
     """The quality ladder (rows of :data:`LADDER_STEPS` present in the inputs): where the dB go, on the held-out
     relighting images (row c: the held-out input-light views). ``scale_log2``: :func:`frng.metrics.scale_log2`;
     ``brightness_log2``: :func:`frng.metrics.brightness_log2` (relighting rows only).
-    LPIPS where the input has it (prior evaluations written before it was recorded leave it NaN)."""
-    rows = []
-    for step, what, source, key, method in LADDER_STEPS:
+    LPIPS where the input has it (prior evaluations written before it was recorded leave it NaN). Relighting rows
+    with a reference step (``vs``) carry the paired difference to it; then the light-sensitivity rows
+    (:func:`sensitivity_rows`). The models' own seed only."""
+    df = _plain(df)
+    rows, subs = [], {}
+    for step, what, source, key, method, ref in LADDER_STEPS:
         if source == "prior":
             sub = prior[(prior["task"] == key) & (prior["method"] == method)]
         else:
             sub = df[df["run"] == key]
         if not len(sub):
             continue
-        rows.append({"step": step, "what": what, "n": len(sub), "psnr": sub["psnr"].mean(),
-                     "ssim": sub["ssim"].mean(), "lpips": sub["lpips"].mean() if "lpips" in sub else np.nan,
-                     "scale_log2": M.scale_log2(sub), "brightness_log2": M.brightness_log2(sub)})
-    return pd.DataFrame(rows, columns=list(T.TABLE_COLUMNS["ladder"]))
+        subs[step] = sub
+        row = {"step": step, "what": what, "n": len(sub), "psnr": sub["psnr"].mean(),
+               "ssim": sub["ssim"].mean(), "lpips": sub["lpips"].mean() if "lpips" in sub else np.nan,
+               "scale_log2": M.scale_log2(sub), "brightness_log2": M.brightness_log2(sub)}
+        if ref is not None and ref in subs:
+            row |= {"vs": ref} | diff_to(sub, subs[ref])
+        rows.append(row)
+    rows += sensitivity_rows(df, cross)
+    out = pd.DataFrame(rows)
+    main = list(T.TABLE_COLUMNS["ladder"])
+    rest = [c for c in ["vs", *T.diff_columns()] if c in out.columns]
+    return out.reindex(columns=main + rest)
+
+
+def lambertian_table(df: pd.DataFrame) -> pd.DataFrame:
+    """Per material class (then ``all``): F-RNG (``full``) and its Lambertian base alone (``full-base``), with the
+    base's paired difference to F-RNG. The models' own seed."""
+    full, base = df[df["run"] == "full"], df[df["run"] == BASE_RUN]
+    if not len(base):
+        return pd.DataFrame(columns=list(T.TABLE_COLUMNS["lambertian"]))
+    rows = []
+    for ds in sorted(set(full["dataset"])) + ["all"]:
+        f = full if ds == "all" else full[full["dataset"] == ds]
+        b = base if ds == "all" else base[base["dataset"] == ds]
+        for label, sub in ((METHOD_LABELS["F-RNG"], f), (BASE_LABEL, b)):
+            row = {"dataset": ds, "method": label, "n": len(sub), "psnr": sub["psnr"].mean(),
+                   "ssim": sub["ssim"].mean(), "lpips": sub["lpips"].mean(), "scale_log2": M.scale_log2(sub),
+                   "brightness_log2": M.brightness_log2(sub)}
+            if label == BASE_LABEL:
+                row |= diff_to(sub, f)
+            rows.append(row)
+    return _ordered(pd.DataFrame(rows), "lambertian")
 
 
 def timing_table(timings: list[dict]) -> pd.DataFrame:
@@ -151,7 +348,7 @@ def timing_table(timings: list[dict]) -> pd.DataFrame:
 
 
 def write_tables(config: Config | dict, per_image_csv: Path, timing_files: list[Path], out_dir: Path,
-                 prior_csv: Path) -> dict[str, dict]:
+                 prior_csv: Path, cross_csv: Path | None = None) -> dict[str, dict]:
     """Write the tables (see the module docstring). Returns {table: {"csv"|"md"|"tex": path}}."""
     config = typed(config)
     df = M.read_csv(per_image_csv)
@@ -159,35 +356,49 @@ def write_tables(config: Config | dict, per_image_csv: Path, timing_files: list[
                            "protocol") if c not in df.columns]
     if missing:
         raise KeyError(f"{per_image_csv}: missing columns {missing}")
+    cross = M.read_csv(cross_csv) if cross_csv is not None else None
     timings = [io.read_json(p) for p in timing_files]
     if not timings:
         raise ValueError("frng tables: no relighting timing files given")
     device = sorted({t["device"] for t in timings})
+    seeds = sorted({r for r in df["run"].astype(str) if base_run(r) == "full"})
+    seed_note = (f" F-RNG rows: mean over {len(seeds)} training seeds ({', '.join(seeds)}); seed spread = max - min "
+                 f"over seeds." if len(seeds) > 1 else "")
     out = {}
     rows, footer = vs_backbone_table(df, timings)
     out["vs_backbone"] = T.write_table(
         rows, out_dir / "vs_backbone", footer=footer, best_within=["dataset"],
-        caption=_caption("Relighting quality: F-RNG vs the backbone it builds on (datasets = material classes).",
-                         config, df[df["run"].isin(["full", BACKBONE])]), label="tab:vs_backbone")
+        caption=_caption("Relighting quality: F-RNG vs the backbone it builds on (datasets = material classes)."
+                         + seed_note, config, df[df["run"].isin(["full", BACKBONE])]), label="tab:vs_backbone")
     out["ablation"] = T.write_table(
         ablation_table(df), out_dir / "ablation",
-        caption=_caption("Ablation of F-RNG's components.", config, ablation_rows(df)),
+        caption=_caption("Ablation of F-RNG's components (differences: variant minus the full model)." +
+                         seed_note.replace("F-RNG rows", "Every row"), config, ablation_rows(df)),
         label="tab:ablation")
     out["views"] = T.write_table(
         views_table(df), out_dir / "views",
-        caption=_caption("Number of input views (the same trained full model).", config,
+        caption=_caption("Number of input views (the same trained full model; differences to 6 views).", config,
                          views_rows(df)), label="tab:views")
     out["k"] = T.write_table(
         k_table(df), out_dir / "k",
-        caption=_caption("Top-K salient patches (K in % of a view's patches; 2% is the full model).", config,
-                         k_rows(df)), label="tab:k")
+        caption=_caption("Top-K salient patches (K in % of a view's patches; differences to the full model's K).",
+                         config, k_rows(df)), label="tab:k")
     prior = pd.read_csv(prior_csv)
     out["ladder"] = T.write_table(
-        ladder_table(df, prior), out_dir / "ladder", decimals={"scale_log2": 2, "brightness_log2": 2},
+        ladder_table(df, prior, cross), out_dir / "ladder",
         caption=(f"Quality ladder: where the dB go. Aligned protocol on the held-out relighting images (row c: the "
                  f"held-out input-light views); scale_log2 = median over images and channels of |log2| of the "
                  f"per-channel least-squares scale the protocol applied; brightness_log2 = the same of the ratio of "
-                 f"means (ground truth over prediction). Tier {config.tier}."), label="tab:ladder")
+                 f"means (ground truth over prediction). Row g: F-RNG rendered with its decoder's Lambertian base "
+                 f"alone. Rows s: each method's render for one test light scored against the ground truth of another "
+                 f"test light (same object and view); their Δ = right light minus that wrong light (ground truth: "
+                 f"itself vs the other light's). {DIFF_NOTE} The models' own training seed. Tier {config.tier}."),
+        label="tab:ladder")
+    out["lambertian"] = T.write_table(
+        lambertian_table(df), out_dir / "lambertian",
+        caption=_caption("F-RNG and its decoder's closed-form Lambertian base alone (residual and attenuation "
+                         "dropped), per material class; differences: base minus F-RNG.", config,
+                         df[df["run"].isin(["full", BASE_RUN])]), label="tab:lambertian")
     t = timing_table(timings)
     out["timing"] = T.write_table(
         t, out_dir / "timing",

@@ -15,6 +15,13 @@ lower-is-better; anything else (``views``, ``k_percent``, ``resolution``, ``spp`
 Best values are compared after rounding to the displayed precision, so ties are all marked; with
 ``best_within`` the best is found within each group of rows (e.g. per dataset when comparing methods).
 
+Paired differences (:data:`DIFF_METRICS`): a table row may carry ``d{metric}``, ``d{metric}_lo``, ``d{metric}_hi``
+(the row minus its reference row, mean over the same images, and its 95% bootstrap interval over test objects:
+:mod:`frng.report.stats`) for psnr, ssim and lpips, plus ``better`` / ``objects`` (objects whose mean PSNR is
+above the reference's / how many objects) and the training-seed columns ``seeds``, ``seed_spread_psnr``,
+``seed_spread_dpsnr``. CSV keeps every column; Markdown and LaTeX show one cell per difference, e.g.
+``+0.34 [0.25, 0.58]``, and ``better`` as ``16/16``. Differences are never best-marked.
+
 The five tables of issue 6 and their columns (:data:`TABLE_COLUMNS`):
 ``vs_backbone`` (dataset, method, psnr, ssim, lpips, plus a relighting-time footer row per method: see
 :func:`vs_backbone`), ``ablation`` (variant, ...), ``views`` (views, ...), ``k`` (k_percent, ...),
@@ -41,12 +48,24 @@ TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
     "k": ("k_percent", "psnr", "ssim", "lpips"),
     "timing": ("method", "reconstruction_s", "relight_ms_per_image", "resolution", "spp"),
     "ladder": ("step", "what", "n", "psnr", "ssim", "lpips", "scale_log2", "brightness_log2"),
+    "lambertian": ("dataset", "method", "n", "psnr", "ssim", "lpips", "scale_log2", "brightness_log2"),
 }
+
+DIFF_METRICS = ("psnr", "ssim", "lpips")
+
+
+def diff_columns(metrics: Sequence[str] = DIFF_METRICS) -> list[str]:
+    """``d{m}, d{m}_lo, d{m}_hi`` per metric, then ``better``, ``objects``: the paired-difference columns."""
+    return [f"d{m}{s}" for m in metrics for s in ("", "_lo", "_hi")] + ["better", "objects"]
+
+
+SEED_COLUMNS = ("seeds", "seed_spread_psnr", "seed_spread_dpsnr")
 
 # Displayed decimals per column (others: 3 for floats, none for integers).
 DECIMALS: dict[str, int] = {
     "psnr": 2, "ssim": 3, "lpips": 3, "reconstruction_s": 2, "relight_ms_per_image": 1, "speedup": 1,
-    "k_percent": 0,
+    "k_percent": 0, "dpsnr": 2, "dssim": 3, "dlpips": 4, "seed_spread_psnr": 2, "seed_spread_dpsnr": 2,
+    "scale_log2": 2, "brightness_log2": 2,
 }
 
 HEADERS: dict[str, str] = {
@@ -54,7 +73,13 @@ HEADERS: dict[str, str] = {
     "variant": "Variant", "views": "Input views", "k_percent": "K (%)", "reconstruction_s": "Reconstruction (s)",
     "relight_ms_per_image": "Relighting (ms/image)", "resolution": "Resolution", "spp": "spp",
     "speedup": "Speed-up", "n": "n", "step": "Step", "what": "What", "scale_log2": "median |log2 scale|",
-    "brightness_log2": "median |log2 mean ratio|",
+    "brightness_log2": "median |log2 mean ratio|", "dpsnr": "ΔPSNR [95% CI]", "dssim": "ΔSSIM [95% CI]",
+    "dlpips": "ΔLPIPS [95% CI]", "better": "objects higher PSNR", "seeds": "seeds",
+    "seed_spread_psnr": "seed spread PSNR", "seed_spread_dpsnr": "seed spread ΔPSNR", "vs": "Δ vs",
+}
+TEX_HEADERS: dict[str, str] = {  # LaTeX source, not escaped
+    "dpsnr": "$\\Delta$PSNR [95\\% CI]", "dssim": "$\\Delta$SSIM [95\\% CI]", "dlpips": "$\\Delta$LPIPS [95\\% CI]",
+    "seed_spread_dpsnr": "seed spread $\\Delta$PSNR", "vs": "$\\Delta$ vs",
 }
 
 LATEX_PREAMBLE_NOTE = (
@@ -99,6 +124,10 @@ def _fmt(value, ndp: int | None) -> str:
     return str(value)
 
 
+def _present(value) -> bool:
+    return not (value is None or (isinstance(value, (float, np.floating)) and math.isnan(value)))
+
+
 def _ranks(df: pd.DataFrame, formatted: pd.DataFrame, best_within: Sequence[str], second: bool) -> pd.DataFrame:
     """(rows, cols) frame of 0 (unmarked), 1 (best) or 2 (second best), from the displayed values."""
     rank = pd.DataFrame(0, index=df.index, columns=df.columns)
@@ -128,6 +157,8 @@ def _escape_tex(s: str) -> str:
 
 
 def _header(col: str, fmt: str) -> str:
+    if fmt == "tex" and col in TEX_HEADERS:
+        return TEX_HEADERS[col]
     name = HEADERS.get(col, col)
     arrow = {"max": ("$\\uparrow$", " ↑"), "min": ("$\\downarrow$", " ↓")}.get(direction(col))
     if fmt == "tex":
@@ -153,13 +184,32 @@ def render(
     blocks = [b.reindex(columns=cols) for b in blocks]
     whole = pd.concat(blocks, ignore_index=True)
     ndp = {c: _decimals(whole, c, decimals) for c in cols}
+    # a difference with its interval is one displayed cell; so is better/objects
+    intervals = [c for c in cols if f"{c}_lo" in cols and f"{c}_hi" in cols]
+    hidden = {f"{c}{s}" for c in intervals for s in ("_lo", "_hi")}
+    if "better" in cols and "objects" in cols:
+        hidden.add("objects")
+    cols = [c for c in cols if c not in hidden]
+
+    def cell(block: pd.DataFrame, c: str, i) -> str:
+        v = block.at[i, c]
+        if c in intervals:
+            lo, hi = block.at[i, f"{c}_lo"], block.at[i, f"{c}_hi"]
+            if not _present(v):
+                return ""
+            nd = 3 if ndp[c] is None else ndp[c]
+            return f"{float(v):+.{nd}f} [{_fmt(float(lo), nd)}, {_fmt(float(hi), nd)}]"
+        if c == "better" and "objects" in hidden:
+            o = block.at[i, "objects"]
+            return f"{int(v)}/{int(o)}" if _present(v) and _present(o) else ""
+        return _fmt(v, ndp[c])
 
     md_rows: list[list[str]] = []
     tex_rows: list[list[str]] = []
     for bi, block in enumerate(blocks):
-        formatted = pd.DataFrame({c: [_fmt(v, ndp[c]) for v in block[c]] for c in cols}, index=block.index)
+        formatted = pd.DataFrame({c: [cell(block, c, i) for i in block.index] for c in cols}, index=block.index)
         within = [c for c in best_within if c in block.columns] if bi == 0 else []
-        rank = _ranks(block, formatted, within, second)
+        rank = _ranks(block[cols], formatted, within, second)
         md_block, tex_block = [], []
         for i in block.index:
             md_cells, tex_cells = [], []

@@ -12,7 +12,16 @@ scale, foreground PSNR/SSIM; ``plain``: whole image, no scaling) and ``eval.back
   ``scale_log2`` (:func:`frng.metrics.scale_log2`: how much colour repair the aligned protocol did per run) and
   ``brightness_log2`` (:func:`frng.metrics.brightness_log2`: how far off the brightness is, by the ratio of means).
 
-Every table (``frng tables``) is recomputed from the per-image CSV.
+- ``{results}/metrics/relight_cross_light.csv``: the light-sensitivity check (the quality ladder's rows ``s``):
+  every image of the runs in :data:`SENSITIVITY_RUNS` (the backbone, F-RNG's ``full``) and the ground truth itself
+  (run ``ground-truth``), each rendered for test light ``light``, scored against the ground truth of ANOTHER test
+  light of the same object and view, ``scored_against`` = the next light in the object's list (cyclic,
+  :func:`other_light`); same protocol and columns as the per-image CSV. The ground truth's rows scored against
+  their own light (``scored_against == light``) are there too, so its right-light score is a CSV row as well.
+  Objects with a single test light have no such rows.
+
+The per-image CSV also records each run's training ``seed`` (empty: the models' seed) and ``decoder`` (``base``:
+the Lambertian base alone, run ``full-base``). Every table (``frng tables``) is recomputed from these CSVs.
 """
 
 from __future__ import annotations
@@ -28,8 +37,13 @@ from frng.layout import Layout, RelightFolder
 
 PER_IMAGE = "relight_per_image.csv"
 SUMMARY = "relight_summary.csv"
-COLUMNS = ("dataset", "object", "run", "method", "variant", "views", "k", "light", "view", "psnr", "ssim", "lpips",
-           "protocol")
+CROSS_LIGHT = "relight_cross_light.csv"
+COLUMNS = ("dataset", "object", "run", "method", "variant", "views", "k", "seed", "decoder", "light", "view", "psnr",
+           "ssim", "lpips", "protocol")
+CROSS_COLUMNS = ("dataset", "object", "run", "method", "light", "scored_against", "view", "psnr", "ssim", "lpips",
+                 "protocol")
+SENSITIVITY_RUNS = ("backbone", "full")  # + the ground truth (GROUND_TRUTH)
+GROUND_TRUTH = "ground-truth"
 
 
 def evaluate_run(results: Path, run_dir: Path, protocol: str, background, device: str = "cpu") -> list[dict]:
@@ -47,12 +61,48 @@ def evaluate_run(results: Path, run_dir: Path, protocol: str, background, device
             m = M.evaluate_files(pred, gt, protocol=protocol, background=background, device=device)
             rows.append({"dataset": meta["material_class"], "object": oid, "run": info["name"],
                          "method": info["method"], "variant": info["variant"], "views": int(info["views"]),
-                         "k": info["k_percent"], "light": light, "view": view} | m)
+                         "k": info["k_percent"], "seed": info.get("seed"), "decoder": info.get("decoder", "full"),
+                         "light": light, "view": view} | m)
+    return rows
+
+
+def other_light(lights: list[str], light: str) -> str:
+    """The light an image rendered for ``light`` is scored against in the light-sensitivity check: the next one in
+    the object's list of test lights (cyclic); ``light`` itself when it is the only one."""
+    return lights[(lights.index(light) + 1) % len(lights)]
+
+
+def cross_light_run(results: Path, run_dir: Path, protocol: str, background, device: str = "cpu",
+                    ground_truth: bool = False) -> list[dict]:
+    """Light-sensitivity rows of one run folder (see the module docstring): each image scored against the ground
+    truth of :func:`other_light`. ``ground_truth``: score the ground truth of the run's images instead of the
+    run's renders (run ``ground-truth``), against the other light and against its own."""
+    info = io.read_json(RelightFolder(run_dir).record())
+    oid = info["object"]
+    L = Layout(results)
+    meta = io.read_json(L.object_meta(oid))
+    lights = list(info["lights"])
+    if len(lights) < 2:
+        return []
+    rows = []
+    for light in lights:
+        wrong = other_light(lights, light)
+        for view in info["target_views"]:
+            pred = L.object_image(oid, "targets", light, view) if ground_truth else RelightFolder(run_dir).image(
+                light, view)
+            for against in ([wrong, light] if ground_truth else [wrong]):
+                m = M.evaluate_files(pred, L.object_image(oid, "targets", against, view), protocol=protocol,
+                                     background=background, device=device)
+                rows.append({"dataset": meta["material_class"], "object": oid,
+                             "run": GROUND_TRUTH if ground_truth else info["name"],
+                             "method": GROUND_TRUTH if ground_truth else info["method"], "light": light,
+                             "scored_against": against, "view": view} | m)
     return rows
 
 
 def evaluate(config: Config | dict, run_dirs: list[Path], out_dir: Path) -> tuple[Path, Path]:
-    """Score every run folder; write the per-image CSV and the per-run summary into ``out_dir``."""
+    """Score every run folder; write the per-image CSV, the per-run summary (returned) and the light-sensitivity
+    CSV into ``out_dir``."""
     config = frng_config.typed(config)
     results = Path(config.results)
     protocol = config.eval.protocol
@@ -65,6 +115,15 @@ def evaluate(config: Config | dict, run_dirs: list[Path], out_dir: Path) -> tupl
     df = M.to_frame(rows)
     df = df[list(COLUMNS) + [c for c in df.columns if c not in COLUMNS]]
     per_image = M.write_csv(df, out_dir / PER_IMAGE)
+    cross = []
+    for d in run_dirs:
+        if Path(d).parent.name in SENSITIVITY_RUNS:
+            cross += cross_light_run(results, Path(d), protocol, background)
+            if Path(d).parent.name == "full":
+                cross += cross_light_run(results, Path(d), protocol, background, ground_truth=True)
+    cf = M.to_frame(cross)
+    cf = cf.reindex(columns=list(CROSS_COLUMNS) + [c for c in cf.columns if c not in CROSS_COLUMNS])
+    M.write_csv(cf, out_dir / CROSS_LIGHT)
     summary = M.aggregate(df, ["run", "method", "variant", "views", "k"])
     scales = {run: M.scale_log2(g) for run, g in df.groupby("run", sort=False)}
     summary["scale_log2"] = summary["run"].map(scales)
@@ -94,6 +153,6 @@ def run(args: argparse.Namespace) -> int:
     objects = args.objects or catalog.plan(config).split("test")
     out = Path(args.out or Layout(config.results).metrics_dir())
     per_image, summary = evaluate(config, run_dirs_of(config, objects), out)
-    print(f"evaluate ({config.eval.protocol} protocol): wrote {per_image} and {summary}")
+    print(f"evaluate ({config.eval.protocol} protocol): wrote {per_image}, {summary} and {out / CROSS_LIGHT}")
     print(M.read_csv(summary).to_string(index=False))
     return 0

@@ -21,6 +21,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--timing", nargs="*", help="timing JSONs (default {results}/relight/timing/*.json of "
                                                     "the test objects)")
     parser.add_argument("--out", help="tables folder (default {results}/tables)")
+    parser.add_argument("--cross-light", help="the light-sensitivity CSV (default "
+                                              "{results}/metrics/relight_cross_light.csv)")
     parser.add_argument("--prior-metrics", help="the priors' evaluation CSV for the quality ladder "
                                                 "(default {results}/metrics/backbone.csv)")
 
@@ -33,7 +35,8 @@ def run(args: argparse.Namespace) -> int:
     timing = args.timing or [L.relight_timing(o) for o in catalog.plan(config).split("test")]
     out = write_tables(config, Path(args.metrics or L.metrics("relight_per_image")),
                        [Path(p) for p in timing], Path(args.out or L.tables_dir()),
-                       Path(args.prior_metrics or L.metrics("backbone")))
+                       Path(args.prior_metrics or L.metrics("backbone")),
+                       Path(args.cross_light or L.metrics("relight_cross_light")))
     for name, paths in out.items():
         print(f"== {name} ({paths['md']})\n{paths['md'].read_text()}")
     return 0

@@ -8,12 +8,14 @@ The loss, the step and the outputs (``model.pt``, ``checkpoint.pt``, ``loss.csv/
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 from frng import config as frng_config
 from frng import distributed
 from frng.model.frng import all_variants, canonical_variant, trained_variants, variant_config
 from frng.layout import Layout
+from frng.variants import split_seed
 from frng.model.train import train
 
 
@@ -36,7 +38,11 @@ def run(args: argparse.Namespace) -> int:
     if args.variant not in all_variants(config) and canonical_variant(config, args.variant) not in trained_variants(config):
         variant_config(config, args.variant)  # raises for unknown names; other k<percent> values are allowed
     out = Path(args.out or Layout(config.results).model_dir(args.variant))
-    path = train(config, args.variant, out, args.backbone, steps=args.steps)
+    # {variant}@s{seed} (train.seeds): the variant trained with train_seed = seed (frng.variants.split_seed)
+    base, seed = split_seed(args.variant)
+    if seed is not None:
+        config = dataclasses.replace(config, train_seed=seed)
+    path = train(config, base, out, args.backbone, steps=args.steps)
     print(f"train: wrote {path}")
     distributed.cleanup()
     return 0
