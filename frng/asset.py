@@ -51,7 +51,7 @@ import numpy as np
 import torch
 
 from frng.gaussians import Gaussians
-from frng.io import atomic_path, read_json, srgb_decode, srgb_encode, temp_dir, write_json
+from frng.io import atomic_path, current_umask, read_json, srgb_decode, srgb_encode, temp_dir, write_json
 
 FORMAT = "frng-asset"
 FORMAT_VERSION = 1
@@ -188,6 +188,14 @@ def read_ply_header(path: str | os.PathLike) -> dict:
     return {"format": fmt, "comments": comments, "elements": elements, "header_bytes": header_bytes}
 
 
+def _is_number(token: bytes) -> bool:
+    try:
+        float(token)
+        return True
+    except ValueError:
+        return False
+
+
 def read_ply(path: str | os.PathLike, element: str = "vertex") -> dict[str, np.ndarray]:
     """Read one element of a PLY (binary either endianness, or ascii) -> name -> (N,) array, header order.
 
@@ -212,7 +220,16 @@ def read_ply(path: str | os.PathLike, element: str = "vertex") -> dict[str, np.n
                 if pos + k > len(tokens):
                     raise AssetError(f"{path}: ascii PLY truncated in element {name!r}")
                 if name == element:
-                    vals = np.array(tokens[pos:pos + k], dtype=np.float64).reshape(count, len(props))
+                    try:
+                        vals = np.array(tokens[pos:pos + k], dtype=np.float64).reshape(count, len(props))
+                    except ValueError as e:
+                        bad = next((t for t in tokens[pos:pos + k] if not _is_number(t)), None)
+                        where = ""
+                        if bad is not None:
+                            i = tokens[pos:pos + k].index(bad)
+                            where = f" at {name} {i // len(props)}, property {props[i % len(props)][0]!r}"
+                        raise AssetError(f"{path}: ascii PLY: not a number{where}: "
+                                         f"{(bad or b'?').decode('ascii', 'replace')!r} ({e})") from None
                     return {p: vals[:, i].astype(dt[p].newbyteorder("=")) for i, (p, _) in enumerate(props)}
                 pos += k
         data = f.read()
@@ -386,6 +403,7 @@ def save_asset(
         write_ply(tmp / PLY_FILE, fields, comments=[f"{FORMAT} v{FORMAT_VERSION} object {info['object_id']}",
                                                     "3DGS layout: opacity=logit, scale=log, rot=(w,x,y,z); feat_* = F-RNG features"])
         save_file(state, str(tmp / DECODER_FILE), metadata={"format": FORMAT, "version": str(FORMAT_VERSION)})
+        os.chmod(tmp / DECODER_FILE, 0o666 & ~current_umask())  # safetensors writes 0600 whatever the umask
         write_json(tmp / META_FILE, info)
         if folder.exists():
             old = Path(tempfile.mkdtemp(prefix=f".old-{folder.name}-", dir=folder.parent))

@@ -18,6 +18,7 @@ import hashlib
 import importlib
 import json
 import os
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -127,6 +128,29 @@ def check_semantics(config: dict) -> None:
     mix = objects["material_mix"]
     if abs(sum(mix.values()) - 1.0) > 1e-6:
         raise ConfigError(f"config key 'objects.material_mix': fractions sum to {sum(mix.values()):.3f}, not 1")
+    shading = config.get("shading", {})
+    if "spp_grad" in shading and "spp_train" in shading and shading["spp_grad"] > shading["spp_train"]:
+        raise ConfigError(f"config key 'shading.spp_grad': {shading['spp_grad']} exceeds shading.spp_train="
+                          f"{shading['spp_train']} (the samples with gradients are a subset of the training samples)")
+    backbone = config.get("backbone", {})
+    if "near" in backbone and "far" in backbone and backbone["near"] >= backbone["far"]:
+        raise ConfigError(f"config key 'backbone.near': {backbone['near']} is not below backbone.far={backbone['far']}")
+    check_results_path(config.get("results", "results"))
+
+
+# Characters a results path may not hold: control characters (newlines end shell commands and log lines) and
+# braces (Snakemake reads them as wildcards in every output path). Spaces, quotes and other shell characters are
+# fine: the rules quote every path they put into a shell command (`{...:q}`).
+_BAD_PATH_CHARS = re.compile(r"[\x00-\x1f\x7f{}]")
+
+
+def check_results_path(results) -> None:
+    if not isinstance(results, str) or not results.strip():
+        raise ConfigError(f"config key 'results': {results!r} is not a folder path")
+    bad = _BAD_PATH_CHARS.search(results)
+    if bad:
+        raise ConfigError(f"config key 'results': {results!r} holds {bad.group()!r}; a results path may not hold "
+                          f"control characters or braces (Snakemake reads braces as wildcards)")
 
 
 def read_yaml(path: Path | str) -> dict:

@@ -64,10 +64,74 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     tmp = Path(tmp)
     try:
         yield tmp
+        # writers that replace the file (safetensors creates its own, 0600 whatever the umask) lose the mode
+        os.chmod(tmp, 0o666 & ~current_umask())
         os.replace(tmp, path)
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+class CorruptFileError(ValueError):
+    """An intermediate file (model, checkpoint, cache, prior) is truncated, corrupt, of another kind, or holds
+    objects a safe load refuses. The message names the file and the cause."""
+
+
+def write_failure(path: str | os.PathLike, e: BaseException) -> OSError:
+    """An OSError naming ``path`` and the cause of a failed write; C++ writers (OpenEXR) report a full disk as
+    'basic_ios::clear: iostream error', so the free space of the target's file system is checked."""
+    path = Path(path)
+    cause = f"{type(e).__name__}: {e}"
+    errno_ = getattr(e, "errno", None)
+    try:
+        st = os.statvfs(path.parent)
+        if st.f_bavail * st.f_frsize < (1 << 20) or errno_ == 28:
+            return OSError(28, f"{path}: cannot write: no space left on device "
+                               f"({st.f_bavail * st.f_frsize} bytes free in {path.parent}; {cause})")
+    except OSError:
+        pass
+    return OSError(errno_ or 5, f"{path}: cannot write ({cause})")
+
+
+def load_torch(path: str | os.PathLike, what: str = "file"):
+    """``torch.load`` of a file frng wrote (a model, checkpoint or prior), safely: ``weights_only=True``, so a
+    crafted pickle cannot run code (only tensors and plain Python data load). Errors name the file: a missing
+    one is FileNotFoundError; a truncated, corrupt or foreign one (or one holding other objects) is
+    :class:`CorruptFileError`."""
+    import pickle
+
+    import torch
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: {what} does not exist")
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        if "weights only" in str(e).lower() or "unsupported" in str(e).lower():
+            raise CorruptFileError(f"{path}: refusing to load this {what}: it holds objects other than tensors and "
+                                   f"plain data, which only an unsafe load would run ({first[:300]})") from None
+        raise CorruptFileError(f"{path}: cannot read {what}: truncated or corrupt ({first[:300]}); delete it and "
+                               f"rerun the rule that makes it") from None
+    except Exception as e:  # noqa: BLE001 -- zip/stream errors (PytorchStreamReader failed ...), EOFError, ...
+        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        raise CorruptFileError(f"{path}: cannot read {what}: truncated or corrupt ({type(e).__name__}: "
+                               f"{first[:300]}); delete it and rerun the rule that makes it") from None
+
+
+def save_torch(obj, path: str | os.PathLike) -> None:
+    """``torch.save`` through a temporary file renamed into place (a killed job leaves no partial file). The zip
+    is written through a file object so that its records are named ``archive/`` rather than after the random
+    temporary name: the same object gives the same bytes (and sha256)."""
+    import torch
+
+    with atomic_path(path) as tmp:
+        try:
+            with open(tmp, "wb") as f:
+                torch.save(obj, f)
+        except (OSError, RuntimeError) as e:
+            raise write_failure(path, e) from e
 
 
 def write_json(path: str | os.PathLike, obj) -> None:
@@ -106,8 +170,32 @@ def read_exr_channels(path: str | os.PathLike) -> dict[str, np.ndarray]:
     except Exception as e:  # OpenEXR raises RuntimeError/ValueError with terse messages
         raise ImageError(f"{path}: cannot read EXR ({e})") from e
     if not out:
-        raise ImageError(f"{path}: EXR has no channels")
+        raise ImageError(f"{path}: {_no_channels_cause(path)}")
     return out
+
+
+def _no_channels_cause(path: Path) -> str:
+    """Why OpenEXR returned no channels: its Python binding swallows a failed pixel read (a header declaring a
+    huge data window: MemoryError) and returns the part without channels."""
+    import OpenEXR
+
+    try:
+        with OpenEXR.File(str(path), header_only=True) as f:
+            parts = []
+            for part in f.parts:
+                (x0, y0), (x1, y1) = (np.asarray(v) for v in part.header["dataWindow"])
+                w, h = int(x1) - int(x0) + 1, int(y1) - int(y0) + 1
+                names = [c.name for c in part.header.get("channels", [])]
+                parts.append((w, h, names))
+    except Exception:  # noqa: BLE001 -- fall back to the plain statement
+        return "EXR has no channels"
+    declared = [(w, h, n) for w, h, n in parts if n]
+    if not declared:
+        return "EXR has no channels"
+    w, h, names = max(declared, key=lambda p: p[0] * p[1] * len(p[2]))
+    gib = w * h * len(names) * 4 / 2**30
+    return (f"cannot read the pixels of a {w}x{h} image with channels {names} ({gib:.1f} GiB as float32): the "
+            f"header's data window is too large or corrupt ({path.stat().st_size} bytes on disk)")
 
 
 def read_exr(path: str | os.PathLike, channels: Sequence[str]) -> np.ndarray:
@@ -163,8 +251,11 @@ def write_exr(
     planes = {k: np.ascontiguousarray(v, dtype=dtype) for k, v in planes.items()}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic_path(path) as tmp:
-        with OpenEXR.File(header, {k: OpenEXR.Channel(k, v) for k, v in planes.items()}) as f:
-            f.write(str(tmp))
+        try:
+            with OpenEXR.File(header, {k: OpenEXR.Channel(k, v) for k, v in planes.items()}) as f:
+                f.write(str(tmp))
+        except (OSError, RuntimeError) as e:  # a full disk: 'basic_ios::clear: iostream error'
+            raise write_failure(path, e) from e
 
 
 # -- colour / PNG ---------------------------------------------------------------------------------
@@ -227,16 +318,49 @@ def read_png(path: str | os.PathLike) -> np.ndarray:
 
 def write_file_index(paths: Sequence[str | os.PathLike], out: str | os.PathLike, log: str | os.PathLike | None = None,
                      **fields) -> Path:
-    """Write ``out``: a JSON index ``{**fields, "files": [{"path", "bytes"}, ...]}`` of files a later stage depends on
-    as a whole (e.g. the training split's caches), atomically; a missing file raises FileNotFoundError naming it.
-    ``log``: where to note what was indexed."""
+    """Write ``out``: a JSON index ``{**fields, "files": [{"path", "bytes", "sha256"}, ...]}`` of files a later stage
+    depends on as a whole (e.g. the training split's caches), atomically; a missing file raises FileNotFoundError
+    naming it. ``log``: where to note what was indexed. :func:`check_file_index` verifies it."""
+    import hashlib
+
     entries = []
     for p in paths:
         if not os.path.exists(p):
             raise FileNotFoundError(f"{p}: cannot index a missing file")
-        entries.append({"path": str(p), "bytes": os.path.getsize(p)})
+        h = hashlib.sha256()
+        with open(p, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+        entries.append({"path": str(p), "bytes": os.path.getsize(p), "sha256": h.hexdigest()})
     write_json(out, {**fields, "files": entries})
     if log is not None:
         Path(log).parent.mkdir(parents=True, exist_ok=True)
         Path(log).write_text(f"indexed {len(entries)} files into {out}\n")
     return Path(out)
+
+
+def check_file_index(index: str | os.PathLike, hashes: bool = True) -> int:
+    """Verify the files a :func:`write_file_index` index records: each exists with the recorded size (and
+    sha256, where recorded and ``hashes``). A mismatch is :class:`CorruptFileError` naming the file and the index
+    (the file was truncated, corrupted or replaced since it was indexed). Returns the number of files checked."""
+    import hashlib
+
+    entries = read_json(index).get("files", [])
+    for e in entries:
+        p = Path(e["path"])
+        if not p.exists():
+            raise FileNotFoundError(f"{p}: listed in {index} but missing; rerun the rule that makes it")
+        size = p.stat().st_size
+        if size != e.get("bytes", size):
+            raise CorruptFileError(f"{p}: {size} bytes, but {index} recorded {e['bytes']} (truncated or replaced "
+                                   f"since it was indexed); delete it and rerun the rule that makes it")
+        if hashes and e.get("sha256"):
+            h = hashlib.sha256()
+            with open(p, "rb") as f:
+                for chunk in iter(lambda: f.read(1 << 20), b""):
+                    h.update(chunk)
+            if h.hexdigest() != e["sha256"]:
+                raise CorruptFileError(f"{p}: sha256 {h.hexdigest()[:12]}, but {index} recorded "
+                                       f"{e['sha256'][:12]} (corrupted or replaced since it was indexed); delete it "
+                                       f"and rerun the rule that makes it")
+    return len(entries)

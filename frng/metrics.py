@@ -251,8 +251,11 @@ def evaluate_pair(
 def evaluate_files(
     pred_path: str | os.PathLike, gt_path: str | os.PathLike, **kwargs
 ) -> dict:
-    """:func:`evaluate_pair` on two RGBA EXR files; errors name the file (``frng.io.ImageError``)."""
-    pred, gt = read_rgba(pred_path), read_rgba(gt_path)
+    """:func:`evaluate_pair` on two RGBA EXR files (both must have alpha); errors name the file
+    (``frng.io.ImageError``)."""
+    # the ground truth's alpha is the foreground mask and the prediction's its silhouette: RGB-only files are
+    # refused rather than read as fully opaque
+    pred, gt = read_rgba(pred_path, require_alpha=True), read_rgba(gt_path, require_alpha=True)
     if pred.shape != gt.shape:
         raise ValueError(f"{pred_path}: shape {pred.shape} differs from the ground truth {gt_path} {gt.shape}")
     return evaluate_pair(pred, gt, **kwargs)

@@ -107,9 +107,9 @@ def file_sha256(path: str | os.PathLike) -> str:
 
 
 def save_torch(obj, path: str | os.PathLike) -> None:
-    """``torch.save`` through a temporary file renamed into place (a killed job leaves no partial file)."""
-    with io.atomic_path(path) as tmp:
-        torch.save(obj, tmp)
+    """``torch.save`` through a temporary file renamed into place (a killed job leaves no partial file); the same
+    object gives the same bytes (:func:`frng.io.save_torch`). Read back with :func:`frng.io.load_torch`."""
+    io.save_torch(obj, path)
 
 
 class LossLog:
@@ -272,12 +272,36 @@ def _rng_set(r, state) -> None:
         r.set_state(state)
 
 
+def _plain(x):
+    """Random states in the plain data a safe load accepts (:func:`frng.io.load_torch`): numpy arrays (numpy's
+    MT19937 key) become ``{"__ndarray__": list, "dtype": str}``."""
+    if isinstance(x, np.ndarray):
+        return {"__ndarray__": x.tolist(), "dtype": str(x.dtype)}
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, dict):
+        return {k: _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return type(x)(_plain(v) for v in x)
+    return x
+
+
+def _unplain(x):
+    if isinstance(x, dict):
+        if "__ndarray__" in x:
+            return np.asarray(x["__ndarray__"], dtype=x["dtype"])
+        return {k: _unplain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return type(x)(_unplain(v) for v in x)
+    return x
+
+
 def rng_state(device: torch.device | str | None = None, rngs: dict | None = None) -> dict:
     """Every random state a training step may draw from: python's, numpy's and torch's global generators, the
     CUDA generator of ``device`` (when it is a GPU), and the trainer's own generators ``rngs`` (name -> a
     ``random.Random``, ``torch.Generator`` or numpy generator)."""
-    state = {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state(),
-             "trainer": {k: _rng_get(r) for k, r in (rngs or {}).items()}}
+    state = {"python": random.getstate(), "numpy": _plain(np.random.get_state()), "torch": torch.get_rng_state(),
+             "trainer": {k: _plain(_rng_get(r)) for k, r in (rngs or {}).items()}}
     if device is not None and torch.device(device).type == "cuda":
         state["cuda"] = torch.cuda.get_rng_state(torch.device(device))
     return state
@@ -286,12 +310,12 @@ def rng_state(device: torch.device | str | None = None, rngs: dict | None = None
 def set_rng_state(state: dict, device: torch.device | str | None = None, rngs: dict | None = None) -> None:
     """Restore what :func:`rng_state` captured."""
     random.setstate(state["python"])
-    np.random.set_state(state["numpy"])
+    np.random.set_state(_unplain(state["numpy"]))
     torch.set_rng_state(state["torch"])
     if "cuda" in state and device is not None and torch.device(device).type == "cuda":
         torch.cuda.set_rng_state(state["cuda"], torch.device(device))
     for k, r in (rngs or {}).items():
-        _rng_set(r, state["trainer"][k])
+        _rng_set(r, _unplain(state["trainer"][k]))
 
 
 def _identity(x):
@@ -357,9 +381,9 @@ def load_resumable(out: str | os.PathLike, digest: str, total: int) -> tuple[dic
     if not path.exists():
         return None, None
     try:
-        state = torch.load(path, map_location="cpu", weights_only=False)
+        state = io.load_torch(path, "checkpoint")  # weights_only: a crafted checkpoint.pt runs nothing
     except Exception as e:  # noqa: BLE001 -- an unreadable checkpoint is not resumable, whatever the cause
-        return None, f"{path} is unreadable ({type(e).__name__}: {e}); training from step 0"
+        return None, f"{e}; training from step 0"
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
         return None, f"{path} predates the training-config digest; training from step 0"
     if state.get("digest") != digest:
@@ -428,8 +452,9 @@ def fit(step_fn: Callable[[int], dict[str, float]], tcfg, *, model: torch.nn.Mod
         states = hooks.gather(rng_state(device, rngs))  # collective
         if hooks.is_main:
             save_torch({"format": CHECKPOINT_FORMAT, "step": step, "total": total, "digest": digest,
-                        "fingerprint": fingerprint, "model": model.state_dict(), "optimizer": optimizer.state_dict(),
-                        "rng": states, "history": log.rows, "elapsed": timer.elapsed()}, ckpt_path)
+                        "fingerprint": _plain(fingerprint), "model": model.state_dict(),
+                        "optimizer": optimizer.state_dict(), "rng": states, "history": _plain(log.rows),
+                        "elapsed": float(timer.elapsed())}, ckpt_path)  # plain data: loaded with weights_only
         hooks.barrier()
 
     model.train()
@@ -440,7 +465,7 @@ def fit(step_fn: Callable[[int], dict[str, float]], tcfg, *, model: torch.nn.Mod
         t0 = time.time()
         lr_now = cosine_lr(step, total, lr, warmup)
         for g in optimizer.param_groups:
-            g["lr"] = lr_now * g.get("lr_mult", 1.0)
+            g["lr"] = float(lr_now * g.get("lr_mult", 1.0))  # a python float: checkpoints hold plain data
         optimizer.zero_grad(set_to_none=True)
         logs = step_fn(step)
         gnorm = torch.nn.utils.clip_grad_norm_(params, grad_clip)

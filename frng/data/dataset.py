@@ -118,7 +118,8 @@ class ObjectData:
         if light not in lights:
             raise DatasetError(f"{self.root}: {light!r} is not one of the object's {kind} lights {lights}")
         sel = self._select(kind, views)
-        imgs = [io.read_rgba(self.files.image(kind, light, v["name"])) for v in sel]
+        # alpha is the object's mask: an RGB-only view is refused, not read as fully opaque
+        imgs = [io.read_rgba(self.files.image(kind, light, v["name"]), require_alpha=True) for v in sel]
         return _to(np.stack(imgs).astype(np.float32), torch)
 
     def gbuffer(self, kind: str = "inputs", views=None, torch: bool = False) -> dict:

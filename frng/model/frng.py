@@ -309,9 +309,12 @@ class FRNG(nn.Module):
     @classmethod
     def load(cls, path: str | Path, device: torch.device | str = "cpu") -> "FRNG":
         """Load ``results/models/{variant}/model.pt`` in eval mode on ``device``."""
-        state = torch.load(path, map_location="cpu", weights_only=False)
-        if state.get("kind") != MODEL_KIND:
-            raise ValueError(f"{path}: not an F-RNG model file (kind {state.get('kind')!r})")
+        from frng.io import load_torch
+
+        state = load_torch(path, "F-RNG model file")  # weights_only: a crafted model.pt runs nothing
+        if not isinstance(state, dict) or state.get("kind") != MODEL_KIND:
+            kind = state.get("kind") if isinstance(state, dict) else type(state).__name__
+            raise ValueError(f"{path}: not an F-RNG model file (kind {kind!r})")
         model = cls(FRNGConfig.from_dict(state["config"]), RasterConfig.from_dict(state.get("raster", {})),
                     ShadingConfig.from_dict(state.get("shading", {})))
         model.load_state_dict(state["state_dict"])

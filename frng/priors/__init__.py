@@ -22,6 +22,7 @@ import torch
 from torch import nn
 
 from frng.config import Config, typed
+from frng.io import CorruptFileError, load_torch
 
 BACKBONES: dict[str, Callable[..., nn.Module]] = {}
 IDMS: dict[str, Callable[..., "IDMPrior"]] = {}
@@ -52,7 +53,7 @@ def freeze(module: nn.Module) -> nn.Module:
 def _load_relitlrm(path: str | Path, device: torch.device | str = "cpu") -> nn.Module:
     from frng.priors.backbone import BackboneConfig, RelitLRMBackbone
 
-    state = torch.load(path, map_location="cpu", weights_only=False)
+    state = load_torch(path, "backbone model file")
     model = RelitLRMBackbone(BackboneConfig.from_dict(state["config"]))
     model.load_state_dict(state["state_dict"])
     return model.to(device)
@@ -63,7 +64,11 @@ def load_backbone(path: str | Path, device: torch.device | str = "cpu", kind: st
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: backbone model file does not exist; run `frng backbone-train` first")
-    kind = kind or torch.load(path, map_location="cpu", weights_only=False).get("kind", "relitlrm")
+    if kind is None:
+        state = load_torch(path, "backbone model file")  # weights_only: a crafted model.pt runs nothing
+        if not isinstance(state, dict):
+            raise CorruptFileError(f"{path}: not a backbone model file (a {type(state).__name__})")
+        kind = state.get("kind", "relitlrm")
     if kind not in BACKBONES:
         raise KeyError(f"unknown backbone kind {kind!r}; registered: {sorted(BACKBONES)}")
     return freeze(BACKBONES[kind](path, device))
@@ -86,7 +91,7 @@ class LearnedIDMPrior:
         model_path = Path(model_path)
         if not model_path.exists():
             raise FileNotFoundError(f"{model_path}: IDM model file does not exist; run `frng idm-train` first")
-        state = torch.load(model_path, map_location="cpu", weights_only=False)
+        state = load_torch(model_path, "IDM model file")
         self.model = LearnedIDM(IDMConfig.from_dict(state["config"]))
         self.model.load_state_dict(state["state_dict"])
         self.model = freeze(self.model.to(device))

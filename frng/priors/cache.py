@@ -82,8 +82,12 @@ def _load(path: Path) -> tuple[dict[str, torch.Tensor], dict[str, str]]:
 
     if not path.exists():
         raise FileNotFoundError(f"{path}: cache file does not exist")
-    with safe_open(str(path), framework="pt") as f:
-        return {k: f.get_tensor(k) for k in f.keys()}, dict(f.metadata() or {})
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            return {k: f.get_tensor(k) for k in f.keys()}, dict(f.metadata() or {})
+    except Exception as e:  # noqa: BLE001 -- SafetensorError (incomplete metadata, ...) names no file
+        raise io.CorruptFileError(f"{path}: cannot read cache: truncated or corrupt ({type(e).__name__}: {e}); "
+                                  f"delete it and rerun the rule that makes it") from None
 
 
 def extra_training_lights(config: Config | dict, oid: str, exclude: str, count: int) -> list[str]:

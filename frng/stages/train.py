@@ -14,8 +14,10 @@ from pathlib import Path
 from frng import config as frng_config
 from frng import distributed
 from frng.model.frng import all_variants, canonical_variant, trained_variants, variant_config
+from frng.io import check_file_index
 from frng.layout import Layout
 from frng.variants import split_seed
+from frng.variants import reads_priors
 from frng.model.train import train
 
 
@@ -37,7 +39,15 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.variant not in all_variants(config) and canonical_variant(config, args.variant) not in trained_variants(config):
         variant_config(config, args.variant)  # raises for unknown names; other k<percent> values are allowed
-    out = Path(args.out or Layout(config.results).model_dir(args.variant))
+    layout = Layout(config.results)
+    out = Path(args.out or layout.model_dir(args.variant))
+    # the training split's files as the indexes recorded them (rules training_set_*): a truncated or corrupted
+    # cache is named here rather than deep in the loader
+    priors = reads_priors(canonical_variant(config, split_seed(args.variant)[0]))
+    indexes = [layout.backbone_cache_index()] + ([layout.idm_priors_index()] if priors else [])
+    for index in indexes:
+        if Path(index).exists():
+            check_file_index(index)
     # {variant}@s{seed} (train.seeds): the variant trained with train_seed = seed (frng.variants.split_seed)
     base, seed = split_seed(args.variant)
     if seed is not None:
