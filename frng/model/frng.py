@@ -33,7 +33,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from frng import envmap
+from frng import camera, envmap
 from frng.config import Config, section, section_dict, typed
 from frng.training import bf16_ok
 from frng.gaussians import GaussianDecodeConfig, Gaussians
@@ -103,6 +103,7 @@ class FRNGConfig:
     decoder_cosine: bool  # decoder output x max(0, n.w_i), n = features 0:3 (shading.decoder_cosine)
     decoder_attenuation: bool  # the decoder may also darken its Lambertian base (shading.decoder_attenuation)
     back_completion: bool  # Gaussians on the hull's unseen far side, copied from their pixels (frng.back_completion)
+    decoder_specular: bool  # closed-form prefiltered specular base, features 6:10 (shading.decoder_specular)
 
     @classmethod
     def from_dict(cls, d: dict) -> "FRNGConfig":
@@ -275,6 +276,9 @@ class FRNG(nn.Module):
         if lambertian_start and self.pixel_head is not None:  # start at the Lambertian relighting of the input views
             nn.init.zeros_(self.material.detokenizer.proj.weight)
             nn.init.zeros_(self.material.detokenizer.proj.bias)
+        if cfg.decoder_specular and cfg.feature_dim < 10:
+            raise ValueError(f"the specular base (shading.decoder_specular) reads feature channels 6:10; "
+                             f"frng.feature_dim is {cfg.feature_dim}")
         self.decoder = NeuralDecoder(cfg.feature_dim, cfg.decoder_width, cfg.decoder_depth, cfg.dir_freqs,
                                      cosine=cfg.decoder_cosine, attenuation=cfg.decoder_attenuation) \
             if cfg.head == "neural" else None
@@ -327,7 +331,8 @@ class FRNG(nn.Module):
         return {"width": self.cfg.decoder_width, "depth": self.cfg.decoder_depth,
                 "input_encoding": f"[feature({self.cfg.feature_dim}), {enc}(w_o world), {enc}(w_i world)]",
                 "dir_freqs": self.cfg.dir_freqs, "feature_dim": self.cfg.feature_dim, "output": self._decoder_output(),
-                "cosine": self.cfg.decoder_cosine, "attenuation": self.cfg.decoder_attenuation, "head": self.cfg.head}
+                "cosine": self.cfg.decoder_cosine, "attenuation": self.cfg.decoder_attenuation, "head": self.cfg.head,
+                "specular": self.cfg.decoder_specular}
 
     def _decoder_output(self) -> str:
         if not self.cfg.decoder_cosine:
@@ -335,7 +340,11 @@ class FRNG(nn.Module):
         base = "max(feature[3:6], 0)"
         if self.cfg.decoder_attenuation:
             base += " x (1 - sigmoid(MLP[3:6]))"
-        return f"({base} + softplus(MLP[0:3])) x max(0, n.w_i), n = normalise(feature[0:3])"
+        out = f"({base} + softplus(MLP[0:3])) x max(0, n.w_i), n = normalise(feature[0:3])"
+        if self.cfg.decoder_specular:
+            out += (" + softplus(feature[6:9] - 4) x prefiltered env (frng.render.prefilter, vMF kappas "
+                    "400/100/25/6) at reflect(w_o, n), level 3 sigmoid(feature[9])")
+        return out
 
     @property
     def device(self) -> torch.device:
@@ -503,6 +512,8 @@ class FRNG(nn.Module):
                                      sc.alpha_eps, chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
                 rgb = rgb.float() + lambert_sh(maps, alpha, envmap.sh_project(env.detach().float().cpu()).float(),
                                                sc.alpha_eps)
+                if self.cfg.decoder_specular:  # closed-form highlights: the prefiltered map at the mirror direction
+                    rgb = rgb + self.specular(maps, alpha, c2w, intr, env)
                 if self.decoder.attenuation:  # the attenuated share is a Monte-Carlo estimate: it can overshoot
                     rgb = rgb.clamp_min(0.0)
             elif self.cfg.head == "neural":
@@ -518,6 +529,16 @@ class FRNG(nn.Module):
                 rgb = deferred_shade(_ggx_unit_normal, split, alpha, c2w, intr, samples, spp_grad, sc.alpha_eps,
                                      chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
         return torch.cat([rgb.float(), alpha], -1)
+
+    def specular(self, maps: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor,
+                 env: torch.Tensor) -> torch.Tensor:
+        """The specular base (Vt, H, W, 3) of rasterized features under an env map (He, We, 3)
+        (:func:`frng.render.prefilter.specular_base`)."""
+        from frng.render.prefilter import prefilter, specular_base
+
+        H, W = maps.shape[1:3]
+        _, d = camera.pixel_rays(c2w.float(), intr.float(), H, W)
+        return specular_base(maps, alpha, prefilter(env.to(maps.device)), d, self.shading_cfg.alpha_eps)
 
     def set_inference_shading(self, shading: ShadingConfig) -> "FRNG":
         """Take the inference-time settings (``chunk_pixels``, ``chunk_pairs``, ``bf16_infer``, ``sampling``) from
@@ -590,6 +611,7 @@ def variant_config(config: Config | dict, name: str, backbone_cfg: dict | None =
         max_radius_px=bb.max_radius_px, saliency=section_dict(f.saliency, "frng.saliency"),
         pixel_head=f.pixel_head, decoder_cosine=sh.decoder_cosine,
         decoder_attenuation=sh.decoder_cosine and sh.decoder_attenuation, back_completion=f.back_completion,
+        decoder_specular=sh.decoder_cosine and sh.decoder_specular,
     )
     loss = c.train.loss
     ind = LightIndependenceConfig(lambda_c=loss.lambda_c, lambda_kld=loss.lambda_kld, temperature=loss.temperature)

@@ -45,6 +45,7 @@ class ShadingConfig:
     dir_freqs: int
     decoder_cosine: bool
     decoder_attenuation: bool
+    decoder_specular: bool
     diffuse: str
     sampling: str
     alpha_eps: float

@@ -1,0 +1,97 @@
+"""Prefiltered environment maps: the closed-form specular base of the cosine decoder (``shading.decoder_specular``).
+
+The cosine decoder's Lambertian base (:func:`frng.render.shading.lambert_sh`) relights the diffuse part of every
+surface without Monte-Carlo noise; a glossy surface's highlight is the environment seen in the mirror direction,
+blurred by the surface's roughness, which 16-32 light samples drawn by the map's luminance estimate with a large
+variance (the samples rarely fall inside a narrow lobe). This module gives that term in closed form, as real-time
+renderers do ("split sum", Karis 2013): the map convolved with a von Mises-Fisher lobe of sharpness kappa at a few
+levels, looked up at the reflected direction and interpolated between levels by a per-pixel roughness:
+
+    S(p) = k_s(p) L_kappa(p)(r),   r = 2 (n . w_o) n - w_o,   L_kappa(w) = int L(w') vMF_kappa(w . w') dw'
+
+with k_s (specular colour) and the level (roughness) read from the decoder's feature channels 6:10
+(:func:`specular_base`). Shapes: env maps (He, We, 3) linear HDR, equirect in :mod:`frng.envmap`'s convention.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+from frng import envmap
+
+KAPPAS = (400.0, 100.0, 25.0, 6.0)  # lobe sharpness per level: ~3, 6, 11, 23 degrees (1 / sqrt(kappa) rad)
+PREFILTER_HEIGHT = 32  # maps are area-averaged to 32 x 64 before convolving (texel ~5.6 degrees)
+SPECULAR_CHANNELS = slice(6, 10)  # decoder features: 6:9 specular colour logits, 9 level logit
+SPECULAR_OFFSET = 4.0  # k_s = softplus(f - 4): ~0.018 at a zero feature (a new model starts almost Lambertian)
+
+
+def prefilter(env: torch.Tensor, kappas: tuple[float, ...] = KAPPAS, height: int = PREFILTER_HEIGHT) -> torch.Tensor:
+    """env (He, We, 3) -> (L, height, 2 height, 3): the map convolved with normalised vMF lobes of each kappa
+    (dense over the texels; L = len(kappas)), sharpest first. No gradient (the light is data)."""
+    with torch.no_grad():
+        e = F.adaptive_avg_pool2d(env.detach().float().permute(2, 0, 1)[None].clamp_min(0.0),
+                                  (height, 2 * height))[0].permute(1, 2, 0)  # (h, w, 3)
+        d = envmap.pixel_directions(height, 2 * height, device=e.device, dtype=torch.float32).reshape(-1, 3)
+        omega = envmap.pixel_solid_angles(height, 2 * height, device=e.device, dtype=torch.float32).reshape(-1)
+        cos = d @ d.T  # (T, T)
+        out = []
+        for k in kappas:
+            w = torch.exp(k * (cos - 1.0)) * omega[None]
+            w = w / w.sum(-1, keepdim=True)
+            out.append((w @ e.reshape(-1, 3)).reshape(height, 2 * height, 3))
+        return torch.stack(out)
+
+
+def lookup(pref: torch.Tensor, dirs: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
+    """Prefiltered radiance (P, 3) at unit directions dirs (P, 3) and fractional levels level (P,) in [0, L-1]
+    (bilinear within a level, wrapping in longitude; linear between levels; differentiable in dirs and level)."""
+    L, h, w, _ = pref.shape
+    u, v = envmap.dir_to_uv(dirs.float())
+    # wrap in u: pad one column on each side
+    padded = torch.cat([pref[:, :, -1:], pref, pref[:, :, :1]], 2).permute(0, 3, 1, 2)  # (L, 3, h, w + 2)
+    x = (u * w + 1.0) / (w + 2) * 2.0 - 1.0
+    y = v * 2.0 - 1.0
+    grid = torch.stack([x, y], -1).reshape(1, 1, -1, 2).expand(L, 1, -1, 2).to(pref.dtype)
+    vals = F.grid_sample(padded, grid, mode="bilinear", padding_mode="border", align_corners=False)  # (L, 3, 1, P)
+    vals = vals[:, :, 0].permute(2, 0, 1)  # (P, L, 3)
+    lv = level.float().clamp(0, L - 1)
+    i0 = lv.floor().long().clamp(max=L - 1)
+    i1 = (i0 + 1).clamp(max=L - 1)
+    t = (lv - i0.float())[:, None]
+    a = vals.gather(1, i0[:, None, None].expand(-1, 1, 3))[:, 0]
+    b = vals.gather(1, i1[:, None, None].expand(-1, 1, 3))[:, 0]
+    return a * (1.0 - t) + b * t
+
+
+def specular_base(maps: torch.Tensor, alpha: torch.Tensor, pref: torch.Tensor, view_dirs: torch.Tensor,
+                  alpha_eps: float = 1e-3) -> torch.Tensor:
+    """The specular base S (V, H, W, 3), premultiplied by alpha, of the decoder's rasterized features.
+
+    maps (V, H, W, C >= 10) alpha-premultiplied features (0:3 normal n, 6:9 specular colour logits, 9 level logit);
+    alpha (V, H, W, 1); pref from :func:`prefilter`; view_dirs (V, H, W, 3) unit camera rays (camera -> surface).
+    k_s = softplus(f_6:9 - SPECULAR_OFFSET), level = (L - 1) sigmoid(f_9); zero where alpha <= alpha_eps."""
+    assert maps.shape[:3] == alpha.shape[:3] == view_dirs.shape[:3] and maps.shape[-1] >= 10, (maps.shape,)
+    fg = alpha[..., 0] > alpha_eps
+    out = torch.zeros(*maps.shape[:3], 3, device=maps.device, dtype=torch.float32)
+    if not bool(fg.any()):
+        return out
+    a = alpha[fg].float()
+    f = maps[fg].float() / a.clamp_min(alpha_eps)
+    n = F.normalize(f[:, :3], dim=-1, eps=1e-6)
+    wo = -view_dirs[fg].float()
+    r = F.normalize(2.0 * (n * wo).sum(-1, keepdim=True) * n - wo, dim=-1, eps=1e-6)
+    ks = F.softplus(f[:, 6:9] - SPECULAR_OFFSET)
+    level = (pref.shape[0] - 1) * torch.sigmoid(f[:, 9])
+    s = ks * lookup(pref, r, level) * a
+    return out.index_put(torch.nonzero(fg, as_tuple=True), s)
+
+
+def vmf_lobe_mean(kappa: float) -> float:
+    """Mean cosine of a vMF lobe (its angular width): coth(kappa) - 1 / kappa (tests, documentation)."""
+    return 1.0 / math.tanh(kappa) - 1.0 / kappa
+
+
+__all__ = ["KAPPAS", "PREFILTER_HEIGHT", "SPECULAR_CHANNELS", "lookup", "prefilter", "specular_base", "vmf_lobe_mean"]
