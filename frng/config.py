@@ -517,6 +517,7 @@ SECTION_CLASSES: dict[str, tuple[str, str]] = {
     "": ("frng.config", "Config"),
     "envmaps": ("frng.data.catalog", "EnvmapsConfig"),
     "envmaps.skies": ("frng.data.catalog", "SkiesConfig"),
+    "envmaps.studio": ("frng.data.catalog", "StudioConfig"),
     "objects": ("frng.data.catalog", "ObjectsConfig"),
     "render": ("frng.data.catalog", "RenderConfig"),
     "backbone": ("frng.priors.backbone", "BackboneSection"),

@@ -70,6 +70,18 @@ class SkiesConfig:
 
 
 @dataclass(frozen=True)
+class StudioConfig:
+    """The config's ``envmaps.studio`` section: procedural studio maps (area lights over a dim background)."""
+
+    count: int
+    lights: tuple[int, ...]
+    size_deg: tuple[float, ...]
+    elevation_deg: tuple[float, ...]
+    kelvin: tuple[float, ...]
+    background: float
+
+
+@dataclass(frozen=True)
 class EnvmapsConfig:
     """The config's ``envmaps`` section (frng.config.section; defaults: config/schema.yaml). ``extra`` holds the
     user's entries as mappings (path, split, licence)."""
@@ -81,6 +93,7 @@ class EnvmapsConfig:
     test_fraction: float
     extra: tuple[dict, ...]
     normalize: float | None
+    studio: StudioConfig
 
 
 @dataclass(frozen=True)
@@ -144,15 +157,40 @@ class EnvMapSpec:
 
     name: str            # "{base}_r{k}"
     base: str            # bundled name, "sky_{model}_e{elev}" or "user_{stem}"
-    source: str          # "bundled" | "sky" | "user"
+    source: str          # "bundled" | "sky" | "studio" | "user"
     split: str           # "train" | "test"
     rotation_deg: float  # about world Z, applied with frng.envmap.rotate_z
     licence: str
     origin: str          # bundled file name, sky parameters, or the user's file path
     sky: dict | None = None  # {"model", "sun_elevation_deg", "turbidity"} for skies
+    studio: dict | None = None  # procedural studios: {"background", "lights": [...]} (studio_params)
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        d = asdict(self)
+        if self.studio is None:  # (absent: the records of the other maps stay as they were)
+            del d["studio"]
+        return d
+
+
+def studio_params(seed: int, base: str, cfg: StudioConfig) -> dict:
+    """The seeded layout of procedural studio ``base``: a dim background and ``cfg.lights`` (range) rectangular
+    area lights, each facing the origin, of random angular width / height (``size_deg`` range), azimuth (uniform),
+    elevation (``elevation_deg`` range), roll, blackbody colour temperature (``kelvin`` range) and relative
+    strength U(0.5, 2). Rendered by :func:`frng.data.envmaps.studio_map`."""
+    rng = rng_for(seed, "studio", base)
+    lo, hi = int(min(cfg.lights)), int(max(cfg.lights))
+    lights = []
+    for _ in range(int(rng.integers(lo, hi + 1))):
+        lights.append({
+            "azimuth_deg": round(float(rng.uniform(0.0, 360.0)), 3),
+            "elevation_deg": round(float(rng.uniform(*sorted(cfg.elevation_deg))), 3),
+            "width_deg": round(float(rng.uniform(*sorted(cfg.size_deg))), 3),
+            "height_deg": round(float(rng.uniform(*sorted(cfg.size_deg))), 3),
+            "roll_deg": round(float(rng.uniform(-45.0, 45.0)), 3),
+            "kelvin": round(float(rng.uniform(*sorted(cfg.kelvin))), 1),
+            "strength": round(float(rng.uniform(0.5, 2.0)), 4),
+        })
+    return {"background": float(cfg.background), "lights": lights}
 
 
 def _sky_base(model: str, elevation: float) -> str:
@@ -211,6 +249,10 @@ def envmap_plan(config: Config | dict) -> list[EnvMapSpec]:
         for el in skies.sun_elevations_deg:
             sky = {"model": model, "sun_elevation_deg": float(el), "turbidity": float(skies.turbidity)}
             bases.append((_sky_base(model, el), "sky", GENERATED_LICENCE, f"Blender Sky Texture ({model})", sky))
+    for k in range(env.studio.count):
+        base = f"procstudio_{k}"
+        bases.append((base, "studio", GENERATED_LICENCE, "procedural studio (area lights over a dim background)",
+                      studio_params(seed, base, env.studio)))
     split = _split_bases([b[0] for b in bases], env.test_fraction, seed)
     user = _user_files(env.extra, ENVMAP_SUFFIXES, "envmaps.extra")
     for (f, entry), uid in zip(user, _unique_user_ids(user, "envmaps.extra")):
@@ -219,11 +261,12 @@ def envmap_plan(config: Config | dict) -> list[EnvMapSpec]:
         bases.append((uid, "user", entry.get("licence", "user-supplied"), str(f), None))
         split[uid] = entry["split"]
     specs = []
-    for base, source, licence, origin, sky in bases:
+    for base, source, licence, origin, params in bases:
+        sky, studio = (None, params) if source == "studio" else (params, None)
         for k in range(env.rotations):
             name = f"{base}_r{k}"
             rot = float(rng_for(seed, "envmap-rotation", name).uniform(0.0, 360.0))
-            specs.append(EnvMapSpec(name, base, source, split[base], round(rot, 4), licence, origin, sky))
+            specs.append(EnvMapSpec(name, base, source, split[base], round(rot, 4), licence, origin, sky, studio))
     return specs
 
 

@@ -1,8 +1,9 @@
 """Every environment map of the dataset plan (stage :mod:`frng.stages.envmaps`, ``frng envmaps``).
 
 For each base map of :func:`frng.data.catalog.envmap_plan` -- one of Blender's 8 bundled CC0 HDRIs, a
-Preetham / Hosek-Wilkie sky baked with Cycles (lower hemisphere darkened to a 0.3-albedo ground), or a
-user's EXR/HDR file -- and each of its ``envmaps.rotations`` random Z rotations:
+Preetham / Hosek-Wilkie sky baked with Cycles (lower hemisphere darkened to a 0.3-albedo ground), a procedural
+studio (:func:`studio_map`: seeded area lights over a dim background, baked at 512 px) or a user's EXR/HDR
+file -- and each of its ``envmaps.rotations`` random Z rotations:
 
     rotate (frng.envmap.rotate_z, at the source resolution) -> resize to envmaps.width (frng.envmap.resize)
     -> scale so the solid-angle-weighted mean luminance is envmaps.normalize (if set) -> write
@@ -50,8 +51,59 @@ def bundled_dir() -> Path:
     return Path(bpy.utils.system_resource("DATAFILES", path="studiolights/world"))
 
 
+def _lobe(lam: np.ndarray, mu: float, s1: float, s2: float) -> np.ndarray:
+    s = np.where(lam < mu, s1, s2)
+    return np.exp(-0.5 * ((lam - mu) / s) ** 2)
+
+
+def blackbody_rgb(kelvin: float) -> np.ndarray:
+    """Linear Rec. 709 colour (3,) of a blackbody at ``kelvin``, luminance 1: Planck's law integrated against the
+    CIE 1931 colour-matching functions (the multi-lobe fit of Wyman, Sloan and Shirley 2013), XYZ -> linear sRGB,
+    negatives clipped. 6500 K is near white, 2700 K orange, 10000 K blue."""
+    lam = np.arange(380.0, 781.0, 5.0)
+    x = 1.056 * _lobe(lam, 599.8, 37.9, 31.0) + 0.362 * _lobe(lam, 442.0, 16.0, 26.7) - 0.065 * _lobe(lam, 501.1, 20.4, 26.2)
+    y = 0.821 * _lobe(lam, 568.8, 46.9, 40.5) + 0.286 * _lobe(lam, 530.9, 16.3, 31.1)
+    z = 1.217 * _lobe(lam, 437.0, 11.8, 36.0) + 0.681 * _lobe(lam, 459.0, 26.0, 13.8)
+    m = lam * 1e-9
+    planck = 1.0 / (m ** 5 * (np.exp(1.4388e-2 / (m * float(kelvin))) - 1.0))
+    xyz = np.array([(x * planck).sum(), (y * planck).sum(), (z * planck).sum()])
+    rgb = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]]) @ xyz
+    rgb = np.maximum(rgb, 0.0)
+    return (rgb / envmap.luminance(rgb)).astype(np.float32)
+
+
+def studio_map(params: dict, width: int) -> np.ndarray:
+    """A procedural studio (``catalog.studio_params``) as a linear equirect map (width/2, width, 3), frng.envmap's
+    convention: a dim background (``background`` above the horizon, half of it below: a floor) plus rectangular
+    area lights facing the origin, each of radiance ``strength`` x its blackbody colour, edges softened over 5% of
+    their size (and at least a pixel)."""
+    h = width // 2
+    d = envmap.pixel_directions(h, width, dtype=__import__("torch").float64).numpy()
+    bg = float(params["background"])
+    img = np.where(d[..., 2:3] >= 0.0, bg, 0.5 * bg) * np.ones(3)
+    pixel = math.pi / h
+    for light in params["lights"]:
+        az, el = math.radians(light["azimuth_deg"]), math.radians(light["elevation_deg"])
+        f = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+        r = np.cross(f, [0.0, 0.0, 1.0])
+        r = r / np.linalg.norm(r) if np.linalg.norm(r) > 1e-6 else np.array([1.0, 0.0, 0.0])
+        u = np.cross(r, f)
+        roll = math.radians(light["roll_deg"])
+        r, u = math.cos(roll) * r + math.sin(roll) * u, -math.sin(roll) * r + math.cos(roll) * u
+        a = d @ f
+        x, y = np.arctan2(d @ r, a), np.arctan2(d @ u, a)
+        hw, hh = math.radians(light["width_deg"]) / 2, math.radians(light["height_deg"]) / 2
+        soft_x, soft_y = max(pixel, 0.1 * hw), max(pixel, 0.1 * hh)
+        mask = (np.clip((hw - np.abs(x)) / soft_x + 0.5, 0, 1) * np.clip((hh - np.abs(y)) / soft_y + 0.5, 0, 1)
+                * (a > 0))
+        img = img + mask[..., None] * float(light["strength"]) * blackbody_rgb(light["kelvin"])
+    return img.astype(np.float32)
+
+
 def load_base(spec: catalog.EnvMapSpec, work: Path, threads: int) -> np.ndarray:
     """The base map of ``spec`` at its source resolution, linear float32 (H, W, 3)."""
+    if spec.source == "studio":
+        return studio_map(spec.studio, SKY_BAKE_WIDTH)
     if spec.source == "bundled":
         return envmap.read(bundled_dir() / spec.origin)
     if spec.source == "user":
