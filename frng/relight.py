@@ -285,9 +285,10 @@ def relight_object(config: Config | dict, oid: str, models: dict[str, Path], bac
 
 def shade_base(model, raster: tuple, env: torch.Tensor) -> torch.Tensor:
     """The run ``full-base`` (:data:`frng.variants.BASE_RUN`, the quality ladder's Lambertian row): what
-    :meth:`frng.model.frng.FRNG.shade` renders with the decoder's residual and attenuation dropped, i.e. only its
-    closed-form Lambertian base d E(n) (:func:`frng.render.shading.lambert_sh`, the term ``shade`` adds to the
-    Monte-Carlo residual with ``shading.diffuse: sh``). ``raster``: :meth:`FRNG.rasterize`'s output. Returns RGBA
+    :meth:`frng.model.frng.FRNG.shade` renders with the decoder's residual and attenuation (and the closed-form
+    specular base of ``shading.decoder_specular``) dropped, i.e. only its closed-form Lambertian base d E(n)
+    (:func:`frng.render.shading.lambert_sh`, the term ``shade`` adds to the Monte-Carlo residual with
+    ``shading.diffuse: sh``; checked equal to ``shade`` with the residual and the specular term zeroed). ``raster``: :meth:`FRNG.rasterize`'s output. Returns RGBA
     (Vt, H, W, 4), linear, premultiplied over black. Needs the cosine decoder (``shading.decoder_cosine``)."""
     from frng.render.shading import lambert_sh
 

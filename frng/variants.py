@@ -15,8 +15,8 @@ Training seeds (``train.seeds``): the plain variant names are trained with the m
 Runs (``{results}/relight/{run}/{obj}/``, :func:`runs`): every variant at the 6-view rig (and its other training
 seeds), the K sweep, the #views sweep ``full-v{V}`` (the full model fed V input views), ``full-oracle`` (the full
 model fed the test object's rendered G-buffers instead of the IDM's priors: how much a perfect IDM would add),
-``full-base`` (the full model's closed-form Lambertian base alone, the decoder's residual and attenuation dropped;
-only with ``shading.decoder_cosine``) and the ``backbone`` baseline.
+``full-base`` (the full model's closed-form Lambertian base alone, the decoder's residual, attenuation and specular
+base dropped; only with ``shading.decoder_cosine``) and the ``backbone`` baseline.
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ RIG_VIEWS = 6  # the paper's input rig
 SWEEP_VIEWS = (2, 4, 6, 8, 10)  # the #views table
 BACKBONE = "backbone"
 ORACLE_RUN = "full-oracle"  # the full model fed the G-buffers instead of the IDM's priors (quality ladder row f)
-BASE_RUN = "full-base"  # the full model's Lambertian base alone (decoder residual and attenuation dropped)
+BASE_RUN = "full-base"  # the full model's Lambertian base alone (decoder residual, attenuation, specular base dropped)
 SEED_SEP = "@s"  # {variant}@s{seed}: a variant trained with another training seed
 
 

@@ -62,6 +62,14 @@ def test_every_target_and_table(smoke_run):
     assert per_image["lpips"].between(0, 2).all()
     ladder = pd.read_csv(results / "tables" / "ladder.csv")
     assert {"a", "b", "c", "d", "e", "f"} <= set(ladder["step"]), list(ladder["step"])
+    # e/f/g carry their paired difference and its interval; the Lambertian-base run is scored per class
+    by = ladder.set_index("step")
+    assert "g" in by.index and (by.loc[["e", "f", "g"], "dpsnr_lo"] <= by.loc[["e", "f", "g"], "dpsnr_hi"]).all()
+    assert {"all"} <= set(pd.read_csv(results / "tables" / "lambertian.csv")["dataset"])
+    cross = pd.read_csv(results / "metrics" / "relight_cross_light.csv")
+    if n_lights > 1:
+        assert set(cross["run"]) == {"backbone", "full", "ground-truth"}
+        assert {"s1", "s2", "s3"} <= set(by.index)
     timing = pd.read_csv(results / "tables" / "timing.csv")
     assert (timing["relight_ms_per_image"] > 0).all()
 

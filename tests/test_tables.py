@@ -135,3 +135,11 @@ def test_sweep_tables_compare_with_the_reference_row():
     k = k_table(df).set_index("k_percent")
     assert list(k.index) == [2.0, 8.0] and np.isclose(k.loc[2.0, "dpsnr"], -0.5) and pd.isna(k.loc[8.0, "dpsnr"])
     assert np.isclose(k.loc[2.0, "dpsnr_lo"], -0.5) and np.isclose(k.loc[2.0, "dlpips"], 0.005)
+
+
+def test_unmarked_footer():
+    df = pd.DataFrame({"step": ["d", "e"], "psnr": [17.0, 18.0]})
+    foot = pd.DataFrame({"step": ["s1", "s3"], "psnr": [16.0, 22.0]})
+    md, tex = T.render(df, footer=foot, footer_best=False)
+    assert "**18.00**" in md and "**22.00**" not in md and "| s3 | 22.00 |" in md
+    assert "\\cellcolor{tabfirst}{22.00}" not in tex

@@ -255,7 +255,7 @@ LADDER_STEPS = (  # (step, what, source, task/run, method, reference step); sour
     ("d", "backbone relighting", "relight", BACKBONE, None, None),
     ("e", "F-RNG relighting", "relight", "full", None, "d"),
     ("f", "F-RNG relighting with oracle (G-buffer) IDM priors", "relight", ORACLE_RUN, None, "e"),
-    ("g", "F-RNG's Lambertian base alone (decoder residual and attenuation dropped)", "relight", BASE_RUN, None, "e"),
+    ("g", "F-RNG's Lambertian base alone (decoder residual, attenuation, specular base dropped)", "relight", BASE_RUN, None, "e"),
     ("-", "trivial baseline: mean training image", "prior", "relight", "mean-image", None),
 )
 SENSITIVITY_STEPS = (  # (step, method label, run in the per-image / cross-light CSVs)
@@ -314,6 +314,12 @@ def ladder_table(df: pd.DataFrame, prior: pd.DataFrame, cross: pd.DataFrame | No
     main = list(T.TABLE_COLUMNS["ladder"])
     rest = [c for c in ["vs", *T.diff_columns()] if c in out.columns]
     return out.reindex(columns=main + rest)
+
+
+def split_ladder(ladder: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(the ladder's steps, its light-sensitivity rows ``s*``): written as the table and its unmarked footer."""
+    s = ladder["step"].astype(str).str.match(r"^s[0-9]+$")
+    return ladder[~s].reset_index(drop=True), ladder[s].reset_index(drop=True)
 
 
 def lambertian_table(df: pd.DataFrame) -> pd.DataFrame:
@@ -384,20 +390,21 @@ def write_tables(config: Config | dict, per_image_csv: Path, timing_files: list[
         caption=_caption("Top-K salient patches (K in % of a view's patches; differences to the full model's K).",
                          config, k_rows(df)), label="tab:k")
     prior = pd.read_csv(prior_csv)
+    steps, sensitivity = split_ladder(ladder_table(df, prior, cross))
     out["ladder"] = T.write_table(
-        ladder_table(df, prior, cross), out_dir / "ladder",
+        steps, out_dir / "ladder", footer=sensitivity, footer_best=False,
         caption=(f"Quality ladder: where the dB go. Aligned protocol on the held-out relighting images (row c: the "
                  f"held-out input-light views); scale_log2 = median over images and channels of |log2| of the "
                  f"per-channel least-squares scale the protocol applied; brightness_log2 = the same of the ratio of "
-                 f"means (ground truth over prediction). Row g: F-RNG rendered with its decoder's Lambertian base "
-                 f"alone. Rows s: each method's render for one test light scored against the ground truth of another "
+                 f"means (ground truth over prediction). Row g: F-RNG rendered with its decoder's closed-form Lambertian "
+                 f"base alone. Rows s: each method's render for one test light scored against the ground truth of another "
                  f"test light (same object and view); their Δ = right light minus that wrong light (ground truth: "
                  f"itself vs the other light's). {DIFF_NOTE} The models' own training seed. Tier {config.tier}."),
         label="tab:ladder")
     out["lambertian"] = T.write_table(
         lambertian_table(df), out_dir / "lambertian",
-        caption=_caption("F-RNG and its decoder's closed-form Lambertian base alone (residual and attenuation "
-                         "dropped), per material class; differences: base minus F-RNG.", config,
+        caption=_caption("F-RNG and its decoder's closed-form Lambertian base alone (residual, attenuation and "
+                         "specular base dropped), per material class; differences: base minus F-RNG.", config,
                          df[df["run"].isin(["full", BASE_RUN])]), label="tab:lambertian")
     t = timing_table(timings)
     out["timing"] = T.write_table(

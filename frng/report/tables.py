@@ -174,6 +174,7 @@ def render(
     decimals: Mapping[str, int] | None = None,
     caption: str | None = None,
     label: str | None = None,
+    footer_best: bool = True,
 ) -> tuple[str, str]:
     """Render (markdown, latex) strings. See :func:`write_table` for the arguments."""
     decimals = dict(decimals or {})
@@ -209,7 +210,9 @@ def render(
     for bi, block in enumerate(blocks):
         formatted = pd.DataFrame({c: [cell(block, c, i) for i in block.index] for c in cols}, index=block.index)
         within = [c for c in best_within if c in block.columns] if bi == 0 else []
-        rank = _ranks(block[cols], formatted, within, second)
+        rank = _ranks(block[cols], formatted, within, second if bi == 0 or footer_best else False)
+        if bi > 0 and not footer_best:
+            rank[:] = 0
         md_block, tex_block = [], []
         for i in block.index:
             md_cells, tex_cells = [], []
@@ -261,6 +264,7 @@ def write_table(
     decimals: Mapping[str, int] | None = None,
     caption: str | None = None,
     label: str | None = None,
+    footer_best: bool = True,
 ) -> dict[str, Path]:
     """Write ``{stem}.csv``, ``{stem}.md`` and ``{stem}.tex`` for a table, atomically.
 
@@ -274,11 +278,12 @@ def write_table(
         decimals: displayed decimals per column, overriding :data:`DECIMALS`.
         caption: shown above the Markdown table and as the LaTeX caption (say which metric protocol is used).
         label: LaTeX ``\\label``.
+        footer_best: mark the best values among the footer rows too (False: footer rows are never marked).
     Returns {"csv": path, "md": path, "tex": path}.
     """
     path = Path(path)
     stem = path.with_suffix("") if path.suffix in (".csv", ".md", ".tex") else path
-    markdown, latex = render(df, footer, best_within, second, decimals, caption, label)
+    markdown, latex = render(df, footer, best_within, second, decimals, caption, label, footer_best)
     csv_df = df if footer is None else pd.concat([df, footer], ignore_index=True)
     out = {"csv": Path(f"{stem}.csv"), "md": Path(f"{stem}.md"), "tex": Path(f"{stem}.tex")}
     with atomic_path(out["csv"]) as tmp:
