@@ -519,6 +519,7 @@ SECTION_CLASSES: dict[str, tuple[str, str]] = {
     "envmaps.skies": ("frng.data.catalog", "SkiesConfig"),
     "envmaps.studio": ("frng.data.catalog", "StudioConfig"),
     "objects": ("frng.data.catalog", "ObjectsConfig"),
+    "objects.objaverse": ("frng.data.catalog", "ObjaverseConfig"),
     "render": ("frng.data.catalog", "RenderConfig"),
     "backbone": ("frng.priors.backbone", "BackboneSection"),
     "backbone.train": ("frng.priors.backbone_train", "BackboneTrainConfig"),

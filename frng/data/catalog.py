@@ -125,10 +125,133 @@ class ObjectsConfig:
     sources: tuple[str, ...]
     material_mix: dict
     extra: tuple[dict, ...]
+    objaverse: "ObjaverseConfig"
+
+
+@dataclass(frozen=True)
+class ObjaverseConfig:
+    """The config's ``objects.objaverse`` section: Objaverse 1.0 objects by uid and/or by an annotation filter,
+    read from the ``objaverse`` package's local cache (:func:`objaverse_file`). ``filter`` stays a mapping."""
+
+    uids: tuple[str, ...]
+    filter: dict | None
+    count: int
+    test_count: int
+    material: str
+    cache: str | None
+    download: bool
 
 
 class CatalogError(ValueError):
     """The config asks for a dataset that cannot be built (names the key or file)."""
+
+
+# -- Objaverse (objects.objaverse) ----------------------------------------------------------------------------
+#
+# The objaverse package (pip install objaverse; Objaverse 1.0, allenai/objaverse on the Hugging Face hub) caches
+# objects under ``~/.objaverse/hf-objaverse-v1`` (its module attribute ``_VERSIONED_PATH``):
+#     glbs/{group}/{uid}.glb          the objects (group: "000-023", ...)
+#     object-paths.json.gz            uid -> "glbs/{group}/{uid}.glb"
+#     metadata/{group}.json.gz        annotations: uid -> {name, license, tags, categories, faceCount, viewerUrl, ...}
+# The plan needs only the uids (a dry run is offline); a curation job reads its GLB from the cache, and only when
+# it is missing (and download is on and the package is installed) asks the package to fetch it.
+
+OBJAVERSE_LICENCE = "Objaverse 1.0 object (Sketchfab licence per object; meta.json names it when annotations are cached)"
+OBJAVERSE_DEFAULT_CACHE = "~/.objaverse/hf-objaverse-v1"
+
+
+def objaverse_dir(cfg: ObjaverseConfig) -> Path:
+    return Path(cfg.cache or OBJAVERSE_DEFAULT_CACHE).expanduser()
+
+
+def _objaverse_annotations(root: Path, groups: list[str] | None = None) -> dict:
+    import gzip
+
+    files = sorted((root / "metadata").glob("*.json.gz")) if groups is None else \
+        [root / "metadata" / f"{g}.json.gz" for g in groups if (root / "metadata" / f"{g}.json.gz").is_file()]
+    out: dict = {}
+    for f in files:
+        with gzip.open(f, "rt") as fh:
+            out.update(json.load(fh))
+    return out
+
+
+def objaverse_select(cfg: ObjaverseConfig, seed: int) -> list[str]:
+    """The uids of ``objects.objaverse``: ``uids`` first, then ``count`` uids drawn (seeded, from the sorted
+    matches) among the cached annotations that pass ``filter`` (``tags`` / ``categories`` / ``licenses``: any of
+    the names; ``max_faces``). Read offline from the cache's ``metadata/`` (the package's ``load_annotations``
+    fills it)."""
+    uids = list(dict.fromkeys(cfg.uids))
+    if cfg.count:
+        root = objaverse_dir(cfg)
+        ann = _objaverse_annotations(root)
+        if not ann:
+            raise CatalogError(f"config key 'objects.objaverse.filter': no annotations in {root / 'metadata'}; run "
+                               "`python -c 'import objaverse; objaverse.load_annotations()'` at a site with internet")
+        f = cfg.filter or {}
+
+        def names(a, key):
+            return {t.get("name") if isinstance(t, dict) else t for t in a.get(key) or []}
+
+        def keep(a):
+            return ((not f.get("tags") or names(a, "tags") & set(f["tags"]))
+                    and (not f.get("categories") or names(a, "categories") & set(f["categories"]))
+                    and (not f.get("licenses") or a.get("license") in set(f["licenses"]))
+                    and (f.get("max_faces") is None or int(a.get("faceCount") or 0) <= int(f["max_faces"])))
+        pool = sorted(u for u, a in ann.items() if u not in uids and keep(a))
+        if len(pool) < cfg.count:
+            raise CatalogError(f"config key 'objects.objaverse.count': {cfg.count} objects asked, {len(pool)} cached "
+                               f"annotations in {root / 'metadata'} pass the filter {dict(f)}")
+        uids += [pool[i] for i in sorted(rng_for(seed, "objaverse-filter").choice(len(pool), cfg.count, replace=False))]
+    return uids
+
+
+def _cached_glb(root: Path, uid: str) -> Path | None:
+    hits = sorted((root / "glbs").glob(f"*/{uid}.glb"))
+    return hits[0] if hits else None
+
+
+def objaverse_file(config: Config | dict, uid: str) -> Path:
+    """The cached GLB of Objaverse ``uid``. Nothing is fetched when it is there; otherwise, with
+    ``objects.objaverse.download`` and the ``objaverse`` package installed, the package downloads the missing
+    uids of the plan into the cache; else (or if that fails) a one-line :class:`CatalogError` names every
+    planned uid missing from the cache."""
+    cfg = config_section(config, "objects").objaverse
+    root = objaverse_dir(cfg)
+    path = _cached_glb(root, uid)
+    if path is not None:
+        return path
+    planned = [o.mesh for o in plan(config).objects if o.source == "objaverse"]
+    missing = [u for u in planned if _cached_glb(root, u) is None] or [uid]
+    hint = "copy the files there or set objects.objaverse.download: true at a site with internet"
+    if cfg.download:
+        try:
+            import objaverse
+        except ImportError:
+            hint = "install the objaverse package (pip install objaverse) at a site with internet, or copy the files"
+        else:
+            objaverse._VERSIONED_PATH = str(root)  # the package's cache root (module attribute)
+            try:
+                objaverse.load_objects(uids=list(missing))
+            except Exception as e:  # no network, unknown uid: say so in the one line below
+                hint = f"the objaverse package could not fetch them ({type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''})"
+            path = _cached_glb(root, uid)
+            if path is not None:
+                return path
+    shown = ", ".join(missing[:10]) + (f" ... ({len(missing)} in all)" if len(missing) > 10 else "")
+    raise CatalogError(f"objects.objaverse: {len(missing)} uid(s) not in the local Objaverse cache {root} "
+                       f"(glbs/*/<uid>.glb): {shown}; {hint}")
+
+
+def objaverse_annotation(config: Config | dict, uid: str, path: Path | None = None) -> dict | None:
+    """The cached annotation of ``uid`` (from ``metadata/{group}.json.gz``, group = the GLB's folder), or None."""
+    root = objaverse_dir(config_section(config, "objects").objaverse)
+    path = path or _cached_glb(root, uid)
+    groups = [path.parent.name] if path is not None else None
+    try:
+        return _objaverse_annotations(root, groups).get(uid)
+    except (OSError, ValueError):
+        return None
 
 
 # -- seeds ------------------------------------------------------------------------------------------
@@ -278,8 +401,8 @@ class ObjectSpec:
 
     id: str
     split: str                 # "train" | "test"
-    source: str                # "pybullet" | "primitives" | "procedural" | "user"
-    mesh: str                  # pybullet: path inside pybullet_data; user: file path; else primitive/procedural kind
+    source: str                # "pybullet" | "primitives" | "procedural" | "user" | "objaverse"
+    mesh: str                  # pybullet: path inside pybullet_data; user: file path; objaverse: uid; else the kind
     up: str                    # up axis of the mesh file: "y" (rotated to Z-up) or "z"
     prescale: tuple[float, float, float]
     licence: str
@@ -449,6 +572,19 @@ def object_plan(config: Config | dict, envmaps: list[EnvMapSpec] | None = None) 
         material = material or MATERIALS[rng_for(seed, "user-material", uid).choice(3, p=probs / probs.sum())]
         specs.append((uid, entry["split"], "user", str(f), up, (1.0, 1.0, 1.0),
                       entry.get("licence", "user-supplied"), material, entry.get("class")))
+
+    ov = objects.objaverse
+    ov_uids = objaverse_select(ov, seed)
+    for uid in ov_uids:
+        if not re.fullmatch(r"[0-9a-f]{32}", uid):
+            raise CatalogError(f"config key 'objects.objaverse.uids': {uid!r} is not an Objaverse uid (32 hex digits)")
+    if ov.test_count > len(ov_uids):
+        raise CatalogError(f"config key 'objects.objaverse.test_count': {ov.test_count} exceeds the "
+                           f"{len(ov_uids)} Objaverse objects")
+    ov_test = {ov_uids[i] for i in rng_for(seed, "objaverse-split").permutation(len(ov_uids))[: ov.test_count]}
+    for uid in ov_uids:
+        specs.append((f"objaverse_{uid}", "test" if uid in ov_test else "train", "objaverse", uid, "y",
+                      (1.0, 1.0, 1.0), OBJAVERSE_LICENCE, ov.material))
 
     out = []
     for oid, split, source, mesh, up, prescale, licence, material, *cls in specs:

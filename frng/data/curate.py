@@ -215,6 +215,13 @@ def curate(config: Config | dict, oid: str, env_dir: Path, out_root: Path, log=p
         radius = 1.0 - mat["hair"]["length"] if "hair" in mat else 1.0  # fur stays inside the unit sphere
         pybullet_dir = catalog.pybullet_data_dir() if spec.source == "pybullet" else None
         mesh_path = catalog.objaverse_file(config, spec.mesh) if spec.source == "objaverse" else None
+        licence, provenance = spec.licence, None
+        if mesh_path is not None:
+            ann = catalog.objaverse_annotation(config, spec.mesh, mesh_path) or {}
+            provenance = {"uid": spec.mesh, "file": str(mesh_path)} | {
+                k: ann[k] for k in ("name", "license", "viewerUrl", "uri") if k in ann}
+            if ann.get("license"):
+                licence = f"{ann['license']} (Objaverse 1.0 / Sketchfab: {ann.get('viewerUrl', spec.mesh)})"
         try:
             obj, shape = objects.load(spec, shape_rng, pybullet_dir, radius, keep_materials=own, path=mesh_path)
         except objects.MeshError as e:
@@ -270,9 +277,10 @@ def curate(config: Config | dict, oid: str, env_dir: Path, out_root: Path, log=p
             "seed": spec.seed,
             "source": spec.source,
             "mesh": spec.mesh,
-            "licence": spec.licence,
+            "licence": licence,
             "up_axis": spec.up,
             "shape": shape,
+            **({"objaverse": provenance} if provenance else {}),
             "material_class": material_class,
             "material": mat,
             "render": {k: getattr(render, k) for k in ("resolution", "spp", "camera_distance", "fov_deg", "threads")}
