@@ -2,6 +2,8 @@
 # variant, reading the frozen priors' caches only.
 # The K-sweep entry equal to the full model's K (k2 with the paper's 2%) is the full model: `model_alias` copies it
 # into its own folder instead of training it twice.
+# Other training seeds (train.seeds) are variants too: `full@s1`, `no-fine@s1`, ... (frng/variants.py), each its own
+# `train` job with train_seed = 1 (the stage reads the suffix); the K sweep is not repeated per seed.
 from frng.variants import all_variants, canonical_variant, reads_priors, torchrun_command, trained_variants
 
 FRNG_TRAINED = trained_variants(config)
@@ -79,8 +81,8 @@ rule train:
         runtime=60,
         gpu=TORCH_GPUS,
     shell:
-        "{params.launcher} train --config {params.config} --variant {wildcards.variant} "
-        "--backbone {input.backbone} --out {params.out} > {log} 2>&1"
+        "exec {params.launcher} train --config {params.config:q} --variant {wildcards.variant:q} "
+        "--backbone {input.backbone:q} --out {params.out:q} > {log:q} 2>&1"
 
 
 rule model_alias:
@@ -108,8 +110,8 @@ rule model_alias:
         mem_mb=500,
         runtime=5,
     shell:
-        "(cp {input.model} {output.model} && cp {input.curve} {output.curve} && cp {input.plot} {output.plot}) "
-        "> {log} 2>&1"
+        "(cp {input.model:q} {output.model:q} && cp {input.curve:q} {output.curve:q} && cp {input.plot:q} {output.plot:q}) "
+        "> {log:q} 2>&1"
 
 
 add_targets(*expand(L.model(), variant=FRNG_VARIANTS))
