@@ -143,3 +143,10 @@ def test_unmarked_footer():
     md, tex = T.render(df, footer=foot, footer_best=False)
     assert "**18.00**" in md and "**22.00**" not in md and "| s3 | 22.00 |" in md
     assert "\\cellcolor{tabfirst}{22.00}" not in tex
+
+
+def test_markdown_escapes_pipes_in_headers_and_cells():
+    md, tex = T.render(pd.DataFrame({"what": ["a|b"], "scale_log2": [0.25]}))
+    header = md.splitlines()[0]
+    assert "median \\|log2 scale\\|" in header and header.count(" | ") == 1
+    assert "| a\\|b | 0.25 |" in md and "a|b" in tex

@@ -163,7 +163,7 @@ def _header(col: str, fmt: str) -> str:
     arrow = {"max": ("$\\uparrow$", " ↑"), "min": ("$\\downarrow$", " ↓")}.get(direction(col))
     if fmt == "tex":
         return _escape_tex(name) + (arrow[0] if arrow else "")
-    return name + (arrow[1] if arrow else "")
+    return name.replace("|", "\\|") + (arrow[1] if arrow else "")  # a bare | would end the Markdown cell
 
 
 def render(
@@ -219,7 +219,8 @@ def render(
             for c in cols:
                 s = formatted.at[i, c]
                 r = rank.at[i, c]
-                md_cells.append(f"**{s}**" if r == 1 and s else f"*{s}*" if r == 2 and s else s)
+                m = s.replace("|", "\\|")
+                md_cells.append(f"**{m}**" if r == 1 and m else f"*{m}*" if r == 2 and m else m)
                 t = _escape_tex(s)
                 tex_cells.append(f"\\cellcolor{{tabfirst}}{{{t}}}" if r == 1 and s
                                  else f"\\cellcolor{{tabsecond}}{{{t}}}" if r == 2 and s else t)
