@@ -1,0 +1,123 @@
+# Public relighting benchmarks (frng/benchmarks/): every `benchmarks:` entry of the config is imported into the
+# dataset contract (rule import_benchmark: `frng import LAYOUT PATH`), relit by the trained models exactly like a
+# held-out curated object (rule relight_benchmark: `frng relight`), and scored with its benchmark's published
+# protocol (rule evaluate_benchmarks: `frng evaluate-benchmarks` -> tables/benchmarks.{csv,md,tex}).
+# Imported ids contain a hyphen ({layout}-{scene}), so curate/relight ([a-z0-9_]+) never claim them.
+# Target: `snakemake ... evaluate_benchmarks` (also part of `all` when the config lists benchmarks).
+import re as _re
+import shlex
+
+from frng.benchmarks.plan import BenchmarkError as _BenchmarkError
+from frng.benchmarks.plan import entries as _benchmark_entries
+from frng.variants import model_variants as _model_variants
+
+try:
+    BENCHMARKS = {e["id"]: e for e in _benchmark_entries(config)}
+except _BenchmarkError as e:
+    raise WorkflowError(f"benchmarks: {e}")
+BENCH_IDS = list(BENCHMARKS)
+_BENCH_RE = "|".join(_re.escape(b) for b in BENCH_IDS) or r"(?!x)x"
+_IMPORT_OPTIONS = {"envmaps": "--envmaps", "input_light": "--input-light", "lights": "--lights",
+                   "ground_truth": "--ground-truth", "envmap_file": "--envmap"}
+
+
+def _import_flags(bench):
+    e = BENCHMARKS[bench]
+    flags = [f"--max-targets {int(e['max_targets'])}"] if e.get("max_targets") else []
+    for key, value in (e.get("options") or {}).items():
+        if key not in _IMPORT_OPTIONS:
+            raise WorkflowError(f"benchmarks: {bench}: unknown option {key!r} ({', '.join(_IMPORT_OPTIONS)})")
+        values = value if isinstance(value, list) else [value]
+        flags.append(_IMPORT_OPTIONS[key] + " " + " ".join(shlex.quote(str(v)) for v in values))
+    return " ".join(flags)
+
+
+rule import_benchmark:
+    message:
+        "Importing benchmark scene {wildcards.bench}"
+    input:
+        folder=lambda wildcards: BENCHMARKS[wildcards.bench]["path"],
+    output:
+        meta=L.object_meta("{bench}"),
+    params:
+        config_digest=frng_config.rule_digest(config, "import_benchmark"),
+        py=PY,
+        config=CONFIG_FILE,
+        layout=lambda wildcards: BENCHMARKS[wildcards.bench]["layout"],
+        flags=lambda wildcards: _import_flags(wildcards.bench),
+    log:
+        L.log("import_benchmark", "{bench}"),
+    wildcard_constraints:
+        bench=_BENCH_RE,
+    conda:
+        "../envs/eval.yaml"
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=30,
+    shell:
+        "{params.py} -m frng import {params.layout} {input.folder:q} --config {params.config} --id {wildcards.bench} "
+        "{params.flags} > {log} 2>&1"
+
+
+rule relight_benchmark:
+    message:
+        "Relighting benchmark object {wildcards.bench}: F-RNG runs and the backbone"
+    input:
+        models=expand(L.model(), variant=_model_variants(config)),
+        backbone=rules.backbone_train.output.model,
+        idm=IDM_MODEL,
+        meta=rules.import_benchmark.output.meta,
+    output:
+        timing=L.relight_timing("{bench}"),
+    params:
+        config_digest=frng_config.rule_digest(config, "relight_benchmark"),
+        py=PY,
+        config=CONFIG_FILE,
+        models=lambda wildcards, input: os.path.dirname(os.path.dirname(input.models[0])),
+    log:
+        L.log("relight", "{bench}"),
+    wildcard_constraints:
+        bench=_BENCH_RE,
+    conda:
+        "../envs/torch.yaml"
+    threads: 2
+    resources:
+        mem_mb=6000,
+        runtime=60,
+        gpu=TORCH_GPUS,
+    shell:
+        "{params.py} -m frng relight --config {params.config} --object {wildcards.bench} --models {params.models} "
+        "> {log} 2>&1"
+
+
+rule evaluate_benchmarks:
+    message:
+        "Scoring {n} benchmark objects with their published protocols".format(n=len(BENCH_IDS))
+    input:
+        timing=expand(rules.relight_benchmark.output.timing, bench=BENCH_IDS),
+    output:
+        per_image=L.metrics("benchmarks_per_image"),
+        tables=[L.table("benchmarks", ext) for ext in ("csv", "md", "tex")],
+    params:
+        config_digest=frng_config.rule_digest(config, "evaluate_benchmarks"),
+        py=PY,
+        config=CONFIG_FILE,
+        objects=BENCH_IDS,
+        metrics=lambda wildcards, output: os.path.dirname(output.per_image),
+        tables=lambda wildcards, output: os.path.dirname(output.tables[0]),
+    log:
+        L.log("evaluate_benchmarks"),
+    conda:
+        "../envs/eval.yaml"
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=30,
+    shell:
+        "{params.py} -m frng evaluate-benchmarks --config {params.config} --objects {params.objects} "
+        "--metrics {params.metrics} --tables {params.tables} > {log} 2>&1"
+
+
+if BENCH_IDS:
+    add_targets(*rules.evaluate_benchmarks.output)
