@@ -35,6 +35,11 @@ STAGES: dict[str, tuple[str, str]] = {
     "evaluate": ("frng.stages.evaluate", "per-image PSNR/SSIM/LPIPS of every relit image (configured protocol)"),
     "tables": ("frng.stages.tables", "the paper's tables (vs backbone, ablation, #views, K, timing)"),
     "figures": ("frng.stages.figures", "comparison grids, ablation grid, saliency maps, loss curves"),
+    "import": ("frng.stages.import_benchmark", "a public benchmark scene (tensoir, orb, owl, nerf-synthetic) into "
+               "the dataset contract"),
+    "export": ("frng.stages.export_benchmark", "a curated object in a public benchmark's published layout"),
+    "evaluate-benchmarks": ("frng.stages.evaluate_benchmarks", "relit benchmark objects scored with each "
+                            "benchmark's published protocol; the benchmarks table"),
 }
 
 

@@ -387,6 +387,12 @@ RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     "tables": ("tier", "eval"),
     # frng/report/paper_figures.py: patch size (saliency), the ablation variants
     "figures": ("model.patch_size", "frng.variants"),
+    # frng/benchmarks (rules/benchmarks.smk): the import converts to the resolution, map width and input-view count;
+    # relighting an imported object reads what `relight` reads; the benchmark table reads the runs and eval
+    "import_benchmark": ("benchmarks", "render.resolution", "render.extra_input_views", "envmaps.width"),
+    "relight_benchmark": ("device", "render.resolution", "render.extra_input_views", "idm", "!idm.train",
+                          "backbone.near", "backbone.far", "shading", "frng", "train.seeds", "train_seed", "seed"),
+    "evaluate_benchmarks": ("benchmarks", "eval", "tier"),
 }
 """Rule name -> the config keys its stage reads (see the comment above)."""
 
@@ -647,6 +653,7 @@ class Config:
     model: ModelConfig
     frng: FRNGSection
     train: TrainConfig
+    benchmarks: tuple = ()  # imported benchmark folders (frng/benchmarks; rules/benchmarks.smk)
 
     @property
     def model_seed(self) -> int:

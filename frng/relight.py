@@ -109,6 +109,10 @@ def check_test_split(config: Config | dict, oid: str, meta: dict, meta_path: Pat
     from frng.data import catalog
 
     curated = meta.get("split")
+    if isinstance(meta.get("benchmark"), dict):  # imported by `frng import` (frng/benchmarks): no dataset plan
+        if curated != "test":
+            raise RelightError(f"{meta_path}: imported benchmark object with split {curated!r}, expected 'test'")
+        return
     try:
         planned = catalog.plan(config).object(oid).split
     except catalog.CatalogError as e:
