@@ -134,3 +134,32 @@ def test_own_materials_are_curated_with_their_aovs(tmp_path):
     assert np.abs(np.median(g["albedo"][fg], 0) - srgb_to_linear((40, 200, 60))).max() < 0.02
     assert abs(np.median(g["roughness"][fg]) - 0.8) < 1e-3
     assert obj.meta["material_class"] == "diffuse"
+
+
+@pytest.mark.blender
+def test_builtin_meshes_keep_their_materials_when_asked(tmp_path):
+    """objects.builtin_materials: own -- pybullet's duck keeps its MTL texture (duckCM.png); the bunny has none."""
+    cfg = write_config(tmp_path / "config.yaml", tmp_path / "results",
+                       objects={"count": 2, "test_count": 0, "sources": ["pybullet"], "builtin_materials": "own",
+                                "extra": [{"path": str(_box(tmp_path)), "split": "test", "material": "diffuse"}]},
+                       render={"resolution": 32, "spp": 2, "target_views": 1})
+    plan = {o.id: o for o in catalog.plan(__import__("frng").config.load(cfg)).objects}
+    assert plan["obj_0000"].mesh == "bunny.obj" and plan["obj_0000"].material != "own"  # no MTL: generated
+    assert (plan["obj_0001"].mesh, plan["obj_0001"].material) == ("duck.obj", "own")
+    frng("envmaps", "--config", str(cfg))
+    frng("curate", "--config", str(cfg), "--object", "obj_0001")
+    obj = open_object(tmp_path / "results", "obj_0001")
+    slot = obj.meta["material"]["slots"][0]
+    assert slot["base_color"]["textures"][0].endswith("duckCM.png") and "COLLADA" in obj.meta["licence"]
+    g = obj.gbuffer("inputs")
+    fg = g["alpha"][..., 0] > 0.99
+    tex = srgb_to_linear(np.asarray(__import__("PIL.Image").Image.open(catalog.pybullet_data_dir() / "duckCM.png")
+                                    .convert("RGB")).reshape(-1, 3))
+    # the duck is yellow with an orange beak: every albedo pixel lies inside the texture's colour range
+    alb = g["albedo"][fg]
+    assert (alb >= tex.min(0) - 0.02).all() and (alb <= tex.max(0) + 0.02).all()
+    assert alb[:, 0].mean() > 2 * alb[:, 2].mean()  # yellow, not the generated palette's grey-blue
+
+
+def _box(tmp_path):
+    return write_obj(tmp_path / "plainbox", "plainbox", None)

@@ -126,6 +126,7 @@ class ObjectsConfig:
     material_mix: dict
     extra: tuple[dict, ...]
     objaverse: "ObjaverseConfig"
+    builtin_materials: str
 
 
 @dataclass(frozen=True)
@@ -555,11 +556,14 @@ def object_plan(config: Config | dict, envmaps: list[EnvMapSpec] | None = None) 
         source = sources[i % len(sources)]
         k = used[source]
         used[source] += 1
+        material = materials[i]
         if source == "pybullet":
             mesh, up, prescale, licence = pybullet[k % len(pybullet)]
+            if objects.builtin_materials == OWN and file_material(pybullet_data_dir() / mesh) is not None:
+                material = OWN  # opt-in: the mesh keeps its MTL (the duck's texture, jenga, soccerball, torus ...)
         else:
             mesh, up, prescale, licence = kinds[source][k % len(kinds[source])], "z", (1.0, 1.0, 1.0), GENERATED_LICENCE
-        specs.append((oid, "test" if oid in test_ids else "train", source, mesh, up, prescale, licence, materials[i]))
+        specs.append((oid, "test" if oid in test_ids else "train", source, mesh, up, prescale, licence, material))
 
     user = _user_files(objects.extra, MESH_SUFFIXES, "objects.extra")
     mix = objects.material_mix
