@@ -96,7 +96,7 @@ def test_missing_uids_are_fetched_by_the_package(tmp_path, monkeypatch):
     assert len(calls) == 1
 
 
-def test_annotation_filter_and_count(tmp_path):
+def test_annotation_filter_and_count(tmp_path, monkeypatch):
     cache = tmp_path / "cache"
     _annotations(cache, **{
         UIDS[0]: {"name": "chair", "license": "by", "tags": [{"name": "chair"}], "faceCount": 100},
@@ -104,6 +104,11 @@ def test_annotation_filter_and_count(tmp_path):
         UIDS[2]: {"name": "car", "license": "cc0", "tags": [{"name": "car"}], "faceCount": 50}})
     cfg = _cfg(cache, filter={"tags": ["chair", "car"], "max_faces": 1000}, count=2)
     assert sorted(o.mesh for o in catalog.plan(cfg).objects if o.source == "objaverse") == sorted([UIDS[0], UIDS[2]])
+    ov = catalog.config_section(cfg, "objects").objaverse
+    assert len(list((cache / "frng-selections").glob("*.json"))) == 1  # the draw is remembered ...
+    monkeypatch.setattr(catalog, "_objaverse_annotations", lambda *a: pytest.fail("annotations re-read"))
+    assert sorted(catalog.objaverse_select(ov, 0)) == sorted([UIDS[0], UIDS[2]])  # ... and re-used
+    monkeypatch.undo()
     cfg = _cfg(cache, filter={"licenses": ["cc0"]}, count=2)
     with pytest.raises(catalog.CatalogError, match="objaverse.count"):
         catalog.plan(cfg)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import json
+import os
 import re
 import zlib
 from dataclasses import asdict, dataclass, field
@@ -185,6 +186,18 @@ def objaverse_select(cfg: ObjaverseConfig, seed: int) -> list[str]:
     uids = list(dict.fromkeys(cfg.uids))
     if cfg.count:
         root = objaverse_dir(cfg)
+        # Every stage re-plans, and the full annotation set is large (~800k objects): the draw is remembered in
+        # {cache}/frng-selections/, keyed by the filter, count, seed, uids and the annotation files' names and sizes
+        files = sorted((root / "metadata").glob("*.json.gz"))
+        key = json.dumps([cfg.filter, cfg.count, seed, uids, [(f.name, f.stat().st_size) for f in files]],
+                         sort_keys=True, default=str)
+        memo = root / "frng-selections" / f"{zlib.crc32(key.encode()):08x}.json"
+        try:
+            saved = json.loads(memo.read_text())
+            if saved.get("key") == key:
+                return saved["uids"]
+        except (OSError, ValueError):
+            pass
         ann = _objaverse_annotations(root)
         if not ann:
             raise CatalogError(f"config key 'objects.objaverse.filter': no annotations in {root / 'metadata'}; run "
@@ -204,6 +217,13 @@ def objaverse_select(cfg: ObjaverseConfig, seed: int) -> list[str]:
             raise CatalogError(f"config key 'objects.objaverse.count': {cfg.count} objects asked, {len(pool)} cached "
                                f"annotations in {root / 'metadata'} pass the filter {dict(f)}")
         uids += [pool[i] for i in sorted(rng_for(seed, "objaverse-filter").choice(len(pool), cfg.count, replace=False))]
+        try:
+            memo.parent.mkdir(parents=True, exist_ok=True)
+            tmp = memo.with_suffix(f".tmp{os.getpid()}")
+            tmp.write_text(json.dumps({"key": key, "uids": uids}))
+            os.replace(tmp, memo)
+        except OSError:  # a read-only cache: the selection is just made again next time
+            pass
     return uids
 
 
