@@ -1,6 +1,6 @@
 # Public relighting benchmarks (frng/benchmarks/): every `benchmarks:` entry of the config is imported into the
 # dataset contract (rule import_benchmark: `frng import LAYOUT PATH`), relit by the trained models exactly like a
-# held-out curated object (rule relight_benchmark: `frng relight`), and scored with its benchmark's published
+# held-out curated object (rule relight_benchmark: `frng relight-benchmark` = `frng relight`), and scored with its benchmark's published
 # protocol (rule evaluate_benchmarks: `frng evaluate-benchmarks` -> tables/benchmarks.{csv,md,tex}).
 # Imported ids contain a hyphen ({layout}-{scene}), so curate/relight ([a-z0-9_]+) never claim them.
 # Target: `snakemake ... evaluate_benchmarks` (also part of `all` when the config lists benchmarks).
@@ -87,7 +87,8 @@ rule relight_benchmark:
         runtime=60,
         gpu=TORCH_GPUS,
     shell:
-        "{params.py} -m frng relight --config {params.config} --object {wildcards.bench} --models {params.models} "
+        "{params.py} -m frng relight-benchmark --config {params.config} --object {wildcards.bench} "
+        "--models {params.models} "
         "> {log} 2>&1"
 
 

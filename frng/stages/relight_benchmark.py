@@ -1,0 +1,18 @@
+"""Stage ``frng relight-benchmark --object ID`` (rule ``relight_benchmark``, one job per imported benchmark
+object): exactly ``frng relight`` (:mod:`frng.stages.relight`, :mod:`frng.relight`) on an object that
+``frng import`` wrote -- every F-RNG run and the backbone under the benchmark's target lights at its target views,
+timed side by side. A stage of its own only so that each rule runs the stage named after it."""
+
+from __future__ import annotations
+
+import argparse
+
+from frng.stages import relight as _relight
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    _relight.configure(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    return _relight.run(args)
