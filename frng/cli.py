@@ -38,6 +38,7 @@ STAGES: dict[str, tuple[str, str]] = {
     "import": ("frng.stages.import_benchmark", "a public benchmark scene (tensoir, orb, owl, nerf-synthetic) into "
                "the dataset contract"),
     "export": ("frng.stages.export_benchmark", "a curated object in a public benchmark's published layout"),
+    "relight-benchmark": ("frng.stages.relight_benchmark", "relight one imported benchmark object (as relight)"),
     "evaluate-benchmarks": ("frng.stages.evaluate_benchmarks", "relit benchmark objects scored with each "
                             "benchmark's published protocol; the benchmarks table"),
 }
@@ -48,7 +49,7 @@ class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaults
 
 
 def _top_parser() -> argparse.ArgumentParser:
-    lines = [f"  {name:<16}{help_}" for name, (_, help_) in STAGES.items()]
+    lines = [f"  {name:<19} {help_}" for name, (_, help_) in STAGES.items()]
     return argparse.ArgumentParser(
         prog="frng",
         formatter_class=_Formatter,

@@ -32,6 +32,9 @@ RULE_STAGES = {
     "evaluate": "frng.stages.evaluate",
     "tables": "frng.stages.tables",
     "figures": "frng.stages.figures",
+    "import_benchmark": "frng.stages.import_benchmark",
+    "relight_benchmark": "frng.stages.relight_benchmark",
+    "evaluate_benchmarks": "frng.stages.evaluate_benchmarks",
 }
 # rules that run no ``frng`` stage, and why
 NO_STAGE = {
@@ -43,6 +46,8 @@ NO_STAGE = {
 # stage modules without a rule, and why
 STAGES_WITHOUT_RULE = {
     "frng.stages.bench": "benchmarks are run by hand (`make bench`), never by the workflow",
+    "frng.stages.export_benchmark": "writes curated objects in the public benchmarks' layouts, run by hand and by "
+                                    "tests/test_benchmarks.py (nothing downstream in the workflow reads it)",
 }
 # ``frng`` subcommands whose module is not in frng/stages/, and why
 OUTSIDE_STAGES = {
