@@ -163,3 +163,41 @@ def test_builtin_meshes_keep_their_materials_when_asked(tmp_path):
 
 def _box(tmp_path):
     return write_obj(tmp_path / "plainbox", "plainbox", None)
+
+
+@pytest.mark.blender
+def test_what_the_aovs_cannot_describe_is_named(tmp_path):
+    """adopt() names emission, transparency, clear coat, a custom node tree and a missing texture per slot; a
+    plain textured material names nothing."""
+    import bpy
+
+    from frng.blender import materials, objects
+
+    write_glb(tmp_path / "lamp.glb", {"name": "lamp", "emissiveFactor": [1.0, 0.8, 0.2],
+                                      "pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 0.5]},
+                                      "alphaMode": "BLEND"})
+    write_glb(tmp_path / "coat.glb", {"name": "coat", "extensions": {"KHR_materials_clearcoat": {"clearcoatFactor": 1}}},
+              extensions_used=["KHR_materials_clearcoat"])
+    write_obj(tmp_path / "lost", "lost", "newmtl lost\nKd 1 1 1\nmap_Kd nowhere.png\n", material="lost")
+    write_obj(tmp_path / "fine", "fine", "newmtl fine\nKd 0.5 0.2 0.1\nNs 100\n", material="fine")
+
+    def reasons(path, edit=None):
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        obj = objects.import_file(path, keep_materials=True)
+        if edit:
+            edit(obj)
+        info = materials.adopt(obj)
+        return [r for bad in info["unsupported"] for r in bad["reasons"]]
+
+    def emission_shader(obj):  # a node tree whose surface is not a Principled BSDF
+        nt = obj.data.materials[0].node_tree
+        em = nt.nodes.new("ShaderNodeEmission")
+        nt.links.new(em.outputs[0], materials._active_output(nt).inputs["Surface"])
+
+    got = reasons(tmp_path / "lamp.glb")
+    assert any("emission" in r for r in got) and any("transparency" in r for r in got)
+    assert any("clear coat" in r for r in reasons(tmp_path / "coat.glb"))
+    assert any("missing texture" in r and "nowhere.png" in r for r in reasons(tmp_path / "lost" / "lost.obj"))
+    got = reasons(tmp_path / "fine" / "fine.obj", emission_shader)
+    assert any("custom node tree (surface is ShaderNodeEmission" in r for r in got)
+    assert reasons(tmp_path / "fine" / "fine.obj") == []
