@@ -78,7 +78,7 @@ def read(path: str | Path, envmaps: str | Path | None = None, input_light: str |
         raise BenchmarkError(f"{root}: not a folder (expected a TensoIR scene with train_*/ and test_*/ folders)")
     train_dirs = sorted(d for d in root.iterdir() if d.is_dir() and d.name.startswith("train"))
     test_dirs = sorted(d for d in root.iterdir() if d.is_dir() and d.name.startswith("test"))
-    if not train_dirs or not test_dirs:
+    if not train_dirs or not test_dirs or not any((d / "metadata.json").exists() for d in train_dirs):
         raise BenchmarkError(f"{root}: not the TensoIR layout (no train_*/ or test_*/ folders with metadata.json)")
     # the training light: the rgba_{light}.png common to every training folder, else rgba.png
     common = set(_lights_in(train_dirs[0]))
