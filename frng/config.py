@@ -526,6 +526,7 @@ SECTION_CLASSES: dict[str, tuple[str, str]] = {
     "envmaps.studio": ("frng.data.catalog", "StudioConfig"),
     "objects": ("frng.data.catalog", "ObjectsConfig"),
     "objects.objaverse": ("frng.data.catalog", "ObjaverseConfig"),
+    "objects.libero": ("frng.data.catalog", "LiberoConfig"),
     "render": ("frng.data.catalog", "RenderConfig"),
     "backbone": ("frng.priors.backbone", "BackboneSection"),
     "backbone.train": ("frng.priors.backbone_train", "BackboneTrainConfig"),

@@ -449,11 +449,20 @@ def load(spec, rng: np.random.Generator, pybullet_dir: Path | None, radius: floa
     ``params`` for generated shapes, ``had_uvs``, ``vertices`` and ``faces`` counts.
     """
     info: dict = {}
-    if spec.source in ("pybullet", "user", "objaverse"):
+    if spec.source in ("pybullet", "user", "objaverse", "libero"):
         if path is None:
             path = Path(pybullet_dir) / spec.mesh if spec.source == "pybullet" else Path(spec.mesh)
         try:
-            obj = import_file(path, keep_materials)
+            if spec.source == "libero":  # an object folder: its visual OBJs, joined
+                from frng.data.catalog import libero_meshes
+
+                parts = [import_file(f, keep_materials) for f in libero_meshes(path)]
+                if len(parts) > 1:
+                    _select_only(parts)
+                    bpy.ops.object.join()
+                obj = bpy.context.view_layer.objects.active if len(parts) > 1 else parts[0]
+            else:
+                obj = import_file(path, keep_materials)
         except MeshError as e:
             raise MeshError(f"object {spec.id}: {e}") from e
         pre = np.diag(list(spec.prescale) + [1.0])

