@@ -2,11 +2,11 @@
 
 It answers, at Snakemake DAG-parse time, every question a rule needs:
 
-- which environment maps exist (:func:`envmap_plan`): base maps (Blender's bundled HDRIs, baked skies, user
-  files) x ``envmaps.rotations`` random Z rotations, named ``{base}_r{k}``; the train/test split is made per
+- which environment maps exist (:func:`envmap_plan`): base maps (Blender's bundled HDRIs, baked skies,
+  procedural studios, user files) x ``envmaps.rotations`` random Z rotations, named ``{base}_r{k}``; the train/test split is made per
   BASE map, so no rotation of a test map is ever seen in training;
-- which objects exist (:func:`object_plan`): built-ins ``obj_0000 ..`` drawn from ``objects.sources`` and users'
-  meshes ``user_<stem>``; their split, mesh source and licence, material class (``objects.material_mix``),
+- which objects exist (:func:`object_plan`): built-ins ``obj_0000 ..`` drawn from ``objects.sources``, users'
+  meshes ``user_<stem>``, Objaverse objects ``objaverse_<uid>`` and LIBERO objects ``libero_<name>``; their split, mesh source and licence, material class (``objects.material_mix``),
   per-object seed, and input/target lights (train objects get train lights only, test objects test lights only).
 
 Everything is deterministic in ``config.seed``.
