@@ -1,35 +1,23 @@
 # Public relighting benchmarks (frng/benchmarks/): every `benchmarks:` entry of the config is imported into the
 # dataset contract (rule import_benchmark: `frng import LAYOUT PATH`), relit by the trained models exactly like a
-# held-out curated object (rule relight_benchmark: `frng relight-benchmark` = `frng relight`), and scored with its benchmark's published
-# protocol (rule evaluate_benchmarks: `frng evaluate-benchmarks` -> tables/benchmarks.{csv,md,tex}).
+# held-out curated object (rule relight_benchmark: `frng relight-benchmark` = `frng relight`), and scored with its
+# benchmark's published protocol (rule evaluate_benchmarks: `frng evaluate-benchmarks` -> tables/benchmarks.*).
 # Imported ids contain a hyphen ({layout}-{scene}), so curate/relight ([a-z0-9_]+) never claim them.
 # Target: `snakemake ... evaluate_benchmarks` (also part of `all` when the config lists benchmarks).
 import re as _re
-import shlex
 
 from frng.benchmarks.plan import BenchmarkError as _BenchmarkError
 from frng.benchmarks.plan import entries as _benchmark_entries
+from frng.benchmarks.plan import import_flags as _import_flags
 from frng.variants import model_variants as _model_variants
 
 try:
     BENCHMARKS = {e["id"]: e for e in _benchmark_entries(config)}
+    _BENCH_FLAGS = {b: _import_flags(e) for b, e in BENCHMARKS.items()}
 except _BenchmarkError as e:
     raise WorkflowError(f"benchmarks: {e}")
 BENCH_IDS = list(BENCHMARKS)
 _BENCH_RE = "|".join(_re.escape(b) for b in BENCH_IDS) or r"(?!x)x"
-_IMPORT_OPTIONS = {"envmaps": "--envmaps", "input_light": "--input-light", "lights": "--lights",
-                   "ground_truth": "--ground-truth", "envmap_file": "--envmap"}
-
-
-def _import_flags(bench):
-    e = BENCHMARKS[bench]
-    flags = [f"--max-targets {int(e['max_targets'])}"] if e.get("max_targets") else []
-    for key, value in (e.get("options") or {}).items():
-        if key not in _IMPORT_OPTIONS:
-            raise WorkflowError(f"benchmarks: {bench}: unknown option {key!r} ({', '.join(_IMPORT_OPTIONS)})")
-        values = value if isinstance(value, list) else [value]
-        flags.append(_IMPORT_OPTIONS[key] + " " + " ".join(shlex.quote(str(v)) for v in values))
-    return " ".join(flags)
 
 
 rule import_benchmark:
@@ -44,7 +32,7 @@ rule import_benchmark:
         py=PY,
         config=CONFIG_FILE,
         layout=lambda wildcards: BENCHMARKS[wildcards.bench]["layout"],
-        flags=lambda wildcards: _import_flags(wildcards.bench),
+        flags=lambda wildcards: _BENCH_FLAGS[wildcards.bench],
     log:
         L.log("import_benchmark", "{bench}"),
     wildcard_constraints:
@@ -56,8 +44,8 @@ rule import_benchmark:
         mem_mb=4000,
         runtime=30,
     shell:
-        "{params.py} -m frng import {params.layout} {input.folder:q} --config {params.config} --id {wildcards.bench} "
-        "{params.flags} > {log} 2>&1"
+        "exec {params.py:q} -m frng import {params.layout:q} {input.folder:q} --config {params.config:q} "
+        "--id {wildcards.bench:q} {params.flags} > {log:q} 2>&1"
 
 
 rule relight_benchmark:
@@ -87,9 +75,9 @@ rule relight_benchmark:
         runtime=60,
         gpu=TORCH_GPUS,
     shell:
-        "{params.py} -m frng relight-benchmark --config {params.config} --object {wildcards.bench} "
-        "--models {params.models} "
-        "> {log} 2>&1"
+        "exec {params.py:q} -m frng relight-benchmark --config {params.config:q} --object {wildcards.bench:q} "
+        "--models {params.models:q} "
+        "> {log:q} 2>&1"
 
 
 rule evaluate_benchmarks:
@@ -116,8 +104,8 @@ rule evaluate_benchmarks:
         mem_mb=3000,
         runtime=30,
     shell:
-        "{params.py} -m frng evaluate-benchmarks --config {params.config} --objects {params.objects} "
-        "--metrics {params.metrics} --tables {params.tables} > {log} 2>&1"
+        "exec {params.py:q} -m frng evaluate-benchmarks --config {params.config:q} --objects {params.objects:q} "
+        "--metrics {params.metrics:q} --tables {params.tables:q} > {log:q} 2>&1"
 
 
 if BENCH_IDS:

@@ -38,3 +38,21 @@ def entries(config) -> list[dict]:
         seen[e["id"]] = i
         out.append(e)
     return out
+
+
+IMPORT_OPTIONS = {"envmaps": "--envmaps", "input_light": "--input-light", "lights": "--lights",
+                  "ground_truth": "--ground-truth", "envmap_file": "--envmap"}
+"""``benchmarks[].options`` key -> its ``frng import`` flag."""
+
+
+def import_flags(entry: dict) -> str:
+    """The ``frng import`` flags of one ``benchmarks:`` entry (``max_targets``, ``options``), shell-quoted."""
+    import shlex
+
+    flags = [f"--max-targets {int(entry['max_targets'])}"] if entry.get("max_targets") else []
+    for key, value in (entry.get("options") or {}).items():
+        if key not in IMPORT_OPTIONS:
+            raise BenchmarkError(f"benchmarks: {entry['id']}: unknown option {key!r} ({', '.join(IMPORT_OPTIONS)})")
+        values = value if isinstance(value, list) else [value]
+        flags.append(IMPORT_OPTIONS[key] + " " + " ".join(shlex.quote(str(v)) for v in values))
+    return " ".join(flags)
