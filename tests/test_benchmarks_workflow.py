@@ -1,0 +1,106 @@
+"""Benchmarks in the workflow (rules/benchmarks.smk): a config naming benchmark folders plans offline (`make dry-run`
+runs `snakemake -n`), bad `benchmarks:` entries fail before any job, and -- the smoke tier end to end -- one curated
+test object exported in each published layout is imported back, relit by the trained smoke models and scored with
+its benchmark's own protocol into tables/benchmarks."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from conftest import ROOT, venv_bin
+
+LAYOUTS = ["tensoir", "orb", "owl", "nerf-synthetic"]
+
+
+def _snakemake(configfile: Path, *extra, timeout=300):
+    cmd = [venv_bin("snakemake"), "--snakefile", "workflow/Snakefile", "--configfile", str(configfile), *extra]
+    return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+
+
+def _config(tmp: Path, results: Path, benchmarks: list[dict]) -> Path:
+    cfg = yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text())
+    cfg["results"] = str(results)
+    cfg["benchmarks"] = benchmarks
+    path = tmp / "bench.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    return path
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    """The analytic curated object of tests/test_benchmarks.py, exported in every layout."""
+    from test_benchmarks import make_curated
+
+    from frng.benchmarks import export_object
+
+    base = tmp_path_factory.mktemp("bench_wf")
+    make_curated(base / "src")
+    return {l: export_object(l, base / "src", "obj_0000", base / "export" / l) for l in LAYOUTS}
+
+
+def test_dry_run_of_a_config_naming_benchmarks_plans_offline(exported, tmp_path):
+    cfg = _config(tmp_path, tmp_path / "results", [{"layout": l, "path": str(p)} for l, p in exported.items()])
+    proc = subprocess.run(["make", "dry-run", f"CONFIG={cfg}"], cwd=ROOT, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, (proc.stdout + proc.stderr)[-3000:]
+    out = proc.stdout + proc.stderr
+    counts = {k: int(v) for k, v in (l.split() for l in out.splitlines() if len(l.split()) == 2
+                                      and l.split()[1].isdigit())}
+    assert counts.get("import_benchmark") == 4 and counts.get("relight_benchmark") == 4, out[-2000:]
+    assert counts.get("evaluate_benchmarks") == 1
+    assert not (tmp_path / "results" / "objects").exists()  # planning wrote nothing
+
+
+def test_bad_benchmark_entries_fail_before_any_job(exported, tmp_path):
+    p = str(exported["tensoir"])
+    cfg = _config(tmp_path, tmp_path / "results", [{"layout": "tensoir", "path": p},
+                                                   {"layout": "tensoir", "path": p}])
+    proc = _snakemake(cfg, "-n", "--quiet", "rules")
+    assert proc.returncode != 0 and "both import to 'tensoir-obj_0000'" in proc.stdout + proc.stderr
+    cfg = _config(tmp_path, tmp_path / "results", [{"layout": "mitsuba", "path": p}])
+    proc = _snakemake(cfg, "-n", "--quiet", "rules")
+    assert proc.returncode != 0 and "benchmarks" in proc.stdout + proc.stderr
+
+
+def test_smoke_tier_exported_imported_relit_scored(tmp_path):
+    """Curate the smoke tier's test object, export it in every layout, then run the workflow's benchmark target:
+    import -> relight (the trained smoke models and the backbone) -> each benchmark's protocol."""
+    pytest.importorskip("bpy")
+    from frng import config as frng_config
+    from frng.data import catalog
+
+    results = tmp_path / "results"
+    cfg0 = _config(tmp_path, results, [])
+    config = frng_config.load(cfg0)
+    oid = catalog.plan(config).split("test")[0]
+    r = _snakemake(cfg0, "--profile", "profiles/local", "--cores", "2", str(results / "objects" / oid /
+                                                                             "meta.json"), timeout=900)
+    assert r.returncode == 0, (r.stdout + r.stderr)[-3000:]
+    paths = {}
+    for layout in LAYOUTS:
+        proc = subprocess.run([sys.executable, "-m", "frng", "export", "--config", str(cfg0), "--layout", layout,
+                               "--object", oid, "--out", str(tmp_path / "export" / layout)], cwd=ROOT,
+                              capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+        paths[layout] = proc.stdout.strip().splitlines()[-1]
+    cfg = _config(tmp_path, results, [{"layout": l, "path": p} for l, p in paths.items()])
+    r = _snakemake(cfg, "--profile", "profiles/local", "--cores", "2", "--config", "overwrite_config=true",
+                   "evaluate_benchmarks", timeout=1800)
+    assert r.returncode == 0, (r.stdout + r.stderr)[-3000:]
+    table = pd.read_csv(results / "tables" / "benchmarks.csv")
+    assert set(table["benchmark"]) == set(LAYOUTS)
+    assert set(zip(table["benchmark"], table["protocol"])) == {(l, l) for l in LAYOUTS}
+    assert len(table) == 2 * len(LAYOUTS)  # F-RNG and the backbone per benchmark
+    assert np.isfinite(table["psnr"]).all() and (table["psnr"] > 5).all()
+    assert np.isfinite(table.loc[table["benchmark"] == "orb", "psnr_l"]).all()
+    per_image = pd.read_csv(results / "metrics" / "benchmarks_per_image.csv")
+    assert set(per_image["run"]) == {"full", "backbone"}
+    caption = (results / "tables" / "benchmarks.md").read_text().splitlines()[0]
+    assert all(p in caption for p in ("tensoir", "orb", "owl", "nerf-synthetic"))
