@@ -50,8 +50,7 @@ from frng.model.materialformer import (
 from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, select_top_k
 from frng.model.tokenizers import PriorTokenizer, stack_priors
 from frng.render import RasterConfig, rasterize
-from frng.render.shading import (NeuralDecoder, ShadingConfig, deferred_shade, ggx_diffuse_brdf, ggx_reflectance,
-                                 lambert_sh, sh_diffuse)
+from frng.render.shading import GGX_MIN_ALBEDO, NeuralDecoder, ShadingConfig, deferred_shade, ggx_shade, lambert_sh
 from frng.variants import BASE_VARIANTS, all_variants, canonical_variant, k_variant, trained_variants, variant
 
 MODEL_KIND = "frng"
@@ -246,8 +245,9 @@ class PixelHead(nn.Module):
         if self.head == "neural":  # decoder features: 0:3 normal, 3:6 diffuse BRDF c / E(n)
             return torch.cat([out[:, :3] + normal, out[:, 3:6] + (ratio / math.pi).to(out.dtype), out[:, 6:]], -1)
         # pbr (decode_pbr's raw layout): albedo logit 0:3, roughness 3, metallic 4, normal 5:8 -> a rough
-        # dielectric of albedo pi c / E(n): GGX's diffuse lobe, i.e. the same Lambertian relighting
-        albedo = torch.logit(ratio.clamp(0.02, 0.98)).to(out.dtype)
+        # dielectric of albedo pi c / E(n): GGX's diffuse lobe, i.e. the same Lambertian relighting (the logit
+        # kept within +-3.9, where the sigmoid still has a gradient; decode_pbr's albedo is in [GGX_MIN_ALBEDO, 1])
+        albedo = torch.logit(((ratio - GGX_MIN_ALBEDO) / (1.0 - GGX_MIN_ALBEDO)).clamp(0.02, 0.98)).to(out.dtype)
         rough_metal = out.new_tensor([PBR_INIT_ROUGHNESS_LOGIT, PBR_INIT_METALLIC_LOGIT])
         return torch.cat([out[:, :3] + albedo, out[:, 3:5] + rough_metal, out[:, 5:8] + normal, out[:, 8:]], -1)
 
@@ -519,15 +519,9 @@ class FRNG(nn.Module):
             elif self.cfg.head == "neural":
                 rgb = deferred_shade(self.decoder, [maps], alpha, c2w, intr, samples, spp_grad, sc.alpha_eps,
                                      chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
-            elif sc.diffuse == "sh":  # GGX: diffuse lobe in closed form, Monte Carlo for the specular lobe
-                split = [maps[..., 0:3], maps[..., 3:4], maps[..., 4:5], maps[..., 5:8]]
-                rgb = deferred_shade(_ggx_unit_normal_specular, split, alpha, c2w, intr, samples, spp_grad,
-                                     sc.alpha_eps, chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
-                rgb = rgb.float() + _ggx_diffuse_sh(maps, alpha, c2w, intr, env, sc.alpha_eps)
-            else:
-                split = [maps[..., 0:3], maps[..., 3:4], maps[..., 4:5], maps[..., 5:8]]
-                rgb = deferred_shade(_ggx_unit_normal, split, alpha, c2w, intr, samples, spp_grad, sc.alpha_eps,
-                                     chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
+            else:  # GGX (diffuse lobe in closed form with diffuse 'sh'; normals facing the camera, bounded params)
+                rgb = ggx_shade(maps, alpha, c2w, intr, env, samples, spp_grad, sc.alpha_eps, sc.diffuse,
+                                chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
         return torch.cat([rgb.float(), alpha], -1)
 
     def specular(self, maps: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor,
@@ -561,31 +555,6 @@ class FRNG(nn.Module):
         linear, premultiplied over black.
         """
         return self.shade(self.rasterize(rec, c2w, intr, height, width), env, spp, generator, spp_grad)
-
-
-def _ggx_unit_normal(albedo, roughness, metallic, normal, wo, wi, diffuse: bool = True):
-    """GGX on blended (un-premultiplied) maps: the blended normal is re-normalised first."""
-    n = normal / normal.norm(dim=-1, keepdim=True).clamp_min(1e-8)
-    return ggx_reflectance(albedo.clamp(0, 1), roughness.clamp(0.02, 1), metallic.clamp(0, 1), n, wo, wi, diffuse)
-
-
-def _ggx_unit_normal_specular(albedo, roughness, metallic, normal, wo, wi):
-    return _ggx_unit_normal(albedo, roughness, metallic, normal, wo, wi, diffuse=False)
-
-
-def _ggx_diffuse_sh(maps: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor,
-                    env: torch.Tensor, alpha_eps: float) -> torch.Tensor:
-    """GGX's diffuse lobe (:func:`~frng.render.shading.ggx_diffuse_brdf`) in closed form under ``env``'s SH
-    irradiance, for pbr maps (V, H, W, 8) premultiplied (albedo 0:3, roughness 3, metallic 4, normal 5:8)."""
-    from frng import camera
-
-    V, H, W = alpha.shape[:3]
-    f = maps.float() / alpha.float().clamp_min(alpha_eps)
-    n = nn.functional.normalize(f[..., 5:8], dim=-1, eps=1e-8)
-    _, d = camera.pixel_rays(c2w.float(), intr.float(), H, W)
-    brdf = ggx_diffuse_brdf(f[..., 0:3].clamp(0, 1).reshape(-1, 3), f[..., 4:5].clamp(0, 1).reshape(-1, 1),
-                            n.reshape(-1, 3), -d.reshape(-1, 3)).reshape(V, H, W, 3)
-    return sh_diffuse(brdf, n, alpha, envmap.sh_project(env.detach().float().cpu()).float(), alpha_eps)
 
 
 # -- variants from the pipeline config --------------------------------------------------------------------------

@@ -20,7 +20,7 @@ tokens to the sequence would double the attention cost for no stated benefit.
 
 Heads: ``neural`` (default) -> ``feature_dim`` neural material features per Gaussian, unconstrained (the universal
 decoder's input); ``pbr`` (the ``no-neural`` ablation) -> Cook-Torrance parameters per Gaussian via
-:func:`decode_pbr`: albedo 3 (sigmoid), roughness 1 (sigmoid, floored at ``MIN_ROUGHNESS``), metallic 1 (sigmoid),
+:func:`decode_pbr`: albedo 3, roughness 1, metallic 1 (sigmoids into bounded ranges, ``frng.render.shading.GGX_*``),
 normal 3 (unit, world frame).
 
 Attention uses :func:`torch.nn.functional.scaled_dot_product_attention` (via :mod:`frng.nn`); everything runs under
@@ -36,9 +36,10 @@ from torch import nn
 
 from frng.config import section
 from frng.nn import Transformer, unpatchify
+from frng.render.shading import GGX_MAX_METALLIC, GGX_MIN_ALBEDO, GGX_MIN_ROUGHNESS
 
 PBR_CHANNELS = 8  # albedo 3, roughness 1, metallic 1, normal 3
-MIN_ROUGHNESS = 0.02
+MIN_ROUGHNESS = GGX_MIN_ROUGHNESS
 
 
 @dataclass
@@ -121,13 +122,15 @@ class MatDetokenizer(nn.Module):
 def decode_pbr(raw: torch.Tensor) -> dict[str, torch.Tensor]:
     """``no-neural`` head output (..., 8) -> Cook-Torrance parameters per Gaussian.
 
-    Returns albedo (..., 3) in (0, 1), roughness (..., 1) in [MIN_ROUGHNESS, 1), metallic (..., 1) in (0, 1),
-    normal (..., 3) unit (world frame; a zero vector maps to +Z).
+    Returns albedo (..., 3) in [GGX_MIN_ALBEDO, 1], roughness (..., 1) in [GGX_MIN_ROUGHNESS, 1], metallic (..., 1)
+    in [0, GGX_MAX_METALLIC], normal (..., 3) unit (world frame; a zero vector maps to +Z). The bounds keep every
+    logit, however extreme, from switching a lit surface off (a black base colour, a pure metal without a diffuse
+    lobe, a near-delta specular lobe).
     """
     raw = raw.float()
-    albedo = torch.sigmoid(raw[..., 0:3])
-    roughness = MIN_ROUGHNESS + (1.0 - MIN_ROUGHNESS) * torch.sigmoid(raw[..., 3:4])
-    metallic = torch.sigmoid(raw[..., 4:5])
+    albedo = GGX_MIN_ALBEDO + (1.0 - GGX_MIN_ALBEDO) * torch.sigmoid(raw[..., 0:3])
+    roughness = GGX_MIN_ROUGHNESS + (1.0 - GGX_MIN_ROUGHNESS) * torch.sigmoid(raw[..., 3:4])
+    metallic = GGX_MAX_METALLIC * torch.sigmoid(raw[..., 4:5])
     n = raw[..., 5:8]
     norm = n.norm(dim=-1, keepdim=True)
     up = torch.zeros_like(n)

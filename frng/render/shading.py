@@ -32,6 +32,13 @@ from frng.envmap import EnvSamples
 
 DIFFUSE_MODES = ("sh", "mc")
 
+# Cook-Torrance parameter ranges of the no-neural ablation (:func:`frng.model.materialformer.decode_pbr` maps its
+# logits into them, :func:`ggx_shade` clamps blended maps to them). Bounded so that no parameter can switch a lit
+# surface off: base colour >= 0.03 (charcoal), metallic <= 0.9 (>= 10 % diffuse lobe left), roughness >= 0.08
+# (alpha = 0.0064: a glossy lobe, not the near-delta the light samples miss).
+GGX_MIN_ALBEDO, GGX_MIN_ROUGHNESS, GGX_MAX_METALLIC = 0.03, 0.08, 0.9
+GGX_MIN_COS_VIEW = 0.1  # :func:`face_forward` bends shading normals to n . w_o >= ~this
+
 
 @dataclass(frozen=True)
 class ShadingConfig:
@@ -290,3 +297,54 @@ def deferred_shade(reflectance: Callable, maps: Sequence[torch.Tensor], alpha: t
     if background is not None:
         out = out + (1.0 - alpha) * background.to(out.dtype)
     return out
+
+
+def face_forward(normal: torch.Tensor, wo: torch.Tensor, min_cos: float = GGX_MIN_COS_VIEW) -> torch.Tensor:
+    """Shading normals (P, 3) of two-sided surfels seen along wo (P, 3) (unit, surface -> camera): normalised,
+    flipped where they face away from the camera (a splat is seen from either side; a blended or mirrored normal
+    can point away from a new view), then bent towards w_o where n . w_o < min_cos (n + (min_cos - n . w_o) w_o,
+    renormalised: a grazing normal's Fresnel term would leave no diffuse light). One-sided Cook-Torrance is zero
+    wherever n . w_o <= 0: lit pixels at silhouettes and on back-facing normals rendered black (the no-neural
+    ablation's holes). Differentiable, finite for any input (a zero normal becomes w_o)."""
+    n = nn.functional.normalize(normal, dim=-1, eps=1e-8)
+    nv = (n * wo).sum(-1, keepdim=True)
+    n = torch.where(nv < 0, -n, n)
+    n = n + (min_cos - nv.abs()).clamp_min(0.0) * wo
+    return nn.functional.normalize(n, dim=-1, eps=1e-8)
+
+
+def _ggx_pixels(albedo, roughness, metallic, normal, wo, wi, diffuse: bool = True):
+    """:func:`ggx_reflectance` on blended (un-premultiplied) maps: parameters clamped to the decode ranges, the
+    normal through :func:`face_forward`."""
+    return ggx_reflectance(albedo.clamp(GGX_MIN_ALBEDO, 1), roughness.clamp(GGX_MIN_ROUGHNESS, 1),
+                           metallic.clamp(0, GGX_MAX_METALLIC), face_forward(normal, wo), wo, wi, diffuse)
+
+
+def _ggx_pixels_specular(albedo, roughness, metallic, normal, wo, wi):
+    return _ggx_pixels(albedo, roughness, metallic, normal, wo, wi, diffuse=False)
+
+
+def ggx_shade(maps: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intrinsics: torch.Tensor, env: torch.Tensor,
+              samples: EnvSamples | Sequence[EnvSamples], spp_grad: int | None = None, alpha_eps: float = 1e-3,
+              diffuse: str = "sh", chunk: int = 4096, chunk_pairs: int | None = None) -> torch.Tensor:
+    """Cook-Torrance shading of rasterized pbr maps (the no-neural ablation): maps (V, H, W, 8) alpha-premultiplied
+    (albedo 0:3, roughness 3, metallic 4, normal 5:8), alpha (V, H, W, 1), cameras c2w (V, 4, 4), intrinsics (V, 4),
+    env (He, We, 3), samples as :func:`deferred_shade`. Blended parameters are clamped to the decode ranges
+    (``GGX_*``) and normals oriented by :func:`face_forward`. ``diffuse='sh'``: the diffuse lobe in closed form
+    (:func:`ggx_diffuse_brdf` x the SH irradiance at the oriented normal), Monte Carlo for the specular lobe;
+    ``'mc'``: both by Monte Carlo. Returns RGB (V, H, W, 3), premultiplied, 0 where alpha <= alpha_eps."""
+    split = [maps[..., 0:3], maps[..., 3:4], maps[..., 4:5], maps[..., 5:8]]
+    if diffuse != "sh":
+        return deferred_shade(_ggx_pixels, split, alpha, c2w, intrinsics, samples, spp_grad, alpha_eps,
+                              chunk=chunk, chunk_pairs=chunk_pairs)
+    rgb = deferred_shade(_ggx_pixels_specular, split, alpha, c2w, intrinsics, samples, spp_grad, alpha_eps,
+                         chunk=chunk, chunk_pairs=chunk_pairs).float()
+    V, H, W = alpha.shape[:3]
+    f = maps.float() / alpha.float().clamp_min(alpha_eps)
+    _, d = camera.pixel_rays(c2w.float(), intrinsics.float(), H, W)
+    wo = -d.reshape(-1, 3)
+    n = face_forward(f[..., 5:8].reshape(-1, 3), wo)
+    brdf = ggx_diffuse_brdf(f[..., 0:3].clamp(GGX_MIN_ALBEDO, 1).reshape(-1, 3),
+                            f[..., 4:5].clamp(0, GGX_MAX_METALLIC).reshape(-1, 1), n, wo).reshape(V, H, W, 3)
+    sh = envmap.sh_project(env.detach().float().cpu()).float()
+    return rgb + sh_diffuse(brdf, n.reshape(V, H, W, 3), alpha, sh, alpha_eps)
