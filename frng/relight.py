@@ -188,6 +188,8 @@ def relight_object(config: Config | dict, oid: str, models: dict[str, Path], bac
     idm = build_idm(config, device)
     meta = io.read_json(Layout(config.results).object_meta(oid))
     the_runs = runs(config, len(meta["views"]["inputs"]))
+    if isinstance(meta.get("benchmark"), dict):  # imported benchmarks ship no G-buffer: no oracle-prior run
+        the_runs = [r for r in the_runs if r.priors != "oracle"]
     need_gbuffer = idm.kind == "oracle" or any(r.priors == "oracle" for r in the_runs)
     obj = load_object(config, oid, with_targets=False, with_gbuffer=need_gbuffer)
     light_in = obj.input_lights[0]
