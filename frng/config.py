@@ -396,8 +396,8 @@ RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
 }
 """Rule name -> the config keys its stage reads (see the comment above)."""
 
-RULES_WITHOUT_DIGEST = frozenset({"all"})
-"""Rules that run no stage."""
+RULES_WITHOUT_DIGEST = frozenset({"all", "config_digest"})
+"""Rules that run no stage (``config_digest`` records the others' digests in the results folder)."""
 
 _NEVER_DIGESTED = ("results", OVERWRITE_SWITCH)
 
@@ -437,6 +437,43 @@ def rule_digest(config: dict, rule: str) -> str:
     if rule not in RULE_CONFIG_KEYS:
         raise ConfigError(f"rule {rule!r} has no entry in frng.config.RULE_CONFIG_KEYS (the config keys it reads)")
     return config_digest(config, RULE_CONFIG_KEYS[rule])
+
+
+def write_rule_digest(config: dict, rule: str, path: str | os.PathLike, log: str | os.PathLike | None = None) -> Path:
+    """Write ``path`` (``{results}/.digests/{rule}-{digest}.txt``, :meth:`frng.layout.Layout.rule_digest`): the keys
+    rule ``rule`` reads, their values and digest; and remove the rule's other digest files, so that going back to
+    an earlier config finds its file missing again (and reruns the rule). ``log``: where to say so."""
+    from frng import io
+
+    path = Path(path)
+    digest = rule_digest(config, rule)
+    if path.name != f"{rule}-{digest}.txt":
+        raise ConfigError(f"{path}: not the digest file of rule {rule} for this config ({rule}-{digest}.txt)")
+    keys = RULE_CONFIG_KEYS[rule]
+    io.write_json(path, {"rule": rule, "digest": digest, "keys": list(keys),
+                         "values": {k: _lookup(config, k) for k in keys if not k.startswith("!")}})
+    for other in path.parent.glob(f"{rule}-*.txt"):
+        if other != path and re.fullmatch(rf"{re.escape(rule)}-[0-9a-f]+\.txt", other.name):
+            other.unlink(missing_ok=True)
+    if log is not None:
+        Path(log).parent.mkdir(parents=True, exist_ok=True)
+        Path(log).write_text(f"recorded {path}\n")
+    return path
+
+
+def remove_stale_digests(config: dict, folder: str | os.PathLike) -> list[Path]:
+    """Remove the digest files ``{folder}/{rule}-{digest}.txt`` of other configs (a run that touched its jobs,
+    ``--touch``, leaves them): called when jobs start, never while planning. Returns the files removed."""
+    current = {f"{rule}-{rule_digest(config, rule)}.txt" for rule in RULE_CONFIG_KEYS}
+    folder = Path(folder)
+    removed = []
+    if folder.is_dir():
+        for f in sorted(folder.iterdir()):
+            m = re.fullmatch(r"([a-z][a-z0-9_]*)-[0-9a-f]+\.txt", f.name)
+            if m and m.group(1) in RULE_CONFIG_KEYS and f.name not in current:
+                f.unlink(missing_ok=True)
+                removed.append(f)
+    return removed
 
 
 def check_rule_digests(config: dict, declared: dict[str, Any]) -> None:

@@ -7,6 +7,8 @@ writes ``L.object_meta()`` for ``{results}/objects/{obj}/meta.json`` and a stage
 ::
 
     {results}/config.yaml                         the effective config (frng.config.record)
+    .digests/{rule}-{digest}.txt                  each rule's config digest, an input of its jobs (rule config_digest)
+    .lock                                         held by the snakemake running on the folder (rules/common.smk)
     envmaps/index.json, envmaps/{env}.exr         prepared environment maps (rule envmaps)
     objects/{obj}/meta.json, inputs/, targets/, gbuffer/   curated objects (rule curate)
     previews/{obj}.png                            contact sheets (rule dataset_preview)
@@ -111,6 +113,18 @@ class Layout(_Folder):
     # -- configuration and logs ---------------------------------------------------------------------------------
     def config(self) -> str:
         return self._p("config.yaml")
+
+    def digests_dir(self) -> str:
+        return self._p(".digests")
+
+    def rule_digest(self, rule: str = "{rule}", digest: str = "{digest}") -> str:
+        """``.digests/{rule}-{digest}.txt``: the record that ``rule``'s jobs run with config digest ``digest``
+        (:func:`frng.config.rule_digest`); every job of the rule reads it, so the digest travels with the folder."""
+        return self._p(".digests", f"{rule}-{digest}.txt")
+
+    def lock(self) -> str:
+        """``.lock``: locked (fcntl) by the snakemake process running jobs on this folder."""
+        return self._p(".lock")
 
     def log(self, rule: str, obj: str | None = None) -> str:
         """``logs/{rule}.log``, or ``logs/{rule}/{obj}.log`` for per-object jobs."""

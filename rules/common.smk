@@ -53,14 +53,55 @@ if workflow.exec_mode == ExecMode.DEFAULT:  # not inside a job's own snakemake p
     effective_config_notice()
 
 
+def lock_results_folder():
+    """Lock ``{results}/.lock`` (fcntl, held until this process exits) so that a second snakemake on the same
+    results folder, from any working directory (Snakemake's own lock lives in the working directory's .snakemake),
+    stops before its first job instead of rerunning what the first one is writing."""
+    import fcntl
+
+    path = Path(L.lock())
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        holder = Path(path).read_text().strip() or "another process"
+        os.close(fd)
+        raise WorkflowError(f"{RESULTS} is in use by another snakemake run ({holder}; lock {path}); wait for it "
+                            f"to finish or stop it")
+    os.ftruncate(fd, 0)
+    os.write(fd, f"pid {os.getpid()} on {os.uname().nodename}, working directory {os.getcwd()}\n".encode())
+    return fd  # kept open: the lock lasts as long as this snakemake
+
+
 onstart:
-    # Jobs are about to run: record the effective config, or refuse a differing one.
+    # Jobs are about to run: lock the results folder, record the effective config, or refuse a differing one.
+    RESULTS_LOCK = lock_results_folder()
     try:
         outcome = frng_config.record(config, CONFIG_FILE, overwrite=OVERWRITE_CONFIG)
     except frng_config.ConfigError as e:
         raise WorkflowError(str(e))
+    frng_config.remove_stale_digests(config, L.digests_dir())  # other configs' digest files (rule config_digest)
     if outcome != "unchanged":
         logger.info(f"effective config {outcome}: {CONFIG_FILE}")
+
+
+# Each rule's config digest travels with the results folder (see rules/digests.smk). Every job of a rule reads
+# {results}/.digests/{rule}-{digest}.txt; the default target asks for each of them.
+def digest_rules(rules):
+    return [r for r in rules if r.name not in frng_config.RULES_WITHOUT_DIGEST and r.name in frng_config.RULE_CONFIG_KEYS]
+
+
+def add_digest_inputs(rules):
+    """Make every rule with a config digest read its digest file (called once every rule file is included);
+    returns the digest files, which `rule all` asks for (Snakemake makes a missing input only for a job that runs
+    anyway: the target makes it run, and then every job reading it)."""
+    files = []
+    for r in digest_rules(rules):
+        path = L.rule_digest(r.name, frng_config.rule_digest(config, r.name))
+        r.set_input(config_digest=path)
+        files.append(path)
+    return files
 
 
 # Python running the stages: the interpreter snakemake runs in (the project's venv) unless --sdm conda.

@@ -27,8 +27,8 @@ rule curate:
         mem_mb=2500,
         runtime=lambda wildcards: frng_catalog.curate_minutes(config, CATALOG.object(wildcards.obj)),
     shell:
-        "{params.py} -m frng curate --config {params.config} --object {wildcards.obj} "
-        "--envmaps {params.envmaps} --out {params.objects} > {log} 2>&1"
+        "exec {params.py:q} -m frng curate --config {params.config:q} --object {wildcards.obj:q} "
+        "--envmaps {params.envmaps:q} --out {params.objects:q} > {log:q} 2>&1"
 
 
 rule dataset_preview:
@@ -52,7 +52,7 @@ rule dataset_preview:
         mem_mb=2000,
         runtime=5 + len(OBJECT_IDS) // 20,
     shell:
-        "{params.py} -m frng dataset preview --config {params.config} --out {params.out} > {log} 2>&1"
+        "exec {params.py:q} -m frng dataset preview --config {params.config:q} --out {params.out:q} > {log:q} 2>&1"
 
 
 add_targets(*expand(L.object_meta(), obj=OBJECT_IDS), *expand(L.preview(), obj=OBJECT_IDS))

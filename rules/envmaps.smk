@@ -26,7 +26,7 @@ rule envmaps:
         mem_mb=3000,
         runtime=10 + len(ENVMAP_NAMES) // 20,
     shell:
-        "{params.py} -m frng envmaps --config {params.config} --out {params.out} > {log} 2>&1"
+        "exec {params.py:q} -m frng envmaps --config {params.config:q} --out {params.out:q} > {log:q} 2>&1"
 
 
 add_targets(L.envmap_index())

@@ -36,7 +36,7 @@ rule evaluate:
         mem_mb=3000,
         runtime=30,
     shell:
-        "{params.py} -m frng evaluate --config {params.config} --objects {params.objects} --out {params.out} > {log} 2>&1"
+        "exec {params.py:q} -m frng evaluate --config {params.config:q} --objects {params.objects:q} --out {params.out:q} > {log:q} 2>&1"
 
 
 rule tables:
@@ -68,8 +68,8 @@ rule tables:
         mem_mb=2000,
         runtime=10,
     shell:
-        "{params.py} -m frng tables --config {params.config} --metrics {input.per_image} --timing {input.timing} "
-        "--prior-metrics {input.prior} --cross-light {input.cross} --out {params.out} > {log} 2>&1"
+        "exec {params.py:q} -m frng tables --config {params.config:q} --metrics {input.per_image:q} --timing {input.timing:q} "
+        "--prior-metrics {input.prior:q} --cross-light {input.cross:q} --out {params.out:q} > {log:q} 2>&1"
 
 
 rule figures:
@@ -105,7 +105,7 @@ rule figures:
         mem_mb=2000,
         runtime=10,
     shell:
-        "{params.py} -m frng figures --config {params.config} --objects {params.objects} --out {params.out} > {log} 2>&1"
+        "exec {params.py:q} -m frng figures --config {params.config:q} --objects {params.objects:q} --out {params.out:q} > {log:q} 2>&1"
 
 
 add_targets(

@@ -26,7 +26,7 @@ rule backbone_train:
         runtime=60,
         gpu=1,
     shell:
-        "{params.py} -m frng backbone-train --config {params.config} --out {params.out} > {log} 2>&1"
+        "exec {params.py:q} -m frng backbone-train --config {params.config:q} --out {params.out:q} > {log:q} 2>&1"
 
 
 rule idm_train:
@@ -53,7 +53,7 @@ rule idm_train:
         runtime=30,
         gpu=1,
     shell:
-        "{params.py} -m frng idm-train --config {params.config} --out {params.out} > {log} 2>&1"
+        "exec {params.py:q} -m frng idm-train --config {params.config:q} --out {params.out:q} > {log:q} 2>&1"
 
 
 rule backbone_cache:
@@ -80,8 +80,8 @@ rule backbone_cache:
         runtime=15,
         gpu=1,
     shell:
-        "{params.py} -m frng backbone-cache --config {params.config} --object {wildcards.obj} "
-        "--model {input.model} --out {output} > {log} 2>&1"
+        "exec {params.py:q} -m frng backbone-cache --config {params.config:q} --object {wildcards.obj:q} "
+        "--model {input.model:q} --out {output.cache:q} > {log:q} 2>&1"
 
 
 rule idm_priors:
@@ -108,7 +108,7 @@ rule idm_priors:
         runtime=10,
         gpu=1,
     shell:
-        "{params.py} -m frng idm-priors --config {params.config} --object {wildcards.obj} --out {output} > {log} 2>&1"
+        "exec {params.py:q} -m frng idm-priors --config {params.config:q} --object {wildcards.obj:q} --out {output.priors:q} > {log:q} 2>&1"
 
 
 rule eval_backbone:
@@ -134,8 +134,8 @@ rule eval_backbone:
         mem_mb=4000,
         runtime=30,
     shell:
-        "{params.py} -m frng eval-backbone --config {params.config} --model {input.backbone} "
-        "--backbone-csv {output.backbone} --idm-csv {output.idm} > {log} 2>&1"
+        "exec {params.py:q} -m frng eval-backbone --config {params.config:q} --model {input.backbone:q} "
+        "--backbone-csv {output.backbone:q} --idm-csv {output.idm:q} > {log:q} 2>&1"
 
 
 add_targets(

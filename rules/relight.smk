@@ -34,5 +34,5 @@ rule relight:
         runtime=60,
         gpu=TORCH_GPUS,
     shell:
-        "{params.py} -m frng relight --config {params.config} --object {wildcards.obj} --models {params.models} "
-        "> {log} 2>&1"
+        "exec {params.py:q} -m frng relight --config {params.config:q} --object {wildcards.obj:q} --models {params.models:q} "
+        "> {log:q} 2>&1"

@@ -161,7 +161,8 @@ class Folder:
             return {}
         counts = {m.group(1): int(m.group(2)) for m in re.finditer(r"^(\w+)\s+(\d+)$", out, re.M)}
         assert counts, out[-4000:]
-        return {r: n for r, n in counts.items() if r not in ("all", "total")}
+        # config_digest: the jobs writing each edited rule's digest file into the results folder (bookkeeping)
+        return {r: n for r, n in counts.items() if r not in ("all", "total", "config_digest")}
 
 
 @pytest.fixture(scope="module")
@@ -184,3 +185,46 @@ def test_an_edit_reruns_its_rules_and_what_follows_only(folder, key, value, expe
         assert jobs["backbone_cache"] == n_objects and jobs["train"] == len(trained_variants(cfg))
     if key == "idm.train.steps":  # every variant but no-idm, which reads no IDM prior
         assert jobs["idm_priors"] == n_objects and jobs["train"] == len(trained_variants(cfg)) - 1
+
+
+# -- the digests travel with the results folder (issue 24, item 2) -----------------------------------------------
+
+@pytest.mark.parametrize("key, value", [("train.steps", 21), ("train.lr", 0.123)])
+def test_a_copied_folder_keeps_the_rerun_promise(folder, tmp_path, key, value):
+    """`cp -a` of a finished folder, planned from a fresh working directory (no .snakemake metadata): an edit still
+    reruns every job of the rules that read the key (it used to answer "Nothing to be done" for train.steps, and
+    rerun 1 of the 8 trainings for train.lr), and the unedited config still reruns nothing."""
+    copy_ = tmp_path / "copy"
+    subprocess.run(["cp", "-a", str(folder.results), str(copy_)], check=True)
+    fresh = Folder.__new__(Folder)
+    fresh.tmp, fresh.workdir, fresh.results = tmp_path, tmp_path / "workdir", copy_
+    fresh.workdir.mkdir()
+    fresh.config = {**folder.config, "results": str(copy_)}
+    assert fresh.jobs(fresh.config, "same.yaml") == {}
+    jobs = fresh.jobs(set_key(fresh.config, key, value), "edited.yaml")
+    cfg = frng_config.load(fresh.write("check.yaml", fresh.config))
+    assert set(jobs) == AFTER_TRAIN and jobs["train"] == len(trained_variants(cfg)), jobs
+    assert sorted(p.name for p in (copy_ / ".digests").iterdir()) == sorted(
+        p.name for p in (folder.results / ".digests").iterdir())  # planning wrote nothing
+
+
+def test_digest_files_are_recorded_and_replaced(tmp_path):
+    from frng.layout import Layout
+
+    cfg = frng_config.validate(yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text()))
+    L = Layout(tmp_path)
+    first = Path(L.rule_digest("train", frng_config.rule_digest(cfg, "train")))
+    frng_config.write_rule_digest(cfg, "train", first)
+    other_rule = tmp_path / ".digests" / "training_set_caches-0123abcd.txt"
+    other_rule.write_text("{}")
+    edited = set_key(cfg, "train.steps", 3)
+    second = Path(L.rule_digest("train", frng_config.rule_digest(edited, "train")))
+    frng_config.write_rule_digest(edited, "train", second)
+    assert second != first and second.exists() and not first.exists() and other_rule.exists()
+    assert yaml.safe_load(second.read_text())["values"]["train"]["steps"] == 3
+    with pytest.raises(frng_config.ConfigError, match="not the digest file"):
+        frng_config.write_rule_digest(cfg, "train", second)
+    # when jobs start, the digest files of other configs go (a --touch run leaves them)
+    (tmp_path / ".digests" / "notes.txt").write_text("")
+    assert frng_config.remove_stale_digests(edited, L.digests_dir()) == [other_rule]
+    assert second.exists() and (tmp_path / ".digests" / "notes.txt").exists()

@@ -42,6 +42,8 @@ NO_STAGE = {
     "training_set_caches": "Snakemake bookkeeping: a `run:` block writing an index of the training split's files "
                            "(frng.io.write_file_index)",
     "training_set_priors": "Snakemake bookkeeping: likewise, the index of the training split's IDM priors",
+    "config_digest": "Snakemake bookkeeping: a `run:` block recording a rule's config digest in the results folder "
+                     "(frng.config.write_rule_digest)",
 }
 # stage modules without a rule, and why
 STAGES_WITHOUT_RULE = {
