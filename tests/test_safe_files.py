@@ -49,6 +49,7 @@ def _crafted(tmp_path: Path, name: str, zipped: bool) -> tuple[Path, Path]:
     return path, marker
 
 
+@pytest.mark.filterwarnings("ignore:Detected pickle protocol")
 @pytest.mark.parametrize("zipped", [True, False])
 def test_crafted_pickles_run_nothing(tmp_path, zipped):
     from frng.model.frng import FRNG
