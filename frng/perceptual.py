@@ -100,6 +100,18 @@ def _check_net(net: str) -> None:
         raise ValueError(f"net must be one of {NETS}, got {net!r}")
 
 
+class _NumpyOnlyUnpickler(pickle.Unpickler):
+    """The weight pickles hold dicts of numpy arrays: only numpy's array reconstruction may be named."""
+
+    ALLOWED = {("numpy", "ndarray"), ("numpy", "dtype"), ("numpy.core.multiarray", "_reconstruct"),
+               ("numpy._core.multiarray", "_reconstruct")}
+
+    def find_class(self, module: str, name: str):
+        if (module, name) not in self.ALLOWED:
+            raise pickle.UnpicklingError(f"it names {module}.{name}; only numpy arrays are allowed")
+        return super().find_class(module, name)
+
+
 @functools.lru_cache(maxsize=None)
 def _load_state(net: str) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
     """Read and convert a weight pickle once per process.
@@ -109,7 +121,10 @@ def _load_state(net: str) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tens
     """
     path = weights_path(net)
     with open(path, "rb") as f:
-        raw = pickle.load(f)
+        try:
+            raw = _NumpyOnlyUnpickler(f).load()  # a crafted weights file runs no code
+        except pickle.UnpicklingError as e:
+            raise ValueError(f"{path}: refusing to load LPIPS weights: {e}") from None
     try:
         convs = raw[_BACKBONE_KEY[net]]
         n_conv = len(convs)

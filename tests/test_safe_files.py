@@ -80,6 +80,23 @@ def test_crafted_pickles_run_nothing(tmp_path, zipped):
         assert str(path) in str(e.value) and not marker.exists()
 
 
+def test_crafted_lpips_weights_run_nothing(tmp_path, monkeypatch):
+    from frng import perceptual
+
+    marker = tmp_path / "marker-lpips"
+    weights = tmp_path / "weights"
+    weights.mkdir()
+    (weights / perceptual._CKPT["alex"]).write_bytes(pickle.dumps({"x": Payload(marker)}))
+    monkeypatch.setenv(perceptual.WEIGHTS_ENV, str(weights))
+    perceptual._load_state.cache_clear()
+    try:
+        with pytest.raises(ValueError, match="refusing to load LPIPS weights") as e:
+            perceptual._load_state("alex")
+        assert str(weights) in str(e.value) and not marker.exists()
+    finally:
+        perceptual._load_state.cache_clear()
+
+
 def test_real_checkpoint_state_loads_safely(tmp_path):
     """What a checkpoint holds (model, optimiser, every kind of random state, history) survives the safe load
     and restores the generators exactly."""
