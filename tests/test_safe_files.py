@@ -254,6 +254,21 @@ def test_full_disk_names_the_file(tmp_path, monkeypatch):
     assert not any(p.name.startswith(".tmp-") for p in tmp_path.iterdir())
 
 
+def test_full_disk_names_the_cache(tmp_path, monkeypatch):
+    import safetensors.torch
+
+    from frng.priors.cache import _save
+
+    def full(*a, **k):
+        raise OSError(28, "No space left on device (os error 28)")
+
+    monkeypatch.setattr(safetensors.torch, "save_file", full)
+    path = tmp_path / "cache" / "obj.safetensors"
+    with pytest.raises(OSError, match="no space left on device") as e:
+        _save({"a": torch.zeros(2)}, {}, path)
+    assert str(path) in str(e.value) and not path.exists()
+
+
 def test_huge_header_exr_says_so(tmp_path):
     path = tmp_path / "h.exr"
     io.write_exr(path, np.zeros((4, 4, 4), np.float32))

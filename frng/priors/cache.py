@@ -74,7 +74,10 @@ def _save(tensors: dict[str, torch.Tensor], meta: dict[str, str], path: Path) ->
     from safetensors.torch import save_file
 
     with io.atomic_path(path) as tmp:
-        save_file({k: v.contiguous() for k, v in tensors.items()}, str(tmp), metadata=meta)
+        try:
+            save_file({k: v.contiguous() for k, v in tensors.items()}, str(tmp), metadata=meta)
+        except Exception as e:  # noqa: BLE001 -- safetensors' errors name no file (a full disk: os error 28)
+            raise io.write_failure(path, e) from e
 
 
 def _load(path: Path) -> tuple[dict[str, torch.Tensor], dict[str, str]]:
