@@ -89,16 +89,21 @@ _UNWRITABLE = {errno.EACCES, errno.EPERM, errno.EROFS}
 
 
 def run_stage(name: str, run, args: argparse.Namespace) -> int:
-    """Run one stage; a bad config file or a permission error (read-only results folder) ends in one line on
-    stderr naming the file (exit 2), not a traceback. Other errors propagate."""
+    """Run one stage; a bad config file, a permission error (read-only results folder), a corrupt intermediate file,
+    a bad image or a full disk ends in one line on stderr naming the file (exit 2), not a traceback. Other errors
+    propagate."""
     from frng.config import ConfigError
+    from frng.io import CorruptFileError, ImageError
 
     try:
         return int(run(args) or 0)
-    except ConfigError as e:
+    except (ConfigError, CorruptFileError, ImageError) as e:  # each names its file and the cause
         print(f"frng {name}: error: {e}", file=sys.stderr)
         return 2
     except OSError as e:
+        if e.errno == errno.ENOSPC and e.filename is None:  # frng.io.write_failure: the message names the file
+            print(f"frng {name}: error: {e.strerror or e}", file=sys.stderr)
+            return 2
         if e.errno not in _UNWRITABLE:
             raise
         where = f"{e.filename}: " if e.filename is not None else ""

@@ -291,3 +291,18 @@ def test_ascii_ply_parse_error_names_the_file(tmp_path):
     with pytest.raises(AssetError, match="oops") as e:
         read_ply(path)
     assert str(path) in str(e.value) and "vertex 1" in str(e.value)
+
+
+def test_stage_errors_are_one_line(capsys):
+    """A corrupt file, an RGB-only view or a full disk ends a stage in one line naming the file, not a traceback."""
+    from frng import cli
+
+    for err in [io.CorruptFileError("/r/backbone/cache/o.safetensors: cannot read cache: truncated or corrupt"),
+                io.ImageError("/r/objects/o/inputs/L/in_00.exr: no alpha channel"),
+                io.write_failure("/r/x.safetensors", OSError(28, "No space left on device (os error 28)"))]:
+        def run(args, err=err):
+            raise err
+
+        assert cli.run_stage("train", run, None) == 2
+        line = capsys.readouterr().err.strip()
+        assert line.startswith("frng train: error: /r/") and "\n" not in line
