@@ -156,7 +156,7 @@ def test_no_neural_ablation_starts_at_the_same_lambertian_relighting(frng_smoke)
     full = _fixed_loss(train_mod.build_model(config, "full", bb, "cpu")[0], objs, config)
     pbr = _fixed_loss(train_mod.build_model(config, "no-neural", bb, "cpu")[0], objs, config)
     print(f"untrained fixed-sample L2: full {full:.4f}, no-neural {pbr:.4f}")
-    assert pbr < 2.0 * full  # measured 0.056 vs 0.035 (GGX adds its rough specular lobe); the old start ~black
+    assert pbr < 2.0 * full  # measured 0.047 vs 0.039 (GGX adds its rough specular lobe); the old start ~black
 
 
 def _black_holes(model, objects) -> tuple[int, int]:

@@ -8,7 +8,8 @@ k of ONE sample set shared by the whole image (:func:`frng.envmap.sample`, impor
 
 where rho is either the universal decoder Theta(feature, w_o, w_i) (:class:`NeuralDecoder`; the cosine is folded
 into it: no normals, no shading frame, as in the paper) or Cook-Torrance GGX times n.w_i (:func:`ggx_reflectance`,
-the "w/o neural appearance" ablation and the test reference). Directions are world = object frame; w_o points
+the test reference; :func:`ggx_shade` renders the "w/o neural appearance" ablation's maps with it, normals facing
+the camera and parameters bounded). Directions are world = object frame; w_o points
 from the surface to the camera, w_i towards the light (the direction the env map's radiance arrives from).
 
 Training uses K = spp_train samples of which only the first spp_grad carry gradients (paper: 64 / 24): the value
