@@ -222,6 +222,18 @@ def test_same_object_same_bytes(tmp_path):
     assert digest[0] == digest[1]
 
 
+def test_identical_retrain_same_model_bytes(tmp_path):
+    """Two identical trainings (the IDM's, a few steps) write byte-identical model.pt files."""
+    from test_training_loop import _config, _objects
+
+    from frng.priors import idm_train
+    from frng.training import file_sha256
+
+    for d in "ab":
+        idm_train.train(_config(), _objects(), tmp_path / d)
+    assert file_sha256(tmp_path / "a" / "model.pt") == file_sha256(tmp_path / "b" / "model.pt")
+
+
 # -- 9: late or unclear errors -------------------------------------------------------------------------------
 
 def test_cross_key_checks():
