@@ -60,8 +60,12 @@ def lock_results_folder():
     import fcntl
 
     path = Path(L.lock())
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        frng_config.check_writable(path.parent)  # a read-only results folder: one line, as the config record says
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    except (frng_config.ConfigError, OSError) as e:
+        raise WorkflowError(str(e) if isinstance(e, frng_config.ConfigError) else f"cannot write {path}: {e.strerror}")
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
