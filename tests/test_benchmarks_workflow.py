@@ -91,8 +91,8 @@ def test_smoke_tier_exported_imported_relit_scored(tmp_path):
         assert proc.returncode == 0, proc.stdout + proc.stderr
         paths[layout] = proc.stdout.strip().splitlines()[-1]
     cfg = _config(tmp_path, results, [{"layout": l, "path": p} for l, p in paths.items()])
-    r = _snakemake(cfg, "--profile", "profiles/local", "--cores", "2", "--config", "overwrite_config=true",
-                   "evaluate_benchmarks", timeout=1800)
+    r = _snakemake(cfg, "--profile", "profiles/local", "--config", "overwrite_config=true", "--cores", "2",
+                   "evaluate_benchmarks", timeout=1800)  # --config/--configfile take several values: target last
     assert r.returncode == 0, (r.stdout + r.stderr)[-3000:]
     table = pd.read_csv(results / "tables" / "benchmarks.csv")
     assert set(table["benchmark"]) == set(LAYOUTS)
