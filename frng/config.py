@@ -691,7 +691,7 @@ class Config:
     model: ModelConfig
     frng: FRNGSection
     train: TrainConfig
-    benchmarks: tuple = ()  # imported benchmark folders (frng/benchmarks; rules/benchmarks.smk)
+    benchmarks: tuple  # imported benchmark folders (frng/benchmarks; rules/benchmarks.smk)
 
     @property
     def model_seed(self) -> int:
