@@ -45,7 +45,7 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -343,6 +343,7 @@ def save_asset(
     meta: Mapping,
     preview_rgb: np.ndarray | torch.Tensor | None = None,
     overwrite: bool = True,
+    extra_files: Mapping[str, Callable[[Path], None]] | None = None,
 ) -> Path:
     """Save a relightable asset folder atomically. Returns the folder path.
 
@@ -354,6 +355,8 @@ def save_asset(
     ``source_views`` (list) is recommended; any other JSON-serialisable keys are kept in asset.json.
     preview_rgb: optional (N, 3) linear [0, 1] colour (e.g. albedo) shown by 3DGS viewers via f_dc_*.
     overwrite: replace an existing folder (old one removed only after the new one is in place).
+    extra_files: file name -> writer(path), called with the path inside the staged folder, e.g. the input light
+    and contact sheet ``frng reconstruct`` keeps beside the three asset files (readers ignore other files).
     """
     from safetensors.torch import save_file
 
@@ -405,6 +408,10 @@ def save_asset(
         save_file(state, str(tmp / DECODER_FILE), metadata={"format": FORMAT, "version": str(FORMAT_VERSION)})
         os.chmod(tmp / DECODER_FILE, 0o666 & ~current_umask())  # safetensors writes 0600 whatever the umask
         write_json(tmp / META_FILE, info)
+        for name, writer in (extra_files or {}).items():
+            if name in (PLY_FILE, DECODER_FILE, META_FILE) or Path(name).name != name:
+                raise ValueError(f"save_asset: extra file name {name!r} is reserved or not a plain name")
+            writer(tmp / name)
         if folder.exists():
             old = Path(tempfile.mkdtemp(prefix=f".old-{folder.name}-", dir=folder.parent))
             os.replace(folder, old / folder.name)
@@ -472,6 +479,127 @@ def load_asset(folder: str | os.PathLike) -> tuple[Gaussians, torch.Tensor, dict
     return gaussians, features, state, meta
 
 
+# -- rendering an asset (the asset folder and the decoder only: no F-RNG model, no training code) ----------
+
+RENDER_KEY = "render"  # asset.json: {"raster": frng.render.RasterConfig fields, "shading": ShadingConfig fields}
+RIG_KEY = "rig"        # asset.json: {"camera_distance", "fov_deg", "resolution"} of the training rig
+DECODER_FIELDS = ("feature_dim", "width", "depth", "dir_freqs", "cosine", "attenuation")
+
+
+
+def render_settings(raster_cfg, shading_cfg, max_radius_px: float | None = None) -> dict:
+    """The ``render`` record of ``asset.json`` from a model's :class:`frng.render.RasterConfig` and
+    :class:`frng.render.shading.ShadingConfig` (dataclasses); ``max_radius_px``: the footprint cap the model
+    rasterizes with when its raster config leaves it unset (:meth:`frng.model.frng.FRNG.rasterize`)."""
+    from dataclasses import asdict
+
+    raster = asdict(raster_cfg)
+    if raster.get("max_radius_px") is None:
+        raster["max_radius_px"] = max_radius_px
+    return {RENDER_KEY: {"raster": raster, "shading": asdict(shading_cfg)}}
+
+
+class AssetRenderer:
+    """Render an asset folder under any environment map, with the asset's own decoder and render settings.
+
+    What :meth:`frng.model.frng.FRNG.rasterize` + :meth:`~frng.model.frng.FRNG.shade` do for the neural head,
+    from the asset alone: the Gaussians and features (``gaussians.ply``), the decoder built from ``asset.json``'s
+    ``decoder`` (feature_dim, width, depth, dir_freqs, cosine, attenuation, specular) with the weights of
+    ``decoder.safetensors``, and the rasterizer / shading settings of ``asset.json``'s ``render`` (the schema's
+    defaults when an asset has none, e.g. one written by ``frng relight`` before it recorded them). Shading as the
+    model's: with a cosine decoder and ``shading.diffuse: sh`` the Lambertian base in closed form (degree-2 SH
+    irradiance) plus the Monte-Carlo residual, plus the prefiltered specular base when ``decoder.specular``.
+    The light samples are seeded like :meth:`FRNG.light_samples` (a ``generator``'s first draw, else 0), so the
+    same asset, light, views and seed give the model's images. Decoding runs in float32 unless ``bf16`` (CUDA).
+    """
+
+    def __init__(self, folder: str | os.PathLike, device: str | torch.device = "cpu", bf16: bool = False):
+        from frng.render import RasterConfig
+        from frng.render.shading import NeuralDecoder, ShadingConfig
+
+        self.folder = Path(folder)
+        g, features, state, meta = load_asset(self.folder)
+        meta_path = self.folder / META_FILE
+        dec = meta["decoder"]
+        if dec.get("head", "neural") != "neural":
+            raise AssetError(f"{meta_path}: field 'decoder.head' is {dec.get('head')!r}; only neural assets render")
+        missing = [k for k in DECODER_FIELDS if k not in dec]
+        if missing:
+            raise AssetError(f"{meta_path}: field 'decoder' lacks {missing} (needed to build the decoder)")
+        if int(dec["feature_dim"]) != features.shape[1]:
+            raise AssetError(f"{meta_path}: decoder.feature_dim {dec['feature_dim']} != {features.shape[1]} features")
+        self.device = torch.device(device)
+        self.meta = meta
+        try:
+            self.decoder = NeuralDecoder(int(dec["feature_dim"]), int(dec["width"]), int(dec["depth"]),
+                                         int(dec["dir_freqs"]), cosine=bool(dec["cosine"]),
+                                         attenuation=bool(dec["attenuation"]))
+            self.decoder.load_state_dict(state)
+        except (RuntimeError, ValueError) as e:
+            raise AssetError(f"{self.folder / DECODER_FILE}: does not fit the decoder of {META_FILE} "
+                             f"({str(e).splitlines()[0]})") from e
+        self.decoder = self.decoder.to(self.device).eval().requires_grad_(False)
+        self.specular = bool(dec.get("specular", False))
+        settings = meta.get(RENDER_KEY) or {}
+        try:
+            self.raster = RasterConfig.from_dict(dict(settings.get("raster", {})))
+            self.shading = ShadingConfig.from_dict(dict(settings.get("shading", {})))
+        except (ValueError, KeyError, TypeError) as e:
+            raise AssetError(f"{meta_path}: field {RENDER_KEY!r}: {e}") from e
+        self.gaussians = Gaussians(*(t.to(self.device) for t in (g.means, g.quats, g.scales, g.opacities)),
+                                   features.to(self.device))
+        self.bf16 = bool(bf16) and self.device.type == "cuda"
+
+    @property
+    def rig(self) -> dict:
+        """The training rig's camera distance, field of view and resolution (``asset.json`` ``rig``), or {}."""
+        return dict(self.meta.get(RIG_KEY) or {})
+
+    def rasterize(self, c2w: torch.Tensor, intr: torch.Tensor, height: int, width: int) -> tuple:
+        """The feature maps at cameras c2w (V, 4, 4), intr (V, 4): (maps, alpha, c2w, intr) as FRNG.rasterize."""
+        from frng.render import rasterize
+
+        g = self.gaussians
+        c2w, intr = c2w.to(self.device).float(), intr.to(self.device).float()
+        maps, alpha, _ = rasterize(g.means, g.quats, g.scales, g.opacities, g.features.float(), c2w, intr,
+                                   int(height), int(width), **self.raster.kwargs())
+        return maps, alpha, c2w, intr
+
+    def shade(self, raster: tuple, env: torch.Tensor, spp: int | None = None,
+              generator: torch.Generator | None = None) -> torch.Tensor:
+        """Deferred shading under an equirect map (He, We, 3) -> RGBA (V, H, W, 4), linear, premultiplied."""
+        from frng import camera, envmap
+        from frng.render.prefilter import prefilter, specular_base
+        from frng.render.shading import deferred_shade, lambert_sh
+
+        maps, alpha, c2w, intr = raster
+        sc = self.shading
+        spp = spp or sc.spp_infer
+        env = torch.as_tensor(env).float()
+        seed = 0 if generator is None else int(torch.randint(0, 2**31 - 1, (1,), generator=generator))
+        samples = envmap.sample(envmap.importance_sampler(env.detach().to(self.device)), spp, sc.sampling, seed)
+        with torch.no_grad(), torch.autocast(maps.device.type, dtype=torch.bfloat16, enabled=self.bf16):
+            if self.decoder.cosine and sc.diffuse == "sh":
+                rgb = deferred_shade(self.decoder.residual, [maps], alpha, c2w, intr, samples, None, sc.alpha_eps,
+                                     chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
+                rgb = rgb.float() + lambert_sh(maps, alpha, envmap.sh_project(env.detach().float().cpu()).float(),
+                                               sc.alpha_eps)
+                if self.specular:
+                    _, d = camera.pixel_rays(c2w.float(), intr.float(), maps.shape[1], maps.shape[2])
+                    rgb = rgb + specular_base(maps, alpha, prefilter(env.to(maps.device)), d, sc.alpha_eps)
+                if self.decoder.attenuation:
+                    rgb = rgb.clamp_min(0.0)
+            else:
+                rgb = deferred_shade(self.decoder, [maps], alpha, c2w, intr, samples, None, sc.alpha_eps,
+                                     chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
+        return torch.cat([rgb.float(), alpha], -1)
+
+    def render(self, env: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, height: int, width: int,
+               spp: int | None = None, generator: torch.Generator | None = None) -> torch.Tensor:
+        """:meth:`rasterize` then :meth:`shade`."""
+        return self.shade(self.rasterize(c2w, intr, height, width), env, spp, generator)
+
+
 def _frng_version() -> str:
     from frng import __version__
 
@@ -479,7 +607,7 @@ def _frng_version() -> str:
 
 
 __all__ = [
-    "AssetError", "BASE_PROPERTIES", "FORMAT", "FORMAT_VERSION", "SH_C0",
+    "AssetError", "AssetRenderer", "RENDER_KEY", "RIG_KEY", "render_settings", "BASE_PROPERTIES", "FORMAT", "FORMAT_VERSION", "SH_C0",
     "gaussians_to_ply_fields", "load_asset", "ply_fields_to_gaussians", "read_ply", "read_ply_header",
     "save_asset", "write_ply",
 ]

@@ -38,6 +38,8 @@ STAGES: dict[str, tuple[str, str]] = {
     "import": ("frng.stages.import_benchmark", "a public benchmark scene (tensoir, orb, owl, nerf-synthetic) into "
                "the dataset contract"),
     "export": ("frng.stages.export_benchmark", "a curated object in a public benchmark's published layout"),
+    "reconstruct": ("frng.stages.reconstruct", "your own photos (2-10 views) -> a relightable asset folder"),
+    "render-asset": ("frng.stages.render_asset", "render an asset folder under any env map (views, turntable)"),
     "relight-benchmark": ("frng.stages.relight_benchmark", "relight one imported benchmark object (as relight)"),
     "evaluate-benchmarks": ("frng.stages.evaluate_benchmarks", "relit benchmark objects scored with each "
                             "benchmark's published protocol; the benchmarks table"),

@@ -309,11 +309,12 @@ def shade_base(model, raster: tuple, env: torch.Tensor) -> torch.Tensor:
 
 def _save_full_extras(folder: Path, model, rec, p: dict, oid: str, run: Run) -> None:
     """The full run's relightable asset and its saliency (for the figures)."""
-    from frng.asset import save_asset
+    from frng.asset import render_settings, save_asset
 
     if rec.features is not None:
         meta = {"object_id": oid, "source_views": p["names"], "decoder": model.decoder_meta(),
-                "variant": run.variant, "k_percent": run.k_percent}
+                "variant": run.variant, "k_percent": run.k_percent,
+                **render_settings(model.raster_cfg, model.shading_cfg, model.cfg.max_radius_px)}
         save_asset(RelightFolder(folder).asset(), rec.gaussians, rec.features, model.decoder.state_dict(), meta)
     np.savez_compressed(RelightFolder(folder).saliency(), saliency=rec.saliency.detach().float().cpu().numpy(),
                         patch_idx=rec.patch_idx.detach().cpu().numpy(),

@@ -50,6 +50,8 @@ STAGES_WITHOUT_RULE = {
     "frng.stages.bench": "benchmarks are run by hand (`make bench`), never by the workflow",
     "frng.stages.export_benchmark": "writes curated objects in the public benchmarks' layouts, run by hand and by "
                                     "tests/test_benchmarks.py (nothing downstream in the workflow reads it)",
+    "frng.stages.reconstruct": "your own photos -> an asset, run by hand (tests/test_reconstruct.py)",
+    "frng.stages.render_asset": "renders an asset folder, run by hand (tests/test_reconstruct.py)",
 }
 # ``frng`` subcommands whose module is not in frng/stages/, and why
 OUTSIDE_STAGES = {

@@ -1,0 +1,727 @@
+"""Captures: your own photos in, a relightable asset out (``frng reconstruct``; rendering: ``frng render-asset``).
+
+A capture is 2-10 photos of one object (:data:`MIN_VIEWS`, :data:`MAX_VIEWS`), taken under one unknown light.
+This module turns them into what the F-RNG reconstruction path reads (:func:`frng.relight.backbone_views`, the IDM,
+:meth:`frng.model.frng.FRNG.reconstruct`): square views at the model's resolution, their masks, OpenCV cameras on
+the training rig's sphere, and an input light. Every bad input is a :class:`CaptureError` whose message names the
+file at fault; nothing is written before all inputs passed.
+
+Images (:func:`load_images`)
+    PNG / JPEG (8 or 16 bit, sRGB, straight alpha if any) or EXR (linear, premultiplied alpha if any); all must
+    have the same aspect ratio (1 % tolerance). ``grid=(rows, cols)`` splits one image holding a grid of views
+    (what multi-view image generators write) into rows x cols tiles, row by row.
+
+Masks (:func:`make_masks`), in this order of precedence
+    1. ``--masks DIR``: one mask image per photo (matched by file stem, else by sorted order when the counts
+       agree); its alpha channel if it has one, else the mean of its channels; the same size as its photo;
+    2. the photo's own alpha channel (unless it is opaque everywhere);
+    3. a uniform background keyed out: the median colour of a border ring (2 % of the shorter side, >= 1 px) is the
+       background when 95 % of the ring's pixels lie within :data:`KEY_UNIFORM` of it (sRGB, max over channels);
+       a pixel's alpha ramps from 0 to 1 as its distance to that colour goes from :data:`KEY_LOW` to
+       :data:`KEY_HIGH`; holes inside the object are filled and specks smaller than 1 % of the largest part
+       dropped; the background's share is removed from the edge colours (linear unmixing).
+    None of these -> an error naming the photo. A mask with fewer than max(4, 0.1 % of the pixels) above 0.5 is
+    "empty" -> an error naming the mask (or photo).
+
+Cameras (:func:`read_cameras`, :func:`rig_cameras`, :func:`normalise`)
+    * ``--rig paper``: the paper's 6-view rig (:mod:`frng.data.rig` with azimuth offset 0): the photos in sorted
+      order are azimuth 0, 90, 180, 270 deg at elevation 0 and 45, 225 deg at 45 deg (2-6 photos: the first ones),
+      all at the training rig's distance and field of view (``render.camera_distance``, ``render.fov_deg``),
+      looking at the origin, world Z up. Azimuth 0 looks at the object from +X; a ``--light`` map is read in this
+      frame.
+    * ``--cameras FILE``: a NeRF-style ``transforms.json`` (``frames[].file_path`` + ``transform_matrix``, Blender
+      camera-to-world; ``camera_angle_x`` or ``fl_x``/``fl_y``/``cx``/``cy`` and ``w``/``h``), or an OpenCV camera
+      file (JSON or YAML): ``{"cameras": [{"image": NAME, "K": 3x3, "R": 3x3, "t": [3]}]}`` (world-to-camera, as
+      ``cv2.solvePnP``), or entries with ``c2w`` (4x4 OpenCV camera-to-world) + ``intrinsics`` (fx, fy, cx, cy)
+      as :mod:`frng.data.rig` and ``meta.json`` write them (``width``/``height``: the size K refers to). Cameras
+      are matched to photos by file stem, else by order when the counts agree.
+      Normalisation to the training rig: the common centre (the point nearest every optical axis) moves to the
+      origin and the world is scaled so the median camera distance is ``render.camera_distance``; each photo is
+      then cropped to the window that has the training field of view (``render.fov_deg``) around the projection of
+      the centre, and resampled to ``render.resolution`` (intrinsics follow exactly; outside the photo is
+      transparent). A camera whose optical axis misses the common centre by more than :data:`MAX_AXIS_DEG`
+      (or that has it behind) is an error naming the camera file and the photo.
+    * framing of rig photos (``framing``): ``keep`` -- each photo is centre-cropped to a square (along its long
+      side, centred on the object) and resized: the object keeps its size in the frame (right for renders made
+      with the training rig, e.g. the exported test views); ``object`` -- every photo is cropped around its
+      object's bounding box centre with one common scale chosen so the widest silhouette of all photos spans the
+      unit sphere seen from the rig (diameter 2 tan(asin(1 / distance)) / (2 tan(fov / 2)) of the frame); ``auto``
+      (default) = ``keep`` when every photo is square, else ``object``.
+    Downscaling low-passes first (Gaussian, sigma = (factor - 1) / 2); a crop equal to the image at the same size
+    is the identity.
+
+Light (:func:`estimate_light`)
+    Unless ``--light MAP`` gives it, the input light is estimated from the IDM's albedo and normals: over the
+    confident foreground (alpha > 0.9, albedo > 0.02), shading = colour / albedo = E(n) / pi is fitted by
+    ridge-regularised least squares with a degree-2 SH radiance (9 x 3 coefficients, the l >= 1 bands damped
+    towards 0 so the directions no photo sees stay dim), which is expanded into an equirect map (negative lobes
+    clamped). The SH fixes the irradiance, which is what the reconstruction's Lambertian path divides by; the
+    light's high frequencies are lost (measured cost: README "Your own photos").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from frng import camera, envmap, io
+
+IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".exr")
+MIN_VIEWS, MAX_VIEWS = 2, 10
+ASPECT_TOL = 0.01
+KEY_UNIFORM, KEY_LOW, KEY_HIGH = 0.06, 0.06, 0.16  # sRGB, max over channels
+MAX_AXIS_DEG = 15.0
+EMPTY_FRACTION = 0.001
+FRAMINGS = ("auto", "keep", "object")
+
+
+class CaptureError(ValueError):
+    """Bad capture input (names the file at fault); nothing was written."""
+
+
+@dataclass
+class Photo:
+    """One input photo at its original size: linear RGB premultiplied by ``alpha`` when it has one."""
+
+    name: str
+    path: Path
+    rgb: np.ndarray                    # (H, W, 3) float32 linear (premultiplied when alpha is not None)
+    alpha: np.ndarray | None = None    # (H, W) float32 in [0, 1], or None (no alpha channel / opaque)
+    mask_source: str = ""              # where the mask came from: "alpha", "masks", "keyed"
+    info: dict = field(default_factory=dict)
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return self.rgb.shape[1], self.rgb.shape[0]  # (W, H)
+
+
+# -- images -----------------------------------------------------------------------------------------------
+
+def image_files(folder: Path, what: str = "images") -> list[Path]:
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise CaptureError(f"{folder}: {what} folder does not exist")
+    return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTS)
+
+
+def read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """A PNG/JPEG (sRGB, straight alpha) or EXR (linear, premultiplied) -> (linear premultiplied RGB, alpha|None).
+    Greyscale is expanded; an alpha that is 1 everywhere counts as none."""
+    path = Path(path)
+    if path.suffix.lower() == ".exr":
+        try:
+            ch = io.read_exr_channels(path)
+        except (io.ImageError, ValueError, OSError) as e:
+            raise CaptureError(f"{path}: cannot read EXR ({e})") from e
+        if "R" in ch and "G" in ch and "B" in ch:
+            rgb = np.stack([ch["R"], ch["G"], ch["B"]], -1)
+        elif "Y" in ch:
+            rgb = np.repeat(ch["Y"][..., None], 3, -1)
+        else:
+            raise CaptureError(f"{path}: EXR has no R, G, B (or Y) channels (has {sorted(ch)})")
+        a = ch.get("A")
+        rgb = np.maximum(rgb.astype(np.float32), 0.0)
+    else:
+        import imageio.v3 as iio
+
+        try:
+            img = np.asarray(iio.imread(path))
+        except Exception as e:  # imageio raises many kinds
+            raise CaptureError(f"{path}: cannot read image ({e})") from e
+        scale = 65535.0 if img.dtype == np.uint16 else 255.0 if img.dtype == np.uint8 else 1.0
+        img = img.astype(np.float32) / scale
+        if img.ndim == 2:
+            img = img[..., None]
+        if img.ndim != 3 or img.shape[-1] not in (1, 2, 3, 4):
+            raise CaptureError(f"{path}: unsupported image shape {img.shape}")
+        c = img.shape[-1]
+        rgb = np.repeat(img[..., :1], 3, -1) if c in (1, 2) else img[..., :3]
+        a = img[..., -1] if c in (2, 4) else None
+        rgb = io.srgb_decode(rgb)
+        if a is not None:
+            rgb = rgb * a[..., None]
+    if not np.all(np.isfinite(rgb)) or (a is not None and not np.all(np.isfinite(a))):
+        raise CaptureError(f"{path}: image contains NaN or inf")
+    if a is not None:
+        a = np.clip(a.astype(np.float32), 0.0, 1.0)
+        if a.min() >= 0.999:
+            a = None
+    return rgb.astype(np.float32), a
+
+
+def parse_grid(text: str | None) -> tuple[int, int] | None:
+    if not text:
+        return None
+    try:
+        r, c = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise CaptureError(f"--grid {text!r}: expected ROWSxCOLS, e.g. 2x3") from None
+    if r < 1 or c < 1:
+        raise CaptureError(f"--grid {text!r}: rows and columns must be >= 1")
+    return r, c
+
+
+def load_images(source: str | Path, grid: tuple[int, int] | None = None) -> list[Photo]:
+    """The photos of a capture: every image file of a folder (sorted by name), or with ``grid`` the tiles of one
+    image (a file, or a folder holding exactly one). Checks the count (2-10) and that the aspect ratios agree."""
+    source = Path(source)
+    if grid is not None:
+        files = [source] if source.is_file() else image_files(source)
+        if len(files) != 1:
+            raise CaptureError(f"{source}: --grid splits one image; the folder holds {len(files)} image files")
+        rgb, a = read_image(files[0])
+        rows, cols = grid
+        H, W = rgb.shape[:2]
+        th, tw = H // rows, W // cols
+        if th < 8 or tw < 8:
+            raise CaptureError(f"{files[0]}: {W}x{H} is too small for a {rows}x{cols} grid")
+        photos = []
+        for i in range(rows):
+            for j in range(cols):
+                sl = (slice(i * th, (i + 1) * th), slice(j * tw, (j + 1) * tw))
+                photos.append(Photo(f"{files[0].stem}_r{i}c{j}", files[0], rgb[sl].copy(),
+                                    None if a is None else a[sl].copy()))
+                if photos[-1].alpha is not None and photos[-1].alpha.min() >= 0.999:
+                    photos[-1].alpha = None
+    else:
+        if source.is_file():
+            raise CaptureError(f"{source}: --images takes a folder of images (or one grid image with --grid)")
+        files = image_files(source)
+        photos = []
+        for f in files:
+            rgb, a = read_image(f)
+            photos.append(Photo(f.stem, f, rgb, a))
+        if len({p.name for p in photos}) != len(photos):
+            raise CaptureError(f"{source}: two image files share a name stem")
+    if len(photos) < MIN_VIEWS:
+        raise CaptureError(f"{source}: {len(photos)} image(s); a capture needs at least {MIN_VIEWS} views "
+                           f"({', '.join(IMAGE_EXTS)})")
+    if len(photos) > MAX_VIEWS:
+        raise CaptureError(f"{source}: {len(photos)} images; a capture takes at most {MAX_VIEWS} views")
+    w0, h0 = photos[0].size
+    for p in photos[1:]:
+        w, h = p.size
+        if abs((w / h) / (w0 / h0) - 1.0) > ASPECT_TOL:
+            raise CaptureError(f"{p.path}: aspect ratio {w}x{h} differs from {photos[0].path.name} ({w0}x{h0}); "
+                               f"all views must have the same aspect ratio")
+    return photos
+
+
+# -- masks ------------------------------------------------------------------------------------------------
+
+def _read_mask(path: Path) -> np.ndarray:
+    if path.suffix.lower() == ".exr":
+        ch = io.read_exr_channels(path)
+        m = ch.get("A", ch.get("Y", ch.get("R")))
+        if m is None:
+            raise CaptureError(f"{path}: mask EXR has no A, Y or R channel")
+        return np.clip(m.astype(np.float32), 0, 1)
+    import imageio.v3 as iio
+
+    try:
+        img = np.asarray(iio.imread(path))
+    except Exception as e:
+        raise CaptureError(f"{path}: cannot read mask ({e})") from e
+    scale = 65535.0 if img.dtype == np.uint16 else 255.0 if img.dtype == np.uint8 else 1.0
+    img = img.astype(np.float32) / scale
+    if img.ndim == 3:
+        img = img[..., -1] if img.shape[-1] in (2, 4) else img.mean(-1)
+    return np.clip(img, 0.0, 1.0)
+
+
+def _check_not_empty(m: np.ndarray, where: Path | str) -> None:
+    need = max(4, int(EMPTY_FRACTION * m.size))
+    if int((m > 0.5).sum()) < need:
+        raise CaptureError(f"{where}: the mask is empty ({int((m > 0.5).sum())} pixels above 0.5, need {need})")
+
+
+def key_background(photo: Photo) -> tuple[np.ndarray, np.ndarray] | None:
+    """The uniform-background key (module docstring): (alpha (H, W), unmixed premultiplied RGB), or None when the
+    border is not uniform."""
+    from scipy import ndimage
+
+    rgb = photo.rgb
+    H, W = rgb.shape[:2]
+    b = max(1, int(round(0.02 * min(H, W))))
+    enc = io.srgb_encode(rgb)
+    ring = np.concatenate([enc[:b].reshape(-1, 3), enc[-b:].reshape(-1, 3), enc[:, :b].reshape(-1, 3),
+                           enc[:, -b:].reshape(-1, 3)])
+    bg = np.median(ring, 0)
+    if np.quantile(np.abs(ring - bg).max(-1), 0.95) > KEY_UNIFORM:
+        return None
+    dist = np.abs(enc - bg).max(-1)
+    alpha = np.clip((dist - KEY_LOW) / (KEY_HIGH - KEY_LOW), 0.0, 1.0)
+    solid = alpha > 0.5
+    lab, n = ndimage.label(solid)
+    if n > 1:
+        sizes = ndimage.sum(solid, lab, range(1, n + 1))
+        small = np.isin(lab, 1 + np.nonzero(sizes < 0.01 * sizes.max())[0])
+        alpha[small] = 0.0
+        solid &= ~small
+    holes = ndimage.binary_fill_holes(solid) & ~solid
+    alpha[holes] = 1.0
+    bg_lin = io.srgb_decode(bg)
+    out = np.maximum(rgb - (1.0 - alpha[..., None]) * bg_lin, 0.0)
+    return alpha.astype(np.float32), out.astype(np.float32)
+
+
+def make_masks(photos: list[Photo], masks: str | Path | None = None) -> list[Photo]:
+    """Give every photo a mask (module docstring: --masks, alpha, keyed background); RGB becomes premultiplied."""
+    if masks is not None:
+        files = image_files(Path(masks), "masks")
+        by_stem = {f.stem: f for f in files}
+        if all(p.name in by_stem for p in photos):
+            chosen = [by_stem[p.name] for p in photos]
+        elif len(files) == len(photos):
+            chosen = files
+        else:
+            raise CaptureError(f"{masks}: {len(files)} mask file(s) for {len(photos)} images and their names do "
+                               f"not match (missing: {[p.name for p in photos if p.name not in by_stem][:3]})")
+        for p, f in zip(photos, chosen):
+            m = _read_mask(f)
+            if m.shape != p.rgb.shape[:2]:
+                raise CaptureError(f"{f}: mask is {m.shape[1]}x{m.shape[0]}, its image {p.path.name} is "
+                                   f"{p.size[0]}x{p.size[1]}")
+            _check_not_empty(m, f)
+            straight = p.rgb / np.maximum(p.alpha, 1e-6)[..., None] if p.alpha is not None else p.rgb
+            p.rgb, p.alpha, p.mask_source = (straight * m[..., None]).astype(np.float32), m, f"masks:{f.name}"
+        return photos
+    for p in photos:
+        if p.alpha is not None:
+            p.mask_source = "alpha"
+        else:
+            keyed = key_background(p)
+            if keyed is None:
+                raise CaptureError(f"{p.path}: no mask for this view: it has no alpha channel, no --masks folder "
+                                   f"was given, and its border is not a uniform background to key out")
+            p.alpha, p.rgb = keyed
+            p.mask_source = "keyed"
+        _check_not_empty(p.alpha, p.path)
+    return photos
+
+
+# -- cameras ----------------------------------------------------------------------------------------------
+
+@dataclass
+class Cam:
+    """An OpenCV camera: c2w (4, 4), intrinsics (fx, fy, cx, cy) in pixels of an image ``size`` (W, H)."""
+
+    c2w: np.ndarray
+    intr: np.ndarray
+    size: tuple[int, int] | None = None
+
+
+def _load_struct(path: Path):
+    import yaml
+
+    if not path.exists():
+        raise CaptureError(f"{path}: camera file does not exist")
+    try:
+        return yaml.safe_load(path.read_text())  # JSON is YAML
+    except yaml.YAMLError as e:
+        raise CaptureError(f"{path}: cannot parse camera file ({str(e).splitlines()[0]})") from None
+
+
+def read_cameras(path: str | Path, sizes: dict[str, tuple[int, int]] | None = None) -> list[tuple[str, Cam]]:
+    """A camera file -> [(name, Cam)] in file order (module docstring: transforms.json, OpenCV K/R/t, c2w +
+    intrinsics, or an frng ``meta.json``'s input views). ``sizes``: name -> (W, H) for files that give only a
+    field of view. Names are file stems."""
+    path = Path(path)
+    data = _load_struct(path)
+    out = []
+    try:
+        if isinstance(data, dict) and "frames" in data:  # NeRF / instant-ngp transforms.json
+            for k, fr in enumerate(data["frames"]):
+                name = Path(str(fr.get("file_path", f"frame_{k}"))).stem
+                c2w = camera.c2w_from_blender(np.asarray(fr["transform_matrix"], np.float64).reshape(4, 4))
+                get = lambda key: fr.get(key, data.get(key))  # noqa: E731
+                w, h = get("w"), get("h")
+                if (w is None or h is None) and sizes and name in sizes:
+                    w, h = sizes[name]
+                elif (w is None or h is None) and sizes:
+                    w, h = next(iter(sizes.values()))
+                if w is None or h is None:
+                    raise CaptureError(f"{path}: frame {name!r} gives no image size (w, h)")
+                fx = get("fl_x")
+                if fx is None:
+                    ang = get("camera_angle_x")
+                    if ang is None:
+                        raise CaptureError(f"{path}: frame {name!r} has neither fl_x nor camera_angle_x")
+                    fx = 0.5 * float(w) / math.tan(0.5 * float(ang))
+                fy = get("fl_y") or fx
+                cx, cy = get("cx"), get("cy")
+                intr = np.array([fx, fy, w / 2.0 if cx is None else cx, h / 2.0 if cy is None else cy], np.float64)
+                out.append((name, Cam(c2w, intr, (int(w), int(h)))))
+        else:
+            entries = data
+            if isinstance(data, dict):
+                entries = data.get("cameras", data.get("views", {}).get("inputs") if isinstance(
+                    data.get("views"), dict) else data.get("views"))
+            if not isinstance(entries, list):
+                raise CaptureError(f"{path}: not a camera file (expected 'frames', 'cameras' or a list of cameras)")
+            for k, e in enumerate(entries):
+                name = Path(str(e.get("image", e.get("name", f"cam_{k}")))).stem
+                if "K" in e:
+                    K = np.asarray(e["K"], np.float64).reshape(3, 3)
+                    intr = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]])
+                else:
+                    intr = np.asarray(e["intrinsics"], np.float64).reshape(4)
+                if "c2w" in e:
+                    c2w = np.asarray(e["c2w"], np.float64).reshape(4, 4)
+                else:
+                    R = np.asarray(e["R"], np.float64).reshape(3, 3)
+                    t = np.asarray(e["t"], np.float64).reshape(3)
+                    c2w = np.eye(4)
+                    c2w[:3, :3], c2w[:3, 3] = R.T, -R.T @ t
+                size = (int(e["width"]), int(e["height"])) if "width" in e and "height" in e else None
+                out.append((name, Cam(c2w, intr, size)))
+    except CaptureError:
+        raise
+    except (KeyError, TypeError, ValueError, AttributeError) as e:
+        raise CaptureError(f"{path}: malformed camera entry ({type(e).__name__}: {e})") from None
+    for name, c in out:
+        if not (np.all(np.isfinite(c.c2w)) and np.all(np.isfinite(c.intr))) or c.intr[0] <= 0 or c.intr[1] <= 0:
+            raise CaptureError(f"{path}: camera {name!r} has non-finite values or a focal length <= 0")
+    if not out:
+        raise CaptureError(f"{path}: no cameras")
+    return out
+
+
+def match_cameras(photos: list[Photo], cams: list[tuple[str, Cam]], path: Path) -> list[Cam]:
+    """One camera per photo (by stem, else by order when the counts agree); K rescaled to the photo's size."""
+    by = dict(cams)
+    if all(p.name in by for p in photos):
+        chosen = [by[p.name] for p in photos]
+    elif len(cams) == len(photos):
+        chosen = [c for _, c in cams]
+    else:
+        missing = [p.name for p in photos if p.name not in by]
+        raise CaptureError(f"{path}: no camera for image(s) {missing[:3]} ({len(cams)} cameras, {len(photos)} images)")
+    out = []
+    for p, c in zip(photos, chosen):
+        intr = c.intr.copy()
+        if c.size is not None and tuple(c.size) != p.size:
+            sx, sy = p.size[0] / c.size[0], p.size[1] / c.size[1]
+            if abs(sx / sy - 1.0) > ASPECT_TOL:
+                raise CaptureError(f"{path}: camera for {p.path.name} is for a {c.size[0]}x{c.size[1]} image; "
+                                   f"the image is {p.size[0]}x{p.size[1]}")
+            intr *= np.array([sx, sy, sx, sy])
+        out.append(Cam(c.c2w.copy(), intr, p.size))
+    return out
+
+
+def rig_cameras(n: int, distance: float, fov_deg: float, resolution: int) -> list[Cam]:
+    """The paper's rig (azimuth offset 0), first ``n`` views, at the training distance / field of view."""
+    from frng.data import rig
+
+    if n > len(rig.RIG_AZIMUTH_OFFSETS_DEG):
+        raise CaptureError(f"--rig paper has {len(rig.RIG_AZIMUTH_OFFSETS_DEG)} views; got {n} images")
+    return [Cam(v.c2w, v.intrinsics, (resolution, resolution)) for v in
+            (rig.make_view(f"in_{i:02d}", "input", az, el, distance, fov_deg, resolution)
+             for i, (az, el) in enumerate(zip(rig.RIG_AZIMUTH_OFFSETS_DEG[:n], rig.RIG_ELEVATIONS_DEG[:n])))]
+
+
+def common_centre(cams: list[Cam], names: list[str], path: Path | str) -> np.ndarray:
+    """The point nearest every optical axis; an error naming the camera that does not look at it."""
+    from frng.benchmarks.common import optical_axes_centre
+
+    c = optical_axes_centre(np.stack([k.c2w for k in cams]))
+    for k, name in zip(cams, names):
+        o, d = k.c2w[:3, 3], k.c2w[:3, 2] / np.linalg.norm(k.c2w[:3, 2])
+        to = c - o
+        ang = math.degrees(math.acos(np.clip(to @ d / max(np.linalg.norm(to), 1e-12), -1, 1)))
+        if ang > MAX_AXIS_DEG:
+            raise CaptureError(f"{path}: the camera of {name} does not look at the common centre of the cameras "
+                               f"(its optical axis is {ang:.1f} deg off it, limit {MAX_AXIS_DEG:g}); the object "
+                               f"must be centred in every view")
+    return c
+
+
+# -- cropping / resampling ----------------------------------------------------------------------------------
+
+def resample(img: np.ndarray, x0: float, y0: float, wc: float, hc: float, res: int) -> np.ndarray:
+    """The window [x0, x0 + wc) x [y0, y0 + hc) of ``img`` (H, W, C) resampled to (res, res, C): bilinear at the
+    output pixel centres after a Gaussian low-pass of sigma (factor - 1) / 2 per axis; outside the image is 0."""
+    from scipy import ndimage
+
+    kx, ky = wc / res, hc / res
+    src = img.astype(np.float32)
+    sig = (max(0.0, (ky - 1) / 2), max(0.0, (kx - 1) / 2))
+    if sig[0] > 0 or sig[1] > 0:
+        src = ndimage.gaussian_filter(src, sigma=(sig[0], sig[1], 0), mode="constant")
+    c = np.arange(res) + 0.5
+    xs = x0 + kx * c - 0.5
+    ys = y0 + ky * c - 0.5
+    yy, xx = np.meshgrid(ys, xs, indexing="ij")
+    out = np.stack([ndimage.map_coordinates(src[..., i], [yy, xx], order=1, mode="constant", cval=0.0)
+                    for i in range(src.shape[-1])], -1)
+    return out.astype(np.float32)
+
+
+def _bbox(alpha: np.ndarray) -> tuple[float, float, float, float]:
+    ys, xs = np.nonzero(alpha > 0.5)
+    return float(xs.min()), float(ys.min()), float(xs.max() + 1), float(ys.max() + 1)
+
+
+def frame_rig(photos: list[Photo], framing: str, distance: float, fov_deg: float, res: int) -> list[dict]:
+    """Crop windows (x0, y0, w, h) of rig photos (module docstring, ``framing``)."""
+    if framing not in FRAMINGS:
+        raise CaptureError(f"framing {framing!r}: choose from {FRAMINGS}")
+    if framing == "auto":
+        framing = "keep" if all(p.size[0] == p.size[1] for p in photos) else "object"
+    wins = []
+    if framing == "keep":
+        for p in photos:
+            W, H = p.size
+            s = min(W, H)
+            bx0, by0, bx1, by1 = _bbox(p.alpha)
+            cx, cy = (bx0 + bx1) / 2, (by0 + by1) / 2
+            x0 = min(max(cx - s / 2, 0.0), W - s)
+            y0 = min(max(cy - s / 2, 0.0), H - s)
+            wins.append({"x0": x0, "y0": y0, "w": float(s), "h": float(s), "framing": "keep"})
+        return wins
+    fill = math.tan(math.asin(min(1.0, 1.0 / distance))) / math.tan(math.radians(fov_deg) / 2)
+    ext = max(max(b[2] - b[0], b[3] - b[1]) / p.size[0] for p, b in ((p, _bbox(p.alpha)) for p in photos))
+    for p in photos:
+        bx0, by0, bx1, by1 = _bbox(p.alpha)
+        s = ext * p.size[0] / fill
+        wins.append({"x0": (bx0 + bx1) / 2 - s / 2, "y0": (by0 + by1) / 2 - s / 2, "w": s, "h": s,
+                     "framing": "object"})
+    return wins
+
+
+@dataclass
+class Capture:
+    """A capture ready for reconstruction: views at the model's resolution and cameras on the training rig."""
+
+    names: list[str]
+    rgb: np.ndarray          # (V, R, R, 3) linear premultiplied
+    alpha: np.ndarray        # (V, R, R, 1)
+    c2w: np.ndarray          # (V, 4, 4) OpenCV
+    intr: np.ndarray         # (V, 4)
+    info: dict
+
+    def views(self):
+        """:class:`frng.priors.dataset.Views` (torch, float32)."""
+        import torch
+
+        from frng.priors.dataset import Views
+
+        t = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))  # noqa: E731
+        return Views(list(self.names), t(self.rgb).clamp_min(0.0), t(self.alpha).clamp(0.0, 1.0), t(self.c2w),
+                     t(self.intr))
+
+
+def prepare(images: str | Path, *, resolution: int, distance: float, fov_deg: float, masks=None, cameras=None,
+            rig: str | None = None, grid: tuple[int, int] | None = None, framing: str = "auto") -> Capture:
+    """Photos -> :class:`Capture` (module docstring). ``cameras`` (a file) or ``rig`` (``"paper"``, the default)."""
+    photos = make_masks(load_images(images, grid), masks)
+    res = int(resolution)
+    names = [p.name for p in photos]
+    info: dict = {"images": str(images), "masks": [p.mask_source for p in photos], "resolution": res,
+                  "camera_distance": distance, "fov_deg": fov_deg}
+    if cameras is not None:
+        cams = match_cameras(photos, read_cameras(Path(cameras), {p.name: p.size for p in photos}), Path(cameras))
+        centre = common_centre(cams, [str(p.path.name) for p in photos], cameras)
+        dists = [np.linalg.norm(k.c2w[:3, 3] - centre) for k in cams]
+        scale = distance / float(np.median(dists))
+        t = math.tan(math.radians(fov_deg) / 2)
+        out_c2w, out_intr, wins = [], [], []
+        for k in cams:
+            c2w = k.c2w.copy()
+            c2w[:3, 3] = (c2w[:3, 3] - centre) * scale
+            uv, _ = camera.project(_t(np.zeros((1, 3))), _t(c2w)[None], _t(k.intr)[None])
+            u, v = (float(x) for x in uv[0, 0])
+            fx, fy, cx, cy = k.intr
+            wc, hc = 2 * fx * t, 2 * fy * t
+            x0, y0 = u - wc / 2, v - hc / 2
+            out_c2w.append(c2w)
+            out_intr.append(np.array([fx * res / wc, fy * res / hc, (cx - x0) * res / wc, (cy - y0) * res / hc]))
+            wins.append({"x0": x0, "y0": y0, "w": wc, "h": hc})
+        info |= {"cameras": str(cameras), "centre": centre.tolist(), "scale": scale}
+    else:
+        if rig not in (None, "paper"):
+            raise CaptureError(f"--rig {rig!r}: the only rig is 'paper'")
+        cams = rig_cameras(len(photos), distance, fov_deg, res)
+        wins = frame_rig(photos, framing, distance, fov_deg, res)
+        out_c2w = [k.c2w for k in cams]
+        out_intr = [k.intr for k in cams]
+        info |= {"cameras": "rig:paper"}
+    rgba = [resample(np.concatenate([p.rgb, p.alpha[..., None]], -1), w["x0"], w["y0"], w["w"], w["h"], res)
+            for p, w in zip(photos, wins)]
+    rgba = np.stack(rgba)
+    info["crops"] = [{k: (round(v, 3) if isinstance(v, float) else v) for k, v in w.items()} for w in wins]
+    for p, a in zip(photos, rgba[..., 3]):
+        _check_not_empty(a, f"{p.path} (after cropping to the object)")
+    alpha = np.clip(rgba[..., 3:4], 0.0, 1.0)
+    rgb = np.maximum(rgba[..., :3], 0.0)
+    return Capture(names, rgb, alpha, np.stack(out_c2w), np.stack(out_intr), info)
+
+
+def _t(a):
+    import torch
+
+    return torch.as_tensor(np.asarray(a), dtype=torch.float64)
+
+
+# -- light --------------------------------------------------------------------------------------------------
+
+def read_light(path: str | Path) -> np.ndarray:
+    """An equirect map (EXR/HDR, 2:1, finite) or a :class:`CaptureError` naming it."""
+    try:
+        return envmap.read(path)
+    except envmap.EnvMapError as e:
+        raise CaptureError(str(e)) from e
+
+
+def estimate_light(rgb, alpha, albedo, normal, height: int, ridge: float = 0.1) -> tuple[np.ndarray, dict]:
+    """Fit a degree-2 SH radiance to shading = colour / albedo over the confident foreground (module docstring).
+
+    rgb (V, H, W, 3) premultiplied, alpha (V, H, W, 1), albedo / normal (V, H, W, 3) (IDM priors, world normals).
+    Returns (equirect map (height, 2 height, 3) float32, info)."""
+    import torch
+
+    from frng.render.sh import sh_basis
+
+    f = lambda x: torch.as_tensor(np.asarray(x), dtype=torch.float64).reshape(-1, x.shape[-1])  # noqa: E731
+    rgb, a, alb, n = f(rgb), f(alpha), f(albedo), f(normal)
+    nn_ = n.norm(dim=-1, keepdim=True)
+    fg = ((a[:, 0] > 0.9) & (alb.mean(-1) > 0.02) & (nn_[:, 0] > 0.5))
+    if int(fg.sum()) < 16:
+        raise CaptureError("light estimation: too few confident foreground pixels (fewer than 16); give --light")
+    colour = rgb[fg] / a[fg]
+    s = colour / alb[fg].clamp_min(0.03)
+    Y = sh_basis(2, n[fg] / nn_[fg])
+    band = Y.new_tensor([envmap.SH_IRRADIANCE_BANDS[0]] + [envmap.SH_IRRADIANCE_BANDS[1]] * 3
+                        + [envmap.SH_IRRADIANCE_BANDS[2]] * 5)
+    A = Y * band / math.pi
+    P = A.shape[0]
+    reg = torch.diag(A.new_tensor([0.0] + [ridge] * 8)) * P
+    L = torch.linalg.solve(A.T @ A + reg, A.T @ s)  # (9, 3)
+    resid = float(((A @ L - s) ** 2).mean().sqrt() / s.mean().clamp_min(1e-9))
+    d = envmap.pixel_directions(height, 2 * height, dtype=torch.float64)
+    env = (sh_basis(2, d) @ L).clamp_min(0.0).float().numpy()
+    return env, {"method": "sh2-ridge", "ridge": ridge, "pixels": int(P), "relative_rms": resid,
+                 "sh": L.float().tolist()}
+
+
+# -- contact sheet ------------------------------------------------------------------------------------------
+
+def contact_sheet(cap: Capture, env: np.ndarray, tile: int = 96) -> np.ndarray:
+    """Rows: the views (over white), their masks, the input light (tonemapped, mean at mid grey). uint8 RGB."""
+    V = len(cap.names)
+    up = lambda im: np.kron(im, np.ones((max(1, tile // im.shape[0]), max(1, tile // im.shape[0]), 1)))  # noqa
+    views = [up(io.srgb_encode(io.composite(np.concatenate([r, a], -1)))) for r, a in zip(cap.rgb, cap.alpha)]
+    masks = [up(np.repeat(a, 3, -1)) for a in cap.alpha]
+    th, tw = views[0].shape[:2]
+    sheet_w = V * tw
+    lum = float(envmap.luminance(env).mean()) or 1.0
+    light = io.srgb_encode(env * (0.18 / lum))
+    lw = min(sheet_w, 2 * th * 2)
+    k = max(1, lw // light.shape[1])
+    light = np.kron(light, np.ones((k, k, 1)))[:, :sheet_w]
+    row3 = np.ones((light.shape[0], sheet_w, 3), np.float32)
+    row3[:, :light.shape[1]] = light
+    sheet = np.concatenate([np.concatenate(views, 1), np.concatenate(masks, 1), row3], 0)
+    return (np.clip(sheet, 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+# -- reconstruction -----------------------------------------------------------------------------------------
+
+def results_of_model(model: Path) -> Path:
+    """``{results}/models/{variant}/model.pt`` -> ``{results}`` (where its ``config.yaml`` is recorded)."""
+    return Path(model).resolve().parent.parent.parent
+
+
+def reconstruct(images, out, config, *, model=None, masks=None, cameras=None, rig=None, light=None, grid=None,
+                framing: str = "auto", name: str | None = None, device: str | None = None) -> dict:
+    """Photos -> an asset folder ``out`` (:mod:`frng.asset`, plus ``input_light.exr`` and ``contact_sheet.png``).
+
+    ``config``: the pipeline config the model was trained with (architecture, resolution, rig, priors' files);
+    ``model``: the F-RNG model file (default ``{results}/models/full/model.pt``). The backbone and the IDM are the
+    config's (``{results}/backbone/model.pt``, the configured IDM). ``name``: the object id (default: the images
+    folder's name); with ``light`` the light's name is the map's stem. Returns the asset's ``capture`` record.
+    Everything is checked (images, masks, cameras, light map, model files) before anything is loaded or written."""
+    import torch
+
+    from frng import training as tr
+    from frng.asset import RIG_KEY, render_settings, save_asset
+    from frng.config import typed
+    from frng.layout import Layout, TrainingFolder
+    from frng.relight import Timer, backbone_views
+
+    cfg = typed(config)
+    rc = cfg.render
+    cap = prepare(images, resolution=rc.resolution, distance=rc.camera_distance, fov_deg=rc.fov_deg, masks=masks,
+                  cameras=cameras, rig=rig, grid=grid, framing=framing)
+    env_given = read_light(light) if light is not None else None
+    L = Layout(cfg.results)
+    model = Path(model) if model is not None else Path(TrainingFolder(L.model_dir("full")).model())
+    backbone_path = Path(L.backbone_model())
+    for f, what in ((model, "F-RNG model"), (backbone_path, "backbone model")):
+        if not f.exists():
+            raise CaptureError(f"{f}: {what} missing (train the pipeline, or pass --model / --config)")
+    oid = name or Path(images).resolve().name
+    dev = tr.resolve_device(device or cfg.device)
+
+    from frng.model.frng import FRNG
+    from frng.priors import build_idm, load_backbone
+
+    views = cap.views()
+    timing = {}
+    with torch.no_grad():
+        net = FRNG.load(model, dev).set_inference_shading(cfg.shading)
+        if net.cfg.head != "neural" or net.decoder is None:
+            raise CaptureError(f"{model}: a {net.cfg.head!r} model has no neural decoder; reconstruct needs one")
+        idm = build_idm(cfg, dev)
+        backbone = load_backbone(backbone_path, dev)
+        with Timer(dev) as t_idm:
+            pri = idm.priors(oid, views)
+        if env_given is None:
+            h = max(8, int(cfg.envmaps.width) // 2)
+            with Timer(dev) as t_light:
+                env, est = estimate_light(cap.rgb, cap.alpha, pri.albedo.numpy(), pri.normal.numpy(), h)
+            light_name, light_info = "estimated", {"source": "estimated", **est}
+            timing["light_s"] = t_light.s
+        else:
+            env, light_name = env_given, Path(light).stem
+            light_info = {"source": str(light)}
+        env_t = torch.from_numpy(np.ascontiguousarray(env))
+        with Timer(dev) as t_bb:
+            bv = backbone_views(cfg, backbone, oid, views, env_t, light_name, dev)
+        images_t = torch.cat([views.rgb, views.alpha], -1).to(dev)
+        with Timer(dev) as t_rec:
+            rec = net.reconstruct(bv, 0, pri.to(dev) if net.cfg.uses_priors else None, images_t,
+                                  input_env=env_t.to(dev))
+    timing |= {"idm_s": t_idm.s, "backbone_s": t_bb.s, "frng_s": t_rec.s}
+    record = {**cap.info, "object_id": oid, "views": list(cap.names), "light": light_info,
+              "cameras_normalised": [{"name": n_, "c2w": c.tolist(), "intrinsics": k.tolist(),
+                                      "width": int(rc.resolution), "height": int(rc.resolution)}
+                                     for n_, c, k in zip(cap.names, cap.c2w, cap.intr)],
+              "model": str(model), "timing_s": timing}
+    feats = rec.features.detach().float().cpu()
+    preview = (feats[:, 3:6].clamp_min(0) * math.pi).clamp(0, 1) if net.decoder.cosine else None
+    meta = {"object_id": oid, "source_views": list(cap.names), "decoder": net.decoder_meta(),
+            **render_settings(net.raster_cfg, net.shading_cfg, net.cfg.max_radius_px),
+            RIG_KEY: {"camera_distance": float(rc.camera_distance), "fov_deg": float(rc.fov_deg),
+                      "resolution": int(rc.resolution)},
+            "variant": getattr(net, "meta", {}).get("variant", "full"), "capture": record}
+    sheet = contact_sheet(cap, env)
+    g = rec.gaussians
+    from frng.gaussians import Gaussians
+
+    gauss = Gaussians(*(t.detach().float().cpu() for t in (g.means, g.quats, g.scales, g.opacities)), feats)
+    save_asset(out, gauss, feats, net.decoder.state_dict(), meta, preview_rgb=preview,
+               extra_files={"input_light.exr": lambda p: envmap.write(p, env),
+                            "contact_sheet.png": lambda p: io.write_png(p, sheet)})
+    return record
+
+
+__all__ = [
+    "Capture", "CaptureError", "Cam", "FRAMINGS", "MAX_VIEWS", "MIN_VIEWS", "Photo", "common_centre",
+    "contact_sheet", "estimate_light", "frame_rig", "load_images", "make_masks", "match_cameras", "parse_grid",
+    "prepare", "read_cameras", "reconstruct", "results_of_model", "read_image", "read_light", "resample", "rig_cameras",
+]

@@ -1,0 +1,104 @@
+"""Stage ``frng reconstruct --images DIR --out ASSET`` (no rule: run by hand on your own photos): 2-10 photos of one
+object -> a relightable asset folder (:mod:`frng.asset`) that ``frng render-asset`` relights without the model.
+
+Images, masks, cameras, framing and the light estimate: :mod:`frng.capture`. The model is a trained pipeline's:
+``--model`` (default ``{results}/models/full/model.pt`` of the config) and ``--config`` (default: the
+``config.yaml`` recorded in the results folder the model lives in, ``{results}/models/full/model.pt`` ->
+``{results}/config.yaml``), which gives the architecture, the resolution, the training rig and the priors.
+``--export-object OBJ`` instead writes a curated object's input views as plain PNGs (+ ``cameras.json`` and its
+input light, ``light.exr``) into ``--out``: files to try the command on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--images", help="folder of 2-10 images (PNG, JPEG, EXR), or one grid image with --grid")
+    parser.add_argument("--out", required=True, help="asset folder to write (with --export-object: a folder)")
+    parser.add_argument("--masks", help="folder of mask images (default: alpha, else a keyed uniform background)")
+    cams = parser.add_mutually_exclusive_group()
+    cams.add_argument("--cameras", help="transforms.json (NeRF) or an OpenCV camera file (JSON/YAML)")
+    cams.add_argument("--rig", choices=["paper"], help="the paper's 6-view rig (default when no --cameras)")
+    parser.add_argument("--light", help="the photos' light as an equirect map (EXR/HDR, 2:1); default: estimated")
+    parser.add_argument("--grid", help="split one image holding a ROWSxCOLS grid of views, e.g. 2x3")
+    parser.add_argument("--framing", choices=["auto", "keep", "object"], default="auto",
+                        help="rig photos: keep the framing (square crop) or crop around the object (frng.capture)")
+    parser.add_argument("--name", help="object id recorded in the asset (default: the images folder's name)")
+    parser.add_argument("--model", help="F-RNG model file (default {results}/models/full/model.pt)")
+    parser.add_argument("--config", help="pipeline config (default: config.yaml of the model's results folder)")
+    parser.add_argument("--device", help="override the config's device (cpu, cuda, auto)")
+    parser.add_argument("--export-object", metavar="OBJ",
+                        help="instead: write curated object OBJ's input views as PNGs (+ cameras.json, light.exr)")
+    parser.add_argument("--views", type=int, default=6, help="with --export-object: how many input views")
+
+
+def resolve_config(config: str | None, model: str | None):
+    """The config to use: ``--config``, else the one recorded beside the model (``{results}/config.yaml``)."""
+    from frng import config as frng_config
+    from frng.capture import CaptureError, results_of_model
+
+    if config is None:
+        if model is None:
+            raise CaptureError("give --config (a trained pipeline's config) or --model (its config.yaml is read "
+                               "from the model's results folder)")
+        config = results_of_model(Path(model)) / "config.yaml"
+        if not Path(config).exists():
+            raise CaptureError(f"{config}: no recorded config beside the model {model}; pass --config")
+    return frng_config.typed(frng_config.load(config))
+
+
+def export_object(config, oid: str, out: Path, views: int = 6) -> Path:
+    """A curated object's first ``views`` input views (input light) as straight-alpha sRGB PNGs, its cameras
+    (``cameras.json``, frng entries) and its input light (``light.exr``)."""
+    import numpy as np
+
+    from frng import envmap, io
+    from frng.capture import CaptureError
+    from frng.layout import Layout
+
+    L = Layout(config.results)
+    try:
+        meta = io.read_json(L.object_meta(oid))
+    except (FileNotFoundError, ValueError) as e:
+        raise CaptureError(f"{L.object_meta(oid)}: cannot read object metadata ({e})") from e
+    light = meta["input_lights"][0]
+    out.mkdir(parents=True, exist_ok=True)
+    cams = meta["views"]["inputs"][:views]
+    for cam in cams:
+        rgba = io.read_rgba(L.object_image(oid, "inputs", light, cam["name"]), require_alpha=True)
+        a = np.clip(rgba[..., 3:4], 0, 1)
+        rgb = np.where(a > 1e-6, rgba[..., :3] / np.maximum(a, 1e-6), 0.0)
+        io.write_png(out / f"{cam['name']}.png", np.concatenate([io.srgb_encode(rgb), a], -1))
+    io.write_json(out / "cameras.json", {"cameras": cams})
+    envmap.write(out / "light.exr", envmap.read(L.envmap(light)))
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    from frng.asset import AssetError
+    from frng.capture import CaptureError, parse_grid, reconstruct
+
+    try:
+        config = resolve_config(args.config, args.model)
+        if args.export_object:
+            print(export_object(config, args.export_object, Path(args.out), args.views))
+            return 0
+        if not args.images:
+            raise CaptureError("--images is required")
+        record = reconstruct(args.images, args.out, config, model=args.model, masks=args.masks,
+                             cameras=args.cameras, rig=args.rig, light=args.light, grid=parse_grid(args.grid),
+                             framing=args.framing, name=args.name, device=args.device)
+    except (CaptureError, AssetError) as e:
+        print(f"frng reconstruct: error: {e}")
+        return 2
+    light = record["light"]
+    what = light["source"] if light["source"] != "estimated" else \
+        f"estimated (SH fit, relative rms {light['relative_rms']:.2f})"
+    print(f"reconstruct {record['object_id']}: {len(record['views'])} views ({', '.join(sorted(set(record['masks'])))}"
+          f" masks, cameras {record['cameras']}), light {what} -> {args.out}")
+    print(json.dumps(record["timing_s"]))
+    return 0

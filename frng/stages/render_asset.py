@@ -1,0 +1,136 @@
+"""Stage ``frng render-asset ASSET --env MAP --out DIR`` (no rule: run by hand): render a relightable asset folder
+(:mod:`frng.asset`, e.g. from ``frng reconstruct`` or ``frng relight``'s ``asset/``) under any equirect map, with
+only the asset's files and its decoder (:class:`frng.asset.AssetRenderer`: no F-RNG model, no training code), on
+the CPU or CUDA.
+
+Cameras: ``--cameras FILE`` (the formats of :func:`frng.capture.read_cameras`, taken as they are, in the asset's
+world), or ``--turntable N`` (default 24 when no file): N views around world Z at ``--elevation`` degrees, at the
+training rig's distance and field of view recorded in the asset (``--distance``, ``--fov`` override), looking at the
+origin. Writes per view ``{view}.exr`` (linear premultiplied RGBA) and ``{view}.png`` (sRGB, straight alpha),
+``cameras.json``, and for a turntable ``turntable.gif`` (imageio, Pillow writer; ``--video mp4`` needs an
+FFmpeg/PyAV plugin for imageio, which is not among this project's pinned packages).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("asset", help="asset folder (asset.json, gaussians.ply, decoder.safetensors)")
+    parser.add_argument("--env", required=True, help="equirect environment map (EXR/HDR, 2:1)")
+    parser.add_argument("--out", required=True, help="output folder")
+    cams = parser.add_mutually_exclusive_group()
+    cams.add_argument("--cameras", help="camera file (transforms.json, OpenCV, frng cameras.json)")
+    cams.add_argument("--turntable", type=int, help="N views around the object (default 24)")
+    parser.add_argument("--elevation", type=float, default=20.0, help="turntable elevation, degrees")
+    parser.add_argument("--distance", type=float, help="turntable camera distance (default: the asset's rig)")
+    parser.add_argument("--fov", type=float, help="turntable horizontal field of view (default: the asset's rig)")
+    parser.add_argument("--resolution", type=int, help="image size (default: the asset's rig / the camera file)")
+    parser.add_argument("--spp", type=int, help="light samples (default: the asset's shading.spp_infer)")
+    parser.add_argument("--seed", type=int, default=0, help="light-sample seed")
+    parser.add_argument("--device", default="cpu", help="cpu, cuda or auto")
+    parser.add_argument("--video", choices=["gif", "mp4", "none"], default="gif", help="turntable video format")
+    parser.add_argument("--fps", type=float, default=12.0, help="turntable frames per second")
+
+
+def turntable(n: int, elevation: float, distance: float, fov: float, res: int) -> list[dict]:
+    from frng import camera
+
+    out = []
+    for i in range(n):
+        eye = camera.spherical_to_cartesian(360.0 * i / n, elevation, distance)
+        out.append({"name": f"turn_{i:03d}", "c2w": camera.look_at(eye).tolist(),
+                    "intrinsics": camera.intrinsics_from_fov(fov, res, res).tolist(), "width": res, "height": res})
+    return out
+
+
+def write_video(path: Path, frames: list[np.ndarray], fps: float) -> Path:
+    import imageio.v3 as iio
+
+    from frng.capture import CaptureError
+
+    if path.suffix == ".gif":
+        iio.imwrite(path, np.stack(frames), extension=".gif", duration=1000.0 / fps, loop=0)
+        return path
+    try:
+        iio.imwrite(path, np.stack(frames), fps=fps)
+    except Exception as e:  # no FFmpeg / PyAV plugin installed
+        raise CaptureError(f"{path}: cannot write MP4 ({str(e).splitlines()[0][:120]}); install imageio-ffmpeg or "
+                           f"use --video gif") from None
+    return path
+
+
+def render(args: argparse.Namespace) -> dict:
+    import torch
+
+    from frng import io
+    from frng.asset import AssetRenderer
+    from frng.capture import CaptureError, read_cameras, read_light
+
+    env = read_light(args.env)  # 2:1, finite: or one line naming the file
+    device = args.device
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise CaptureError("--device cuda: no CUDA device available")
+    r = AssetRenderer(args.asset, device)
+    rig = r.rig
+    res = args.resolution or int(rig.get("resolution", 64))
+    if args.cameras:
+        cams = []
+        for name, c in read_cameras(Path(args.cameras)):
+            size = c.size or (res, res)
+            intr = c.intr
+            if args.resolution and c.size:
+                s = args.resolution / c.size[0]
+                intr, size = intr * s, (args.resolution, round(c.size[1] * s))
+            cams.append({"name": name, "c2w": c.c2w.tolist(), "intrinsics": list(map(float, intr)),
+                         "width": int(size[0]), "height": int(size[1])})
+        if len({(c["width"], c["height"]) for c in cams}) != 1:
+            raise CaptureError(f"{args.cameras}: cameras of different image sizes; render them separately")
+    else:
+        n = args.turntable or 24
+        if n < 1:
+            raise CaptureError("--turntable N: N must be >= 1")
+        cams = turntable(n, args.elevation, args.distance or float(rig.get("camera_distance", 4.0)),
+                         args.fov or float(rig.get("fov_deg", 40.0)), res)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    W, H = cams[0]["width"], cams[0]["height"]
+    c2w = torch.tensor(np.array([c["c2w"] for c in cams]), dtype=torch.float32)
+    intr = torch.tensor(np.array([c["intrinsics"] for c in cams]), dtype=torch.float32)
+    env_t = torch.from_numpy(env)
+    frames = []
+    for i0 in range(0, len(cams), 8):  # a few views at a time: bounded memory at large sizes
+        g = torch.Generator().manual_seed(int(args.seed))
+        rgba = r.render(env_t, c2w[i0:i0 + 8], intr[i0:i0 + 8], H, W, args.spp, g).cpu().numpy()
+        for c, img in zip(cams[i0:i0 + 8], rgba):
+            io.write_exr(out / f"{c['name']}.exr", img, channels=["R", "G", "B", "A"])
+            a = np.clip(img[..., 3:4], 0, 1)
+            straight = np.where(a > 1e-6, img[..., :3] / np.maximum(a, 1e-6), 0.0)
+            io.write_png(out / f"{c['name']}.png", np.concatenate([io.srgb_encode(straight), a], -1))
+            frames.append((np.clip(io.srgb_encode(io.composite(img)), 0, 1) * 255 + 0.5).astype(np.uint8))
+    io.write_json(out / "cameras.json", {"cameras": cams})
+    video = None
+    if not args.cameras and args.video != "none":
+        video = write_video(out / f"turntable.{args.video}", frames, args.fps)
+    return {"views": len(cams), "size": [W, H], "device": str(r.device), "video": str(video) if video else None}
+
+
+def run(args: argparse.Namespace) -> int:
+    from frng.asset import AssetError
+    from frng.capture import CaptureError
+
+    try:
+        info = render(args)
+    except (CaptureError, AssetError) as e:
+        print(f"frng render-asset: error: {e}")
+        return 2
+    print(f"render-asset {args.asset}: {info['views']} views at {info['size'][0]}x{info['size'][1]} on "
+          f"{info['device']} -> {args.out}" + (f" ({info['video']})" if info["video"] else ""))
+    return 0
