@@ -5,8 +5,8 @@ Images, masks, cameras, framing and the light estimate: :mod:`frng.capture`. The
 ``--model`` (default ``{results}/models/full/model.pt`` of the config) and ``--config`` (default: the
 ``config.yaml`` recorded in the results folder the model lives in, ``{results}/models/full/model.pt`` ->
 ``{results}/config.yaml``), which gives the architecture, the resolution, the training rig and the priors.
-``--export-object OBJ`` instead writes a curated object's input views as plain PNGs (+ ``cameras.json`` and its
-input light, ``light.exr``) into ``--out``: files to try the command on.
+``--export-object OBJ`` instead writes a curated object's input views as plain PNGs into ``{out}/images/`` (+
+``{out}/cameras.json`` and its input light ``{out}/light.exr``): files to try the command on.
 """
 
 from __future__ import annotations
@@ -52,8 +52,9 @@ def resolve_config(config: str | None, model: str | None):
 
 
 def export_object(config, oid: str, out: Path, views: int = 6) -> Path:
-    """A curated object's first ``views`` input views (input light) as straight-alpha sRGB PNGs, its cameras
-    (``cameras.json``, frng entries) and its input light (``light.exr``)."""
+    """A curated object's first ``views`` input views (input light) as straight-alpha sRGB PNGs
+    (``{out}/images/{view}.png``), their cameras (``{out}/cameras.json``, frng entries) and the input light
+    (``{out}/light.exr``). Returns ``out``."""
     import numpy as np
 
     from frng import envmap, io
@@ -66,13 +67,13 @@ def export_object(config, oid: str, out: Path, views: int = 6) -> Path:
     except (FileNotFoundError, ValueError) as e:
         raise CaptureError(f"{L.object_meta(oid)}: cannot read object metadata ({e})") from e
     light = meta["input_lights"][0]
-    out.mkdir(parents=True, exist_ok=True)
+    (out / "images").mkdir(parents=True, exist_ok=True)
     cams = meta["views"]["inputs"][:views]
     for cam in cams:
         rgba = io.read_rgba(L.object_image(oid, "inputs", light, cam["name"]), require_alpha=True)
         a = np.clip(rgba[..., 3:4], 0, 1)
         rgb = np.where(a > 1e-6, rgba[..., :3] / np.maximum(a, 1e-6), 0.0)
-        io.write_png(out / f"{cam['name']}.png", np.concatenate([io.srgb_encode(rgb), a], -1))
+        io.write_png(out / "images" / f"{cam['name']}.png", np.concatenate([io.srgb_encode(rgb), a], -1))
     io.write_json(out / "cameras.json", {"cameras": cams})
     envmap.write(out / "light.exr", envmap.read(L.envmap(light)))
     return out
