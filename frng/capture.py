@@ -55,8 +55,11 @@ Light (:func:`estimate_light`)
     confident foreground (alpha > 0.9, albedo > 0.02), shading = colour / albedo = E(n) / pi is fitted by
     ridge-regularised least squares with a degree-2 SH radiance (9 x 3 coefficients, the l >= 1 bands damped
     towards 0 so the directions no photo sees stay dim), which is expanded into an equirect map (negative lobes
-    clamped). The SH fixes the irradiance, which is what the reconstruction's Lambertian path divides by; the
-    light's high frequencies are lost (measured cost: README "Your own photos").
+    clamped). Light colour and albedo colour are ambiguous (a green object under white light or a white one under
+    green light); by default (:data:`LIGHT_COLOUR` ``neutral``) the fitted light is made grey on average (each
+    channel scaled so its DC term has the DC luminance; grey world), which scored better than the per-channel
+    fit on the smoke tier. The SH fixes the irradiance, which is what the reconstruction's Lambertian path divides
+    by; the light's high frequencies are lost (measured cost: README "Your own photos").
 """
 
 from __future__ import annotations
@@ -76,6 +79,7 @@ KEY_UNIFORM, KEY_LOW, KEY_HIGH = 0.06, 0.06, 0.16  # sRGB, max over channels
 MAX_AXIS_DEG = 15.0
 EMPTY_FRACTION = 0.001
 FRAMINGS = ("auto", "keep", "object")
+LIGHT_COLOUR = "neutral"  # "neutral": grey-world light colour (default, measured); "fit": as fitted
 
 
 class CaptureError(ValueError):
@@ -585,7 +589,8 @@ def read_light(path: str | Path) -> np.ndarray:
         raise CaptureError(str(e)) from e
 
 
-def estimate_light(rgb, alpha, albedo, normal, height: int, ridge: float = 0.1) -> tuple[np.ndarray, dict]:
+def estimate_light(rgb, alpha, albedo, normal, height: int, ridge: float = 0.1, colour: str = LIGHT_COLOUR
+                   ) -> tuple[np.ndarray, dict]:
     """Fit a degree-2 SH radiance to shading = colour / albedo over the confident foreground (module docstring).
 
     rgb (V, H, W, 3) premultiplied, alpha (V, H, W, 1), albedo / normal (V, H, W, 3) (IDM priors, world normals).
@@ -600,8 +605,8 @@ def estimate_light(rgb, alpha, albedo, normal, height: int, ridge: float = 0.1) 
     fg = ((a[:, 0] > 0.9) & (alb.mean(-1) > 0.02) & (nn_[:, 0] > 0.5))
     if int(fg.sum()) < 16:
         raise CaptureError("light estimation: too few confident foreground pixels (fewer than 16); give --light")
-    colour = rgb[fg] / a[fg]
-    s = colour / alb[fg].clamp_min(0.03)
+    straight = rgb[fg] / a[fg]
+    s = straight / alb[fg].clamp_min(0.03)
     Y = sh_basis(2, n[fg] / nn_[fg])
     band = Y.new_tensor([envmap.SH_IRRADIANCE_BANDS[0]] + [envmap.SH_IRRADIANCE_BANDS[1]] * 3
                         + [envmap.SH_IRRADIANCE_BANDS[2]] * 5)
@@ -609,10 +614,15 @@ def estimate_light(rgb, alpha, albedo, normal, height: int, ridge: float = 0.1) 
     P = A.shape[0]
     reg = torch.diag(A.new_tensor([0.0] + [ridge] * 8)) * P
     L = torch.linalg.solve(A.T @ A + reg, A.T @ s)  # (9, 3)
+    if colour not in ("neutral", "fit"):
+        raise CaptureError(f"light colour {colour!r}: choose neutral or fit")
+    if colour == "neutral":  # grey world: the light's mean colour is grey (same luminance), the albedo keeps the rest
+        dc = L[0].clamp_min(1e-9)
+        L = L * (envmap.luminance(dc) / dc)[None]
     resid = float(((A @ L - s) ** 2).mean().sqrt() / s.mean().clamp_min(1e-9))
     d = envmap.pixel_directions(height, 2 * height, dtype=torch.float64)
     env = (sh_basis(2, d) @ L).clamp_min(0.0).float().numpy()
-    return env, {"method": "sh2-ridge", "ridge": ridge, "pixels": int(P), "relative_rms": resid,
+    return env, {"method": "sh2-ridge", "ridge": ridge, "colour": colour, "pixels": int(P), "relative_rms": resid,
                  "sh": L.float().tolist()}
 
 
@@ -645,7 +655,8 @@ def results_of_model(model: Path) -> Path:
 
 
 def reconstruct(images, out, config, *, model=None, masks=None, cameras=None, rig=None, light=None, grid=None,
-                framing: str = "auto", name: str | None = None, device: str | None = None) -> dict:
+                framing: str = "auto", name: str | None = None, device: str | None = None,
+                light_colour: str = LIGHT_COLOUR) -> dict:
     """Photos -> an asset folder ``out`` (:mod:`frng.asset`, plus ``input_light.exr`` and ``contact_sheet.png``).
 
     ``config``: the pipeline config the model was trained with (architecture, resolution, rig, priors' files);
@@ -691,7 +702,8 @@ def reconstruct(images, out, config, *, model=None, masks=None, cameras=None, ri
         if env_given is None:
             h = max(8, int(cfg.envmaps.width) // 2)
             with Timer(dev) as t_light:
-                env, est = estimate_light(cap.rgb, cap.alpha, pri.albedo.numpy(), pri.normal.numpy(), h)
+                env, est = estimate_light(cap.rgb, cap.alpha, pri.albedo.numpy(), pri.normal.numpy(), h,
+                                          colour=light_colour)
             light_name, light_info = "estimated", {"source": "estimated", **est}
             timing["light_s"] = t_light.s
         else:
@@ -746,7 +758,8 @@ def measure(config, oid: str, work: str | Path, views: int = 6, settings=None) -
     ``png+rig/known`` (the same views exported as 8-bit PNGs, ``--rig paper``, no camera file; the object's rig
     starts at azimuth a0, the paper rig at 0, so the given light, the target cameras and the target lights are
     rotated by -a0 about Z into the asset's frame), and both again with the light estimated (``.../estimated``).
-    Returns one row per (setting, light, view): psnr, ssim, lpips."""
+    Returns one row per (setting, light, view): psnr, ssim, lpips (the config's ``eval.protocol``) and psnr_plain
+    (no colour alignment: shows colour casts of the estimated light that the aligned protocol forgives)."""
     import torch
 
     from frng import metrics
@@ -785,9 +798,12 @@ def measure(config, oid: str, work: str | Path, views: int = 6, settings=None) -
     def score(setting, light, images):
         for name, img in zip(tnames, images):
             gt = io.read_rgba(L.object_image(oid, "targets", light, name), require_alpha=True)
-            m = metrics.evaluate_pair(img, gt, protocol=cfg.eval.protocol, background=tuple(cfg.eval.background))
+            bg = tuple(cfg.eval.background)
+            m = metrics.evaluate_pair(img, gt, protocol=cfg.eval.protocol, background=bg)
+            plain = metrics.evaluate_pair(img, gt, protocol="plain", background=bg)
             rows.append({"setting": setting, "object": oid, "light": light, "view": name,
-                         **{k: m[k] for k in ("psnr", "ssim", "lpips")}})
+                         **{k: m[k] for k in ("psnr", "ssim", "lpips")}, "protocol": cfg.eval.protocol,
+                         "psnr_plain": plain["psnr"]})
 
     if settings is None or "relight" in settings:
         for light in lights:

@@ -260,12 +260,20 @@ def test_light_estimate_recovers_the_irradiance():
     albedo = torch.tensor([0.5, 0.4, 0.3], dtype=torch.float64).expand_as(n)
     rgb = albedo * E / math.pi
     V = n.shape[0]
-    est, info = estimate_light(rgb.numpy()[None, None], np.ones((1, 1, V, 1)), albedo.numpy()[None, None],
-                               n.numpy()[None, None], 16)
+    args = (rgb.numpy()[None, None], np.ones((1, 1, V, 1)), albedo.numpy()[None, None], n.numpy()[None, None], 16)
+    est, info = estimate_light(*args, colour="fit")
     assert est.shape == (16, 32, 3) and np.isfinite(est).all() and info["pixels"] == V
     E2 = envmap.sh_irradiance(envmap.sh_project(torch.from_numpy(est).double()), n)
     rel = ((E2 - E).abs() / E).mean().item()
     assert rel < 0.08, rel
+    # the default, grey world: same luminance, no colour cast; the irradiance's shape is kept
+    grey, info = estimate_light(*args)
+    assert info["colour"] == "neutral"
+    mean = grey.reshape(-1, 3).mean(0)
+    assert np.allclose(mean, mean.mean(), rtol=0.02)
+    assert abs(envmap.luminance(mean) / envmap.luminance(est.reshape(-1, 3).mean(0)) - 1) < 0.02
+    E3 = envmap.sh_irradiance(envmap.sh_project(torch.from_numpy(grey).double()), n)
+    assert np.corrcoef(E3[:, 1].numpy(), E[:, 1].numpy())[0, 1] > 0.95
 
 
 def test_maps_not_2to1_or_not_finite_name_the_file(tmp_path):

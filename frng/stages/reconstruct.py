@@ -24,6 +24,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     cams.add_argument("--cameras", help="transforms.json (NeRF) or an OpenCV camera file (JSON/YAML)")
     cams.add_argument("--rig", choices=["paper"], help="the paper's 6-view rig (default when no --cameras)")
     parser.add_argument("--light", help="the photos' light as an equirect map (EXR/HDR, 2:1); default: estimated")
+    parser.add_argument("--light-colour", choices=["neutral", "fit"], default="neutral",
+                        help="estimated light: grey on average (grey world) or its fitted colour")
     parser.add_argument("--grid", help="split one image holding a ROWSxCOLS grid of views, e.g. 2x3")
     parser.add_argument("--framing", choices=["auto", "keep", "object"], default="auto",
                         help="rig photos: keep the framing (square crop) or crop around the object (frng.capture)")
@@ -92,7 +94,8 @@ def run(args: argparse.Namespace) -> int:
             raise CaptureError("--images is required")
         record = reconstruct(args.images, args.out, config, model=args.model, masks=args.masks,
                              cameras=args.cameras, rig=args.rig, light=args.light, grid=parse_grid(args.grid),
-                             framing=args.framing, name=args.name, device=args.device)
+                             framing=args.framing, name=args.name, device=args.device,
+                             light_colour=args.light_colour)
     except (CaptureError, AssetError) as e:
         print(f"frng reconstruct: error: {e}")
         return 2
