@@ -7,8 +7,9 @@ Cameras: ``--cameras FILE`` (the formats of :func:`frng.capture.read_cameras`, t
 world), or ``--turntable N`` (default 24 when no file): N views around world Z at ``--elevation`` degrees, at the
 training rig's distance and field of view recorded in the asset (``--distance``, ``--fov`` override), looking at the
 origin. Writes per view ``{view}.exr`` (linear premultiplied RGBA) and ``{view}.png`` (sRGB, straight alpha),
-``cameras.json``, and for a turntable ``turntable.gif`` (imageio, Pillow writer; ``--video mp4`` needs an
-FFmpeg/PyAV plugin for imageio, which is not among this project's pinned packages).
+``cameras.json``, and for a turntable ``turntable.gif`` (imageio, Pillow writer; frames composited over white and
+upscaled by an integer nearest-neighbour factor to at least :data:`VIDEO_MIN_SIZE` px; ``--video mp4`` needs an
+FFmpeg/PyAV plugin for imageio, which is not among this project's pinned packages: a clear error without one).
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ import math
 from pathlib import Path
 
 import numpy as np
+
+VIDEO_MIN_SIZE = 128  # turntable video frames are upscaled (nearest neighbour, integer factor) to at least this
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -54,15 +57,26 @@ def write_video(path: Path, frames: list[np.ndarray], fps: float) -> Path:
 
     from frng.capture import CaptureError
 
+    k = max(1, -(-VIDEO_MIN_SIZE // max(frames[0].shape[:2])))  # small renders: nearest-neighbour upscaled
+    frames = [np.kron(f, np.ones((k, k, 1), np.uint8)) if k > 1 else f for f in frames]
     if path.suffix == ".gif":
         iio.imwrite(path, np.stack(frames), extension=".gif", duration=1000.0 / fps, loop=0)
         return path
     try:
-        iio.imwrite(path, np.stack(frames), fps=fps)
-    except Exception as e:  # no FFmpeg / PyAV plugin installed
-        raise CaptureError(f"{path}: cannot write MP4 ({str(e).splitlines()[0][:120]}); install imageio-ffmpeg or "
-                           f"use --video gif") from None
+        iio.imwrite(path, np.stack(frames), fps=fps, extension=".mp4")
+    except Exception as e:
+        raise CaptureError(f"{path}: cannot write MP4 ({str(e).splitlines()[0][:120]})") from None
     return path
+
+
+def check_video(kind: str) -> None:
+    """Before rendering: an MP4 needs an imageio plugin that encodes video (imageio-ffmpeg or PyAV)."""
+    import importlib.util
+
+    from frng.capture import CaptureError
+
+    if kind == "mp4" and not any(importlib.util.find_spec(m) for m in ("imageio_ffmpeg", "av")):
+        raise CaptureError("--video mp4: needs imageio-ffmpeg or PyAV (av) installed; use --video gif")
 
 
 def render(args: argparse.Namespace) -> dict:
@@ -73,6 +87,8 @@ def render(args: argparse.Namespace) -> dict:
     from frng.capture import CaptureError, read_cameras, read_light
 
     env = read_light(args.env)  # 2:1, finite: or one line naming the file
+    if not args.cameras:
+        check_video(args.video)
     device = args.device
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
