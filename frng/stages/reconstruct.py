@@ -36,6 +36,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--export-object", metavar="OBJ",
                         help="instead: write curated object OBJ's input views as PNGs (+ cameras.json, light.exr)")
     parser.add_argument("--views", type=int, default=6, help="with --export-object: how many input views")
+    parser.add_argument("--measure", metavar="OBJ", nargs="+",
+                        help="instead: score reconstruct + render-asset on curated test objects against `frng "
+                             "relight` (frng.capture.measure); writes {out}/measure.csv and prints the means")
 
 
 def resolve_config(config: str | None, model: str | None):
@@ -81,12 +84,35 @@ def export_object(config, oid: str, out: Path, views: int = 6) -> Path:
     return out
 
 
+def measure_table(config, oids: list[str], out: Path) -> str:
+    """:func:`frng.capture.measure` over ``oids``; per-image rows to ``{out}/measure.csv``; returns the per-setting
+    means (over objects, lights and views) with the PSNR difference to ``relight`` as Markdown."""
+    import pandas as pd
+
+    from frng.capture import measure
+
+    rows = []
+    for oid in oids:
+        rows += measure(config, oid, out / oid)
+    df = pd.DataFrame(rows)
+    df.to_csv(out / "measure.csv", index=False)
+    order = ["relight", "exr+cameras/known", "png+rig/known", "exr+cameras/estimated", "png+rig/estimated"]
+    mean = df.groupby("setting")[["psnr", "ssim", "lpips", "psnr_plain"]].mean().reindex(order)
+    mean.insert(1, "dpsnr", mean["psnr"] - mean.loc["relight", "psnr"])
+    mean["dpsnr_plain"] = mean["psnr_plain"] - mean.loc["relight", "psnr_plain"]
+    return (f"{len(oids)} object(s), {len(df) // len(order)} images per setting, {df['protocol'].iloc[0]} protocol\n"
+            + mean.round(3).to_markdown())
+
+
 def run(args: argparse.Namespace) -> int:
     from frng.asset import AssetError
     from frng.capture import CaptureError, parse_grid, reconstruct
 
     try:
         config = resolve_config(args.config, args.model)
+        if args.measure:
+            print(measure_table(config, args.measure, Path(args.out)))
+            return 0
         if args.export_object:
             print(export_object(config, args.export_object, Path(args.out), args.views))
             return 0
