@@ -31,7 +31,12 @@ logit/log and come back to float32 precision (relative error ~1e-7, what a float
      "object_id": "...", "source_views": [...],     # what it was reconstructed from
      "created": {"utc": "...", "frng_version": "..."},
      "conventions": {...},                          # units, axes, colour space, activations
+     "render": {"raster": {...}, "shading": {...}}, # render settings (render_settings(); optional)
+     "rig": {"camera_distance", "fov_deg", "resolution"},  # the training rig (frng reconstruct; optional)
      ...any extra keys from the caller's meta}
+
+:class:`AssetRenderer` renders an asset from its folder alone (the decoder rebuilt from ``decoder``, the
+rasterizer and shading from ``render``; schema defaults when absent): ``frng render-asset``.
 
 Writes are atomic: everything goes to a hidden temporary folder beside the target, which is renamed into
 place only once all three files are complete. Reading validates and raises :class:`AssetError` naming the
