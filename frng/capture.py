@@ -272,20 +272,28 @@ def key_background(photo: Photo) -> tuple[np.ndarray, np.ndarray] | None:
     return alpha.astype(np.float32), out.astype(np.float32)
 
 
-def make_masks(photos: list[Photo], masks: str | Path | None = None) -> list[Photo]:
-    """Give every photo a mask (module docstring: --masks, alpha, keyed background); RGB becomes premultiplied."""
+def make_masks(photos: list[Photo], masks: str | Path | None = None,
+               grid: tuple[int, int] | None = None) -> list[Photo]:
+    """Give every photo a mask (module docstring: --masks, alpha, keyed background); RGB becomes premultiplied.
+    With ``grid``, a mask folder holding one image is split like the grid image."""
     if masks is not None:
         files = image_files(Path(masks), "masks")
         by_stem = {f.stem: f for f in files}
-        if all(p.name in by_stem for p in photos):
+        tiles = None
+        if grid is not None and len(files) == 1:
+            m = _read_mask(files[0])
+            th, tw = m.shape[0] // grid[0], m.shape[1] // grid[1]
+            tiles = [m[i * th:(i + 1) * th, j * tw:(j + 1) * tw] for i in range(grid[0]) for j in range(grid[1])]
+            chosen = files * len(photos)
+        elif all(p.name in by_stem for p in photos):
             chosen = [by_stem[p.name] for p in photos]
         elif len(files) == len(photos):
             chosen = files
         else:
             raise CaptureError(f"{masks}: {len(files)} mask file(s) for {len(photos)} images and their names do "
                                f"not match (missing: {[p.name for p in photos if p.name not in by_stem][:3]})")
-        for p, f in zip(photos, chosen):
-            m = _read_mask(f)
+        for k, (p, f) in enumerate(zip(photos, chosen)):
+            m = _read_mask(f) if tiles is None else tiles[k]
             if m.shape != p.rgb.shape[:2]:
                 raise CaptureError(f"{f}: mask is {m.shape[1]}x{m.shape[0]}, its image {p.path.name} is "
                                    f"{p.size[0]}x{p.size[1]}")
@@ -530,14 +538,14 @@ class Capture:
 def prepare(images: str | Path, *, resolution: int, distance: float, fov_deg: float, masks=None, cameras=None,
             rig: str | None = None, grid: tuple[int, int] | None = None, framing: str = "auto") -> Capture:
     """Photos -> :class:`Capture` (module docstring). ``cameras`` (a file) or ``rig`` (``"paper"``, the default)."""
-    photos = make_masks(load_images(images, grid), masks)
+    photos = make_masks(load_images(images, grid), masks, grid)
     res = int(resolution)
     names = [p.name for p in photos]
     info: dict = {"images": str(images), "masks": [p.mask_source for p in photos], "resolution": res,
                   "camera_distance": distance, "fov_deg": fov_deg}
     if cameras is not None:
         cams = match_cameras(photos, read_cameras(Path(cameras), {p.name: p.size for p in photos}), Path(cameras))
-        centre = common_centre(cams, [str(p.path.name) for p in photos], cameras)
+        centre = common_centre(cams, [p.path.name if p.path.stem == p.name else p.name for p in photos], cameras)
         dists = [np.linalg.norm(k.c2w[:3, 3] - centre) for k in cams]
         scale = distance / float(np.median(dists))
         t = math.tan(math.radians(fov_deg) / 2)
@@ -557,7 +565,10 @@ def prepare(images: str | Path, *, resolution: int, distance: float, fov_deg: fl
     else:
         if rig not in (None, "paper"):
             raise CaptureError(f"--rig {rig!r}: the only rig is 'paper'")
-        cams = rig_cameras(len(photos), distance, fov_deg, res)
+        try:
+            cams = rig_cameras(len(photos), distance, fov_deg, res)
+        except CaptureError as e:
+            raise CaptureError(f"{images}: {e}") from None
         wins = frame_rig(photos, framing, distance, fov_deg, res)
         out_c2w = [k.c2w for k in cams]
         out_intr = [k.intr for k in cams]
@@ -683,7 +694,7 @@ def reconstruct(images, out, config, *, model=None, masks=None, cameras=None, ri
     for f, what in ((model, "F-RNG model"), (backbone_path, "backbone model")):
         if not f.exists():
             raise CaptureError(f"{f}: {what} missing (train the pipeline, or pass --model / --config)")
-    oid = name or Path(images).resolve().name
+    oid = name or (Path(images).resolve().stem if Path(images).is_file() else Path(images).resolve().name)
     dev = tr.resolve_device(device or cfg.device)
 
     from frng.model.frng import FRNG

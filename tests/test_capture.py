@@ -81,6 +81,17 @@ def test_grid_image_is_split_row_by_row(tmp_path):
     assert all(p.size == (RES, RES) and p.alpha is not None for p in photos)
     straight = photos[4].rgb[16, 16] / photos[4].alpha[16, 16]
     assert np.allclose(io.srgb_encode(straight), (0.4, 0.2, 0.3), atol=0.01)
+    # one grid mask beside one grid image is split the same way
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    m = np.zeros((2 * RES, 3 * RES, 3), np.float32)
+    m[RES:, 2 * RES:] = 1.0  # only the last tile
+    _png(masks / "grid.png", m)
+    with pytest.raises(CaptureError, match=r"grid.png: the mask is empty"):
+        make_masks(load_images(f, grid=(2, 3)), masks, grid=(2, 3))
+    m[:] = 1.0
+    _png(masks / "grid.png", m)
+    assert all(p.alpha.min() == 1.0 for p in make_masks(load_images(f, grid=(2, 3)), masks, grid=(2, 3)))
 
 
 def test_masks_from_alpha_folder_and_keyed_background(tmp_path):
@@ -168,6 +179,15 @@ def test_rig_cameras_are_the_papers_rig():
     assert np.allclose(az, [0, 90, 180, 270, 45, 225]) and np.allclose(el, [0, 0, 0, 0, 45, 45])
     with pytest.raises(CaptureError, match="6 views; got 7"):
         rig_cameras(7, DIST, FOV, RES)
+
+
+def test_more_images_than_the_rig_names_the_folder(tmp_path):
+    d = _folder(tmp_path, n=7)
+    with pytest.raises(CaptureError, match=f"{d}: --rig paper has 6 views; got 7 images"):
+        prepare(d, resolution=RES, distance=DIST, fov_deg=FOV, rig="paper")
+    _folder(tmp_path, n=11)
+    with pytest.raises(CaptureError, match=f"{d}: 11 images; a capture takes at most 10"):
+        load_images(d)
 
 
 def test_training_rig_cameras_are_kept_exactly(tmp_path):
