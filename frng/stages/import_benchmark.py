@@ -13,6 +13,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from frng.layout import Layout
+
 from frng import config as frng_config
 
 
@@ -54,6 +56,6 @@ def run(args: argparse.Namespace) -> int:
     except BenchmarkError as e:
         print(f"frng import: error: {e}")
         return 2
-    meta = Path(folder) / "meta.json"
+    meta = Layout(args.results or config.results).object_meta(Path(folder).name)
     print(f"import {args.layout} {args.path}: wrote {folder} ({meta})")
     return 0
