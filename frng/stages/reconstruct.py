@@ -50,7 +50,9 @@ def resolve_config(config: str | None, model: str | None):
         if model is None:
             raise CaptureError("give --config (a trained pipeline's config) or --model (its config.yaml is read "
                                "from the model's results folder)")
-        config = results_of_model(Path(model)) / "config.yaml"
+        from frng.layout import Layout
+
+        config = Layout(results_of_model(Path(model))).config()
         if not Path(config).exists():
             raise CaptureError(f"{config}: no recorded config beside the model {model}; pass --config")
     return frng_config.typed(frng_config.load(config))
