@@ -92,7 +92,25 @@ def train_seed(config: Config | dict) -> int:
     return typed(config).model_seed
 
 
+THREADS_ENV = "FRNG_TORCH_THREADS"
+
+
+def training_threads() -> int:
+    """The intra-op thread count a training runs with (``train.json``'s ``threads``), fixed before any op runs.
+
+    The weights are bit-identical between runs of the same config on the same machine for the same count (1 and
+    2 threads measured, also two 2-thread runs side by side; ``tests/test_determinism.py``), but differ between
+    counts: reductions and GEMMs split their sums per thread. The count is ``FRNG_TORCH_THREADS`` when set, else
+    torch's (``OMP_NUM_THREADS``, which Snakemake sets to the job's threads: min(rule ``threads``, ``--cores``))."""
+    n = os.environ.get(THREADS_ENV, "").strip()
+    if n:
+        torch.set_num_threads(int(n))
+    return torch.get_num_threads()
+
+
 def seed_everything(seed: int) -> None:
+    """Python / numpy / torch seeds from ``seed``, and the thread count fixed (:func:`training_threads`)."""
+    training_threads()
     random.seed(seed)
     np.random.seed(seed % (2**32))
     torch.manual_seed(seed)
@@ -495,7 +513,7 @@ def fit(step_fn: Callable[[int], dict[str, float]], tcfg, *, model: torch.nn.Mod
         log.plot(title)
         save_model(path)
         run.wall_s = timer.elapsed()
-        io.write_json(files.summary(), summary(run))
+        io.write_json(files.summary(), {**summary(run), "threads": torch.get_num_threads()})  # the weights depend on it
     checkpoint(total)  # after the model: a finished checkpoint is never resumed (load_resumable)
     return path
 
