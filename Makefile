@@ -12,7 +12,7 @@ SNAKEMAKE := $(VENV)/bin/snakemake --snakefile workflow/Snakefile --profile prof
 # message for these names neither).
 CHECK = $(PY) -m frng config --check
 
-.PHONY: reproduce test setup smoke dry-run lint bench clean-results
+.PHONY: reproduce test setup smoke dry-run lint format bench clean-results
 
 setup: $(STAMP)
 
@@ -40,8 +40,21 @@ dry-run: $(STAMP)
 	@$(CHECK) $(CONFIG)
 	$(SNAKEMAKE) --configfile $(CONFIG) -n --quiet rules
 
+# Style and workflow checks, all of which CI runs: ruff (lint + format), snakefmt on the rule files, snakemake --lint.
+# `make format` rewrites the files in place; `pre-commit install` runs the same checks on every commit.
+LINT_PY := frng tests
+LINT_SMK := rules workflow/Snakefile
+
 lint: $(STAMP)
+	$(VENV)/bin/ruff check $(LINT_PY)
+	$(VENV)/bin/ruff format --check $(LINT_PY)
+	$(VENV)/bin/snakefmt --check $(LINT_SMK)
 	$(SNAKEMAKE) --configfile config/smoke.yaml --lint
+
+format: $(STAMP)
+	$(VENV)/bin/ruff check --fix $(LINT_PY)
+	$(VENV)/bin/ruff format $(LINT_PY)
+	$(VENV)/bin/snakefmt $(LINT_SMK)
 
 bench: $(STAMP)
 	$(VENV)/bin/frng bench render
