@@ -49,8 +49,8 @@ import datetime
 import os
 import shutil
 import tempfile
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -66,8 +66,23 @@ META_FILE = "asset.json"
 SH_C0 = 0.28209479177387814  # degree-0 real spherical harmonic, 1 / (2 sqrt(pi))
 
 BASE_PROPERTIES = (
-    "x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
-    "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3",
+    "x",
+    "y",
+    "z",
+    "nx",
+    "ny",
+    "nz",
+    "f_dc_0",
+    "f_dc_1",
+    "f_dc_2",
+    "opacity",
+    "scale_0",
+    "scale_1",
+    "scale_2",
+    "rot_0",
+    "rot_1",
+    "rot_2",
+    "rot_3",
 )
 REQUIRED_DECODER_KEYS = ("width", "depth", "input_encoding")
 CONVENTIONS = {
@@ -88,13 +103,33 @@ class AssetError(ValueError):
 # -- PLY ------------------------------------------------------------------------------------------
 
 _PLY_TYPES = {  # PLY type name -> numpy dtype (without byte order)
-    "char": "i1", "uchar": "u1", "short": "i2", "ushort": "u2", "int": "i4", "uint": "u4",
-    "float": "f4", "double": "f8",
-    "int8": "i1", "uint8": "u1", "int16": "i2", "uint16": "u2", "int32": "i4", "uint32": "u4",
-    "float32": "f4", "float64": "f8",
+    "char": "i1",
+    "uchar": "u1",
+    "short": "i2",
+    "ushort": "u2",
+    "int": "i4",
+    "uint": "u4",
+    "float": "f4",
+    "double": "f8",
+    "int8": "i1",
+    "uint8": "u1",
+    "int16": "i2",
+    "uint16": "u2",
+    "int32": "i4",
+    "uint32": "u4",
+    "float32": "f4",
+    "float64": "f8",
 }
-_NP_TO_PLY = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int", "u4": "uint",
-              "f4": "float", "f8": "double"}
+_NP_TO_PLY = {
+    "i1": "char",
+    "u1": "uchar",
+    "i2": "short",
+    "u2": "ushort",
+    "i4": "int",
+    "u4": "uint",
+    "f4": "float",
+    "f8": "double",
+}
 
 
 def write_ply(
@@ -226,15 +261,17 @@ def read_ply(path: str | os.PathLike, element: str = "vertex") -> dict[str, np.n
                     raise AssetError(f"{path}: ascii PLY truncated in element {name!r}")
                 if name == element:
                     try:
-                        vals = np.array(tokens[pos:pos + k], dtype=np.float64).reshape(count, len(props))
+                        vals = np.array(tokens[pos : pos + k], dtype=np.float64).reshape(count, len(props))
                     except ValueError as e:
-                        bad = next((t for t in tokens[pos:pos + k] if not _is_number(t)), None)
+                        bad = next((t for t in tokens[pos : pos + k] if not _is_number(t)), None)
                         where = ""
                         if bad is not None:
-                            i = tokens[pos:pos + k].index(bad)
+                            i = tokens[pos : pos + k].index(bad)
                             where = f" at {name} {i // len(props)}, property {props[i % len(props)][0]!r}"
-                        raise AssetError(f"{path}: ascii PLY: not a number{where}: "
-                                         f"{(bad or b'?').decode('ascii', 'replace')!r} ({e})") from None
+                        raise AssetError(
+                            f"{path}: ascii PLY: not a number{where}: "
+                            f"{(bad or b'?').decode('ascii', 'replace')!r} ({e})"
+                        ) from None
                     return {p: vals[:, i].astype(dt[p].newbyteorder("=")) for i, (p, _) in enumerate(props)}
                 pos += k
         data = f.read()
@@ -242,8 +279,10 @@ def read_ply(path: str | os.PathLike, element: str = "vertex") -> dict[str, np.n
     for (name, count, props), dt in zip(header["elements"], dtypes):
         nbytes = count * dt.itemsize
         if offset + nbytes > len(data):
-            raise AssetError(f"{path}: PLY truncated: element {name!r} needs {nbytes} bytes at offset "
-                             f"{offset}, file has {len(data) - offset} left")
+            raise AssetError(
+                f"{path}: PLY truncated: element {name!r} needs {nbytes} bytes at offset "
+                f"{offset}, file has {len(data) - offset} left"
+            )
         if name == element:
             table = np.frombuffer(data, dtype=dt, count=count, offset=offset)
             return {p: table[p].astype(dt[p].newbyteorder("="), copy=True) for p, _ in props}
@@ -252,6 +291,7 @@ def read_ply(path: str | os.PathLike, element: str = "vertex") -> dict[str, np.n
 
 
 # -- Gaussians <-> 3DGS PLY fields ----------------------------------------------------------------
+
 
 def _np(x, name: str) -> np.ndarray:
     if isinstance(x, torch.Tensor):
@@ -304,7 +344,8 @@ def gaussians_to_ply_fields(
 
 
 def ply_fields_to_gaussians(
-    fields: Mapping[str, np.ndarray], source: str = "PLY",
+    fields: Mapping[str, np.ndarray],
+    source: str = "PLY",
 ) -> tuple[Gaussians, torch.Tensor, torch.Tensor]:
     """3DGS PLY fields -> (Gaussians with features set, features (N, C), preview_rgb (N, 3) linear).
 
@@ -315,15 +356,18 @@ def ply_fields_to_gaussians(
     missing = [k for k in BASE_PROPERTIES if k not in fields]
     if missing:
         raise AssetError(f"{source}: missing PLY properties {missing}")
-    feat_names = sorted((k for k in fields if k.startswith("feat_")), key=lambda k: int(k[5:]) if k[5:].isdigit() else -1)
+    feat_names = sorted(
+        (k for k in fields if k.startswith("feat_")), key=lambda k: int(k[5:]) if k[5:].isdigit() else -1
+    )
     expected = [f"feat_{i}" for i in range(len(feat_names))]
     if feat_names != expected:
         raise AssetError(f"{source}: feature properties must be feat_0..feat_{len(feat_names) - 1}, got {feat_names}")
     for k in list(BASE_PROPERTIES) + feat_names:
         bad = ~np.isfinite(fields[k])
         if bad.any():
-            raise AssetError(f"{source}: field {k!r} has {int(bad.sum())} non-finite value(s) "
-                             f"(first at row {int(np.argmax(bad))})")
+            raise AssetError(
+                f"{source}: field {k!r} has {int(bad.sum())} non-finite value(s) (first at row {int(np.argmax(bad))})"
+            )
     col = lambda *names: np.stack([np.asarray(fields[k], np.float64) for k in names], axis=1)  # noqa: E731
     t32 = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))  # noqa: E731
     n = len(fields["x"])
@@ -339,6 +383,7 @@ def ply_fields_to_gaussians(
 
 
 # -- asset folder ---------------------------------------------------------------------------------
+
 
 def save_asset(
     folder: str | os.PathLike,
@@ -399,8 +444,11 @@ def save_asset(
         "decoder": dict(dec),
         "object_id": str(meta["object_id"]),
         "source_views": list(meta.get("source_views", [])),
-        "created": {"utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-                    "frng_version": _frng_version(), **dict(meta.get("created", {}))},
+        "created": {
+            "utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+            "frng_version": _frng_version(),
+            **dict(meta.get("created", {})),
+        },
         "conventions": {**CONVENTIONS, **dict(meta.get("conventions", {}))},
     }
     info.update({k: v for k, v in meta.items() if k not in info})
@@ -408,8 +456,14 @@ def save_asset(
     folder.parent.mkdir(parents=True, exist_ok=True)
     tmp = temp_dir(f".tmp-{folder.name}-", folder.parent)
     try:
-        write_ply(tmp / PLY_FILE, fields, comments=[f"{FORMAT} v{FORMAT_VERSION} object {info['object_id']}",
-                                                    "3DGS layout: opacity=logit, scale=log, rot=(w,x,y,z); feat_* = F-RNG features"])
+        write_ply(
+            tmp / PLY_FILE,
+            fields,
+            comments=[
+                f"{FORMAT} v{FORMAT_VERSION} object {info['object_id']}",
+                "3DGS layout: opacity=logit, scale=log, rot=(w,x,y,z); feat_* = F-RNG features",
+            ],
+        )
         save_file(state, str(tmp / DECODER_FILE), metadata={"format": FORMAT, "version": str(FORMAT_VERSION)})
         os.chmod(tmp / DECODER_FILE, 0o666 & ~current_umask())  # safetensors writes 0600 whatever the umask
         write_json(tmp / META_FILE, info)
@@ -456,8 +510,9 @@ def load_asset(folder: str | os.PathLike) -> tuple[Gaussians, torch.Tensor, dict
     if meta.get("format") != FORMAT:
         raise AssetError(f"{meta_path}: field 'format' is {meta.get('format')!r}, expected {FORMAT!r}")
     if meta.get("version") != FORMAT_VERSION:
-        raise AssetError(f"{meta_path}: field 'version' is {meta.get('version')!r}; this frng reads version "
-                         f"{FORMAT_VERSION}")
+        raise AssetError(
+            f"{meta_path}: field 'version' is {meta.get('version')!r}; this frng reads version {FORMAT_VERSION}"
+        )
     for k in ("num_gaussians", "feature_dim", "decoder", "object_id"):
         if k not in meta:
             raise AssetError(f"{meta_path}: missing field {k!r}")
@@ -465,12 +520,14 @@ def load_asset(folder: str | os.PathLike) -> tuple[Gaussians, torch.Tensor, dict
     fields = read_ply(ply_path)
     n = len(fields["x"]) if "x" in fields else len(next(iter(fields.values()), []))
     if n != meta["num_gaussians"]:
-        raise AssetError(f"{ply_path}: has {n} vertices but {meta_path.name} field 'num_gaussians' says "
-                         f"{meta['num_gaussians']}")
+        raise AssetError(
+            f"{ply_path}: has {n} vertices but {meta_path.name} field 'num_gaussians' says {meta['num_gaussians']}"
+        )
     c = sum(k.startswith("feat_") for k in fields)
     if c != meta["feature_dim"]:
-        raise AssetError(f"{ply_path}: has {c} feat_* properties but {meta_path.name} field 'feature_dim' says "
-                         f"{meta['feature_dim']}")
+        raise AssetError(
+            f"{ply_path}: has {c} feat_* properties but {meta_path.name} field 'feature_dim' says {meta['feature_dim']}"
+        )
     gaussians, features, preview = ply_fields_to_gaussians(fields, source=str(ply_path))
 
     try:
@@ -487,9 +544,8 @@ def load_asset(folder: str | os.PathLike) -> tuple[Gaussians, torch.Tensor, dict
 # -- rendering an asset (the asset folder and the decoder only: no F-RNG model, no training code) ----------
 
 RENDER_KEY = "render"  # asset.json: {"raster": frng.render.RasterConfig fields, "shading": ShadingConfig fields}
-RIG_KEY = "rig"        # asset.json: {"camera_distance", "fov_deg", "resolution"} of the training rig
+RIG_KEY = "rig"  # asset.json: {"camera_distance", "fov_deg", "resolution"} of the training rig
 DECODER_FIELDS = ("feature_dim", "width", "depth", "dir_freqs", "cosine", "attenuation")
-
 
 
 def render_settings(raster_cfg, shading_cfg, max_radius_px: float | None = None) -> dict:
@@ -536,13 +592,19 @@ class AssetRenderer:
         self.device = torch.device(device)
         self.meta = meta
         try:
-            self.decoder = NeuralDecoder(int(dec["feature_dim"]), int(dec["width"]), int(dec["depth"]),
-                                         int(dec["dir_freqs"]), cosine=bool(dec["cosine"]),
-                                         attenuation=bool(dec["attenuation"]))
+            self.decoder = NeuralDecoder(
+                int(dec["feature_dim"]),
+                int(dec["width"]),
+                int(dec["depth"]),
+                int(dec["dir_freqs"]),
+                cosine=bool(dec["cosine"]),
+                attenuation=bool(dec["attenuation"]),
+            )
             self.decoder.load_state_dict(state)
         except (RuntimeError, ValueError) as e:
-            raise AssetError(f"{self.folder / DECODER_FILE}: does not fit the decoder of {META_FILE} "
-                             f"({str(e).splitlines()[0]})") from e
+            raise AssetError(
+                f"{self.folder / DECODER_FILE}: does not fit the decoder of {META_FILE} ({str(e).splitlines()[0]})"
+            ) from e
         self.decoder = self.decoder.to(self.device).eval().requires_grad_(False)
         self.specular = bool(dec.get("specular", False))
         settings = meta.get(RENDER_KEY) or {}
@@ -551,8 +613,9 @@ class AssetRenderer:
             self.shading = ShadingConfig.from_dict(dict(settings.get("shading", {})))
         except (ValueError, KeyError, TypeError) as e:
             raise AssetError(f"{meta_path}: field {RENDER_KEY!r}: {e}") from e
-        self.gaussians = Gaussians(*(t.to(self.device) for t in (g.means, g.quats, g.scales, g.opacities)),
-                                   features.to(self.device))
+        self.gaussians = Gaussians(
+            *(t.to(self.device) for t in (g.means, g.quats, g.scales, g.opacities)), features.to(self.device)
+        )
         self.bf16 = bool(bf16) and self.device.type == "cuda"
 
     @property
@@ -566,12 +629,23 @@ class AssetRenderer:
 
         g = self.gaussians
         c2w, intr = c2w.to(self.device).float(), intr.to(self.device).float()
-        maps, alpha, _ = rasterize(g.means, g.quats, g.scales, g.opacities, g.features.float(), c2w, intr,
-                                   int(height), int(width), **self.raster.kwargs())
+        maps, alpha, _ = rasterize(
+            g.means,
+            g.quats,
+            g.scales,
+            g.opacities,
+            g.features.float(),
+            c2w,
+            intr,
+            int(height),
+            int(width),
+            **self.raster.kwargs(),
+        )
         return maps, alpha, c2w, intr
 
-    def shade(self, raster: tuple, env: torch.Tensor, spp: int | None = None,
-              generator: torch.Generator | None = None) -> torch.Tensor:
+    def shade(
+        self, raster: tuple, env: torch.Tensor, spp: int | None = None, generator: torch.Generator | None = None
+    ) -> torch.Tensor:
         """Deferred shading under an equirect map (He, We, 3) -> RGBA (V, H, W, 4), linear, premultiplied."""
         from frng import camera, envmap
         from frng.render.prefilter import prefilter, specular_base
@@ -585,22 +659,51 @@ class AssetRenderer:
         samples = envmap.sample(envmap.importance_sampler(env.detach().to(self.device)), spp, sc.sampling, seed)
         with torch.no_grad(), torch.autocast(maps.device.type, dtype=torch.bfloat16, enabled=self.bf16):
             if self.decoder.cosine and sc.diffuse == "sh":
-                rgb = deferred_shade(self.decoder.residual, [maps], alpha, c2w, intr, samples, None, sc.alpha_eps,
-                                     chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
-                rgb = rgb.float() + lambert_sh(maps, alpha, envmap.sh_project(env.detach().float().cpu()).float(),
-                                               sc.alpha_eps)
+                rgb = deferred_shade(
+                    self.decoder.residual,
+                    [maps],
+                    alpha,
+                    c2w,
+                    intr,
+                    samples,
+                    None,
+                    sc.alpha_eps,
+                    chunk=sc.chunk_pixels,
+                    chunk_pairs=sc.chunk_pairs,
+                )
+                rgb = rgb.float() + lambert_sh(
+                    maps, alpha, envmap.sh_project(env.detach().float().cpu()).float(), sc.alpha_eps
+                )
                 if self.specular:
                     _, d = camera.pixel_rays(c2w.float(), intr.float(), maps.shape[1], maps.shape[2])
                     rgb = rgb + specular_base(maps, alpha, prefilter(env.to(maps.device)), d, sc.alpha_eps)
                 if self.decoder.attenuation:
                     rgb = rgb.clamp_min(0.0)
             else:
-                rgb = deferred_shade(self.decoder, [maps], alpha, c2w, intr, samples, None, sc.alpha_eps,
-                                     chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
+                rgb = deferred_shade(
+                    self.decoder,
+                    [maps],
+                    alpha,
+                    c2w,
+                    intr,
+                    samples,
+                    None,
+                    sc.alpha_eps,
+                    chunk=sc.chunk_pixels,
+                    chunk_pairs=sc.chunk_pairs,
+                )
         return torch.cat([rgb.float(), alpha], -1)
 
-    def render(self, env: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, height: int, width: int,
-               spp: int | None = None, generator: torch.Generator | None = None) -> torch.Tensor:
+    def render(
+        self,
+        env: torch.Tensor,
+        c2w: torch.Tensor,
+        intr: torch.Tensor,
+        height: int,
+        width: int,
+        spp: int | None = None,
+        generator: torch.Generator | None = None,
+    ) -> torch.Tensor:
         """:meth:`rasterize` then :meth:`shade`."""
         return self.shade(self.rasterize(c2w, intr, height, width), env, spp, generator)
 
@@ -612,7 +715,20 @@ def _frng_version() -> str:
 
 
 __all__ = [
-    "AssetError", "AssetRenderer", "RENDER_KEY", "RIG_KEY", "render_settings", "BASE_PROPERTIES", "FORMAT", "FORMAT_VERSION", "SH_C0",
-    "gaussians_to_ply_fields", "load_asset", "ply_fields_to_gaussians", "read_ply", "read_ply_header",
-    "save_asset", "write_ply",
+    "AssetError",
+    "AssetRenderer",
+    "RENDER_KEY",
+    "RIG_KEY",
+    "render_settings",
+    "BASE_PROPERTIES",
+    "FORMAT",
+    "FORMAT_VERSION",
+    "SH_C0",
+    "gaussians_to_ply_fields",
+    "load_asset",
+    "ply_fields_to_gaussians",
+    "read_ply",
+    "read_ply_header",
+    "save_asset",
+    "write_ply",
 ]

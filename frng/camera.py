@@ -26,6 +26,7 @@ BLENDER_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 # -- numpy helpers (metadata, rigs) ---------------------------------------------------------------
 
+
 def c2w_from_blender(matrix_world: np.ndarray) -> np.ndarray:
     """Blender camera ``matrix_world`` (4, 4) -> OpenCV camera-to-world (4, 4)."""
     return np.asarray(matrix_world, dtype=np.float64) @ BLENDER_TO_OPENCV
@@ -66,6 +67,7 @@ def spherical_to_cartesian(azimuth_deg: float, elevation_deg: float, radius: flo
 
 # -- torch ----------------------------------------------------------------------------------------
 
+
 def pixel_centers(height: int, width: int, device=None, dtype=torch.float32) -> torch.Tensor:
     """Pixel-centre coordinates ``uv`` (H, W, 2) = (col + 0.5, row + 0.5)."""
     ys = torch.arange(height, device=device, dtype=dtype) + 0.5
@@ -94,7 +96,9 @@ def rays_at(c2w: torch.Tensor, intrinsics: torch.Tensor, uv: torch.Tensor) -> tu
     return o, d
 
 
-def pixel_rays(c2w: torch.Tensor, intrinsics: torch.Tensor, height: int, width: int) -> tuple[torch.Tensor, torch.Tensor]:
+def pixel_rays(
+    c2w: torch.Tensor, intrinsics: torch.Tensor, height: int, width: int
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Rays through every pixel centre: origins, directions (V, H, W, 3)."""
     uv = pixel_centers(height, width, device=c2w.device, dtype=c2w.dtype)
     return rays_at(c2w, intrinsics, uv.expand(c2w.shape[0], height, width, 2))

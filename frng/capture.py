@@ -92,9 +92,9 @@ class Photo:
 
     name: str
     path: Path
-    rgb: np.ndarray                    # (H, W, 3) float32 linear (premultiplied when alpha is not None)
-    alpha: np.ndarray | None = None    # (H, W) float32 in [0, 1], or None (no alpha channel / opaque)
-    mask_source: str = ""              # where the mask came from: "alpha", "masks", "keyed"
+    rgb: np.ndarray  # (H, W, 3) float32 linear (premultiplied when alpha is not None)
+    alpha: np.ndarray | None = None  # (H, W) float32 in [0, 1], or None (no alpha channel / opaque)
+    mask_source: str = ""  # where the mask came from: "alpha", "masks", "keyed"
     info: dict = field(default_factory=dict)
 
     @property
@@ -103,6 +103,7 @@ class Photo:
 
 
 # -- images -----------------------------------------------------------------------------------------------
+
 
 def image_files(folder: Path, what: str = "images") -> list[Path]:
     folder = Path(folder)
@@ -186,8 +187,9 @@ def load_images(source: str | Path, grid: tuple[int, int] | None = None) -> list
         for i in range(rows):
             for j in range(cols):
                 sl = (slice(i * th, (i + 1) * th), slice(j * tw, (j + 1) * tw))
-                photos.append(Photo(f"{files[0].stem}_r{i}c{j}", files[0], rgb[sl].copy(),
-                                    None if a is None else a[sl].copy()))
+                photos.append(
+                    Photo(f"{files[0].stem}_r{i}c{j}", files[0], rgb[sl].copy(), None if a is None else a[sl].copy())
+                )
                 if photos[-1].alpha is not None and photos[-1].alpha.min() >= 0.999:
                     photos[-1].alpha = None
     else:
@@ -201,20 +203,24 @@ def load_images(source: str | Path, grid: tuple[int, int] | None = None) -> list
         if len({p.name for p in photos}) != len(photos):
             raise CaptureError(f"{source}: two image files share a name stem")
     if len(photos) < MIN_VIEWS:
-        raise CaptureError(f"{source}: {len(photos)} image(s); a capture needs at least {MIN_VIEWS} views "
-                           f"({', '.join(IMAGE_EXTS)})")
+        raise CaptureError(
+            f"{source}: {len(photos)} image(s); a capture needs at least {MIN_VIEWS} views ({', '.join(IMAGE_EXTS)})"
+        )
     if len(photos) > MAX_VIEWS:
         raise CaptureError(f"{source}: {len(photos)} images; a capture takes at most {MAX_VIEWS} views")
     w0, h0 = photos[0].size
     for p in photos[1:]:
         w, h = p.size
         if abs((w / h) / (w0 / h0) - 1.0) > ASPECT_TOL:
-            raise CaptureError(f"{p.path}: aspect ratio {w}x{h} differs from {photos[0].path.name} ({w0}x{h0}); "
-                               f"all views must have the same aspect ratio")
+            raise CaptureError(
+                f"{p.path}: aspect ratio {w}x{h} differs from {photos[0].path.name} ({w0}x{h0}); "
+                f"all views must have the same aspect ratio"
+            )
     return photos
 
 
 # -- masks ------------------------------------------------------------------------------------------------
+
 
 def _read_mask(path: Path) -> np.ndarray:
     if path.suffix.lower() == ".exr":
@@ -251,8 +257,9 @@ def key_background(photo: Photo) -> tuple[np.ndarray, np.ndarray] | None:
     H, W = rgb.shape[:2]
     b = max(1, int(round(0.02 * min(H, W))))
     enc = io.srgb_encode(rgb)
-    ring = np.concatenate([enc[:b].reshape(-1, 3), enc[-b:].reshape(-1, 3), enc[:, :b].reshape(-1, 3),
-                           enc[:, -b:].reshape(-1, 3)])
+    ring = np.concatenate(
+        [enc[:b].reshape(-1, 3), enc[-b:].reshape(-1, 3), enc[:, :b].reshape(-1, 3), enc[:, -b:].reshape(-1, 3)]
+    )
     bg = np.median(ring, 0)
     if np.quantile(np.abs(ring - bg).max(-1), 0.95) > KEY_UNIFORM:
         return None
@@ -272,8 +279,9 @@ def key_background(photo: Photo) -> tuple[np.ndarray, np.ndarray] | None:
     return alpha.astype(np.float32), out.astype(np.float32)
 
 
-def make_masks(photos: list[Photo], masks: str | Path | None = None,
-               grid: tuple[int, int] | None = None) -> list[Photo]:
+def make_masks(
+    photos: list[Photo], masks: str | Path | None = None, grid: tuple[int, int] | None = None
+) -> list[Photo]:
     """Give every photo a mask (module docstring: --masks, alpha, keyed background); RGB becomes premultiplied.
     With ``grid``, a mask folder holding one image is split like the grid image."""
     if masks is not None:
@@ -283,20 +291,23 @@ def make_masks(photos: list[Photo], masks: str | Path | None = None,
         if grid is not None and len(files) == 1:
             m = _read_mask(files[0])
             th, tw = m.shape[0] // grid[0], m.shape[1] // grid[1]
-            tiles = [m[i * th:(i + 1) * th, j * tw:(j + 1) * tw] for i in range(grid[0]) for j in range(grid[1])]
+            tiles = [m[i * th : (i + 1) * th, j * tw : (j + 1) * tw] for i in range(grid[0]) for j in range(grid[1])]
             chosen = files * len(photos)
         elif all(p.name in by_stem for p in photos):
             chosen = [by_stem[p.name] for p in photos]
         elif len(files) == len(photos):
             chosen = files
         else:
-            raise CaptureError(f"{masks}: {len(files)} mask file(s) for {len(photos)} images and their names do "
-                               f"not match (missing: {[p.name for p in photos if p.name not in by_stem][:3]})")
+            raise CaptureError(
+                f"{masks}: {len(files)} mask file(s) for {len(photos)} images and their names do "
+                f"not match (missing: {[p.name for p in photos if p.name not in by_stem][:3]})"
+            )
         for k, (p, f) in enumerate(zip(photos, chosen)):
             m = _read_mask(f) if tiles is None else tiles[k]
             if m.shape != p.rgb.shape[:2]:
-                raise CaptureError(f"{f}: mask is {m.shape[1]}x{m.shape[0]}, its image {p.path.name} is "
-                                   f"{p.size[0]}x{p.size[1]}")
+                raise CaptureError(
+                    f"{f}: mask is {m.shape[1]}x{m.shape[0]}, its image {p.path.name} is {p.size[0]}x{p.size[1]}"
+                )
             _check_not_empty(m, f)
             straight = p.rgb / np.maximum(p.alpha, 1e-6)[..., None] if p.alpha is not None else p.rgb
             p.rgb, p.alpha, p.mask_source = (straight * m[..., None]).astype(np.float32), m, f"masks:{f.name}"
@@ -307,8 +318,10 @@ def make_masks(photos: list[Photo], masks: str | Path | None = None,
         else:
             keyed = key_background(p)
             if keyed is None:
-                raise CaptureError(f"{p.path}: no mask for this view: it has no alpha channel, no --masks folder "
-                                   f"was given, and its border is not a uniform background to key out")
+                raise CaptureError(
+                    f"{p.path}: no mask for this view: it has no alpha channel, no --masks folder "
+                    f"was given, and its border is not a uniform background to key out"
+                )
             p.alpha, p.rgb = keyed
             p.mask_source = "keyed"
         _check_not_empty(p.alpha, p.path)
@@ -316,6 +329,7 @@ def make_masks(photos: list[Photo], masks: str | Path | None = None,
 
 
 # -- cameras ----------------------------------------------------------------------------------------------
+
 
 @dataclass
 class Cam:
@@ -349,7 +363,7 @@ def read_cameras(path: str | Path, sizes: dict[str, tuple[int, int]] | None = No
             for k, fr in enumerate(data["frames"]):
                 name = Path(str(fr.get("file_path", f"frame_{k}"))).stem
                 c2w = camera.c2w_from_blender(np.asarray(fr["transform_matrix"], np.float64).reshape(4, 4))
-                get = lambda key: fr.get(key, data.get(key))  # noqa: E731
+                get = lambda key, fr=fr: fr.get(key, data.get(key))  # noqa: E731
                 w, h = get("w"), get("h")
                 if (w is None or h is None) and sizes and name in sizes:
                     w, h = sizes[name]
@@ -370,8 +384,10 @@ def read_cameras(path: str | Path, sizes: dict[str, tuple[int, int]] | None = No
         else:
             entries = data
             if isinstance(data, dict):
-                entries = data.get("cameras", data.get("views", {}).get("inputs") if isinstance(
-                    data.get("views"), dict) else data.get("views"))
+                entries = data.get(
+                    "cameras",
+                    data.get("views", {}).get("inputs") if isinstance(data.get("views"), dict) else data.get("views"),
+                )
             if not isinstance(entries, list):
                 raise CaptureError(f"{path}: not a camera file (expected 'frames', 'cameras' or a list of cameras)")
             for k, e in enumerate(entries):
@@ -418,8 +434,10 @@ def match_cameras(photos: list[Photo], cams: list[tuple[str, Cam]], path: Path) 
         if c.size is not None and tuple(c.size) != p.size:
             sx, sy = p.size[0] / c.size[0], p.size[1] / c.size[1]
             if abs(sx / sy - 1.0) > ASPECT_TOL:
-                raise CaptureError(f"{path}: camera for {p.path.name} is for a {c.size[0]}x{c.size[1]} image; "
-                                   f"the image is {p.size[0]}x{p.size[1]}")
+                raise CaptureError(
+                    f"{path}: camera for {p.path.name} is for a {c.size[0]}x{c.size[1]} image; "
+                    f"the image is {p.size[0]}x{p.size[1]}"
+                )
             intr *= np.array([sx, sy, sx, sy])
         out.append(Cam(c.c2w.copy(), intr, p.size))
     return out
@@ -431,9 +449,13 @@ def rig_cameras(n: int, distance: float, fov_deg: float, resolution: int) -> lis
 
     if n > len(rig.RIG_AZIMUTH_OFFSETS_DEG):
         raise CaptureError(f"--rig paper has {len(rig.RIG_AZIMUTH_OFFSETS_DEG)} views; got {n} images")
-    return [Cam(v.c2w, v.intrinsics, (resolution, resolution)) for v in
-            (rig.make_view(f"in_{i:02d}", "input", az, el, distance, fov_deg, resolution)
-             for i, (az, el) in enumerate(zip(rig.RIG_AZIMUTH_OFFSETS_DEG[:n], rig.RIG_ELEVATIONS_DEG[:n])))]
+    return [
+        Cam(v.c2w, v.intrinsics, (resolution, resolution))
+        for v in (
+            rig.make_view(f"in_{i:02d}", "input", az, el, distance, fov_deg, resolution)
+            for i, (az, el) in enumerate(zip(rig.RIG_AZIMUTH_OFFSETS_DEG[:n], rig.RIG_ELEVATIONS_DEG[:n]))
+        )
+    ]
 
 
 def _axis_angle(cam: Cam, c: np.ndarray) -> float:
@@ -455,12 +477,15 @@ def common_centre(cams: list[Cam], names: list[str], path: Path | str) -> np.nda
     if len(cams) >= 3:
         angles = [_axis_angle(k, optical_axes_centre(np.delete(c2ws, i, 0))) for i, k in enumerate(cams)]
     i = int(np.argmax(angles))
-    raise CaptureError(f"{path}: the camera of {names[i]} does not look at the common centre of the cameras "
-                       f"(its optical axis is {angles[i]:.1f} deg off it, limit {MAX_AXIS_DEG:g}); the object "
-                       f"must be centred in every view")
+    raise CaptureError(
+        f"{path}: the camera of {names[i]} does not look at the common centre of the cameras "
+        f"(its optical axis is {angles[i]:.1f} deg off it, limit {MAX_AXIS_DEG:g}); the object "
+        f"must be centred in every view"
+    )
 
 
 # -- cropping / resampling ----------------------------------------------------------------------------------
+
 
 def resample(img: np.ndarray, x0: float, y0: float, wc: float, hc: float, res: int) -> np.ndarray:
     """The window [x0, x0 + wc) x [y0, y0 + hc) of ``img`` (H, W, C) resampled to (res, res, C): bilinear at the
@@ -476,8 +501,13 @@ def resample(img: np.ndarray, x0: float, y0: float, wc: float, hc: float, res: i
     xs = x0 + kx * c - 0.5
     ys = y0 + ky * c - 0.5
     yy, xx = np.meshgrid(ys, xs, indexing="ij")
-    out = np.stack([ndimage.map_coordinates(src[..., i], [yy, xx], order=1, mode="constant", cval=0.0)
-                    for i in range(src.shape[-1])], -1)
+    out = np.stack(
+        [
+            ndimage.map_coordinates(src[..., i], [yy, xx], order=1, mode="constant", cval=0.0)
+            for i in range(src.shape[-1])
+        ],
+        -1,
+    )
     return out.astype(np.float32)
 
 
@@ -508,8 +538,7 @@ def frame_rig(photos: list[Photo], framing: str, distance: float, fov_deg: float
     for p in photos:
         bx0, by0, bx1, by1 = _bbox(p.alpha)
         s = ext * p.size[0] / fill
-        wins.append({"x0": (bx0 + bx1) / 2 - s / 2, "y0": (by0 + by1) / 2 - s / 2, "w": s, "h": s,
-                     "framing": "object"})
+        wins.append({"x0": (bx0 + bx1) / 2 - s / 2, "y0": (by0 + by1) / 2 - s / 2, "w": s, "h": s, "framing": "object"})
     return wins
 
 
@@ -518,10 +547,10 @@ class Capture:
     """A capture ready for reconstruction: views at the model's resolution and cameras on the training rig."""
 
     names: list[str]
-    rgb: np.ndarray          # (V, R, R, 3) linear premultiplied
-    alpha: np.ndarray        # (V, R, R, 1)
-    c2w: np.ndarray          # (V, 4, 4) OpenCV
-    intr: np.ndarray         # (V, 4)
+    rgb: np.ndarray  # (V, R, R, 3) linear premultiplied
+    alpha: np.ndarray  # (V, R, R, 1)
+    c2w: np.ndarray  # (V, 4, 4) OpenCV
+    intr: np.ndarray  # (V, 4)
     info: dict
 
     def views(self):
@@ -531,18 +560,34 @@ class Capture:
         from frng.priors.dataset import Views
 
         t = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))  # noqa: E731
-        return Views(list(self.names), t(self.rgb).clamp_min(0.0), t(self.alpha).clamp(0.0, 1.0), t(self.c2w),
-                     t(self.intr))
+        return Views(
+            list(self.names), t(self.rgb).clamp_min(0.0), t(self.alpha).clamp(0.0, 1.0), t(self.c2w), t(self.intr)
+        )
 
 
-def prepare(images: str | Path, *, resolution: int, distance: float, fov_deg: float, masks=None, cameras=None,
-            rig: str | None = None, grid: tuple[int, int] | None = None, framing: str = "auto") -> Capture:
+def prepare(
+    images: str | Path,
+    *,
+    resolution: int,
+    distance: float,
+    fov_deg: float,
+    masks=None,
+    cameras=None,
+    rig: str | None = None,
+    grid: tuple[int, int] | None = None,
+    framing: str = "auto",
+) -> Capture:
     """Photos -> :class:`Capture` (module docstring). ``cameras`` (a file) or ``rig`` (``"paper"``, the default)."""
     photos = make_masks(load_images(images, grid), masks, grid)
     res = int(resolution)
     names = [p.name for p in photos]
-    info: dict = {"images": str(images), "masks": [p.mask_source for p in photos], "resolution": res,
-                  "camera_distance": distance, "fov_deg": fov_deg}
+    info: dict = {
+        "images": str(images),
+        "masks": [p.mask_source for p in photos],
+        "resolution": res,
+        "camera_distance": distance,
+        "fov_deg": fov_deg,
+    }
     if cameras is not None:
         cams = match_cameras(photos, read_cameras(Path(cameras), {p.name: p.size for p in photos}), Path(cameras))
         centre = common_centre(cams, [p.path.name if p.path.stem == p.name else p.name for p in photos], cameras)
@@ -573,8 +618,10 @@ def prepare(images: str | Path, *, resolution: int, distance: float, fov_deg: fl
         out_c2w = [k.c2w for k in cams]
         out_intr = [k.intr for k in cams]
         info |= {"cameras": "rig:paper"}
-    rgba = [resample(np.concatenate([p.rgb, p.alpha[..., None]], -1), w["x0"], w["y0"], w["w"], w["h"], res)
-            for p, w in zip(photos, wins)]
+    rgba = [
+        resample(np.concatenate([p.rgb, p.alpha[..., None]], -1), w["x0"], w["y0"], w["w"], w["h"], res)
+        for p, w in zip(photos, wins)
+    ]
     rgba = np.stack(rgba)
     info["crops"] = [{k: (round(v, 3) if isinstance(v, float) else v) for k, v in w.items()} for w in wins]
     for p, a in zip(photos, rgba[..., 3]):
@@ -592,6 +639,7 @@ def _t(a):
 
 # -- light --------------------------------------------------------------------------------------------------
 
+
 def read_light(path: str | Path) -> np.ndarray:
     """An equirect map (EXR/HDR, 2:1, finite) or a :class:`CaptureError` naming it."""
     try:
@@ -600,8 +648,9 @@ def read_light(path: str | Path) -> np.ndarray:
         raise CaptureError(str(e)) from e
 
 
-def estimate_light(rgb, alpha, albedo, normal, height: int, ridge: float = 0.1, colour: str = LIGHT_COLOUR
-                   ) -> tuple[np.ndarray, dict]:
+def estimate_light(
+    rgb, alpha, albedo, normal, height: int, ridge: float = 0.1, colour: str = LIGHT_COLOUR
+) -> tuple[np.ndarray, dict]:
     """Fit a degree-2 SH radiance to shading = colour / albedo over the confident foreground (module docstring).
 
     rgb (V, H, W, 3) premultiplied, alpha (V, H, W, 1), albedo / normal (V, H, W, 3) (IDM priors, world normals).
@@ -613,14 +662,15 @@ def estimate_light(rgb, alpha, albedo, normal, height: int, ridge: float = 0.1, 
     f = lambda x: torch.as_tensor(np.asarray(x), dtype=torch.float64).reshape(-1, x.shape[-1])  # noqa: E731
     rgb, a, alb, n = f(rgb), f(alpha), f(albedo), f(normal)
     nn_ = n.norm(dim=-1, keepdim=True)
-    fg = ((a[:, 0] > 0.9) & (alb.mean(-1) > 0.02) & (nn_[:, 0] > 0.5))
+    fg = (a[:, 0] > 0.9) & (alb.mean(-1) > 0.02) & (nn_[:, 0] > 0.5)
     if int(fg.sum()) < 16:
         raise CaptureError("light estimation: too few confident foreground pixels (fewer than 16); give --light")
     straight = rgb[fg] / a[fg]
     s = straight / alb[fg].clamp_min(0.03)
     Y = sh_basis(2, n[fg] / nn_[fg])
-    band = Y.new_tensor([envmap.SH_IRRADIANCE_BANDS[0]] + [envmap.SH_IRRADIANCE_BANDS[1]] * 3
-                        + [envmap.SH_IRRADIANCE_BANDS[2]] * 5)
+    band = Y.new_tensor(
+        [envmap.SH_IRRADIANCE_BANDS[0]] + [envmap.SH_IRRADIANCE_BANDS[1]] * 3 + [envmap.SH_IRRADIANCE_BANDS[2]] * 5
+    )
     A = Y * band / math.pi
     P = A.shape[0]
     reg = torch.diag(A.new_tensor([0.0] + [ridge] * 8)) * P
@@ -633,11 +683,18 @@ def estimate_light(rgb, alpha, albedo, normal, height: int, ridge: float = 0.1, 
     resid = float(((A @ L - s) ** 2).mean().sqrt() / s.mean().clamp_min(1e-9))
     d = envmap.pixel_directions(height, 2 * height, dtype=torch.float64)
     env = (sh_basis(2, d) @ L).clamp_min(0.0).float().numpy()
-    return env, {"method": "sh2-ridge", "ridge": ridge, "colour": colour, "pixels": int(P), "relative_rms": resid,
-                 "sh": L.float().tolist()}
+    return env, {
+        "method": "sh2-ridge",
+        "ridge": ridge,
+        "colour": colour,
+        "pixels": int(P),
+        "relative_rms": resid,
+        "sh": L.float().tolist(),
+    }
 
 
 # -- contact sheet ------------------------------------------------------------------------------------------
+
 
 def contact_sheet(cap: Capture, env: np.ndarray, tile: int = 96) -> np.ndarray:
     """Rows: the views (over white), their masks, the input light (tonemapped, mean at mid grey). uint8 RGB."""
@@ -653,21 +710,35 @@ def contact_sheet(cap: Capture, env: np.ndarray, tile: int = 96) -> np.ndarray:
     k = max(1, lw // light.shape[1])
     light = np.kron(light, np.ones((k, k, 1)))[:, :sheet_w]
     row3 = np.ones((light.shape[0], sheet_w, 3), np.float32)
-    row3[:, :light.shape[1]] = light
+    row3[:, : light.shape[1]] = light
     sheet = np.concatenate([np.concatenate(views, 1), np.concatenate(masks, 1), row3], 0)
     return (np.clip(sheet, 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
 # -- reconstruction -----------------------------------------------------------------------------------------
 
+
 def results_of_model(model: Path) -> Path:
     """``{results}/models/{variant}/model.pt`` -> ``{results}`` (where its ``config.yaml`` is recorded)."""
     return Path(model).resolve().parent.parent.parent
 
 
-def reconstruct(images, out, config, *, model=None, masks=None, cameras=None, rig=None, light=None, grid=None,
-                framing: str = "auto", name: str | None = None, device: str | None = None,
-                light_colour: str = LIGHT_COLOUR) -> dict:
+def reconstruct(
+    images,
+    out,
+    config,
+    *,
+    model=None,
+    masks=None,
+    cameras=None,
+    rig=None,
+    light=None,
+    grid=None,
+    framing: str = "auto",
+    name: str | None = None,
+    device: str | None = None,
+    light_colour: str = LIGHT_COLOUR,
+) -> dict:
     """Photos -> an asset folder ``out`` (:mod:`frng.asset`, plus ``input_light.exr`` and ``contact_sheet.png``).
 
     ``config``: the pipeline config the model was trained with (architecture, resolution, rig, priors' files);
@@ -685,8 +756,17 @@ def reconstruct(images, out, config, *, model=None, masks=None, cameras=None, ri
 
     cfg = typed(config)
     rc = cfg.render
-    cap = prepare(images, resolution=rc.resolution, distance=rc.camera_distance, fov_deg=rc.fov_deg, masks=masks,
-                  cameras=cameras, rig=rig, grid=grid, framing=framing)
+    cap = prepare(
+        images,
+        resolution=rc.resolution,
+        distance=rc.camera_distance,
+        fov_deg=rc.fov_deg,
+        masks=masks,
+        cameras=cameras,
+        rig=rig,
+        grid=grid,
+        framing=framing,
+    )
     env_given = read_light(light) if light is not None else None
     L = Layout(cfg.results)
     model = Path(model) if model is not None else Path(TrainingFolder(L.model_dir("full")).model())
@@ -713,8 +793,9 @@ def reconstruct(images, out, config, *, model=None, masks=None, cameras=None, ri
         if env_given is None:
             h = max(8, int(cfg.envmaps.width) // 2)
             with Timer(dev) as t_light:
-                env, est = estimate_light(cap.rgb, cap.alpha, pri.albedo.numpy(), pri.normal.numpy(), h,
-                                          colour=light_colour)
+                env, est = estimate_light(
+                    cap.rgb, cap.alpha, pri.albedo.numpy(), pri.normal.numpy(), h, colour=light_colour
+                )
             light_name, light_info = "estimated", {"source": "estimated", **est}
             timing["light_s"] = t_light.s
         else:
@@ -725,33 +806,65 @@ def reconstruct(images, out, config, *, model=None, masks=None, cameras=None, ri
             bv = backbone_views(cfg, backbone, oid, views, env_t, light_name, dev)
         images_t = torch.cat([views.rgb, views.alpha], -1).to(dev)
         with Timer(dev) as t_rec:
-            rec = net.reconstruct(bv, 0, pri.to(dev) if net.cfg.uses_priors else None, images_t,
-                                  input_env=env_t.to(dev))
+            rec = net.reconstruct(
+                bv, 0, pri.to(dev) if net.cfg.uses_priors else None, images_t, input_env=env_t.to(dev)
+            )
     timing |= {"idm_s": t_idm.s, "backbone_s": t_bb.s, "frng_s": t_rec.s}
-    record = {**cap.info, "object_id": oid, "views": list(cap.names), "light": light_info,
-              "cameras_normalised": [{"name": n_, "c2w": c.tolist(), "intrinsics": k.tolist(),
-                                      "width": int(rc.resolution), "height": int(rc.resolution)}
-                                     for n_, c, k in zip(cap.names, cap.c2w, cap.intr)],
-              "model": str(model), "timing_s": timing}
+    record = {
+        **cap.info,
+        "object_id": oid,
+        "views": list(cap.names),
+        "light": light_info,
+        "cameras_normalised": [
+            {
+                "name": n_,
+                "c2w": c.tolist(),
+                "intrinsics": k.tolist(),
+                "width": int(rc.resolution),
+                "height": int(rc.resolution),
+            }
+            for n_, c, k in zip(cap.names, cap.c2w, cap.intr)
+        ],
+        "model": str(model),
+        "timing_s": timing,
+    }
     feats = rec.features.detach().float().cpu()
     preview = (feats[:, 3:6].clamp_min(0) * math.pi).clamp(0, 1) if net.decoder.cosine else None
-    meta = {"object_id": oid, "source_views": list(cap.names), "decoder": net.decoder_meta(),
-            **render_settings(net.raster_cfg, net.shading_cfg, net.cfg.max_radius_px),
-            RIG_KEY: {"camera_distance": float(rc.camera_distance), "fov_deg": float(rc.fov_deg),
-                      "resolution": int(rc.resolution)},
-            "variant": getattr(net, "meta", {}).get("variant", "full"), "capture": record}
+    meta = {
+        "object_id": oid,
+        "source_views": list(cap.names),
+        "decoder": net.decoder_meta(),
+        **render_settings(net.raster_cfg, net.shading_cfg, net.cfg.max_radius_px),
+        RIG_KEY: {
+            "camera_distance": float(rc.camera_distance),
+            "fov_deg": float(rc.fov_deg),
+            "resolution": int(rc.resolution),
+        },
+        "variant": getattr(net, "meta", {}).get("variant", "full"),
+        "capture": record,
+    }
     sheet = contact_sheet(cap, env)
     g = rec.gaussians
     from frng.gaussians import Gaussians
 
     gauss = Gaussians(*(t.detach().float().cpu() for t in (g.means, g.quats, g.scales, g.opacities)), feats)
-    save_asset(out, gauss, feats, net.decoder.state_dict(), meta, preview_rgb=preview,
-               extra_files={"input_light.exr": lambda p: envmap.write(p, env),
-                            "contact_sheet.png": lambda p: io.write_png(p, sheet)})
+    save_asset(
+        out,
+        gauss,
+        feats,
+        net.decoder.state_dict(),
+        meta,
+        preview_rgb=preview,
+        extra_files={
+            "input_light.exr": lambda p: envmap.write(p, env),
+            "contact_sheet.png": lambda p: io.write_png(p, sheet),
+        },
+    )
     return record
 
 
 # -- measurement: a capture of a curated test object against `frng relight` -----------------------------------
+
 
 def _rot_z(deg: float) -> np.ndarray:
     c, s_ = math.cos(math.radians(deg)), math.sin(math.radians(deg))
@@ -800,10 +913,12 @@ def measure(config, oid: str, work: str | Path, views: int = 6, settings=None) -
     png = export_object(cfg, oid, work / "png", views) / "images"
     rig_light = work / "light_rig.exr"
     envmap.write(rig_light, envmap.rotate_z(envmap.read(L.envmap(light_in)), -a0))
-    every = {"exr+cameras/known": (exr, dict(cameras=L.object_meta(oid), light=L.envmap(light_in)), 0.0),
-             "png+rig/known": (png, dict(rig="paper", light=rig_light), -a0),
-             "exr+cameras/estimated": (exr, dict(cameras=L.object_meta(oid)), 0.0),
-             "png+rig/estimated": (png, dict(rig="paper"), -a0)}
+    every = {
+        "exr+cameras/known": (exr, dict(cameras=L.object_meta(oid), light=L.envmap(light_in)), 0.0),
+        "png+rig/known": (png, dict(rig="paper", light=rig_light), -a0),
+        "exr+cameras/estimated": (exr, dict(cameras=L.object_meta(oid)), 0.0),
+        "png+rig/estimated": (png, dict(rig="paper"), -a0),
+    }
     rows = []
 
     def score(setting, light, images):
@@ -812,14 +927,25 @@ def measure(config, oid: str, work: str | Path, views: int = 6, settings=None) -
             bg = tuple(cfg.eval.background)
             m = metrics.evaluate_pair(img, gt, protocol=cfg.eval.protocol, background=bg)
             plain = metrics.evaluate_pair(img, gt, protocol="plain", background=bg)
-            rows.append({"setting": setting, "object": oid, "light": light, "view": name,
-                         **{k: m[k] for k in ("psnr", "ssim", "lpips")}, "protocol": cfg.eval.protocol,
-                         "psnr_plain": plain["psnr"]})
+            rows.append(
+                {
+                    "setting": setting,
+                    "object": oid,
+                    "light": light,
+                    "view": name,
+                    **{k: m[k] for k in ("psnr", "ssim", "lpips")},
+                    "protocol": cfg.eval.protocol,
+                    "psnr_plain": plain["psnr"],
+                }
+            )
 
     if settings is None or "relight" in settings:
         for light in lights:
-            score("relight", light, [io.read_rgba(Path(L.relight_image("full", oid, light, n)), require_alpha=True)
-                                     for n in tnames])
+            score(
+                "relight",
+                light,
+                [io.read_rgba(Path(L.relight_image("full", oid, light, n)), require_alpha=True) for n in tnames],
+            )
     for setting, (images, kw, rot) in every.items():
         if settings is not None and setting not in settings:
             continue
@@ -839,7 +965,28 @@ def measure(config, oid: str, work: str | Path, views: int = 6, settings=None) -
 
 
 __all__ = [
-    "Capture", "CaptureError", "Cam", "FRAMINGS", "MAX_VIEWS", "MIN_VIEWS", "Photo", "common_centre",
-    "contact_sheet", "estimate_light", "frame_rig", "load_images", "make_masks", "match_cameras", "measure", "parse_grid",
-    "prepare", "read_cameras", "reconstruct", "results_of_model", "read_image", "read_light", "resample", "rig_cameras",
+    "Capture",
+    "CaptureError",
+    "Cam",
+    "FRAMINGS",
+    "MAX_VIEWS",
+    "MIN_VIEWS",
+    "Photo",
+    "common_centre",
+    "contact_sheet",
+    "estimate_light",
+    "frame_rig",
+    "load_images",
+    "make_masks",
+    "match_cameras",
+    "measure",
+    "parse_grid",
+    "prepare",
+    "read_cameras",
+    "reconstruct",
+    "results_of_model",
+    "read_image",
+    "read_light",
+    "resample",
+    "rig_cameras",
 ]

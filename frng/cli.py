@@ -35,14 +35,18 @@ STAGES: dict[str, tuple[str, str]] = {
     "evaluate": ("frng.stages.evaluate", "per-image PSNR/SSIM/LPIPS of every relit image (configured protocol)"),
     "tables": ("frng.stages.tables", "the paper's tables (vs backbone, ablation, #views, K, timing)"),
     "figures": ("frng.stages.figures", "comparison grids, ablation grid, saliency maps, loss curves"),
-    "import": ("frng.stages.import_benchmark", "a public benchmark scene (tensoir, orb, owl, nerf-synthetic) into "
-               "the dataset contract"),
+    "import": (
+        "frng.stages.import_benchmark",
+        "a public benchmark scene (tensoir, orb, owl, nerf-synthetic) into the dataset contract",
+    ),
     "export": ("frng.stages.export_benchmark", "a curated object in a public benchmark's published layout"),
     "reconstruct": ("frng.stages.reconstruct", "your own photos (2-10 views) -> a relightable asset folder"),
     "render-asset": ("frng.stages.render_asset", "render an asset folder under any env map (views, turntable)"),
     "relight-benchmark": ("frng.stages.relight_benchmark", "relight one imported benchmark object (as relight)"),
-    "evaluate-benchmarks": ("frng.stages.evaluate_benchmarks", "relit benchmark objects scored with each "
-                            "benchmark's published protocol; the benchmarks table"),
+    "evaluate-benchmarks": (
+        "frng.stages.evaluate_benchmarks",
+        "relit benchmark objects scored with each benchmark's published protocol; the benchmarks table",
+    ),
 }
 
 
@@ -82,7 +86,7 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit(0 if argv else 2)
     parser = stage_parser(argv[0])
     args = parser.parse_args(argv[1:])
-    run = getattr(args, "_run")
+    run = args._run
     sys.exit(run_stage(argv[0], run, args))
 
 

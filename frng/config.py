@@ -107,9 +107,7 @@ def check_semantics(config: dict) -> None:
     patch = config["model"]["patch_size"]
     res = config["render"]["resolution"]
     if res % patch:
-        raise ConfigError(
-            f"config key 'render.resolution': {res} is not a multiple of model.patch_size ({patch})"
-        )
+        raise ConfigError(f"config key 'render.resolution': {res} is not a multiple of model.patch_size ({patch})")
     objects = config["objects"]
     extra = objects.get("extra", [])
     n_train = objects["count"] - objects["test_count"] + sum(e["split"] == "train" for e in extra)
@@ -130,8 +128,10 @@ def check_semantics(config: dict) -> None:
         raise ConfigError(f"config key 'objects.material_mix': fractions sum to {sum(mix.values()):.3f}, not 1")
     shading = config.get("shading", {})
     if "spp_grad" in shading and "spp_train" in shading and shading["spp_grad"] > shading["spp_train"]:
-        raise ConfigError(f"config key 'shading.spp_grad': {shading['spp_grad']} exceeds shading.spp_train="
-                          f"{shading['spp_train']} (the samples with gradients are a subset of the training samples)")
+        raise ConfigError(
+            f"config key 'shading.spp_grad': {shading['spp_grad']} exceeds shading.spp_train="
+            f"{shading['spp_train']} (the samples with gradients are a subset of the training samples)"
+        )
     backbone = config.get("backbone", {})
     if "near" in backbone and "far" in backbone and backbone["near"] >= backbone["far"]:
         raise ConfigError(f"config key 'backbone.near': {backbone['near']} is not below backbone.far={backbone['far']}")
@@ -149,8 +149,10 @@ def check_results_path(results) -> None:
         raise ConfigError(f"config key 'results': {results!r} is not a folder path")
     bad = _BAD_PATH_CHARS.search(results)
     if bad:
-        raise ConfigError(f"config key 'results': {results!r} holds {bad.group()!r}; a results path may not hold "
-                          f"control characters or braces (Snakemake reads braces as wildcards)")
+        raise ConfigError(
+            f"config key 'results': {results!r} holds {bad.group()!r}; a results path may not hold "
+            f"control characters or braces (Snakemake reads braces as wildcards)"
+        )
 
 
 def read_yaml(path: Path | str) -> dict:
@@ -242,8 +244,11 @@ _ABSENT = "<absent>"
 def differences(recorded: dict, effective: dict) -> list[str]:
     """The keys whose values differ between two configs, as ``"key: recorded R, now E"`` lines (sorted)."""
     a, b = flatten(recorded), flatten(effective)
-    return [f"{k}: recorded {a.get(k, _ABSENT)!r}, now {b.get(k, _ABSENT)!r}"
-            for k in sorted(set(a) | set(b)) if a.get(k, _ABSENT) != b.get(k, _ABSENT)]
+    return [
+        f"{k}: recorded {a.get(k, _ABSENT)!r}, now {b.get(k, _ABSENT)!r}"
+        for k in sorted(set(a) | set(b))
+        if a.get(k, _ABSENT) != b.get(k, _ABSENT)
+    ]
 
 
 def read_recorded(path: Path | str) -> dict | None:
@@ -297,8 +302,9 @@ def record(config: dict, path: Path | str, overwrite: bool = False) -> str:
         recorded = read_recorded(path)
     except ConfigError as e:  # an unreadable record: only an explicit overwrite replaces it
         if not overwrite:
-            raise ConfigError(f"recorded config: {e}; rerun with `--config {OVERWRITE_SWITCH}=true` to replace "
-                              f"it") from e
+            raise ConfigError(
+                f"recorded config: {e}; rerun with `--config {OVERWRITE_SWITCH}=true` to replace it"
+            ) from e
         recorded = {}
     if recorded is not None:
         diff = differences(recorded, config)
@@ -313,10 +319,12 @@ def record(config: dict, path: Path | str, overwrite: bool = False) -> str:
 def refusal(path: Path | str, diff: list[str], shown: int = 8) -> str:
     """The message refusing to run a config that differs from the one recorded at ``path``."""
     more = f"; ... ({len(diff) - shown} more)" if len(diff) > shown else ""
-    return (f"{path} records a different config ({len(diff)} key(s) differ: {'; '.join(diff[:shown])}{more}). "
-            f"The results in that folder were made with the recorded config: point `results:` at a new folder, "
-            f"or rerun with `--config {OVERWRITE_SWITCH}=true` to replace the recorded config (results already "
-            f"there are not rebuilt unless their rules rerun)")
+    return (
+        f"{path} records a different config ({len(diff)} key(s) differ: {'; '.join(diff[:shown])}{more}). "
+        f"The results in that folder were made with the recorded config: point `results:` at a new folder, "
+        f"or rerun with `--config {OVERWRITE_SWITCH}=true` to replace the recorded config (results already "
+        f"there are not rebuilt unless their rules rerun)"
+    )
 
 
 # -- what each rule reads: the config digests that rerun it -----------------------------------------
@@ -353,12 +361,26 @@ RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     "dataset_preview": PLAN_KEYS,
     # frng/priors/backbone_train.py: the training split, architecture + backbone.train, patch size, the models'
     # seed (frng.training.train_seed: train_seed, else seed), device
-    "backbone_train": (*PLAN_KEYS, "train_seed", "device", "backbone", "!backbone.cache_extra_lights",
-                       "model.patch_size"),
+    "backbone_train": (
+        *PLAN_KEYS,
+        "train_seed",
+        "device",
+        "backbone",
+        "!backbone.cache_extra_lights",
+        "model.patch_size",
+    ),
     # frng/priors/idm_train.py: the training split, the learned IDM's architecture + idm.train, near/far, patch
     # size, the models' seed, device
-    "idm_train": (*PLAN_KEYS, "train_seed", "device", "idm", *_IDM_NOT_TRAINED, "model.patch_size",
-                  "backbone.near", "backbone.far"),
+    "idm_train": (
+        *PLAN_KEYS,
+        "train_seed",
+        "device",
+        "idm",
+        *_IDM_NOT_TRAINED,
+        "model.patch_size",
+        "backbone.near",
+        "backbone.far",
+    ),
     # frng/priors/cache.py (backbone model from its file): extra training lights from the env-map plan, DDIM seeds
     "backbone_cache": (*ENVMAP_PLAN_KEYS, "device", "backbone.cache_extra_lights"),
     # frng/priors/cache.py + build_idm (learned IDM from its file): idm.kind and the diffusion-renderer settings
@@ -371,18 +393,52 @@ RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     # frng/model/train.py + variant_config: train.*, the architecture (frng.* but the variant lists), decoder and
     # training shading (not the inference-only spp_infer / bf16_infer: relight takes those from the config),
     # rasterizer, idm.kind (which priors file), the training split, the models' seed, device
-    "train": (*PLAN_KEYS, "train_seed", "device", "train", "!train.seeds", "frng", "!frng.variants", "!frng.k_sweep",
-              "model.patch_size", "shading", "!shading.spp_infer", "!shading.bf16_infer", "raster", "idm.kind"),
+    "train": (
+        *PLAN_KEYS,
+        "train_seed",
+        "device",
+        "train",
+        "!train.seeds",
+        "frng",
+        "!frng.variants",
+        "!frng.k_sweep",
+        "model.patch_size",
+        "shading",
+        "!shading.spp_infer",
+        "!shading.bf16_infer",
+        "raster",
+        "idm.kind",
+    ),
     # a copy of the full model: which K-sweep entry is the full model
     "model_alias": ("frng.top_k_percent",),
     # frng/relight.py: the runs (frng.*, idm.kind, render.extra_input_views, train.seeds), resolution check, split check,
     # build_idm, shading.spp_infer + inference shading, seeds, device
-    "relight": (*PLAN_KEYS, "device", "render.resolution", "render.extra_input_views", "idm", "!idm.train",
-                "backbone.near", "backbone.far", "shading", "frng", "train.seeds", "train_seed"),
+    "relight": (
+        *PLAN_KEYS,
+        "device",
+        "render.resolution",
+        "render.extra_input_views",
+        "idm",
+        "!idm.train",
+        "backbone.near",
+        "backbone.far",
+        "shading",
+        "frng",
+        "train.seeds",
+        "train_seed",
+    ),
     # frng/stages/evaluate.py: eval.protocol/background and the planned runs (frng/variants.py: the variants, the
     # training seeds, whether the Lambertian-base run exists)
-    "evaluate": ("eval", "frng", "idm.kind", "render.extra_input_views", "train.seeds", "train_seed", "seed",
-                 "shading.decoder_cosine"),
+    "evaluate": (
+        "eval",
+        "frng",
+        "idm.kind",
+        "render.extra_input_views",
+        "train.seeds",
+        "train_seed",
+        "seed",
+        "shading.decoder_cosine",
+    ),
     # frng/report/paper_tables.py: tier and eval.background in the captions
     "tables": ("tier", "eval"),
     # frng/report/paper_figures.py: patch size (saliency), the ablation variants
@@ -390,8 +446,20 @@ RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     # frng/benchmarks (rules/benchmarks.smk): the import converts to the resolution, map width and input-view count;
     # relighting an imported object reads what `relight` reads; the benchmark table reads the runs and eval
     "import_benchmark": ("benchmarks", "render.resolution", "render.extra_input_views", "envmaps.width"),
-    "relight_benchmark": ("device", "render.resolution", "render.extra_input_views", "idm", "!idm.train",
-                          "backbone.near", "backbone.far", "shading", "frng", "train.seeds", "train_seed", "seed"),
+    "relight_benchmark": (
+        "device",
+        "render.resolution",
+        "render.extra_input_views",
+        "idm",
+        "!idm.train",
+        "backbone.near",
+        "backbone.far",
+        "shading",
+        "frng",
+        "train.seeds",
+        "train_seed",
+        "seed",
+    ),
     "evaluate_benchmarks": ("benchmarks", "eval", "tier"),
 }
 """Rule name -> the config keys its stage reads (see the comment above)."""
@@ -423,7 +491,7 @@ def config_digest(config: dict, keys, length: int = 16) -> str:
         if not owners:
             raise ValueError(f"config digest: '!{ex}' removes a key no listed section contains")
         for k in owners:
-            node, *rest = selected[k], *ex[len(k) + 1:].split(".")
+            node, *rest = selected[k], *ex[len(k) + 1 :].split(".")
             for part in rest[:-1]:
                 node = node.get(part) if isinstance(node, dict) else None
             if isinstance(node, dict):
@@ -450,8 +518,15 @@ def write_rule_digest(config: dict, rule: str, path: str | os.PathLike, log: str
     if path.name != f"{rule}-{digest}.txt":
         raise ConfigError(f"{path}: not the digest file of rule {rule} for this config ({rule}-{digest}.txt)")
     keys = RULE_CONFIG_KEYS[rule]
-    io.write_json(path, {"rule": rule, "digest": digest, "keys": list(keys),
-                         "values": {k: _lookup(config, k) for k in keys if not k.startswith("!")}})
+    io.write_json(
+        path,
+        {
+            "rule": rule,
+            "digest": digest,
+            "keys": list(keys),
+            "values": {k: _lookup(config, k) for k in keys if not k.startswith("!")},
+        },
+    )
     for other in path.parent.glob(f"{rule}-*.txt"):
         if other != path and re.fullmatch(rf"{re.escape(rule)}-[0-9a-f]+\.txt", other.name):
             other.unlink(missing_ok=True)
@@ -486,7 +561,7 @@ def check_rule_digests(config: dict, declared: dict[str, Any]) -> None:
         if rule not in RULE_CONFIG_KEYS:
             problems.append(f"rule {rule}: not in RULE_CONFIG_KEYS")
         elif value != rule_digest(config, rule):
-            problems.append(f"rule {rule}: needs `params: config_digest=frng_config.rule_digest(config, \"{rule}\")`")
+            problems.append(f'rule {rule}: needs `params: config_digest=frng_config.rule_digest(config, "{rule}")`')
     problems += [f"RULE_CONFIG_KEYS[{r!r}]: no such rule" for r in sorted(set(RULE_CONFIG_KEYS) - set(declared))]
     if problems:
         raise ConfigError("config digests: " + "; ".join(problems))
@@ -511,11 +586,16 @@ def undigested_keys(schema: dict | None = None) -> list[str]:
         return key == section or key.startswith(section + ".")
 
     def covers(keys, leaf: str) -> bool:
-        return (any(within(leaf, k) for k in keys if not k.startswith("!"))
-                and not any(within(leaf, k[1:]) for k in keys if k.startswith("!")))
+        return any(within(leaf, k) for k in keys if not k.startswith("!")) and not any(
+            within(leaf, k[1:]) for k in keys if k.startswith("!")
+        )
 
-    return [leaf for leaf in _schema_leaves(schema) if leaf.split(".")[0] not in _NEVER_DIGESTED
-            and not any(covers(keys, leaf) for keys in RULE_CONFIG_KEYS.values())]
+    return [
+        leaf
+        for leaf in _schema_leaves(schema)
+        if leaf.split(".")[0] not in _NEVER_DIGESTED
+        and not any(covers(keys, leaf) for keys in RULE_CONFIG_KEYS.values())
+    ]
 
 
 def unknown_digest_keys(schema: dict | None = None) -> list[str]:
@@ -735,6 +815,7 @@ def add_config_argument(parser: argparse.ArgumentParser) -> None:
 
 
 # -- `frng config` stage -------------------------------------------------------------------------
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("path", help="config YAML to validate")

@@ -34,9 +34,10 @@ import os
 import random
 import re
 import subprocess
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import torch
 import torch.distributed as dist
@@ -278,6 +279,10 @@ def fit_hooks(info: DistInfo):
     states and data digests gathered from every rank, files written by rank 0."""
     from frng.training import FitHooks
 
-    return FitHooks(rank=info.rank, world_size=info.world_size,
-                    reduce_logs=lambda logs: all_reduce_scalars(logs, info),
-                    gather=lambda obj: all_gather(obj, info), barrier=lambda: barrier(info))
+    return FitHooks(
+        rank=info.rank,
+        world_size=info.world_size,
+        reduce_logs=lambda logs: all_reduce_scalars(logs, info),
+        gather=lambda obj: all_gather(obj, info),
+        barrier=lambda: barrier(info),
+    )

@@ -21,11 +21,10 @@ them; the fine-grained Gaussians use a larger scale offset (see :mod:`frng.model
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
-from typing import Sequence
 
 import torch
-import torch.nn.functional as F
 
 from frng import camera
 from frng.config import section
@@ -50,7 +49,7 @@ class GaussianDecodeConfig:
     opacity_offset: float = OPACITY_OFFSET
 
     @classmethod
-    def from_dict(cls, d: dict) -> "GaussianDecodeConfig":
+    def from_dict(cls, d: dict) -> GaussianDecodeConfig:
         """Strict (:func:`frng.config.section`): unknown keys are errors; a module setting, not a config section:
         missing keys take the field defaults."""
         return section(cls, d)
@@ -111,24 +110,30 @@ class Gaussians:
     def __len__(self) -> int:
         return self.means.shape[0]
 
-    def __getitem__(self, index) -> "Gaussians":
+    def __getitem__(self, index) -> Gaussians:
         """Index rows (slice, long indices or a bool mask of shape (N,))."""
-        return Gaussians(**{f.name: None if getattr(self, f.name) is None else getattr(self, f.name)[index]
-                            for f in fields(self)})
+        return Gaussians(
+            **{f.name: None if getattr(self, f.name) is None else getattr(self, f.name)[index] for f in fields(self)}
+        )
 
-    def with_features(self, features: torch.Tensor | None) -> "Gaussians":
+    def with_features(self, features: torch.Tensor | None) -> Gaussians:
         return Gaussians(self.means, self.quats, self.scales, self.opacities, features)
 
-    def to(self, *args, **kwargs) -> "Gaussians":
-        return Gaussians(**{f.name: None if getattr(self, f.name) is None else getattr(self, f.name).to(*args, **kwargs)
-                            for f in fields(self)})
+    def to(self, *args, **kwargs) -> Gaussians:
+        return Gaussians(
+            **{
+                f.name: None if getattr(self, f.name) is None else getattr(self, f.name).to(*args, **kwargs)
+                for f in fields(self)
+            }
+        )
 
-    def detach(self) -> "Gaussians":
-        return Gaussians(**{f.name: None if getattr(self, f.name) is None else getattr(self, f.name).detach()
-                            for f in fields(self)})
+    def detach(self) -> Gaussians:
+        return Gaussians(
+            **{f.name: None if getattr(self, f.name) is None else getattr(self, f.name).detach() for f in fields(self)}
+        )
 
     @staticmethod
-    def cat(parts: Sequence["Gaussians"]) -> "Gaussians":
+    def cat(parts: Sequence[Gaussians]) -> Gaussians:
         """Concatenate along N (e.g. coarse + fine Gaussians). Features must be all present or all absent."""
         parts = list(parts)
         if not parts:
@@ -157,12 +162,17 @@ def decode(
     raw (..., 9), origins/directions (..., 3), features (..., F) or None -> Gaussians with N = prod(...).
     """
     means, quats, scales, opacities = decode_raw(raw, origins, directions, cfg)
-    feats = None if features is None else features.reshape(means[..., 0].numel(), *features.shape[raw.dim() - 1:])
+    feats = None if features is None else features.reshape(means[..., 0].numel(), *features.shape[raw.dim() - 1 :])
     return Gaussians(means.reshape(-1, 3), quats.reshape(-1, 4), scales.reshape(-1, 3), opacities.reshape(-1), feats)
 
 
-def isotropic_raw(distance: torch.Tensor, alpha: torch.Tensor, fx: torch.Tensor, footprint_px: float,
-                  cfg: GaussianDecodeConfig | None = None) -> torch.Tensor:
+def isotropic_raw(
+    distance: torch.Tensor,
+    alpha: torch.Tensor,
+    fx: torch.Tensor,
+    footprint_px: float,
+    cfg: GaussianDecodeConfig | None = None,
+) -> torch.Tensor:
     """The raw 9-vectors that :func:`decode_raw` turns into isotropic per-pixel Gaussians: distance ``distance``
     along each pixel ray (clamped inside [near, far]), standard deviation ``footprint_px`` pixels at that distance,
     identity rotation, opacity = alpha clamped to [0.02, 0.98].
@@ -172,9 +182,16 @@ def isotropic_raw(distance: torch.Tensor, alpha: torch.Tensor, fx: torch.Tensor,
     w = ((distance - cfg.near) / (cfg.far - cfg.near)).clamp(1e-3, 1 - 1e-3)
     scale = (distance * footprint_px / fx.reshape(-1, 1, 1, 1)).clamp_min(1e-6)
     lead = distance.shape[:-1]
-    return torch.cat([torch.logit(w), (scale.log() + cfg.scale_offset).expand(*lead, 3), torch.ones_like(distance),
-                      torch.zeros_like(distance).expand(*lead, 3),
-                      torch.logit(alpha.clamp(0.02, 0.98)) + cfg.opacity_offset], dim=-1)
+    return torch.cat(
+        [
+            torch.logit(w),
+            (scale.log() + cfg.scale_offset).expand(*lead, 3),
+            torch.ones_like(distance),
+            torch.zeros_like(distance).expand(*lead, 3),
+            torch.logit(alpha.clamp(0.02, 0.98)) + cfg.opacity_offset,
+        ],
+        dim=-1,
+    )
 
 
 def pixel_gaussians(
@@ -195,6 +212,17 @@ def pixel_gaussians(
 
 
 __all__ = [
-    "FAR", "NEAR", "OPACITY_OFFSET", "RAW_CHANNELS", "RAW_SPLIT", "SCALE_MAX", "SCALE_OFFSET",
-    "GaussianDecodeConfig", "Gaussians", "decode", "decode_raw", "isotropic_raw", "pixel_gaussians",
+    "FAR",
+    "NEAR",
+    "OPACITY_OFFSET",
+    "RAW_CHANNELS",
+    "RAW_SPLIT",
+    "SCALE_MAX",
+    "SCALE_OFFSET",
+    "GaussianDecodeConfig",
+    "Gaussians",
+    "decode",
+    "decode_raw",
+    "isotropic_raw",
+    "pixel_gaussians",
 ]

@@ -13,8 +13,8 @@ import contextlib
 import json
 import os
 import tempfile
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -86,8 +86,11 @@ def write_failure(path: str | os.PathLike, e: BaseException) -> OSError:
     try:
         st = os.statvfs(path.parent)
         if st.f_bavail * st.f_frsize < (1 << 20) or errno_ == 28:
-            return OSError(28, f"{path}: cannot write: no space left on device "
-                               f"({st.f_bavail * st.f_frsize} bytes free in {path.parent}; {cause})")
+            return OSError(
+                28,
+                f"{path}: cannot write: no space left on device "
+                f"({st.f_bavail * st.f_frsize} bytes free in {path.parent}; {cause})",
+            )
     except OSError:
         pass
     return OSError(errno_ or 5, f"{path}: cannot write ({cause})")
@@ -110,14 +113,20 @@ def load_torch(path: str | os.PathLike, what: str = "file"):
     except pickle.UnpicklingError as e:
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         if "weights only" in str(e).lower() or "unsupported" in str(e).lower():
-            raise CorruptFileError(f"{path}: refusing to load this {what}: it holds objects other than tensors and "
-                                   f"plain data, which only an unsafe load would run ({first[:300]})") from None
-        raise CorruptFileError(f"{path}: cannot read {what}: truncated or corrupt ({first[:300]}); delete it and "
-                               f"rerun the rule that makes it") from None
+            raise CorruptFileError(
+                f"{path}: refusing to load this {what}: it holds objects other than tensors and "
+                f"plain data, which only an unsafe load would run ({first[:300]})"
+            ) from None
+        raise CorruptFileError(
+            f"{path}: cannot read {what}: truncated or corrupt ({first[:300]}); delete it and "
+            f"rerun the rule that makes it"
+        ) from None
     except Exception as e:  # noqa: BLE001 -- zip/stream errors (PytorchStreamReader failed ...), EOFError, ...
         first = str(e).strip().splitlines()[0] if str(e).strip() else ""
-        raise CorruptFileError(f"{path}: cannot read {what}: truncated or corrupt ({type(e).__name__}: "
-                               f"{first[:300]}); delete it and rerun the rule that makes it") from None
+        raise CorruptFileError(
+            f"{path}: cannot read {what}: truncated or corrupt ({type(e).__name__}: "
+            f"{first[:300]}); delete it and rerun the rule that makes it"
+        ) from None
 
 
 def save_torch(obj, path: str | os.PathLike) -> None:
@@ -150,6 +159,7 @@ def read_json(path: str | os.PathLike) -> dict:
 
 
 # -- EXR ------------------------------------------------------------------------------------------
+
 
 def read_exr_channels(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """Read every channel of every part of an EXR as float32 (H, W) arrays, keyed by channel name.
@@ -194,8 +204,10 @@ def _no_channels_cause(path: Path) -> str:
         return "EXR has no channels"
     w, h, names = max(declared, key=lambda p: p[0] * p[1] * len(p[2]))
     gib = w * h * len(names) * 4 / 2**30
-    return (f"cannot read the pixels of a {w}x{h} image with channels {names} ({gib:.1f} GiB as float32): the "
-            f"header's data window is too large or corrupt ({path.stat().st_size} bytes on disk)")
+    return (
+        f"cannot read the pixels of a {w}x{h} image with channels {names} ({gib:.1f} GiB as float32): the "
+        f"header's data window is too large or corrupt ({path.stat().st_size} bytes on disk)"
+    )
 
 
 def read_exr(path: str | os.PathLike, channels: Sequence[str]) -> np.ndarray:
@@ -215,8 +227,7 @@ def read_rgba(path: str | os.PathLike, require_alpha: bool = False) -> np.ndarra
     if not all(c in data for c in "RGB"):
         raise ImageError(f"{path}: expected R, G, B channels; has {sorted(data)}")
     if require_alpha and "A" not in data:
-        raise ImageError(f"{path}: no alpha channel (has {sorted(data)}); expected RGBA with the object's mask "
-                         f"in A")
+        raise ImageError(f"{path}: no alpha channel (has {sorted(data)}); expected RGBA with the object's mask in A")
     a = data.get("A", np.ones_like(data["R"]))
     return np.stack([data["R"], data["G"], data["B"], a], axis=-1)
 
@@ -259,6 +270,7 @@ def write_exr(
 
 
 # -- colour / PNG ---------------------------------------------------------------------------------
+
 
 def srgb_encode(linear: np.ndarray) -> np.ndarray:
     """Linear [0, 1] -> sRGB-encoded [0, 1] (IEC 61966-2-1 via colour-science); values are clipped first."""
@@ -316,8 +328,9 @@ def read_png(path: str | os.PathLike) -> np.ndarray:
     return img.astype(np.float32) / scale
 
 
-def write_file_index(paths: Sequence[str | os.PathLike], out: str | os.PathLike, log: str | os.PathLike | None = None,
-                     **fields) -> Path:
+def write_file_index(
+    paths: Sequence[str | os.PathLike], out: str | os.PathLike, log: str | os.PathLike | None = None, **fields
+) -> Path:
     """Write ``out``: a JSON index ``{**fields, "files": [{"path", "bytes", "sha256"}, ...]}`` of files a later stage
     depends on as a whole (e.g. the training split's caches), atomically; a missing file raises FileNotFoundError
     naming it. ``log``: where to note what was indexed. :func:`check_file_index` verifies it."""
@@ -352,15 +365,19 @@ def check_file_index(index: str | os.PathLike, hashes: bool = True) -> int:
             raise FileNotFoundError(f"{p}: listed in {index} but missing; rerun the rule that makes it")
         size = p.stat().st_size
         if size != e.get("bytes", size):
-            raise CorruptFileError(f"{p}: {size} bytes, but {index} recorded {e['bytes']} (truncated or replaced "
-                                   f"since it was indexed); delete it and rerun the rule that makes it")
+            raise CorruptFileError(
+                f"{p}: {size} bytes, but {index} recorded {e['bytes']} (truncated or replaced "
+                f"since it was indexed); delete it and rerun the rule that makes it"
+            )
         if hashes and e.get("sha256"):
             h = hashlib.sha256()
             with open(p, "rb") as f:
                 for chunk in iter(lambda: f.read(1 << 20), b""):
                     h.update(chunk)
             if h.hexdigest() != e["sha256"]:
-                raise CorruptFileError(f"{p}: sha256 {h.hexdigest()[:12]}, but {index} recorded "
-                                       f"{e['sha256'][:12]} (corrupted or replaced since it was indexed); delete it "
-                                       f"and rerun the rule that makes it")
+                raise CorruptFileError(
+                    f"{p}: sha256 {h.hexdigest()[:12]}, but {index} recorded "
+                    f"{e['sha256'][:12]} (corrupted or replaced since it was indexed); delete it "
+                    f"and rerun the rule that makes it"
+                )
     return len(entries)

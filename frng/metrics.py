@@ -54,9 +54,9 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -67,7 +67,6 @@ DEFAULT_PROTOCOL = "aligned"
 DEFAULT_BACKGROUND = (1.0, 1.0, 1.0)
 METRICS = ("psnr", "ssim", "lpips")
 HIGHER_IS_BETTER = {"psnr": True, "ssim": True, "lpips": False}
-
 
 
 @dataclass(frozen=True)
@@ -85,6 +84,7 @@ SSIM_WINDOW = 11  # what sigma=1.5 with skimage's truncate=3.5 gives: 2 * int(3.
 
 
 # -- preparation ------------------------------------------------------------------------------------
+
 
 def _as_rgba(img: np.ndarray, name: str) -> np.ndarray:
     img = np.asarray(img, dtype=np.float32)
@@ -162,6 +162,7 @@ def prepare(
 
 # -- metrics on encoded images --------------------------------------------------------------------------
 
+
 def psnr(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None, cap_db: float | None = 100.0) -> float:
     """PSNR in dB of (H, W, C) images in [0, 1] (data range 1), over the mask's pixels (H, W) bool or all pixels.
 
@@ -215,6 +216,7 @@ def lpips(pred: np.ndarray, gt: np.ndarray, net: str = "alex", device: str = "cp
 
 # -- one pair ---------------------------------------------------------------------------------------
 
+
 def evaluate_pair(
     pred: np.ndarray,
     gt: np.ndarray,
@@ -248,9 +250,7 @@ def evaluate_pair(
     }
 
 
-def evaluate_files(
-    pred_path: str | os.PathLike, gt_path: str | os.PathLike, **kwargs
-) -> dict:
+def evaluate_files(pred_path: str | os.PathLike, gt_path: str | os.PathLike, **kwargs) -> dict:
     """:func:`evaluate_pair` on two RGBA EXR files (both must have alpha); errors name the file
     (``frng.io.ImageError``)."""
     # the ground truth's alpha is the foreground mask and the prediction's its silhouette: RGB-only files are
@@ -262,6 +262,7 @@ def evaluate_files(
 
 
 # -- per-image rows, CSV, aggregation ------------------------------------------------------------------
+
 
 def to_frame(rows: Iterable[Mapping]):
     """Per-image rows (dicts: identifying columns such as dataset/variant/method/object/light/view, plus the

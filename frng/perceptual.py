@@ -47,7 +47,6 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn as nn
-import torch.nn.functional as F
 
 NETS = ("alex", "vgg")
 _CKPT = {"alex": "alexnet.ckpt", "vgg": "vgg16.ckpt"}
@@ -103,8 +102,12 @@ def _check_net(net: str) -> None:
 class _NumpyOnlyUnpickler(pickle.Unpickler):
     """The weight pickles hold dicts of numpy arrays: only numpy's array reconstruction may be named."""
 
-    ALLOWED = {("numpy", "ndarray"), ("numpy", "dtype"), ("numpy.core.multiarray", "_reconstruct"),
-               ("numpy._core.multiarray", "_reconstruct")}
+    ALLOWED = {
+        ("numpy", "ndarray"),
+        ("numpy", "dtype"),
+        ("numpy.core.multiarray", "_reconstruct"),
+        ("numpy._core.multiarray", "_reconstruct"),
+    }
 
     def find_class(self, module: str, name: str):
         if (module, name) not in self.ALLOWED:
@@ -112,7 +115,7 @@ class _NumpyOnlyUnpickler(pickle.Unpickler):
         return super().find_class(module, name)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _load_state(net: str) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
     """Read and convert a weight pickle once per process.
 
@@ -154,6 +157,7 @@ def _conv_names(net: str) -> list[str]:
 
 
 # -- feature stacks ---------------------------------------------------------------------------------
+
 
 class AlexNetFeatures(nn.Module):
     """torchvision ``alexnet().features`` up to relu5 (the final max-pool is unused by LPIPS).
@@ -250,6 +254,7 @@ def _normalize_channels(f: torch.Tensor, eps: float = 1e-10) -> torch.Tensor:
 
 # -- LPIPS ----------------------------------------------------------------------------------------
 
+
 class LPIPS(nn.Module):
     """LPIPS v0.1 distance with ImageNet AlexNet or VGG16 features. Frozen, eval mode, no trainable parameters.
 
@@ -281,7 +286,7 @@ class LPIPS(nn.Module):
         self.register_buffer("scale", torch.tensor(self.SCALE).view(1, 3, 1, 1), persistent=False)
         _freeze(self)
 
-    def train(self, mode: bool = True) -> "LPIPS":
+    def train(self, mode: bool = True) -> LPIPS:
         # Always eval: there is no dropout/batch-norm to switch, and the module is never trained.
         return super().train(False)
 
@@ -295,8 +300,9 @@ class LPIPS(nn.Module):
 
     def forward(self, x: torch.Tensor, y: torch.Tensor, normalize: bool = False) -> torch.Tensor:
         if x.shape != y.shape or x.ndim != 4 or x.shape[1] != 3:
-            raise ValueError(f"LPIPS expects two (B, 3, H, W) tensors of one shape, got {tuple(x.shape)} "
-                             f"and {tuple(y.shape)}")
+            raise ValueError(
+                f"LPIPS expects two (B, 3, H, W) tensors of one shape, got {tuple(x.shape)} and {tuple(y.shape)}"
+            )
         if normalize:
             x, y = 2.0 * x - 1.0, 2.0 * y - 1.0
         if x.requires_grad != y.requires_grad:
@@ -337,6 +343,7 @@ def lpips_model(net: str = "alex", device: str | torch.device = "cpu") -> LPIPS:
 
 
 # -- training loss ----------------------------------------------------------------------------------
+
 
 def srgb_encode_torch(linear: torch.Tensor) -> torch.Tensor:
     """Differentiable linear -> sRGB (IEC 61966-2-1), same curve as :func:`frng.io.srgb_encode`.
@@ -382,7 +389,7 @@ class PerceptualLoss(nn.Module):
         self.srgb = srgb
         self.lpips = LPIPS(net, autocast_bf16=autocast_bf16)
 
-    def train(self, mode: bool = True) -> "PerceptualLoss":
+    def train(self, mode: bool = True) -> PerceptualLoss:
         return super().train(False)
 
     def forward(self, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

@@ -64,6 +64,7 @@ class RelightError(ValueError):
 
 # -- validation --------------------------------------------------------------------------------------
 
+
 def validate_inputs(config: Config | dict, oid: str) -> dict:
     """Check everything ``relight`` reads, before anything is written. Returns the object's meta.json.
 
@@ -91,8 +92,9 @@ def validate_inputs(config: Config | dict, oid: str) -> dict:
         except io.ImageError as e:
             raise RelightError(f"input view: {e}") from e
         if img.shape[:2] != (res, res):
-            raise RelightError(f"{path}: input view is {img.shape[1]}x{img.shape[0]}, expected {res}x{res} "
-                               f"(render.resolution)")
+            raise RelightError(
+                f"{path}: input view is {img.shape[1]}x{img.shape[0]}, expected {res}x{res} (render.resolution)"
+            )
         if not np.all(np.isfinite(img)):
             raise RelightError(f"{path}: input view contains NaN or inf")
     for light in dict.fromkeys([light_in] + list(meta["target_lights"])):
@@ -119,11 +121,14 @@ def check_test_split(config: Config | dict, oid: str, meta: dict, meta_path: Pat
         raise RelightError(f"{meta_path}: object {oid!r} is not planned by this config ({e})") from e
     for split, source in ((curated, f"{meta_path} (split)"), (planned, "the config's dataset plan")):
         if split is not None and split != "test":
-            raise RelightError(f"object {oid!r} is in the {split!r} split according to {source}; relighting "
-                               f"evaluates held-out (test) objects only")
+            raise RelightError(
+                f"object {oid!r} is in the {split!r} split according to {source}; relighting "
+                f"evaluates held-out (test) objects only"
+            )
 
 
 # -- the work ------------------------------------------------------------------------------------------
+
 
 def _sync(device: torch.device) -> None:
     if device.type == "cuda":
@@ -158,13 +163,24 @@ def backbone_views(config: Config, backbone, oid: str, views, env_in: torch.Tens
     t_geo, raw, gauss, keep, raw_prior, pixels = backbone.reconstruct(rgb, a, c2w, intr)
     nd = backbone.cfg.den_views
     g = torch.Generator(device=device).manual_seed(catalog.derive_seed(config.seed, "cache", oid, light_in))
-    sh, t_app = backbone.denoise(t_geo, gauss, keep, env_in.to(device)[None], c2w[:nd], intr[:nd], H, W,
-                                 generator=g, pixels=pixels)
-    return {"t_geo": t_geo[0].float(), "raw": raw.float(), "raw_prior": raw_prior.float(), "means": gauss.means,
-            "quats": gauss.quats,
-            "scales": gauss.scales, "opacities": gauss.opacities, "keep": keep.to(torch.uint8), "c2w": c2w,
-            "intr": intr, "light0.t_app": t_app[0].float(), "light0.sh": sh.float(),
-            **{"back_" + k: t for k, t in backbone.back_gaussians(gauss, a, c2w, intr).items()}}
+    sh, t_app = backbone.denoise(
+        t_geo, gauss, keep, env_in.to(device)[None], c2w[:nd], intr[:nd], H, W, generator=g, pixels=pixels
+    )
+    return {
+        "t_geo": t_geo[0].float(),
+        "raw": raw.float(),
+        "raw_prior": raw_prior.float(),
+        "means": gauss.means,
+        "quats": gauss.quats,
+        "scales": gauss.scales,
+        "opacities": gauss.opacities,
+        "keep": keep.to(torch.uint8),
+        "c2w": c2w,
+        "intr": intr,
+        "light0.t_app": t_app[0].float(),
+        "light0.sh": sh.float(),
+        **{"back_" + k: t for k, t in backbone.back_gaussians(gauss, a, c2w, intr).items()},
+    }
 
 
 def _write_images(folder: Path, light: str, names: list[str], rgba: torch.Tensor) -> None:
@@ -174,8 +190,9 @@ def _write_images(folder: Path, light: str, names: list[str], rgba: torch.Tensor
         io.write_exr(RelightFolder(folder).image(light, name), arr[k], channels=["R", "G", "B", "A"])
 
 
-def relight_object(config: Config | dict, oid: str, models: dict[str, Path], backbone_path: Path, out_root: Path,
-                   device: torch.device) -> dict:
+def relight_object(
+    config: Config | dict, oid: str, models: dict[str, Path], backbone_path: Path, out_root: Path, device: torch.device
+) -> dict:
     """Do the whole job for one object (see the module docstring). ``models``: variant -> model.pt.
 
     Writes into ``out_root`` (a staging folder): ``{run}/...`` folders and ``timing.json``. Returns the timing."""
@@ -214,13 +231,25 @@ def relight_object(config: Config | dict, oid: str, models: dict[str, Path], bac
             with Timer(device) as t_bb:
                 bv = backbone_views(config, backbone, oid, v, obj.envs[light_in], light_in, device)
             images = torch.cat([v.rgb, v.alpha], -1).to(device)
-            prepared[V] = {"bv": bv, "images": images, "priors": pri_all.select(slice(0, V)).to(device),
-                           "names": v.names, "backbone_s": t_bb.s}
+            prepared[V] = {
+                "bv": bv,
+                "images": images,
+                "priors": pri_all.select(slice(0, V)).to(device),
+                "names": v.names,
+                "backbone_s": t_bb.s,
+            }
             if obj.gbuffer is not None:
                 prepared[V]["oracle"] = obj.gbuffer.select(slice(0, V)).to(device)
 
-    timing: dict = {"object": oid, "device": str(device), "resolution": int(H), "spp": spp,
-                    "target_views": len(t_names), "lights": len(lights), "idm_s": t_idm.s}
+    timing: dict = {
+        "object": oid,
+        "device": str(device),
+        "resolution": int(H),
+        "spp": spp,
+        "target_views": len(t_names),
+        "lights": len(lights),
+        "idm_s": t_idm.s,
+    }
     loaded: dict[str, object] = {}
     for run in the_runs:
         folder = out_root / run.name
@@ -236,10 +265,12 @@ def relight_object(config: Config | dict, oid: str, models: dict[str, Path], bac
                     t_geo, _, gauss, keep, _, pixels = backbone.reconstruct(rgb, a, c2w, intr)
                 for light in lights:
                     g = torch.Generator(device=device).manual_seed(
-                        catalog.derive_seed(config.seed, "relight", oid, light))
+                        catalog.derive_seed(config.seed, "relight", oid, light)
+                    )
                     with Timer(device) as t_l:
-                        sh, _ = backbone.denoise(t_geo, gauss, keep, envs[light][None], c2w[:nd], intr[:nd], H, W,
-                                                 generator=g, pixels=pixels)
+                        sh, _ = backbone.denoise(
+                            t_geo, gauss, keep, envs[light][None], c2w[:nd], intr[:nd], H, W, generator=g, pixels=pixels
+                        )
                         out, out_a, _ = backbone.render(gauss, sh, t_c2w, t_intr, H, W, keep)
                         rgba = torch.cat([out.clamp(0.0, 1.0) ** 2.2, out_a], -1)
                     per_light_ms.append(1000.0 * t_l.s / len(t_names))
@@ -247,8 +278,7 @@ def relight_object(config: Config | dict, oid: str, models: dict[str, Path], bac
             rec_s = t_rec.s
         else:
             if run.variant not in loaded:
-                loaded[run.variant] = FRNG.load(models[run.variant], device).set_inference_shading(
-                    config.shading)
+                loaded[run.variant] = FRNG.load(models[run.variant], device).set_inference_shading(config.shading)
             model = loaded[run.variant]
             priors = (p["oracle"] if run.priors == "oracle" else p["priors"]) if model.cfg.uses_priors else None
             with torch.no_grad():
@@ -258,12 +288,16 @@ def relight_object(config: Config | dict, oid: str, models: dict[str, Path], bac
                 with Timer(device) as t_ras:
                     raster = model.rasterize(rec, t_c2w, t_intr, H, W)
                 shade_ms = []
-                for i, light in enumerate(lights):
+                for light in lights:
                     g = torch.Generator(device=device).manual_seed(
-                        catalog.derive_seed(config.seed, "relight-frng", oid, light))
+                        catalog.derive_seed(config.seed, "relight-frng", oid, light)
+                    )
                     with Timer(device) as t_l:
-                        rgba = (shade_base(model, raster, envs[light]) if run.decoder == "base"
-                                else model.shade(raster, envs[light], spp, generator=g))
+                        rgba = (
+                            shade_base(model, raster, envs[light])
+                            if run.decoder == "base"
+                            else model.shade(raster, envs[light], spp, generator=g)
+                        )
                     shade_ms.append(1000.0 * t_l.s / len(t_names))
                     _write_images(folder, light, t_names, rgba)
             raster_ms = 1000.0 * t_ras.s / len(t_names)
@@ -272,16 +306,26 @@ def relight_object(config: Config | dict, oid: str, models: dict[str, Path], bac
             rec_s = t_rec.s + p["backbone_s"] + t_idm.s
             if run.name == "full":
                 _save_full_extras(folder, model, rec, p, oid, run)
-        info = asdict(run) | {"object": oid, "lights": lights, "target_views": t_names, "input_views": p["names"],
-                              "resolution": int(H), "spp": spp if run.method != BACKBONE else None,
-                              "reconstruction_s": rec_s, "relight_ms_per_image": float(np.mean(per_light_ms)),
-                              "relight_ms_per_light_image": per_light_ms}
+        info = asdict(run) | {
+            "object": oid,
+            "lights": lights,
+            "target_views": t_names,
+            "input_views": p["names"],
+            "resolution": int(H),
+            "spp": spp if run.method != BACKBONE else None,
+            "reconstruction_s": rec_s,
+            "relight_ms_per_image": float(np.mean(per_light_ms)),
+            "relight_ms_per_light_image": per_light_ms,
+        }
         if run.method != BACKBONE:
             info |= {"raster_ms_per_view": raster_ms, "shade_ms_per_image": float(np.mean(shade_ms))}
         io.write_json(RelightFolder(folder).record(), info)
         if run.name in ("full", BACKBONE):
-            timing[run.method] = {"reconstruction_s": rec_s, "relight_ms_per_image": float(np.mean(per_light_ms)),
-                                  "spp": info["spp"]}
+            timing[run.method] = {
+                "reconstruction_s": rec_s,
+                "relight_ms_per_image": float(np.mean(per_light_ms)),
+                "spp": info["spp"],
+            }
             if run.method != BACKBONE:
                 timing[run.method] |= {"raster_ms_per_view": raster_ms, "shade_ms_per_image": float(np.mean(shade_ms))}
     timing["speedup"] = timing[BACKBONE]["relight_ms_per_image"] / timing["F-RNG"]["relight_ms_per_image"]
@@ -299,8 +343,9 @@ def shade_base(model, raster: tuple, env: torch.Tensor) -> torch.Tensor:
     from frng.render.shading import lambert_sh
 
     if model.cfg.head != "neural" or not model.decoder.cosine:
-        raise RelightError("the Lambertian-base run needs a neural head with the cosine decoder "
-                           "(shading.decoder_cosine)")
+        raise RelightError(
+            "the Lambertian-base run needs a neural head with the cosine decoder (shading.decoder_cosine)"
+        )
     maps, alpha, _, _ = raster
     sh = envmap.sh_project(env.detach().float().cpu()).float()
     rgb = lambert_sh(maps, alpha, sh, model.shading_cfg.alpha_eps)
@@ -312,13 +357,21 @@ def _save_full_extras(folder: Path, model, rec, p: dict, oid: str, run: Run) -> 
     from frng.asset import render_settings, save_asset
 
     if rec.features is not None:
-        meta = {"object_id": oid, "source_views": p["names"], "decoder": model.decoder_meta(),
-                "variant": run.variant, "k_percent": run.k_percent,
-                **render_settings(model.raster_cfg, model.shading_cfg, model.cfg.max_radius_px)}
+        meta = {
+            "object_id": oid,
+            "source_views": p["names"],
+            "decoder": model.decoder_meta(),
+            "variant": run.variant,
+            "k_percent": run.k_percent,
+            **render_settings(model.raster_cfg, model.shading_cfg, model.cfg.max_radius_px),
+        }
         save_asset(RelightFolder(folder).asset(), rec.gaussians, rec.features, model.decoder.state_dict(), meta)
-    np.savez_compressed(RelightFolder(folder).saliency(), saliency=rec.saliency.detach().float().cpu().numpy(),
-                        patch_idx=rec.patch_idx.detach().cpu().numpy(),
-                        image=p["images"].detach().float().cpu().numpy())
+    np.savez_compressed(
+        RelightFolder(folder).saliency(),
+        saliency=rec.saliency.detach().float().cpu().numpy(),
+        patch_idx=rec.patch_idx.detach().cpu().numpy(),
+        image=p["images"].detach().float().cpu().numpy(),
+    )
 
 
 def staged_timing(staging: Path) -> Path:

@@ -39,8 +39,12 @@ DEFAULT_CONFIGS = ["config/config.yaml", "config/paper.yaml"]
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--configs", nargs="+", default=DEFAULT_CONFIGS,
-                        help="pipeline configs whose architecture sizes (backbone, idm, frng, shading) are timed")
+    parser.add_argument(
+        "--configs",
+        nargs="+",
+        default=DEFAULT_CONFIGS,
+        help="pipeline configs whose architecture sizes (backbone, idm, frng, shading) are timed",
+    )
     parser.add_argument("--resolution", type=int, default=64, help="image size (multiple of the patch size)")
     parser.add_argument("--lights", type=int, default=3, help="lights per relighting (amortised figure)")
     parser.add_argument("--target-views", type=int, default=4)
@@ -85,8 +89,10 @@ def synthetic_object(config: Config, res: int, n_targets: int, seed: int, dev: t
     ins, tgts = rig.input_views(rng, 0, *args), rig.target_views(rng, n_targets, *args)
 
     def cams(views):
-        return (torch.tensor(np.stack([v.c2w for v in views]), dtype=torch.float32, device=dev),
-                torch.tensor(np.stack([v.intrinsics for v in views]), dtype=torch.float32, device=dev))
+        return (
+            torch.tensor(np.stack([v.c2w for v in views]), dtype=torch.float32, device=dev),
+            torch.tensor(np.stack([v.intrinsics for v in views]), dtype=torch.float32, device=dev),
+        )
 
     c2w, intr = cams(ins)
     o, d = camera.pixel_rays(c2w, intr, res, res)
@@ -96,14 +102,20 @@ def synthetic_object(config: Config, res: int, n_targets: int, seed: int, dev: t
     t = -b - disc.clamp_min(0).sqrt()
     p = o + t[..., None] * d
     n = p / p.norm(dim=-1, keepdim=True)
-    checker = ((torch.floor(p[..., 0] * 6) + torch.floor(p[..., 1] * 6) + torch.floor(p[..., 2] * 6)) % 2)
+    checker = (torch.floor(p[..., 0] * 6) + torch.floor(p[..., 1] * 6) + torch.floor(p[..., 2] * 6)) % 2
     albedo = torch.stack([0.2 + 0.6 * checker, 0.5 - 0.2 * checker, 0.3 + 0.1 * checker], -1)
     light = torch.tensor([0.5, 0.3, 0.8], device=dev)
     shade = 0.15 + (n * light / light.norm()).sum(-1).clamp_min(0)
     alpha = hit.float()[..., None]
     t_c2w, t_intr = cams(tgts)
-    return {"rgb": albedo * shade[..., None] * alpha, "alpha": alpha, "c2w": c2w, "intr": intr,
-            "t_c2w": t_c2w, "t_intr": t_intr}
+    return {
+        "rgb": albedo * shade[..., None] * alpha,
+        "alpha": alpha,
+        "c2w": c2w,
+        "intr": intr,
+        "t_c2w": t_c2w,
+        "t_intr": t_intr,
+    }
 
 
 def synthetic_env(height: int, seed: int, dev: torch.device) -> torch.Tensor:
@@ -121,8 +133,8 @@ def synthetic_env(height: int, seed: int, dev: torch.device) -> torch.Tensor:
 def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict:
     from frng import config as frng_config
     from frng.model.frng import FRNG, variant_config
-    from frng.priors import freeze
     from frng.priors import backbone as backbone_mod
+    from frng.priors import freeze
     from frng.priors import idm as idm_mod
     from frng.priors.backbone_train import backbone_config
     from frng.priors.dataset import Views
@@ -157,26 +169,44 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
 
     with torch.no_grad(), amp:
         t_geo_s, (t_geo, raw, gauss, keep, raw_prior, pixels) = _timed(
-            lambda: backbone.reconstruct(rgb, alpha, c2w, intr), dev, R)
-        t_app_s, (sh_in, t_app) = _timed(lambda: backbone.denoise(
-            t_geo, gauss, keep, env_in[None], c2w[:nd], intr[:nd], res, res, generator=gen(0), pixels=pixels), dev, R)
+            lambda: backbone.reconstruct(rgb, alpha, c2w, intr), dev, R
+        )
+        t_app_s, (sh_in, t_app) = _timed(
+            lambda: backbone.denoise(
+                t_geo, gauss, keep, env_in[None], c2w[:nd], intr[:nd], res, res, generator=gen(0), pixels=pixels
+            ),
+            dev,
+            R,
+        )
         views = Views([f"in_{i:02d}" for i in range(6)], rgb, alpha, c2w, intr)
         t_idm_s, priors = _timed(lambda: idm.predict(views.rgb, views.alpha, views.c2w, views.intr), dev, R)
-        bv = {"t_geo": t_geo[0].float(), "raw": raw.float(), "raw_prior": raw_prior.float(), "means": gauss.means, "quats": gauss.quats,
-              "scales": gauss.scales, "opacities": gauss.opacities, "keep": keep.to(torch.uint8), "c2w": c2w,
-              "intr": intr, "light0.t_app": t_app[0].float()}
+        bv = {
+            "t_geo": t_geo[0].float(),
+            "raw": raw.float(),
+            "raw_prior": raw_prior.float(),
+            "means": gauss.means,
+            "quats": gauss.quats,
+            "scales": gauss.scales,
+            "opacities": gauss.opacities,
+            "keep": keep.to(torch.uint8),
+            "c2w": c2w,
+            "intr": intr,
+            "light0.t_app": t_app[0].float(),
+        }
         images = torch.cat([rgb, alpha], -1)
         t_frng_s, rec = _timed(lambda: model.reconstruct(bv, 0, priors, images, input_env=env_in), dev, R)
     with torch.no_grad():
         t_ras_s, raster = _timed(lambda: model.rasterize(rec, t_c2w, t_intr, res, res), dev, R)
-        t_shade_s, _ = _timed(lambda: [model.shade(raster, e, spp, generator=gen(i)) for i, e in enumerate(envs)],
-                              dev, R)
+        t_shade_s, _ = _timed(
+            lambda: [model.shade(raster, e, spp, generator=gen(i)) for i, e in enumerate(envs)], dev, R
+        )
 
     def backbone_relight():
         with torch.no_grad(), amp:
             for i, e in enumerate(envs):
-                sh, _ = backbone.denoise(t_geo, gauss, keep, e[None], c2w[:nd], intr[:nd], res, res, generator=gen(i),
-                                         pixels=pixels)
+                sh, _ = backbone.denoise(
+                    t_geo, gauss, keep, e[None], c2w[:nd], intr[:nd], res, res, generator=gen(i), pixels=pixels
+                )
                 backbone.render(gauss, sh, t_c2w, t_intr, res, res, keep)
 
     t_bb_s, _ = _timed(backbone_relight, dev, R)
@@ -186,15 +216,31 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
     bb_ms = 1000 * t_bb_s / (L * Vt)
     n_params = lambda m: sum(p.numel() for p in m.parameters())  # noqa: E731
     return {
-        "config": path, "tier": config.tier, "device": str(dev), "threads": torch.get_num_threads(),
-        "bf16": bool(args.bf16), "bf16_decoder": shading.bf16_infer, "resolution": res, "spp": spp, "lights": L, "target_views": Vt,
+        "config": path,
+        "tier": config.tier,
+        "device": str(dev),
+        "threads": torch.get_num_threads(),
+        "bf16": bool(args.bf16),
+        "bf16_decoder": shading.bf16_infer,
+        "resolution": res,
+        "spp": spp,
+        "lights": L,
+        "target_views": Vt,
         "gaussians": int(rec.gaussians.means.shape[0]),
-        "backbone_params_m": n_params(backbone) / 1e6, "frng_params_m": n_params(model) / 1e6,
+        "backbone_params_m": n_params(backbone) / 1e6,
+        "frng_params_m": n_params(model) / 1e6,
         "reconstruction_s": t_geo_s + t_app_s + t_idm_s + t_frng_s,
-        "backbone_geometry_s": t_geo_s, "backbone_appearance_s": t_app_s, "idm_s": t_idm_s, "frng_s": t_frng_s,
-        "raster_ms_per_view": raster_ms, "shade_ms_per_image": shade_ms,
-        "frng_ms_per_image": frng_ms, "frng_ms_per_image_amortised": frng_amort_ms,
-        "backbone_ms_per_image": bb_ms, "speedup": bb_ms / frng_ms, "speedup_amortised": bb_ms / frng_amort_ms,
+        "backbone_geometry_s": t_geo_s,
+        "backbone_appearance_s": t_app_s,
+        "idm_s": t_idm_s,
+        "frng_s": t_frng_s,
+        "raster_ms_per_view": raster_ms,
+        "shade_ms_per_image": shade_ms,
+        "frng_ms_per_image": frng_ms,
+        "frng_ms_per_image_amortised": frng_amort_ms,
+        "backbone_ms_per_image": bb_ms,
+        "speedup": bb_ms / frng_ms,
+        "speedup_amortised": bb_ms / frng_amort_ms,
     }
 
 
@@ -212,15 +258,24 @@ def run(args: argparse.Namespace) -> int:
         if args.json:
             print(json.dumps(r), flush=True)
             continue
-        print(f"== {r['tier']} sizes ({path}) on {r['device']} ({r['threads']} threads{', bf16' if r['bf16'] else ''}), "
-              f"{r['resolution']} px, {r['spp']} spp, {r['lights']} lights x {r['target_views']} views, "
-              f"{r['gaussians']} Gaussians; backbone {r['backbone_params_m']:.1f} M params, "
-              f"F-RNG {r['frng_params_m']:.1f} M params")
-        print(f"  F-RNG reconstruction {r['reconstruction_s']:.2f} s (backbone geometry {r['backbone_geometry_s']:.2f}, "
-              f"appearance {r['backbone_appearance_s']:.2f}, IDM {r['idm_s']:.2f}, F-RNG {r['frng_s']:.2f})")
-        print(f"  F-RNG relighting {r['frng_ms_per_image']:.1f} ms/image (raster {r['raster_ms_per_view']:.1f} + "
-              f"shade {r['shade_ms_per_image']:.1f}); amortised over {r['lights']} lights "
-              f"{r['frng_ms_per_image_amortised']:.1f} ms/image")
-        print(f"  backbone relighting {r['backbone_ms_per_image']:.1f} ms/image -> speed-up {r['speedup']:.1f}x "
-              f"({r['speedup_amortised']:.1f}x amortised)", flush=True)
+        print(
+            f"== {r['tier']} sizes ({path}) on {r['device']} ({r['threads']} threads{', bf16' if r['bf16'] else ''}), "
+            f"{r['resolution']} px, {r['spp']} spp, {r['lights']} lights x {r['target_views']} views, "
+            f"{r['gaussians']} Gaussians; backbone {r['backbone_params_m']:.1f} M params, "
+            f"F-RNG {r['frng_params_m']:.1f} M params"
+        )
+        print(
+            f"  F-RNG reconstruction {r['reconstruction_s']:.2f} s (backbone geometry {r['backbone_geometry_s']:.2f}, "
+            f"appearance {r['backbone_appearance_s']:.2f}, IDM {r['idm_s']:.2f}, F-RNG {r['frng_s']:.2f})"
+        )
+        print(
+            f"  F-RNG relighting {r['frng_ms_per_image']:.1f} ms/image (raster {r['raster_ms_per_view']:.1f} + "
+            f"shade {r['shade_ms_per_image']:.1f}); amortised over {r['lights']} lights "
+            f"{r['frng_ms_per_image_amortised']:.1f} ms/image"
+        )
+        print(
+            f"  backbone relighting {r['backbone_ms_per_image']:.1f} ms/image -> speed-up {r['speedup']:.1f}x "
+            f"({r['speedup_amortised']:.1f}x amortised)",
+            flush=True,
+        )
     return 0

@@ -37,9 +37,10 @@ import json
 import os
 import random
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import torch
@@ -59,7 +60,7 @@ def resolve_device(name: str = "auto") -> torch.device:
     return torch.device(name)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _cpu_has_bf16() -> bool:
     """Whether this CPU computes bf16 natively (AMX or AVX512-BF16). Without it, torch emulates bf16 matmuls and
     autocast is several times SLOWER than float32 (measured 8x on an AVX2-only AMD EPYC)."""
@@ -318,8 +319,12 @@ def rng_state(device: torch.device | str | None = None, rngs: dict | None = None
     """Every random state a training step may draw from: python's, numpy's and torch's global generators, the
     CUDA generator of ``device`` (when it is a GPU), and the trainer's own generators ``rngs`` (name -> a
     ``random.Random``, ``torch.Generator`` or numpy generator)."""
-    state = {"python": random.getstate(), "numpy": _plain(np.random.get_state()), "torch": torch.get_rng_state(),
-             "trainer": {k: _plain(_rng_get(r)) for k, r in (rngs or {}).items()}}
+    state = {
+        "python": random.getstate(),
+        "numpy": _plain(np.random.get_state()),
+        "torch": torch.get_rng_state(),
+        "trainer": {k: _plain(_rng_get(r)) for k, r in (rngs or {}).items()},
+    }
     if device is not None and torch.device(device).type == "cuda":
         state["cuda"] = torch.cuda.get_rng_state(torch.device(device))
     return state
@@ -383,8 +388,14 @@ class FitRun:
 
 def run_summary(run: FitRun, device, objects: list, bf16: bool, model: torch.nn.Module) -> dict:
     """``train.json`` of a priors trainer: steps, wall time, device, objects, bf16, parameters."""
-    return {"steps": run.steps, "wall_s": round(run.wall_s, 1), "device": str(device), "objects": len(objects),
-            "bf16": bf16, "parameters": sum(p.numel() for p in model.parameters())}
+    return {
+        "steps": run.steps,
+        "wall_s": round(run.wall_s, 1),
+        "device": str(device),
+        "objects": len(objects),
+        "bf16": bf16,
+        "parameters": sum(p.numel() for p in model.parameters()),
+    }
 
 
 def load_resumable(out: str | os.PathLike, digest: str, total: int) -> tuple[dict | None, str | None]:
@@ -411,12 +422,27 @@ def load_resumable(out: str | os.PathLike, digest: str, total: int) -> tuple[dic
     return state, f"resuming {path} at step {state['step']} of {total}"
 
 
-def fit(step_fn: Callable[[int], dict[str, float]], tcfg, *, model: torch.nn.Module,
-        optimizer: torch.optim.Optimizer, out: str | os.PathLike, total: int, fingerprint: dict,
-        loss_names: list[str], save_model: Callable[[Path], None], summary: Callable[[FitRun], dict], title: str,
-        desc: str, params: list[torch.nn.Parameter] | None = None, postfix: tuple[str, ...] = ("total",),
-        rngs: dict | None = None, device: torch.device | str | None = None, stop_after: int | None = None,
-        hooks: FitHooks | None = None) -> Path:
+def fit(
+    step_fn: Callable[[int], dict[str, float]],
+    tcfg,
+    *,
+    model: torch.nn.Module,
+    optimizer: torch.optim.Optimizer,
+    out: str | os.PathLike,
+    total: int,
+    fingerprint: dict,
+    loss_names: list[str],
+    save_model: Callable[[Path], None],
+    summary: Callable[[FitRun], dict],
+    title: str,
+    desc: str,
+    params: list[torch.nn.Parameter] | None = None,
+    postfix: tuple[str, ...] = ("total",),
+    rngs: dict | None = None,
+    device: torch.device | str | None = None,
+    stop_after: int | None = None,
+    hooks: FitHooks | None = None,
+) -> Path:
     """Run (or resume) a training run of ``total`` steps in ``out``; returns ``out/model.pt`` (the checkpoint's
     path when stopped by ``stop_after``).
 
@@ -469,15 +495,27 @@ def fit(step_fn: Callable[[int], dict[str, float]], tcfg, *, model: torch.nn.Mod
     def checkpoint(step: int) -> None:
         states = hooks.gather(rng_state(device, rngs))  # collective
         if hooks.is_main:
-            save_torch({"format": CHECKPOINT_FORMAT, "step": step, "total": total, "digest": digest,
-                        "fingerprint": _plain(fingerprint), "model": model.state_dict(),
-                        "optimizer": optimizer.state_dict(), "rng": states, "history": _plain(log.rows),
-                        "elapsed": float(timer.elapsed())}, ckpt_path)  # plain data: loaded with weights_only
+            save_torch(
+                {
+                    "format": CHECKPOINT_FORMAT,
+                    "step": step,
+                    "total": total,
+                    "digest": digest,
+                    "fingerprint": _plain(fingerprint),
+                    "model": model.state_dict(),
+                    "optimizer": optimizer.state_dict(),
+                    "rng": states,
+                    "history": _plain(log.rows),
+                    "elapsed": float(timer.elapsed()),
+                },
+                ckpt_path,
+            )  # plain data: loaded with weights_only
         hooks.barrier()
 
     model.train()
-    bar = tqdm(range(start, total), initial=start, total=total, desc=desc, dynamic_ncols=True,
-               disable=not hooks.is_main)
+    bar = tqdm(
+        range(start, total), initial=start, total=total, desc=desc, dynamic_ncols=True, disable=not hooks.is_main
+    )
     ran = 0
     for step in bar:
         t0 = time.time()
@@ -519,6 +557,7 @@ def fit(step_fn: Callable[[int], dict[str, float]], tcfg, *, model: torch.nn.Mod
 
 
 # -- the priors' trainers (:mod:`frng.priors.backbone_train`, :mod:`frng.priors.idm_train`) -----------------------
+
 
 def check_training_split(objects: list, stage: str) -> None:
     """A priors trainer sees training objects only, and at least one."""

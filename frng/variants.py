@@ -194,8 +194,7 @@ def runs(config: Config | dict, n_input_views: int | None = None) -> list[Run]:
         name = k_variant(p)
         if canonical_variant(config, name) != "full":
             out.append(Run(name, "F-RNG", name, RIG_VIEWS, float(p)))
-    out += [Run(f"full-v{V}", "F-RNG", "full", V, k_full)
-            for V in view_counts("test", n_input_views) if V != RIG_VIEWS]
+    out += [Run(f"full-v{V}", "F-RNG", "full", V, k_full) for V in view_counts("test", n_input_views) if V != RIG_VIEWS]
     if config["idm"]["kind"] != "oracle" and int(config["frng"].get("prior_dim", 1)) > 0:
         out.append(Run(ORACLE_RUN, "F-RNG", "full", RIG_VIEWS, k_full, priors="oracle"))
     for name in seeded_variants(config):

@@ -21,18 +21,10 @@ _BENCH_RE = "|".join(_re.escape(b) for b in BENCH_IDS) or r"(?!x)x"
 
 
 rule import_benchmark:
-    message:
-        "Importing benchmark scene {wildcards.bench}"
     input:
         folder=lambda wildcards: BENCHMARKS[wildcards.bench]["path"],
     output:
         meta=L.object_meta("{bench}"),
-    params:
-        config_digest=frng_config.rule_digest(config, "import_benchmark"),
-        py=PY,
-        config=CONFIG_FILE,
-        layout=lambda wildcards: BENCHMARKS[wildcards.bench]["layout"],
-        flags=lambda wildcards: _BENCH_FLAGS[wildcards.bench],
     log:
         L.log("import_benchmark", "{bench}"),
     wildcard_constraints:
@@ -43,14 +35,20 @@ rule import_benchmark:
     resources:
         mem_mb=4000,
         runtime=30,
+    params:
+        config_digest=frng_config.rule_digest(config, "import_benchmark"),
+        py=PY,
+        config=CONFIG_FILE,
+        layout=lambda wildcards: BENCHMARKS[wildcards.bench]["layout"],
+        flags=lambda wildcards: _BENCH_FLAGS[wildcards.bench],
+    message:
+        "Importing benchmark scene {wildcards.bench}"
     shell:
         "exec {params.py:q} -m frng import {params.layout:q} {input.folder:q} --config {params.config:q} "
         "--id {wildcards.bench:q} {params.flags} > {log:q} 2>&1"
 
 
 rule relight_benchmark:
-    message:
-        "Relighting benchmark object {wildcards.bench}: F-RNG runs and the backbone"
     input:
         models=expand(L.model(), variant=_model_variants(config)),
         backbone=rules.backbone_train.output.model,
@@ -58,11 +56,6 @@ rule relight_benchmark:
         meta=rules.import_benchmark.output.meta,
     output:
         timing=L.relight_timing("{bench}"),
-    params:
-        config_digest=frng_config.rule_digest(config, "relight_benchmark"),
-        py=PY,
-        config=CONFIG_FILE,
-        models=lambda wildcards, input: os.path.dirname(os.path.dirname(input.models[0])),
     log:
         L.log("relight", "{bench}"),
     wildcard_constraints:
@@ -74,6 +67,13 @@ rule relight_benchmark:
         mem_mb=6000,
         runtime=60,
         gpu=TORCH_GPUS,
+    params:
+        config_digest=frng_config.rule_digest(config, "relight_benchmark"),
+        py=PY,
+        config=CONFIG_FILE,
+        models=lambda wildcards, input: os.path.dirname(os.path.dirname(input.models[0])),
+    message:
+        "Relighting benchmark object {wildcards.bench}: F-RNG runs and the backbone"
     shell:
         "exec {params.py:q} -m frng relight-benchmark --config {params.config:q} --object {wildcards.bench:q} "
         "--models {params.models:q} "
@@ -81,20 +81,11 @@ rule relight_benchmark:
 
 
 rule evaluate_benchmarks:
-    message:
-        "Scoring {n} benchmark objects with their published protocols".format(n=len(BENCH_IDS))
     input:
         timing=expand(rules.relight_benchmark.output.timing, bench=BENCH_IDS),
     output:
         per_image=L.metrics("benchmarks_per_image"),
         tables=[L.table("benchmarks", ext) for ext in ("csv", "md", "tex")],
-    params:
-        config_digest=frng_config.rule_digest(config, "evaluate_benchmarks"),
-        py=PY,
-        config=CONFIG_FILE,
-        objects=BENCH_IDS,
-        metrics=lambda wildcards, output: os.path.dirname(output.per_image),
-        tables=lambda wildcards, output: os.path.dirname(output.tables[0]),
     log:
         L.log("evaluate_benchmarks"),
     conda:
@@ -103,6 +94,15 @@ rule evaluate_benchmarks:
     resources:
         mem_mb=3000,
         runtime=30,
+    params:
+        config_digest=frng_config.rule_digest(config, "evaluate_benchmarks"),
+        py=PY,
+        config=CONFIG_FILE,
+        objects=BENCH_IDS,
+        metrics=lambda wildcards, output: os.path.dirname(output.per_image),
+        tables=lambda wildcards, output: os.path.dirname(output.tables[0]),
+    message:
+        "Scoring {n} benchmark objects with their published protocols".format(n=len(BENCH_IDS))
     shell:
         "exec {params.py:q} -m frng evaluate-benchmarks --config {params.config:q} --objects {params.objects:q} "
         "--metrics {params.metrics:q} --tables {params.tables:q} > {log:q} 2>&1"

@@ -45,8 +45,10 @@ def effective_config_notice():
     if diff and not OVERWRITE_CONFIG:
         logger.warning(f"NOTE: {frng_config.refusal(CONFIG_FILE, diff)}. A run with this config is refused.")
     elif diff:
-        logger.warning(f"NOTE: {CONFIG_FILE} records a different config ({len(diff)} key(s) differ); a run "
-                       f"replaces it ({frng_config.OVERWRITE_SWITCH}=true).")
+        logger.warning(
+            f"NOTE: {CONFIG_FILE} records a different config ({len(diff)} key(s) differ); a run "
+            f"replaces it ({frng_config.OVERWRITE_SWITCH}=true)."
+        )
 
 
 if workflow.exec_mode == ExecMode.DEFAULT:  # not inside a job's own snakemake process (cluster/subprocess jobs)
@@ -71,8 +73,10 @@ def lock_results_folder():
     except OSError:
         holder = Path(path).read_text().strip() or "another process"
         os.close(fd)
-        raise WorkflowError(f"{RESULTS} is in use by another snakemake run ({holder}; lock {path}); wait for it "
-                            f"to finish or stop it")
+        raise WorkflowError(
+            f"{RESULTS} is in use by another snakemake run ({holder}; lock {path}); wait for it "
+            f"to finish or stop it"
+        )
     os.ftruncate(fd, 0)
     os.write(fd, f"pid {os.getpid()} on {os.uname().nodename}, working directory {os.getcwd()}\n".encode())
     return fd  # kept open: the lock lasts as long as this snakemake
@@ -93,7 +97,9 @@ onstart:
 # Each rule's config digest travels with the results folder (see rules/digests.smk). Every job of a rule reads
 # {results}/.digests/{rule}-{digest}.txt; the default target asks for each of them.
 def digest_rules(rules):
-    return [r for r in rules if r.name not in frng_config.RULES_WITHOUT_DIGEST and r.name in frng_config.RULE_CONFIG_KEYS]
+    return [
+        r for r in rules if r.name not in frng_config.RULES_WITHOUT_DIGEST and r.name in frng_config.RULE_CONFIG_KEYS
+    ]
 
 
 def add_digest_inputs(rules):

@@ -9,13 +9,6 @@ rule curate:
         unpack(lambda wildcards: frng_catalog.curate_inputs(config, CATALOG.object(wildcards.obj))),
     output:
         meta=L.object_meta(),
-    params:
-        config_digest=frng_config.rule_digest(config, "curate"),
-        spec=lambda wildcards: json.dumps(CATALOG.object(wildcards.obj).to_dict(), sort_keys=True),
-        envmaps=lambda wildcards, input: os.path.dirname(input.index),
-        objects=lambda wildcards, output: os.path.dirname(os.path.dirname(output.meta)),  # {objects}/{obj}/meta.json
-        py=PY,
-        config=CONFIG_FILE,
     log:
         L.log("curate", "{obj}"),
     wildcard_constraints:
@@ -26,23 +19,23 @@ rule curate:
     resources:
         mem_mb=2500,
         runtime=lambda wildcards: frng_catalog.curate_minutes(config, CATALOG.object(wildcards.obj)),
+    params:
+        config_digest=frng_config.rule_digest(config, "curate"),
+        spec=lambda wildcards: json.dumps(CATALOG.object(wildcards.obj).to_dict(), sort_keys=True),
+        envmaps=lambda wildcards, input: os.path.dirname(input.index),
+        objects=lambda wildcards, output: os.path.dirname(os.path.dirname(output.meta)),  # {objects}/{obj}/meta.json
+        py=PY,
+        config=CONFIG_FILE,
     shell:
         "exec {params.py:q} -m frng curate --config {params.config:q} --object {wildcards.obj:q} "
         "--envmaps {params.envmaps:q} --out {params.objects:q} > {log:q} 2>&1"
 
 
 rule dataset_preview:
-    message:
-        "Contact sheets of {n} objects".format(n=len(OBJECT_IDS))
     input:
         expand(rules.curate.output.meta, obj=OBJECT_IDS),
     output:
         expand(L.preview(), obj=OBJECT_IDS),
-    params:
-        config_digest=frng_config.rule_digest(config, "dataset_preview"),
-        out=lambda wildcards, output: os.path.dirname(output[0]),
-        py=PY,
-        config=CONFIG_FILE,
     log:
         L.log("dataset_preview"),
     conda:
@@ -51,6 +44,13 @@ rule dataset_preview:
     resources:
         mem_mb=2000,
         runtime=5 + len(OBJECT_IDS) // 20,
+    params:
+        config_digest=frng_config.rule_digest(config, "dataset_preview"),
+        out=lambda wildcards, output: os.path.dirname(output[0]),
+        py=PY,
+        config=CONFIG_FILE,
+    message:
+        "Contact sheets of {n} objects".format(n=len(OBJECT_IDS))
     shell:
         "exec {params.py:q} -m frng dataset preview --config {params.config:q} --out {params.out:q} > {log:q} 2>&1"
 

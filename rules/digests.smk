@@ -5,15 +5,15 @@
 # another checkout keep that promise (Snakemake's params trigger alone lives in the working directory's
 # .snakemake/metadata). Planning writes nothing; a run stopped half-way reruns the rest next time (mtime).
 rule config_digest:
-    message:
-        "Config digest of rule {wildcards.rule}: {wildcards.digest}"
     output:
         L.rule_digest(),
+    log:
+        L.log("config_digest", "{rule}-{digest}"),
     wildcard_constraints:
         rule=r"[a-z][a-z0-9_]*",
         digest=r"[0-9a-f]+",
-    log:
-        L.log("config_digest", "{rule}-{digest}"),
     localrule: True
+    message:
+        "Config digest of rule {wildcards.rule}: {wildcards.digest}"
     run:
         frng_config.write_rule_digest(config, wildcards.rule, output[0], log=log[0])

@@ -5,18 +5,11 @@ USER_ENVMAP_FILES = sorted({e.origin for e in CATALOG.envmaps if e.source == "us
 
 
 rule envmaps:
-    message:
-        "Preparing {n} environment maps".format(n=len(ENVMAP_NAMES))
     input:
         USER_ENVMAP_FILES,
     output:
         index=L.envmap_index(),
         maps=expand(L.envmap(), env=ENVMAP_NAMES),
-    params:
-        config_digest=frng_config.rule_digest(config, "envmaps"),
-        out=lambda wildcards, output: os.path.dirname(output.index),
-        py=PY,
-        config=CONFIG_FILE,
     log:
         L.log("envmaps"),
     conda:
@@ -25,6 +18,13 @@ rule envmaps:
     resources:
         mem_mb=3000,
         runtime=10 + len(ENVMAP_NAMES) // 20,
+    params:
+        config_digest=frng_config.rule_digest(config, "envmaps"),
+        out=lambda wildcards, output: os.path.dirname(output.index),
+        py=PY,
+        config=CONFIG_FILE,
+    message:
+        "Preparing {n} environment maps".format(n=len(ENVMAP_NAMES))
     shell:
         "exec {params.py:q} -m frng envmaps --config {params.config:q} --out {params.out:q} > {log:q} 2>&1"
 

@@ -4,15 +4,18 @@
 from frng.report.tables import TABLE_COLUMNS
 
 TABLE_NAMES = list(TABLE_COLUMNS)  # the paper's five tables + the ladder and its per-class part (frng/report/tables.py)
-_TABLE_CAPTIONS = {"vs_backbone": "F-RNG vs backbone", "ablation": "ablation", "views": "number of input views",
-                   "k": "top-K patches", "timing": "timing", "ladder": "quality ladder",
-                   "lambertian": "Lambertian base per material class"}
+_TABLE_CAPTIONS = {
+    "vs_backbone": "F-RNG vs backbone",
+    "ablation": "ablation",
+    "views": "number of input views",
+    "k": "top-K patches",
+    "timing": "timing",
+    "ladder": "quality ladder",
+    "lambertian": "Lambertian base per material class",
+}
 
 
 rule evaluate:
-    message:
-        "Per-image relighting metrics ({protocol} protocol) of {n} test objects".format(
-            protocol=config["eval"]["protocol"], n=len(TEST_IDS))
     input:
         # one file per test object stands for all its runs (relight publishes every run before its timing file);
         # listing every run.json would add runs x objects inputs to the paper DAG
@@ -21,12 +24,6 @@ rule evaluate:
         per_image=L.metrics("relight_per_image"),
         summary=L.metrics("relight_summary"),
         cross=L.metrics("relight_cross_light"),
-    params:
-        config_digest=frng_config.rule_digest(config, "evaluate"),
-        py=PY,
-        config=CONFIG_FILE,
-        out=lambda wildcards, output: os.path.dirname(output.per_image),
-        objects=TEST_IDS,
     log:
         L.log("evaluate"),
     conda:
@@ -35,13 +32,21 @@ rule evaluate:
     resources:
         mem_mb=3000,
         runtime=30,
+    params:
+        config_digest=frng_config.rule_digest(config, "evaluate"),
+        py=PY,
+        config=CONFIG_FILE,
+        out=lambda wildcards, output: os.path.dirname(output.per_image),
+        objects=TEST_IDS,
+    message:
+        "Per-image relighting metrics ({protocol} protocol) of {n} test objects".format(
+            protocol=config["eval"]["protocol"], n=len(TEST_IDS)
+        )
     shell:
         "exec {params.py:q} -m frng evaluate --config {params.config:q} --objects {params.objects:q} --out {params.out:q} > {log:q} 2>&1"
 
 
 rule tables:
-    message:
-        "The paper's tables: {names}".format(names=", ".join(TABLE_NAMES))
     input:
         per_image=rules.evaluate.output.per_image,
         cross=rules.evaluate.output.cross,
@@ -49,16 +54,15 @@ rule tables:
         prior=rules.eval_backbone.output.backbone,
     output:
         *[
-            report(L.table(t), caption=f"../workflow/report/{t}.rst", category="Tables",
-                   labels={"table": _TABLE_CAPTIONS[t]})
+            report(
+                L.table(t),
+                caption=f"../workflow/report/{t}.rst",
+                category="Tables",
+                labels={"table": _TABLE_CAPTIONS[t]},
+            )
             for t in TABLE_NAMES
         ],
         *[L.table(t, ext) for t in TABLE_NAMES for ext in ("md", "tex")],
-    params:
-        config_digest=frng_config.rule_digest(config, "tables"),
-        py=PY,
-        config=CONFIG_FILE,
-        out=lambda wildcards, output: os.path.dirname(output[0]),
     log:
         L.log("tables"),
     conda:
@@ -67,35 +71,54 @@ rule tables:
     resources:
         mem_mb=2000,
         runtime=10,
+    params:
+        config_digest=frng_config.rule_digest(config, "tables"),
+        py=PY,
+        config=CONFIG_FILE,
+        out=lambda wildcards, output: os.path.dirname(output[0]),
+    message:
+        "The paper's tables: {names}".format(names=", ".join(TABLE_NAMES))
     shell:
         "exec {params.py:q} -m frng tables --config {params.config:q} --metrics {input.per_image:q} --timing {input.timing:q} "
         "--prior-metrics {input.prior:q} --cross-light {input.cross:q} --out {params.out:q} > {log:q} 2>&1"
 
 
 rule figures:
-    message:
-        "Figures: comparison grids, ablation grid, saliency maps, loss curves"
     input:
         per_image=rules.evaluate.output.per_image,
         timing=expand(rules.relight.output.timing, obj=TEST_IDS),
         curves=expand(L.model_curve(), variant=FRNG_VARIANTS),
     output:
-        comparison=report(directory(L.figure("comparison")), patterns=["{obj}.png"],
-                          caption="../workflow/report/comparison.rst", category="Figures", subcategory="Relighting",
-                          labels={"object": "{obj}"}),
-        saliency=report(directory(L.figure("saliency")), patterns=["{obj}.png"],
-                        caption="../workflow/report/saliency.rst", category="Figures", subcategory="Saliency",
-                        labels={"object": "{obj}"}),
-        ablation=report(L.figure("ablation.png"), caption="../workflow/report/ablation_grid.rst",
-                        category="Figures", subcategory="Ablations", labels={"figure": "ablation grid"}),
-        curves=report(L.figure("loss_curves.png"), caption="../workflow/report/loss_curves.rst",
-                      category="Figures", subcategory="Training", labels={"figure": "loss curves"}),
-    params:
-        config_digest=frng_config.rule_digest(config, "figures"),
-        py=PY,
-        config=CONFIG_FILE,
-        out=lambda wildcards, output: os.path.dirname(output.ablation),
-        objects=TEST_IDS,
+        comparison=report(
+            directory(L.figure("comparison")),
+            patterns=["{obj}.png"],
+            caption="../workflow/report/comparison.rst",
+            category="Figures",
+            subcategory="Relighting",
+            labels={"object": "{obj}"},
+        ),
+        saliency=report(
+            directory(L.figure("saliency")),
+            patterns=["{obj}.png"],
+            caption="../workflow/report/saliency.rst",
+            category="Figures",
+            subcategory="Saliency",
+            labels={"object": "{obj}"},
+        ),
+        ablation=report(
+            L.figure("ablation.png"),
+            caption="../workflow/report/ablation_grid.rst",
+            category="Figures",
+            subcategory="Ablations",
+            labels={"figure": "ablation grid"},
+        ),
+        curves=report(
+            L.figure("loss_curves.png"),
+            caption="../workflow/report/loss_curves.rst",
+            category="Figures",
+            subcategory="Training",
+            labels={"figure": "loss curves"},
+        ),
     log:
         L.log("figures"),
     conda:
@@ -104,6 +127,14 @@ rule figures:
     resources:
         mem_mb=2000,
         runtime=10,
+    params:
+        config_digest=frng_config.rule_digest(config, "figures"),
+        py=PY,
+        config=CONFIG_FILE,
+        out=lambda wildcards, output: os.path.dirname(output.ablation),
+        objects=TEST_IDS,
+    message:
+        "Figures: comparison grids, ablation grid, saliency maps, loss curves"
     shell:
         "exec {params.py:q} -m frng figures --config {params.config:q} --objects {params.objects:q} --out {params.out:q} > {log:q} 2>&1"
 

@@ -3,19 +3,12 @@
 
 
 rule backbone_train:
-    message:
-        "Training the backbone on {n} training objects".format(n=len(TRAIN_IDS))
     input:
         expand(rules.curate.output.meta, obj=TRAIN_IDS),
     output:
         model=L.backbone_model(),
         curve=L.backbone_curve(),
         plot=L.backbone_curve("png"),
-    params:
-        config_digest=frng_config.rule_digest(config, "backbone_train"),
-        out=lambda wildcards, output: os.path.dirname(output.model),
-        py=PY,
-        config=CONFIG_FILE,
     log:
         L.log("backbone_train"),
     conda:
@@ -25,24 +18,24 @@ rule backbone_train:
         mem_mb=6000,
         runtime=60,
         gpu=1,
+    params:
+        config_digest=frng_config.rule_digest(config, "backbone_train"),
+        out=lambda wildcards, output: os.path.dirname(output.model),
+        py=PY,
+        config=CONFIG_FILE,
+    message:
+        "Training the backbone on {n} training objects".format(n=len(TRAIN_IDS))
     shell:
         "exec {params.py:q} -m frng backbone-train --config {params.config:q} --out {params.out:q} > {log:q} 2>&1"
 
 
 rule idm_train:
-    message:
-        "Training the learned IDM on {n} training objects".format(n=len(TRAIN_IDS))
     input:
         expand(rules.curate.output.meta, obj=TRAIN_IDS),
     output:
         model=L.idm_model(),
         curve=L.idm_curve(),
         plot=L.idm_curve("png"),
-    params:
-        config_digest=frng_config.rule_digest(config, "idm_train"),
-        out=lambda wildcards, output: os.path.dirname(output.model),
-        py=PY,
-        config=CONFIG_FILE,
     log:
         L.log("idm_train"),
     conda:
@@ -52,22 +45,23 @@ rule idm_train:
         mem_mb=4000,
         runtime=30,
         gpu=1,
+    params:
+        config_digest=frng_config.rule_digest(config, "idm_train"),
+        out=lambda wildcards, output: os.path.dirname(output.model),
+        py=PY,
+        config=CONFIG_FILE,
+    message:
+        "Training the learned IDM on {n} training objects".format(n=len(TRAIN_IDS))
     shell:
         "exec {params.py:q} -m frng idm-train --config {params.config:q} --out {params.out:q} > {log:q} 2>&1"
 
 
 rule backbone_cache:
-    message:
-        "Caching backbone tokens of {wildcards.obj}"
     input:
         model=rules.backbone_train.output.model,
         meta=rules.curate.output.meta,
     output:
         cache=L.backbone_cache(),
-    params:
-        config_digest=frng_config.rule_digest(config, "backbone_cache"),
-        py=PY,
-        config=CONFIG_FILE,
     log:
         L.log("backbone_cache", "{obj}"),
     wildcard_constraints:
@@ -79,23 +73,23 @@ rule backbone_cache:
         mem_mb=3000,
         runtime=15,
         gpu=1,
+    params:
+        config_digest=frng_config.rule_digest(config, "backbone_cache"),
+        py=PY,
+        config=CONFIG_FILE,
+    message:
+        "Caching backbone tokens of {wildcards.obj}"
     shell:
         "exec {params.py:q} -m frng backbone-cache --config {params.config:q} --object {wildcards.obj:q} "
         "--model {input.model:q} --out {output.cache:q} > {log:q} 2>&1"
 
 
 rule idm_priors:
-    message:
-        "IDM priors ({kind}) of {{wildcards.obj}}".format(kind=config["idm"]["kind"])
     input:
         model=IDM_MODEL,
         meta=rules.curate.output.meta,
     output:
         priors=L.idm_priors(),
-    params:
-        config_digest=frng_config.rule_digest(config, "idm_priors"),
-        py=PY,
-        config=CONFIG_FILE,
     log:
         L.log("idm_priors", "{obj}"),
     wildcard_constraints:
@@ -107,13 +101,17 @@ rule idm_priors:
         mem_mb=2000,
         runtime=10,
         gpu=1,
+    params:
+        config_digest=frng_config.rule_digest(config, "idm_priors"),
+        py=PY,
+        config=CONFIG_FILE,
+    message:
+        "IDM priors ({kind}) of {{wildcards.obj}}".format(kind=config["idm"]["kind"])
     shell:
         "exec {params.py:q} -m frng idm-priors --config {params.config:q} --object {wildcards.obj:q} --out {output.priors:q} > {log:q} 2>&1"
 
 
 rule eval_backbone:
-    message:
-        "Evaluating the frozen priors on the test objects"
     input:
         backbone=rules.backbone_train.output.model,
         idm=IDM_MODEL,
@@ -121,10 +119,6 @@ rule eval_backbone:
     output:
         backbone=L.metrics("backbone"),
         idm=L.metrics("idm"),
-    params:
-        config_digest=frng_config.rule_digest(config, "eval_backbone"),
-        py=PY,
-        config=CONFIG_FILE,
     log:
         L.log("eval_backbone"),
     conda:
@@ -133,6 +127,12 @@ rule eval_backbone:
     resources:
         mem_mb=4000,
         runtime=30,
+    params:
+        config_digest=frng_config.rule_digest(config, "eval_backbone"),
+        py=PY,
+        config=CONFIG_FILE,
+    message:
+        "Evaluating the frozen priors on the test objects"
     shell:
         "exec {params.py:q} -m frng eval-backbone --config {params.config:q} --model {input.backbone:q} "
         "--backbone-csv {output.backbone:q} --idm-csv {output.idm:q} > {log:q} 2>&1"

@@ -7,8 +7,6 @@ RELIGHT_RUNS = [r.name for r in runs(config)]
 
 
 rule relight:
-    message:
-        "Relighting {wildcards.obj}: F-RNG runs and the backbone under every target light"
     input:
         models=expand(L.model(), variant=model_variants(config)),
         backbone=rules.backbone_train.output.model,
@@ -17,11 +15,6 @@ rule relight:
     output:
         runs=expand(L.relight_record("{run}", "{{obj}}"), run=RELIGHT_RUNS),
         timing=L.relight_timing(),
-    params:
-        config_digest=frng_config.rule_digest(config, "relight"),
-        py=PY,
-        config=CONFIG_FILE,
-        models=lambda wildcards, input: os.path.dirname(os.path.dirname(input.models[0])),
     log:
         L.log("relight", "{obj}"),
     wildcard_constraints:
@@ -33,6 +26,13 @@ rule relight:
         mem_mb=6000,
         runtime=60,
         gpu=TORCH_GPUS,
+    params:
+        config_digest=frng_config.rule_digest(config, "relight"),
+        py=PY,
+        config=CONFIG_FILE,
+        models=lambda wildcards, input: os.path.dirname(os.path.dirname(input.models[0])),
+    message:
+        "Relighting {wildcards.obj}: F-RNG runs and the backbone under every target light"
     shell:
         "exec {params.py:q} -m frng relight --config {params.config:q} --object {wildcards.obj:q} --models {params.models:q} "
         "> {log:q} 2>&1"

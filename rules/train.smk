@@ -15,18 +15,18 @@ FRNG_ALIASES = [v for v in all_variants(config) if canonical_variant(config, v) 
 
 
 rule training_set_caches:
-    message:
-        "Index of the training split's backbone caches and curated objects ({n} objects)".format(n=len(TRAIN_IDS))
     input:
         caches=expand(rules.backbone_cache.output.cache, obj=TRAIN_IDS),
         meta=expand(rules.curate.output.meta, obj=TRAIN_IDS),
     output:
         L.backbone_cache_index(),
-    params:
-        config_digest=frng_config.rule_digest(config, "training_set_caches"),
     log:
         L.log("training_set_caches"),
     localrule: True
+    params:
+        config_digest=frng_config.rule_digest(config, "training_set_caches"),
+    message:
+        "Index of the training split's backbone caches and curated objects ({n} objects)".format(n=len(TRAIN_IDS))
     run:
         from frng.io import write_file_index
 
@@ -34,17 +34,17 @@ rule training_set_caches:
 
 
 rule training_set_priors:
-    message:
-        "Index of the training split's IDM priors ({n} objects)".format(n=len(TRAIN_IDS))
     input:
         priors=expand(rules.idm_priors.output.priors, obj=TRAIN_IDS),
     output:
         L.idm_priors_index(),
-    params:
-        config_digest=frng_config.rule_digest(config, "training_set_priors"),
     log:
         L.log("training_set_priors"),
     localrule: True
+    params:
+        config_digest=frng_config.rule_digest(config, "training_set_priors"),
+    message:
+        "Index of the training split's IDM priors ({n} objects)".format(n=len(TRAIN_IDS))
     run:
         from frng.io import write_file_index
 
@@ -52,8 +52,6 @@ rule training_set_priors:
 
 
 rule train:
-    message:
-        "Training F-RNG variant {wildcards.variant}"
     input:
         backbone=rules.backbone_train.output.model,
         caches=rules.training_set_caches.output[0],
@@ -62,11 +60,6 @@ rule train:
         model=L.model(),
         curve=L.model_curve(),
         plot=L.model_curve(ext="png"),
-    params:
-        config_digest=frng_config.rule_digest(config, "train"),
-        out=lambda wildcards, output: os.path.dirname(output.model),
-        launcher=lambda wildcards, resources: torchrun_command(resources.gpu, python=PY),
-        config=CONFIG_FILE,
     log:
         L.model_file("{variant}", "train.log"),
     wildcard_constraints:
@@ -80,14 +73,19 @@ rule train:
         mem_mb=6000,
         runtime=60,
         gpu=TORCH_GPUS,
+    params:
+        config_digest=frng_config.rule_digest(config, "train"),
+        out=lambda wildcards, output: os.path.dirname(output.model),
+        launcher=lambda wildcards, resources: torchrun_command(resources.gpu, python=PY),
+        config=CONFIG_FILE,
+    message:
+        "Training F-RNG variant {wildcards.variant}"
     shell:
         "exec {params.launcher} train --config {params.config:q} --variant {wildcards.variant:q} "
         "--backbone {input.backbone:q} --out {params.out:q} > {log:q} 2>&1"
 
 
 rule model_alias:
-    message:
-        "F-RNG variant {wildcards.alias} is the full model (same K): copying it"
     input:
         model=L.model("full"),
         curve=L.model_curve("full"),
@@ -96,8 +94,6 @@ rule model_alias:
         model=L.model("{alias}"),
         curve=L.model_curve("{alias}"),
         plot=L.model_curve("{alias}", "png"),
-    params:
-        config_digest=frng_config.rule_digest(config, "model_alias"),
     log:
         L.model_file("{alias}", "alias.log"),
     wildcard_constraints:
@@ -109,6 +105,10 @@ rule model_alias:
     resources:
         mem_mb=500,
         runtime=5,
+    params:
+        config_digest=frng_config.rule_digest(config, "model_alias"),
+    message:
+        "F-RNG variant {wildcards.alias} is the full model (same K): copying it"
     shell:
         "(cp {input.model:q} {output.model:q} && cp {input.curve:q} {output.curve:q} && cp {input.plot:q} {output.plot:q}) "
         "> {log:q} 2>&1"

@@ -44,7 +44,7 @@ def halves(left, right, size: int = 16) -> np.ndarray:
     left, right = np.asarray(left, np.uint8), np.asarray(right, np.uint8)
     img = np.zeros((size, size, len(left)), np.uint8)
     img[:, : size // 2] = left
-    img[:, size // 2:] = right
+    img[:, size // 2 :] = right
     return img
 
 
@@ -63,8 +63,10 @@ def srgb_to_linear(c):
 
 # -- OBJ + MTL ---------------------------------------------------------------------------------------------------
 
-def write_obj(folder: Path, stem: str, mtl: str | None, textures: dict[str, np.ndarray] | None = None,
-              material: str = "mat") -> Path:
+
+def write_obj(
+    folder: Path, stem: str, mtl: str | None, textures: dict[str, np.ndarray] | None = None, material: str = "mat"
+) -> Path:
     """``{stem}.obj`` (+ ``{stem}.mtl`` holding the text ``mtl`` when given, + PNG ``textures`` by file name)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -89,8 +91,14 @@ def write_obj(folder: Path, stem: str, mtl: str | None, textures: dict[str, np.n
 
 # -- glTF binary ---------------------------------------------------------------------------------------------------
 
-def write_glb(path: Path, material: dict | None, images: dict[str, np.ndarray] | None = None,
-              colors: np.ndarray | None = None, extensions_used: list[str] | None = None) -> Path:
+
+def write_glb(
+    path: Path,
+    material: dict | None,
+    images: dict[str, np.ndarray] | None = None,
+    colors: np.ndarray | None = None,
+    extensions_used: list[str] | None = None,
+) -> Path:
     """A box (Y-up file coordinates: the box's file Z axis is written as glTF's -Y... no: written as given, the
     reader treats Y as up) as a GLB. ``material``: the glTF material object, textures referenced as
     ``{"index": name}`` with ``name`` a key of ``images`` (PNG-encoded into the binary chunk). ``colors``:
@@ -102,8 +110,11 @@ def write_glb(path: Path, material: dict | None, images: dict[str, np.ndarray] |
         nrm.append(np.repeat(n[None], 4, 0))
         uv.append(np.stack([UV[:, 0], 1.0 - UV[:, 1]], 1))  # glTF: v down
         idx += [4 * f + k for k in (0, 1, 2, 0, 2, 3)]
-    attrs = {"POSITION": np.concatenate(pos).astype(np.float32), "NORMAL": np.concatenate(nrm).astype(np.float32),
-             "TEXCOORD_0": np.concatenate(uv).astype(np.float32)}
+    attrs = {
+        "POSITION": np.concatenate(pos).astype(np.float32),
+        "NORMAL": np.concatenate(nrm).astype(np.float32),
+        "TEXCOORD_0": np.concatenate(uv).astype(np.float32),
+    }
     if colors is not None:
         attrs["COLOR_0"] = np.asarray(colors, np.float32)
     blob = bytearray()
@@ -127,12 +138,18 @@ def write_glb(path: Path, material: dict | None, images: dict[str, np.ndarray] |
     v = add_view(np.asarray(idx, np.uint16).tobytes())
     accessors.append({"bufferView": v, "componentType": 5123, "count": len(idx), "type": "SCALAR"})
     prim = {"attributes": prim_attrs, "indices": len(accessors) - 1}
-    gltf = {"asset": {"version": "2.0", "generator": "frng tests"}, "scene": 0, "scenes": [{"nodes": [0]}],
-            "nodes": [{"mesh": 0, "name": "box"}], "meshes": [{"primitives": [prim]}]}
+    gltf = {
+        "asset": {"version": "2.0", "generator": "frng tests"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0, "name": "box"}],
+        "meshes": [{"primitives": [prim]}],
+    }
     names = list(images)
     if names:
-        gltf["images"] = [{"bufferView": add_view(png_bytes(images[n])), "mimeType": "image/png", "name": n}
-                          for n in names]
+        gltf["images"] = [
+            {"bufferView": add_view(png_bytes(images[n])), "mimeType": "image/png", "name": n} for n in names
+        ]
         gltf["samplers"] = [{"magFilter": 9728, "minFilter": 9728}]  # nearest: texel values stay exact
         gltf["textures"] = [{"source": i, "sampler": 0} for i in range(len(names))]
     if material is not None:
@@ -148,6 +165,7 @@ def write_glb(path: Path, material: dict | None, images: dict[str, np.ndarray] |
             elif isinstance(node, list):
                 for val in node:
                     fix(val)
+
         fix(mat)
         gltf["materials"] = [mat]
         prim["material"] = 0
@@ -169,14 +187,26 @@ def write_glb(path: Path, material: dict | None, images: dict[str, np.ndarray] |
 
 # -- PLY ---------------------------------------------------------------------------------------------------------
 
+
 def write_ply(path: Path, rgb=(200, 40, 40)) -> Path:
     """The box as ASCII PLY with uchar vertex colours ``rgb`` (sRGB bytes)."""
     verts, faces = [], []
     for f, (pts, _, _) in enumerate(box_faces()):
         verts += [f"{x:.6f} {y:.6f} {z:.6f} {rgb[0]} {rgb[1]} {rgb[2]}" for x, y, z in pts]
         faces.append("4 " + " ".join(str(4 * f + k) for k in range(4)))
-    head = ["ply", "format ascii 1.0", f"element vertex {len(verts)}", "property float x", "property float y",
-            "property float z", "property uchar red", "property uchar green", "property uchar blue",
-            f"element face {len(faces)}", "property list uchar int vertex_indices", "end_header"]
+    head = [
+        "ply",
+        "format ascii 1.0",
+        f"element vertex {len(verts)}",
+        "property float x",
+        "property float y",
+        "property float z",
+        "property uchar red",
+        "property uchar green",
+        "property uchar blue",
+        f"element face {len(faces)}",
+        "property list uchar int vertex_indices",
+        "end_header",
+    ]
     Path(path).write_text("\n".join(head + verts + faces) + "\n")
     return Path(path)

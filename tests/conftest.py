@@ -48,8 +48,7 @@ def smoke_dataset(tmp_path_factory):
     py = [sys.executable, "-m", "frng"]
     subprocess.run(py + ["envmaps", "--config", str(path)], check=True, cwd=d, capture_output=True)
     for oid in catalog.plan(config).object_ids:
-        subprocess.run(py + ["curate", "--config", str(path), "--object", oid], check=True, cwd=d,
-                       capture_output=True)
+        subprocess.run(py + ["curate", "--config", str(path), "--object", oid], check=True, cwd=d, capture_output=True)
     return path, config
 
 

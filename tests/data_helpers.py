@@ -16,10 +16,22 @@ def write_config(path: Path, results: Path, **sections) -> Path:
         "seed": 0,
         "results": str(results),
         "objects": {"count": 2, "test_count": 1, "sources": ["primitives"]},
-        "envmaps": {"width": 32, "bundled": ["studio", "city", "forest"], "skies": {"models": []},
-                    "rotations": 1, "test_fraction": 0.34},
-        "render": {"resolution": 32, "spp": 4, "extra_input_views": 0, "target_views": 2, "input_lights": 1,
-                   "target_lights": 1, "fur_strands": 200},
+        "envmaps": {
+            "width": 32,
+            "bundled": ["studio", "city", "forest"],
+            "skies": {"models": []},
+            "rotations": 1,
+            "test_fraction": 0.34,
+        },
+        "render": {
+            "resolution": 32,
+            "spp": 4,
+            "extra_input_views": 0,
+            "target_views": 2,
+            "input_lights": 1,
+            "target_lights": 1,
+            "fur_strands": 200,
+        },
     }
     for key, value in sections.items():
         cfg[key] = {**cfg.get(key, {}), **value} if isinstance(value, dict) else value

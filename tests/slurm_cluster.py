@@ -46,13 +46,15 @@ def ensure_installed(timeout_s: float = 300) -> None:
         raise Unavailable("SLURM binaries missing and no apt-get to install them")
     env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
     deadline = time.monotonic() + timeout_s
-    for cmd in (["apt-get", "update", "-qq"],
-                ["apt-get", "install", "-y", "-qq", "--no-install-recommends", *PACKAGES]):
+    for cmd in (
+        ["apt-get", "update", "-qq"],
+        ["apt-get", "install", "-y", "-qq", "--no-install-recommends", *PACKAGES],
+    ):
         left = deadline - time.monotonic()
         try:
             r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=max(left, 1))
         except subprocess.TimeoutExpired:
-            raise Unavailable(f"`{' '.join(cmd)}` did not finish within {timeout_s:.0f} s")
+            raise Unavailable(f"`{' '.join(cmd)}` did not finish within {timeout_s:.0f} s") from None
         if r.returncode:
             raise Unavailable(f"`{' '.join(cmd)}` failed: {(r.stderr or r.stdout).strip()[-500:]}")
     if missing_binaries():
@@ -87,7 +89,7 @@ class Cluster:
         self._pidfiles: list[Path] = []
 
     # -- lifecycle -----------------------------------------------------------------------------------
-    def __enter__(self) -> "Cluster":
+    def __enter__(self) -> Cluster:
         try:
             self.start()
         except BaseException:
@@ -126,7 +128,9 @@ class Cluster:
     def _run(self, cmd: list, **kw) -> subprocess.CompletedProcess:
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=60, **kw)
         if r.returncode:
-            raise RuntimeError(f"{' '.join(map(str, cmd))} failed ({r.returncode}): {r.stderr or r.stdout}\n{self.logs()}")
+            raise RuntimeError(
+                f"{' '.join(map(str, cmd))} failed ({r.returncode}): {r.stderr or r.stdout}\n{self.logs()}"
+            )
         return r
 
     def _start_munge(self) -> None:
@@ -138,9 +142,20 @@ class Cluster:
         (m / "munge.key").chmod(0o400)
         self.munge_socket = m / "munge.socket.2"
         self._pidfiles.append(m / "munged.pid")
-        self._run(["runuser", "-u", "munge", "--", _which("munged"), f"--socket={self.munge_socket}",
-                   f"--key-file={m / 'munge.key'}", f"--pid-file={m / 'munged.pid'}",
-                   f"--log-file={m / 'munged.log'}", f"--seed-file={m / 'munged.seed'}"])
+        self._run(
+            [
+                "runuser",
+                "-u",
+                "munge",
+                "--",
+                _which("munged"),
+                f"--socket={self.munge_socket}",
+                f"--key-file={m / 'munge.key'}",
+                f"--pid-file={m / 'munged.pid'}",
+                f"--log-file={m / 'munged.log'}",
+                f"--seed-file={m / 'munged.seed'}",
+            ]
+        )
 
     def _write_conf(self) -> None:
         S, H = self.state, self.host
@@ -207,8 +222,9 @@ PartitionName={self.partition} Nodes=ALL Default=YES MaxTime=INFINITE State=UP
     # -- queries -----------------------------------------------------------------------------------------
     def jobs(self, states: str = "all") -> list[dict]:
         """Jobs the controller knows: [{id, name, state}]."""
-        r = subprocess.run(["squeue", "-h", f"--states={states}", "-o", "%i|%j|%T|%k"],
-                           capture_output=True, text=True, timeout=20)
+        r = subprocess.run(
+            ["squeue", "-h", f"--states={states}", "-o", "%i|%j|%T|%k"], capture_output=True, text=True, timeout=20
+        )
         rows = [line.split("|") for line in r.stdout.splitlines() if line.strip()]
         return [{"id": r[0], "name": r[1], "state": r[2], "comment": r[3]} for r in rows]
 

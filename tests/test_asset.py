@@ -7,13 +7,22 @@ import pytest
 import torch
 
 from frng.asset import (
-    BASE_PROPERTIES, AssetError, load_asset, read_ply, read_ply_header, save_asset, write_ply,
+    BASE_PROPERTIES,
+    AssetError,
+    load_asset,
+    read_ply,
+    read_ply_header,
+    save_asset,
+    write_ply,
 )
 from frng.gaussians import Gaussians
 
 N, C = 300, 8
-META = {"object_id": "chair_012", "source_views": ["v0", "v1", "v2"],
-        "decoder": {"width": 32, "depth": 2, "input_encoding": "features+dirs"}}
+META = {
+    "object_id": "chair_012",
+    "source_views": ["v0", "v1", "v2"],
+    "decoder": {"width": 32, "depth": 2, "input_encoding": "features+dirs"},
+}
 
 
 def _asset():
@@ -57,7 +66,7 @@ def test_round_trip(saved):
 def test_ply_is_standard_3dgs(saved):
     folder = saved[0]
     raw = (folder / "gaussians.ply").read_bytes()
-    head = raw[:raw.index(b"end_header\n") + len(b"end_header\n")].decode("ascii").splitlines()
+    head = raw[: raw.index(b"end_header\n") + len(b"end_header\n")].decode("ascii").splitlines()
     assert head[0] == "ply" and head[1] == "format binary_little_endian 1.0"
     assert f"element vertex {N}" in head
     props = [l.split() for l in head if l.startswith("property")]
@@ -75,12 +84,20 @@ def test_ply_is_standard_3dgs(saved):
 
 
 def test_ply_alone_mixed_types_and_ascii(tmp_path):
-    fields = {"a": np.arange(5, dtype=np.float64), "b": np.arange(5, dtype=np.uint8), "c": -np.arange(5, dtype=np.int32)}
+    fields = {
+        "a": np.arange(5, dtype=np.float64),
+        "b": np.arange(5, dtype=np.uint8),
+        "c": -np.arange(5, dtype=np.int32),
+    }
     write_ply(tmp_path / "x.ply", fields, element="point", comments=["hello"])
     back = read_ply(tmp_path / "x.ply", element="point")
-    assert list(back) == ["a", "b", "c"] and all(np.array_equal(back[k], fields[k]) and back[k].dtype == fields[k].dtype for k in fields)
+    assert list(back) == ["a", "b", "c"] and all(
+        np.array_equal(back[k], fields[k]) and back[k].dtype == fields[k].dtype for k in fields
+    )
     assert read_ply_header(tmp_path / "x.ply")["comments"] == ["hello"]
-    (tmp_path / "t.ply").write_text("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty uchar k\nend_header\n1.5 3\n-2 4\n")
+    (tmp_path / "t.ply").write_text(
+        "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty uchar k\nend_header\n1.5 3\n-2 4\n"
+    )
     back = read_ply(tmp_path / "t.ply")
     assert back["x"].tolist() == [1.5, -2.0] and back["k"].tolist() == [3, 4]
 
@@ -132,7 +149,9 @@ def test_nan_field_named(saved, tmp_path):
     fields = read_ply(d / "gaussians.ply")
     fields["feat_3"][7] = np.nan
     write_ply(d / "gaussians.ply", fields)
-    with pytest.raises(AssetError, match=r"gaussians.ply: field 'feat_3' has 1 non-finite value\(s\) \(first at row 7\)"):
+    with pytest.raises(
+        AssetError, match=r"gaussians.ply: field 'feat_3' has 1 non-finite value\(s\) \(first at row 7\)"
+    ):
         load_asset(d)
 
 

@@ -58,26 +58,44 @@ def _render(c2w, K, light_seed: int) -> np.ndarray:
 def _cam(az, el, kind, name):
     c2w = camera.look_at(camera.spherical_to_cartesian(az + 17.0, el, 2.6))
     K = camera.intrinsics_from_fov(50.0, RES, RES)
-    return {"name": name, "kind": kind, "azimuth_deg": az, "elevation_deg": el, "c2w": c2w.tolist(),
-            "intrinsics": K.tolist(), "width": RES, "height": RES}
+    return {
+        "name": name,
+        "kind": kind,
+        "azimuth_deg": az,
+        "elevation_deg": el,
+        "c2w": c2w.tolist(),
+        "intrinsics": K.tolist(),
+        "width": RES,
+        "height": RES,
+    }
 
 
 def make_curated(results: Path, oid: str = "obj_0000") -> Path:
     """A curated object in the dataset contract, drawn analytically (no Blender)."""
     for k, name in enumerate(LIGHTS_IN + LIGHTS_TGT):
         envmap.write(results / "envmaps" / f"{name}.exr", _smooth_map(k))
-    views = {"inputs": [_cam(a, e, "input", f"in_{k:02d}") for k, (a, e) in enumerate(RIG + EXTRA)],
-             "targets": [_cam(a, e, "target", f"tgt_{k:03d}") for k, (a, e) in enumerate(TARGETS)]}
+    views = {
+        "inputs": [_cam(a, e, "input", f"in_{k:02d}") for k, (a, e) in enumerate(RIG + EXTRA)],
+        "targets": [_cam(a, e, "target", f"tgt_{k:03d}") for k, (a, e) in enumerate(TARGETS)],
+    }
     root = results / "objects" / oid
     for kind, lights in (("inputs", LIGHTS_IN), ("targets", LIGHTS_TGT)):
         for li, light in enumerate(lights):
             for v in views[kind]:
                 img = _render(np.array(v["c2w"]), v["intrinsics"], 10 + li + (5 if kind == "targets" else 0))
                 io.write_exr(root / kind / light / f"{v['name']}.exr", img, channels=["R", "G", "B", "A"])
-    io.write_json(root / "meta.json", {
-        "id": oid, "split": "test", "material_class": "diffuse", "input_lights": LIGHTS_IN,
-        "target_lights": LIGHTS_TGT, "views": views,
-        "lights": {n: {"file": f"envmaps/{n}.exr"} for n in LIGHTS_IN + LIGHTS_TGT}})
+    io.write_json(
+        root / "meta.json",
+        {
+            "id": oid,
+            "split": "test",
+            "material_class": "diffuse",
+            "input_lights": LIGHTS_IN,
+            "target_lights": LIGHTS_TGT,
+            "views": views,
+            "lights": {n: {"file": f"envmaps/{n}.exr"} for n in LIGHTS_IN + LIGHTS_TGT},
+        },
+    )
     return root
 
 
@@ -111,8 +129,9 @@ def test_cameras_round_trip_a_known_point_to_a_known_pixel(layout, curated, roun
     T = np.array(meta["benchmark"]["source_to_world"])
     # the object's centre (the origin) is at the image centre of every look-at camera: a known pixel
     for v in meta["views"]["inputs"] + meta["views"]["targets"]:
-        assert np.allclose(_project(v["c2w"], v["intrinsics"], (T @ [0, 0, 0, 1])[:3]), [RES / 2, RES / 2],
-                           atol=2e-3), (layout, v["name"])
+        assert np.allclose(
+            _project(v["c2w"], v["intrinsics"], (T @ [0, 0, 0, 1])[:3]), [RES / 2, RES / 2], atol=2e-3
+        ), (layout, v["name"])
     # an off-centre point lands where the original camera puts it
     X = np.array([0.31, -0.22, 0.45])
     Xn = (T @ np.append(X, 1))[:3]
@@ -121,8 +140,11 @@ def test_cameras_round_trip_a_known_point_to_a_known_pixel(layout, curated, roun
     if layout == "nerf-synthetic":  # its test views are the extra input views (one light: novel views)
         src_t = {f"tgt_{k:03d}": v for k, v in enumerate(src["views"]["inputs"][6:])}
     for v in meta["views"]["targets"]:
-        assert np.allclose(_project(v["c2w"], v["intrinsics"], Xn), _project(src_t[v["name"]]["c2w"],
-                           src_t[v["name"]]["intrinsics"], X), atol=2e-3), (layout, v["name"])
+        assert np.allclose(
+            _project(v["c2w"], v["intrinsics"], Xn),
+            _project(src_t[v["name"]]["c2w"], src_t[v["name"]]["intrinsics"], X),
+            atol=2e-3,
+        ), (layout, v["name"])
     # normalised into the unit sphere: the sphere of radius 0.7 fills it (silhouette-cone radius, area sampled)
     scale = np.cbrt(np.linalg.det(T[:3, :3]))
     assert 1.0 / 0.8 < scale < 1.0 / 0.6, scale
@@ -184,6 +206,7 @@ def test_imported_object_reads_with_the_dataset_reader(round_trips):
 
 # -- bad input --------------------------------------------------------------------------------------------------
 
+
 def _no_leftovers(results: Path):
     objs = results / "objects"
     return not objs.exists() or not any(objs.iterdir())
@@ -240,14 +263,19 @@ def test_cli_error_is_one_line(round_trips, tmp_path):
     from tests.data_helpers import write_config
 
     cfg = write_config(tmp_path / "c.yaml", tmp_path / "r")
-    proc = subprocess.run([sys.executable, "-m", "frng", "import", "owl", str(tmp_path / "nowhere"), "--config",
-                           str(cfg)], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "frng", "import", "owl", str(tmp_path / "nowhere"), "--config", str(cfg)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 2
     lines = [l for l in (proc.stdout + proc.stderr).splitlines() if l.strip()]
     assert len(lines) == 1 and "nowhere" in lines[0], lines
 
 
 # -- the published protocols, by hand -------------------------------------------------------------------------
+
 
 def _srgb(x):
     return 12.92 * x if x <= 0.0031308 else 1.055 * x ** (1 / 2.4) - 0.055
@@ -273,7 +301,7 @@ def test_orb_protocol_by_hand():
     gt[..., 3] = 1.0
     pred = gt.copy()
     pred[:6, :, :3] = 0.25
-    s = (0.5 * 0.25 + 0.5 * 0.5) / (0.25 ** 2 + 0.5 ** 2)  # least-squares scale per channel = 1.2
+    s = (0.5 * 0.25 + 0.5 * 0.5) / (0.25**2 + 0.5**2)  # least-squares scale per channel = 1.2
     e1, e2 = s * 0.25 - 0.5, s * 0.5 - 0.5  # -0.2, +0.1
     # PSNR-H: both x median factor m = srgb(0.5) / 0.5 first, max 4, no tone mapping
     m = _srgb(0.5) / 0.5
@@ -304,6 +332,7 @@ def test_owl_protocol_by_hand():
     assert out["exposure_fit"] == pytest.approx(1.0, abs=1e-3)
     assert out["psnr"] == pytest.approx(-10 * math.log10(0.25 * (0.9 - g1) ** 2), abs=1e-2)
     # over-exposed ground-truth pixels are left out of the fit
-    p, e, bal = protocols.owl_fit(np.full((2, 2, 3), 0.25, np.float32), np.where(gt_tm == 0.9, 1.0, gt_tm),
-                                  np.ones((2, 2, 1)))
+    p, e, bal = protocols.owl_fit(
+        np.full((2, 2, 3), 0.25, np.float32), np.where(gt_tm == 0.9, 1.0, gt_tm), np.ones((2, 2, 1))
+    )
     assert e == pytest.approx(1.0, abs=1e-3) and np.allclose(bal, 1, atol=1e-3)

@@ -13,7 +13,6 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-
 from conftest import ROOT, venv_bin
 
 LAYOUTS = ["tensoir", "orb", "owl", "nerf-synthetic"]
@@ -47,12 +46,12 @@ def exported(tmp_path_factory):
 
 def test_dry_run_of_a_config_naming_benchmarks_plans_offline(exported, tmp_path):
     cfg = _config(tmp_path, tmp_path / "results", [{"layout": l, "path": str(p)} for l, p in exported.items()])
-    proc = subprocess.run(["make", "dry-run", f"CONFIG={cfg}"], cwd=ROOT, capture_output=True, text=True,
-                          timeout=300)
+    proc = subprocess.run(["make", "dry-run", f"CONFIG={cfg}"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, (proc.stdout + proc.stderr)[-3000:]
     out = proc.stdout + proc.stderr
-    counts = {k: int(v) for k, v in (l.split() for l in out.splitlines() if len(l.split()) == 2
-                                      and l.split()[1].isdigit())}
+    counts = {
+        k: int(v) for k, v in (l.split() for l in out.splitlines() if len(l.split()) == 2 and l.split()[1].isdigit())
+    }
     assert counts.get("import_benchmark") == 4 and counts.get("relight_benchmark") == 4, out[-2000:]
     assert counts.get("evaluate_benchmarks") == 1
     assert not (tmp_path / "results" / "objects").exists()  # planning wrote nothing
@@ -60,8 +59,7 @@ def test_dry_run_of_a_config_naming_benchmarks_plans_offline(exported, tmp_path)
 
 def test_bad_benchmark_entries_fail_before_any_job(exported, tmp_path):
     p = str(exported["tensoir"])
-    cfg = _config(tmp_path, tmp_path / "results", [{"layout": "tensoir", "path": p},
-                                                   {"layout": "tensoir", "path": p}])
+    cfg = _config(tmp_path, tmp_path / "results", [{"layout": "tensoir", "path": p}, {"layout": "tensoir", "path": p}])
     proc = _snakemake(cfg, "-n", "--quiet", "rules")
     assert proc.returncode != 0 and "both import to 'tensoir-obj_0000'" in proc.stdout + proc.stderr
     cfg = _config(tmp_path, tmp_path / "results", [{"layout": "mitsuba", "path": p}])
@@ -80,19 +78,46 @@ def test_smoke_tier_exported_imported_relit_scored(tmp_path):
     cfg0 = _config(tmp_path, results, [])
     config = frng_config.load(cfg0)
     oid = catalog.plan(config).split("test")[0]
-    r = _snakemake(cfg0, "--profile", "profiles/local", "--cores", "2", str(results / "objects" / oid /
-                                                                             "meta.json"), timeout=900)
+    r = _snakemake(
+        cfg0, "--profile", "profiles/local", "--cores", "2", str(results / "objects" / oid / "meta.json"), timeout=900
+    )
     assert r.returncode == 0, (r.stdout + r.stderr)[-3000:]
     paths = {}
     for layout in LAYOUTS:
-        proc = subprocess.run([sys.executable, "-m", "frng", "export", "--config", str(cfg0), "--layout", layout,
-                               "--object", oid, "--out", str(tmp_path / "export" / layout)], cwd=ROOT,
-                              capture_output=True, text=True, timeout=300)
+        proc = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "frng",
+                "export",
+                "--config",
+                str(cfg0),
+                "--layout",
+                layout,
+                "--object",
+                oid,
+                "--out",
+                str(tmp_path / "export" / layout),
+            ],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
         assert proc.returncode == 0, proc.stdout + proc.stderr
         paths[layout] = proc.stdout.strip().splitlines()[-1]
     cfg = _config(tmp_path, results, [{"layout": l, "path": p} for l, p in paths.items()])
-    r = _snakemake(cfg, "--profile", "profiles/local", "--config", "overwrite_config=true", "--cores", "2",
-                   "evaluate_benchmarks", timeout=1800)  # --config/--configfile take several values: target last
+    r = _snakemake(
+        cfg,
+        "--profile",
+        "profiles/local",
+        "--config",
+        "overwrite_config=true",
+        "--cores",
+        "2",
+        "evaluate_benchmarks",
+        timeout=1800,
+    )  # --config/--configfile take several values: target last
     assert r.returncode == 0, (r.stdout + r.stderr)[-3000:]
     table = pd.read_csv(results / "tables" / "benchmarks.csv")
     assert set(table["benchmark"]) == set(LAYOUTS)

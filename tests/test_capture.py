@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-
 from conftest import ROOT
 
 from frng import camera, envmap, io
@@ -23,7 +22,6 @@ from frng.capture import (
     load_images,
     make_masks,
     prepare,
-    read_cameras,
     read_light,
     rig_cameras,
 )
@@ -59,6 +57,7 @@ def _folder(tmp, n=3, **kw) -> Path:
 
 # -- images, masks -------------------------------------------------------------------------------------------
 
+
 def test_fewer_than_two_images_names_the_folder(tmp_path):
     d = _folder(tmp_path, n=1)
     with pytest.raises(CaptureError, match=f"{d}: 1 image.*at least 2"):
@@ -85,7 +84,7 @@ def test_grid_image_is_split_row_by_row(tmp_path):
     masks = tmp_path / "masks"
     masks.mkdir()
     m = np.zeros((2 * RES, 3 * RES, 3), np.float32)
-    m[RES:, 2 * RES:] = 1.0  # only the last tile
+    m[RES:, 2 * RES :] = 1.0  # only the last tile
     _png(masks / "grid.png", m)
     with pytest.raises(CaptureError, match=r"grid.png: the mask is empty"):
         make_masks(load_images(f, grid=(2, 3)), masks, grid=(2, 3))
@@ -159,13 +158,16 @@ def test_empty_masks_name_the_file(tmp_path):
 
 # -- cameras ------------------------------------------------------------------------------------------------
 
+
 def _curated_like(tmp, n=4):
     """Views rendered (analytically) as the training rig would: a disk at the centre; frng cameras.json."""
     cams = rig_cameras(n, DIST, FOV, RES)
     d = _folder(tmp, n=n)
     names = sorted(p.stem for p in d.iterdir())
-    entries = [{"name": nm, "c2w": c.c2w.tolist(), "intrinsics": c.intr.tolist(), "width": RES, "height": RES}
-               for nm, c in zip(names, cams)]
+    entries = [
+        {"name": nm, "c2w": c.c2w.tolist(), "intrinsics": c.intr.tolist(), "width": RES, "height": RES}
+        for nm, c in zip(names, cams)
+    ]
     (tmp / "cameras.json").write_text(json.dumps({"cameras": entries}))
     return d, cams
 
@@ -228,8 +230,9 @@ def test_transforms_json_and_opencv_files_normalise_to_the_rig(tmp_path):
         assert np.allclose(cap.intr, np.stack([c.intr for c in cams]), atol=1e-6), f
         p = torch.tensor([[0.2, -0.1, 0.3]], dtype=torch.float64)
         uv, _ = camera.project(p, torch.tensor(cap.c2w), torch.tensor(cap.intr))
-        uv0, _ = camera.project(p, torch.tensor(np.stack([c.c2w for c in cams])),
-                                torch.tensor(np.stack([c.intr for c in cams])))
+        uv0, _ = camera.project(
+            p, torch.tensor(np.stack([c.c2w for c in cams])), torch.tensor(np.stack([c.intr for c in cams]))
+        )
         assert torch.allclose(uv, uv0, atol=1e-6)
         assert (np.abs(cap.alpha[..., 0] - (_disk()[..., 3])) > 0.5).mean() < 0.02
 
@@ -254,7 +257,7 @@ def test_object_framing_crops_around_the_object(tmp_path):
     d.mkdir()
     for i in range(3):
         img = np.zeros((60, 120, 4), np.float32)
-        img[20:40, 70 + i:90 + i] = (0.5, 0.5, 0.5, 1)
+        img[20:40, 70 + i : 90 + i] = (0.5, 0.5, 0.5, 1)
         _png(d / f"w{i}.png", img)
     cap = prepare(d, resolution=RES, distance=DIST, fov_deg=FOV, rig="paper")
     assert cap.info["crops"][0]["framing"] == "object"
@@ -265,6 +268,7 @@ def test_object_framing_crops_around_the_object(tmp_path):
 
 
 # -- light ----------------------------------------------------------------------------------------------------
+
 
 def test_light_estimate_recovers_the_irradiance():
     """A Lambertian sphere of known albedo under a smooth light: the fitted light's irradiance over the seen
@@ -309,6 +313,7 @@ def test_maps_not_2to1_or_not_finite_name_the_file(tmp_path):
 
 # -- assets: render side ---------------------------------------------------------------------------------------
 
+
 def synthetic_asset(folder: Path, version_bump: bool = False) -> Path:
     """A small neural asset: a ball of Gaussians with a cosine decoder (normal + diffuse in the features)."""
     from frng.asset import render_settings, save_asset
@@ -323,14 +328,26 @@ def synthetic_asset(folder: Path, version_bump: bool = False) -> Path:
     feats = torch.zeros(N, C)
     feats[:, :3] = d
     feats[:, 3:6] = torch.tensor([0.6, 0.3, 0.2]) / math.pi
-    gauss = Gaussians(0.8 * d, torch.tensor([[1.0, 0, 0, 0]]).repeat(N, 1), torch.full((N, 3), 0.12),
-                      torch.full((N,), 0.9), feats)
+    gauss = Gaussians(
+        0.8 * d, torch.tensor([[1.0, 0, 0, 0]]).repeat(N, 1), torch.full((N, 3), 0.12), torch.full((N,), 0.9), feats
+    )
     dec = NeuralDecoder(C, 16, 2, 0, cosine=True, attenuation=True)
-    meta = {"object_id": "ball", "decoder": {"width": 16, "depth": 2, "input_encoding": "raw", "dir_freqs": 0,
-                                            "feature_dim": C, "cosine": True, "attenuation": True,
-                                            "head": "neural", "specular": True},
-            **render_settings(RasterConfig.from_dict({}), ShadingConfig.from_dict({"spp_infer": 8}), 8),
-            "rig": {"camera_distance": DIST, "fov_deg": FOV, "resolution": RES}}
+    meta = {
+        "object_id": "ball",
+        "decoder": {
+            "width": 16,
+            "depth": 2,
+            "input_encoding": "raw",
+            "dir_freqs": 0,
+            "feature_dim": C,
+            "cosine": True,
+            "attenuation": True,
+            "head": "neural",
+            "specular": True,
+        },
+        **render_settings(RasterConfig.from_dict({}), ShadingConfig.from_dict({"spp_infer": 8}), 8),
+        "rig": {"camera_distance": DIST, "fov_deg": FOV, "resolution": RES},
+    }
     save_asset(folder, gauss, feats, dec.state_dict(), meta)
     if version_bump:
         j = json.loads((folder / "asset.json").read_text())
@@ -340,8 +357,9 @@ def synthetic_asset(folder: Path, version_bump: bool = False) -> Path:
 
 
 def _frng(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "frng", *map(str, args)], cwd=cwd or ROOT, capture_output=True,
-                          text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "frng", *map(str, args)], cwd=cwd or ROOT, capture_output=True, text=True, timeout=300
+    )
 
 
 def test_render_asset_views_and_turntable(tmp_path):
@@ -364,7 +382,7 @@ def test_render_asset_views_and_turntable(tmp_path):
     # lit from above: the top of the ball is brighter than the bottom
     img = io.read_rgba(out / "turn_000.exr")
     ys, _ = np.nonzero(img[..., 3] > 0.5)
-    top, bot = img[ys.min():ys.min() + 3, :, 0].sum(), img[ys.max() - 2:ys.max() + 1, :, 0].sum()
+    top, bot = img[ys.min() : ys.min() + 3, :, 0].sum(), img[ys.max() - 2 : ys.max() + 1, :, 0].sum()
     assert top > bot
     # a camera file, in the asset's world
     cams = {"cameras": json.loads((out / "cameras.json").read_text())["cameras"][:2]}
@@ -393,8 +411,17 @@ def test_reconstruct_bad_input_is_one_line_naming_the_file(tmp_path):
     assert len(r.stdout.strip().splitlines()) == 1 and not (tmp_path / "a").exists()
     d = _folder(tmp_path, n=3)
     io.write_exr(tmp_path / "square.exr", np.ones((16, 16, 3), np.float32))
-    r = _frng("reconstruct", "--images", d, "--out", tmp_path / "a", "--light", tmp_path / "square.exr",
-              "--config", ROOT / "config" / "smoke.yaml")
+    r = _frng(
+        "reconstruct",
+        "--images",
+        d,
+        "--out",
+        tmp_path / "a",
+        "--light",
+        tmp_path / "square.exr",
+        "--config",
+        ROOT / "config" / "smoke.yaml",
+    )
     assert r.returncode == 2 and "square.exr: equirect maps must be 2:1" in r.stdout
     r = _frng("reconstruct", "--images", d, "--out", tmp_path / "a", "--model", tmp_path / "m" / "full" / "model.pt")
     assert r.returncode == 2 and "config.yaml: no recorded config beside the model" in r.stdout

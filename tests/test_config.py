@@ -30,7 +30,10 @@ def _base(root):
         (lambda c: c["render"].update(unknown_key=3), "render.unknown_key"),
         (lambda c: c["objects"].update(count=3, test_count=3), "objects.count"),
         (lambda c: c["objects"].update(test_count=0), "objects.test_count"),
-        (lambda c: c["objects"].update(material_mix={"diffuse": 0.5, "specular": 0.4, "fur": 0.2}), "objects.material_mix"),
+        (
+            lambda c: c["objects"].update(material_mix={"diffuse": 0.5, "specular": 0.4, "fur": 0.2}),
+            "objects.material_mix",
+        ),
         (lambda c: c["envmaps"].update(extra=[{"path": "x"}]), "envmaps.extra[0]"),
     ],
 )
@@ -63,6 +66,7 @@ def test_cli_config_reports_error(tmp_path, root, capsys):
 
 # -- issue 12, point 6: a bad config file ends in one line naming the file (and line), not a traceback ------------
 
+
 def test_float_resolution_names_key(root):
     c = _base(root)
     c["render"]["resolution"] = 32.0
@@ -92,8 +96,10 @@ def _stage_stderr(argv, capsys):
     return e.value.code, err
 
 
-@pytest.mark.parametrize("content, words", [("tier: smoke\nrender: {resolution: 32\n", ["line 3", "invalid YAML"]),
-                                            (None, ["does not exist"])])
+@pytest.mark.parametrize(
+    "content, words",
+    [("tier: smoke\nrender: {resolution: 32\n", ["line 3", "invalid YAML"]), (None, ["does not exist"])],
+)
 def test_stage_with_bad_config_file_prints_one_line(tmp_path, capsys, content, words):
     p = tmp_path / "stage.yaml"
     if content is not None:
@@ -158,8 +164,10 @@ def test_read_only_results_folder_names_it(tmp_path, root, monkeypatch):
     assert not list(results.iterdir())
 
 
-@pytest.mark.skipif(not hasattr(__import__("os"), "geteuid") or __import__("os").geteuid() == 0,
-                    reason="root writes into read-only folders")
+@pytest.mark.skipif(
+    not hasattr(__import__("os"), "geteuid") or __import__("os").geteuid() == 0,
+    reason="root writes into read-only folders",
+)
 def test_read_only_results_folder_for_real(tmp_path, root):
     results = tmp_path / "results"
     results.mkdir()

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import pytest
 import yaml
-
 from conftest import ROOT, venv_bin
+
 from frng import config as frng_config
 from frng.variants import trained_variants
 
@@ -89,17 +89,35 @@ def test_check_rule_digests_names_each_problem():
 
 # -- the workflow: one edit per stage, the dry run's job list ----------------------------------------------------
 
-RULES = {"envmaps", "curate", "dataset_preview", "backbone_train", "idm_train", "backbone_cache", "idm_priors",
-         "eval_backbone", "training_set_caches", "training_set_priors", "train", "model_alias", "relight",
-         "evaluate", "tables", "figures"}
+RULES = {
+    "envmaps",
+    "curate",
+    "dataset_preview",
+    "backbone_train",
+    "idm_train",
+    "backbone_cache",
+    "idm_priors",
+    "eval_backbone",
+    "training_set_caches",
+    "training_set_priors",
+    "train",
+    "model_alias",
+    "relight",
+    "evaluate",
+    "tables",
+    "figures",
+}
 AFTER_TRAIN = {"train", "model_alias", "relight", "evaluate", "tables", "figures"}
 
 # (key, new value) -> the rules whose jobs rerun ("all" left out); the smoke tier: learned IDM, 8 trained variants
 CASES = [
     ("envmaps.normalize", 0.6, RULES),
     ("render.spp", 16, RULES - {"envmaps"}),
-    ("backbone.train.steps", 13, {"backbone_train", "backbone_cache", "training_set_caches", "eval_backbone",
-                                  *AFTER_TRAIN}),
+    (
+        "backbone.train.steps",
+        13,
+        {"backbone_train", "backbone_cache", "training_set_caches", "eval_backbone", *AFTER_TRAIN},
+    ),
     ("idm.train.steps", 61, {"idm_train", "idm_priors", "training_set_priors", "eval_backbone", *AFTER_TRAIN}),
     ("train.steps", 21, AFTER_TRAIN),
     ("frng.hidden", 32, AFTER_TRAIN),
@@ -110,8 +128,16 @@ CASES = [
 
 
 def snakemake(configfile: Path, workdir: Path, *args) -> subprocess.CompletedProcess:
-    cmd = [venv_bin("snakemake"), "--snakefile", str(ROOT / "workflow" / "Snakefile"), "--directory", str(workdir),
-           "--configfile", str(configfile), *args]
+    cmd = [
+        venv_bin("snakemake"),
+        "--snakefile",
+        str(ROOT / "workflow" / "Snakefile"),
+        "--directory",
+        str(workdir),
+        "--configfile",
+        str(configfile),
+        *args,
+    ]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300, env=env)
     assert proc.returncode == 0, (proc.stdout + proc.stderr)[-4000:]
@@ -177,8 +203,9 @@ def test_unchanged_config_reruns_nothing(folder):
 @pytest.mark.parametrize("key, value, expected", CASES, ids=[c[0] for c in CASES])
 def test_an_edit_reruns_its_rules_and_what_follows_only(folder, key, value, expected):
     jobs = folder.jobs(set_key(folder.config, key, value), f"{key}.yaml")
-    assert set(jobs) == expected, (f"{key}: needless reruns {sorted(set(jobs) - expected)}, "
-                                   f"missing reruns {sorted(expected - set(jobs))}")
+    assert set(jobs) == expected, (
+        f"{key}: needless reruns {sorted(set(jobs) - expected)}, missing reruns {sorted(expected - set(jobs))}"
+    )
     cfg = frng_config.load(folder.write("check.yaml", folder.config))
     n_objects = cfg["objects"]["count"]
     if key == "backbone.train.steps":  # every cache and every variant
@@ -188,6 +215,7 @@ def test_an_edit_reruns_its_rules_and_what_follows_only(folder, key, value, expe
 
 
 # -- the digests travel with the results folder (issue 24, item 2) -----------------------------------------------
+
 
 @pytest.mark.parametrize("key, value", [("train.steps", 21), ("train.lr", 0.123)])
 def test_a_copied_folder_keeps_the_rerun_promise(folder, tmp_path, key, value):
@@ -205,7 +233,8 @@ def test_a_copied_folder_keeps_the_rerun_promise(folder, tmp_path, key, value):
     cfg = frng_config.load(fresh.write("check.yaml", fresh.config))
     assert set(jobs) == AFTER_TRAIN and jobs["train"] == len(trained_variants(cfg)), jobs
     assert sorted(p.name for p in (copy_ / ".digests").iterdir()) == sorted(
-        p.name for p in (folder.results / ".digests").iterdir())  # planning wrote nothing
+        p.name for p in (folder.results / ".digests").iterdir()
+    )  # planning wrote nothing
 
 
 def test_digest_files_are_recorded_and_replaced(tmp_path):

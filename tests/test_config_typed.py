@@ -31,8 +31,11 @@ def _records():
     from frng.priors.backbone import BackboneConfig
     from frng.priors.idm import IDMConfig
 
-    return [(BackboneConfig, "backbone", {"patch"}), (IDMConfig, "idm", {"patch", "near", "far"}),
-            (FRNGConfig, None, None)]
+    return [
+        (BackboneConfig, "backbone", {"patch"}),
+        (IDMConfig, "idm", {"patch", "near", "far"}),
+        (FRNGConfig, None, None),
+    ]
 
 
 @pytest.mark.parametrize("where", sorted(SECTION_CLASSES))
@@ -110,7 +113,10 @@ def test_shipped_configs_round_trip(path):
     assert isinstance(c, Config) and fc.typed(c) is c
     assert c.to_dict() == d
     assert c.train.steps == d["train"]["steps"] and c.render.resolution == d["render"]["resolution"]
-    assert c.backbone.train.lr == d["backbone"]["train"]["lr"] and c.frng.saliency.box_size == d["frng"]["saliency"]["box_size"]
+    assert (
+        c.backbone.train.lr == d["backbone"]["train"]["lr"]
+        and c.frng.saliency.box_size == d["frng"]["saliency"]["box_size"]
+    )
     assert fc.as_dict(c) == d and fc.as_dict(d) is d
     assert fc.rule_digest(c.to_dict(), "train") == fc.rule_digest(d, "train")
     with pytest.raises(dataclasses.FrozenInstanceError):
@@ -119,8 +125,10 @@ def test_shipped_configs_round_trip(path):
 
 def test_config_module_stays_torch_free():
     """frng.config (and the planning helpers the rule files call with the dict) import no torch."""
-    code = ("import sys, frng.config as fc, frng.data.catalog as cat, frng.variants as v; "
-            "d = fc.load('config/smoke.yaml'); cat.plan(d); v.runs(d); print('torch' in sys.modules)")
+    code = (
+        "import sys, frng.config as fc, frng.data.catalog as cat, frng.variants as v; "
+        "d = fc.load('config/smoke.yaml'); cat.plan(d); v.runs(d); print('torch' in sys.modules)"
+    )
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
 

@@ -10,8 +10,15 @@ import torch
 
 from frng import camera, envmap
 from frng.model.materialformer import decode_pbr
-from frng.render.shading import (GGX_MAX_METALLIC, GGX_MIN_ALBEDO, GGX_MIN_COS_VIEW, GGX_MIN_ROUGHNESS, face_forward,
-                                 ggx_reflectance, ggx_shade)
+from frng.render.shading import (
+    GGX_MAX_METALLIC,
+    GGX_MIN_ALBEDO,
+    GGX_MIN_COS_VIEW,
+    GGX_MIN_ROUGHNESS,
+    face_forward,
+    ggx_reflectance,
+    ggx_shade,
+)
 
 H = W = 16
 
@@ -124,6 +131,6 @@ def test_gradients_finite():
         raw.requires_grad_(True)
         for mode in ("sh", "mc"):
             rgb = ggx_shade(_maps(raw) * alpha, alpha, c2w, K, env, samples, spp_grad=16, diffuse=mode)
-            (g,) = torch.autograd.grad((rgb ** 2).sum() + rgb.sum(), raw)
+            (g,) = torch.autograd.grad((rgb**2).sum() + rgb.sum(), raw)
             assert torch.isfinite(rgb).all() and torch.isfinite(g).all(), mode
             assert g.abs().sum() > 0

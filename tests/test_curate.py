@@ -6,8 +6,8 @@ import shutil
 import numpy as np
 import pytest
 import torch
-
 from data_helpers import frng, write_config
+
 from frng import camera, io
 from frng.data.curate import GBUFFER_CHANNELS
 from frng.data.dataset import open_object
@@ -83,7 +83,9 @@ def test_camera_conventions_reproject_between_views(curated):
         pts = _unproject(np.where(alpha[a] > 0.99, depth[a], 0), c2w[a].astype(np.float64), K[a])
         radius = np.linalg.norm(pts, axis=1)
         assert radius.max() < 1.03 and radius.max() > 0.7  # the object is normalised into the unit sphere
-        uv, z = camera.project(torch.tensor(pts), torch.tensor(c2w[b:b + 1]).double(), torch.tensor(K[b:b + 1]).double())
+        uv, z = camera.project(
+            torch.tensor(pts), torch.tensor(c2w[b : b + 1]).double(), torch.tensor(K[b : b + 1]).double()
+        )
         uv, z = uv[0].numpy(), z[0].numpy()
         col, row = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
         ok = (col >= 0) & (col < RES) & (row >= 0) & (row < RES)
@@ -94,7 +96,9 @@ def test_camera_conventions_reproject_between_views(curated):
         sil = sil | np.roll(sil, 1, 0) | np.roll(sil, -1, 0) | np.roll(sil, 1, 1) | np.roll(sil, -1, 1)
         assert sil[row, col].mean() > 0.98, f"views {a}->{b}: only {sil[row, col].mean():.2f} inside the silhouette"
         r = depth[b][row, col] - z  # > 0: the point would float in front of what view b sees (impossible)
-        assert (r < 2 * PIXEL).mean() > 0.9, f"views {a}->{b}: {(r >= 2 * PIXEL).mean():.2f} of the points float in front"
+        assert (r < 2 * PIXEL).mean() > 0.9, (
+            f"views {a}->{b}: {(r >= 2 * PIXEL).mean():.2f} of the points float in front"
+        )
         assert (np.abs(r) < PIXEL).mean() > 0.05, f"views {a}->{b}: no shared visible surface"
 
 
@@ -106,27 +110,39 @@ def test_corrupt_envmap_fails_naming_file_and_leaves_nothing(curated, tmp_path):
     bad = env / f"{obj.input_lights[0]}.exr"
     bad.write_bytes(b"not an exr at all")
     out = tmp_path / "objects"
-    proc = frng("curate", "--config", str(cfg), "--object", "obj_0000", "--envmaps", str(env), "--out", str(out),
-                check=False)
+    proc = frng(
+        "curate", "--config", str(cfg), "--object", "obj_0000", "--envmaps", str(env), "--out", str(out), check=False
+    )
     assert proc.returncode != 0
     assert str(bad) in proc.stderr and "obj_0000" in proc.stderr
     assert not out.exists() or not any(out.iterdir())
 
 
-@pytest.mark.parametrize("mesh_text, expect", [
-    ("v 0 0 0\nv 1 0 0\nv 1 0.0000001 0\nf 1 2 3\n", "rendered empty"),   # a sliver: loads, renders nothing
-    ("this is not an obj file\n", "no mesh with faces"),
-    ("v 0 0 0\nv 1 0 0\nv nan 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\n", "non-finite vertex coordinate"),  # NaN
-    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 inf\nf 1 2 3\nf 1 2 4\n", "non-finite vertex coordinate"),  # inf
-])
+@pytest.mark.parametrize(
+    "mesh_text, expect",
+    [
+        ("v 0 0 0\nv 1 0 0\nv 1 0.0000001 0\nf 1 2 3\n", "rendered empty"),  # a sliver: loads, renders nothing
+        ("this is not an obj file\n", "no mesh with faces"),
+        ("v 0 0 0\nv 1 0 0\nv nan 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\n", "non-finite vertex coordinate"),  # NaN
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 inf\nf 1 2 3\nf 1 2 4\n", "non-finite vertex coordinate"),  # inf
+    ],
+)
 def test_bad_meshes_fail_naming_object_and_leave_nothing(tmp_path, curated, mesh_text, expect):
     tmp, _, _ = curated
     mesh = tmp_path / "bad.obj"
     mesh.write_text(mesh_text)
     results = tmp_path / "results"
-    cfg = write_config(tmp_path / "c.yaml", results, objects={"count": 1, "test_count": 1, "sources": ["primitives"],
-                                                               "extra": [{"path": str(mesh), "split": "train"}]},
-                       render={"resolution": 16, "spp": 1})
+    cfg = write_config(
+        tmp_path / "c.yaml",
+        results,
+        objects={
+            "count": 1,
+            "test_count": 1,
+            "sources": ["primitives"],
+            "extra": [{"path": str(mesh), "split": "train"}],
+        },
+        render={"resolution": 16, "spp": 1},
+    )
     shutil.copytree(tmp / "results" / "envmaps", results / "envmaps")
     proc = frng("curate", "--config", str(cfg), "--object", "user_bad", check=False)
     assert proc.returncode != 0
@@ -136,6 +152,7 @@ def test_bad_meshes_fail_naming_object_and_leave_nothing(tmp_path, curated, mesh
 
 # -- bit-reproducible curation (fur included) -----------------------------------------------------------------
 
+
 def _exr_bytes(folder):
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*.exr"))}
 
@@ -143,11 +160,24 @@ def _exr_bytes(folder):
 def test_fur_curation_is_bit_reproducible(tmp_path):
     """Curating the same fur object twice (two processes) gives byte-identical EXRs. obj_0001 is a UV sphere: Blender's
     UV-sphere primitive and its hair-particle distribution both changed from run to run."""
-    cfg = write_config(tmp_path / "c.yaml", tmp_path / "results",
-                       objects={"count": 2, "test_count": 1, "sources": ["primitives"],
-                                "material_mix": {"diffuse": 0.0, "specular": 0.0, "fur": 1.0}},
-                       render={"resolution": 16, "spp": 1, "threads": 1, "fur_strands": 100, "extra_input_views": 0,
-                               "target_views": 1})
+    cfg = write_config(
+        tmp_path / "c.yaml",
+        tmp_path / "results",
+        objects={
+            "count": 2,
+            "test_count": 1,
+            "sources": ["primitives"],
+            "material_mix": {"diffuse": 0.0, "specular": 0.0, "fur": 1.0},
+        },
+        render={
+            "resolution": 16,
+            "spp": 1,
+            "threads": 1,
+            "fur_strands": 100,
+            "extra_input_views": 0,
+            "target_views": 1,
+        },
+    )
     frng("envmaps", "--config", str(cfg))
     runs = []
     for k in range(2):
@@ -190,6 +220,7 @@ def test_every_primitive_and_procedural_shape_is_built_identically():
 
 # -- meshes with NaN/inf vertices fail, naming the file --------------------------------------------------------
 
+
 def test_nonfinite_vertices_are_found_in_every_format(tmp_path):
     import struct
 
@@ -200,11 +231,17 @@ def test_nonfinite_vertices_are_found_in_every_format(tmp_path):
         "ok.obj": ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", None),
         "nan.obj": ("v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n", "line 3"),
         "inf.obj": ("# c\nv 0 0 0\nv 1 -inf 0\nv 0 1 0\nf 1 2 3\n", "line 3"),
-        "nan.stl": ("solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 NaN\nvertex 0 1 0\n"
-                    "endloop\nendfacet\nendsolid t\n", "line 5"),
-        "nan.ply": ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
-                    "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 inf 0\n"
-                    "3 0 1 2\n", "vertex 3"),
+        "nan.stl": (
+            "solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 NaN\nvertex 0 1 0\n"
+            "endloop\nendfacet\nendsolid t\n",
+            "line 5",
+        ),
+        "nan.ply": (
+            "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+            "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 inf 0\n"
+            "3 0 1 2\n",
+            "vertex 3",
+        ),
     }
     for name, (text, where) in cases.items():
         (tmp_path / name).write_text(text)
@@ -213,8 +250,10 @@ def test_nonfinite_vertices_are_found_in_every_format(tmp_path):
     tri = struct.pack("<12fH", 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, float("nan"), 0, 0)
     (tmp_path / "nan_bin.stl").write_bytes(b"\0" * 80 + struct.pack("<I", 1) + tri)
     assert "triangle 1" in nonfinite_vertex(tmp_path / "nan_bin.stl")
-    head = ("ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
-            "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n").encode()
+    head = (
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        b"property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+    )
     verts = struct.pack("<9f", 0, 0, 0, 1, 0, 0, 0, 1, float("inf"))
     (tmp_path / "inf_bin.ply").write_bytes(head + verts + struct.pack("<B3i", 3, 0, 1, 2))
     assert "vertex 3" in nonfinite_vertex(tmp_path / "inf_bin.ply")

@@ -10,7 +10,6 @@ import sys
 import time
 
 import pytest
-
 from data_helpers import frng, write_config
 
 pytestmark = pytest.mark.blender
@@ -50,8 +49,11 @@ def _objects(tmp):
     return sorted(p.name for p in (tmp / "results" / "objects").iterdir())
 
 
-@pytest.mark.parametrize("sig, shell", [(signal.SIGINT, False), (signal.SIGTERM, False), (signal.SIGINT, True)],
-                         ids=["sigint", "sigterm", "ctrl-c-through-shell"])
+@pytest.mark.parametrize(
+    "sig, shell",
+    [(signal.SIGINT, False), (signal.SIGTERM, False), (signal.SIGINT, True)],
+    ids=["sigint", "sigterm", "ctrl-c-through-shell"],
+)
 def test_signal_stops_curation_at_once_leaving_nothing(envmaps, sig, shell):
     tmp = envmaps
     proc = _start(tmp, shell)
@@ -77,7 +79,7 @@ def test_signal_stops_curation_at_once_leaving_nothing(envmaps, sig, shell):
 def test_sigkilled_staging_folder_is_removed_by_the_next_run_of_the_same_object_only(envmaps):
     tmp = envmaps
     objects = tmp / "results" / "objects"
-    other = objects / ".tmp-obj_0001-abcd1234"   # another object's staging folder (its job may be running)
+    other = objects / ".tmp-obj_0001-abcd1234"  # another object's staging folder (its job may be running)
     proc = _start(tmp, shell=False)
     proc.kill()
     proc.wait()

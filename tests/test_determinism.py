@@ -62,10 +62,20 @@ def _config(results: Path) -> dict:
 
 
 def _train(tmp_path: Path, name: str, threads: int) -> dict:
-    code = _TRAIN.format(threads=threads, here=str(ROOT / "tests"), config=_config(tmp_path / "results"),
-                         out=str(tmp_path / name), steps=STEPS)
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
-                          env={**os.environ, "OMP_NUM_THREADS": str(threads)})
+    code = _TRAIN.format(
+        threads=threads,
+        here=str(ROOT / "tests"),
+        config=_config(tmp_path / "results"),
+        out=str(tmp_path / name),
+        steps=STEPS,
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env={**os.environ, "OMP_NUM_THREADS": str(threads)},
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
 

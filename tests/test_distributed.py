@@ -40,8 +40,13 @@ def _step(model: torch.nn.Module, x: torch.Tensor, y: torch.Tensor) -> float:
 
 def _worker(rank: int, world: int, port: int, out: str) -> None:
     torch.set_num_threads(1)
-    env = {"RANK": str(rank), "WORLD_SIZE": str(world), "LOCAL_RANK": str(rank),
-           "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port)}
+    env = {
+        "RANK": str(rank),
+        "WORLD_SIZE": str(world),
+        "LOCAL_RANK": str(rank),
+        "MASTER_ADDR": "127.0.0.1",
+        "MASTER_PORT": str(port),
+    }
     info = distributed.init(device="cpu", environ=env, timeout_s=60)
     try:
         assert info.backend == "gloo" and info.world_size == world and info.rank == rank
@@ -74,8 +79,13 @@ def test_two_gloo_ranks_match_single_process(tmp_path):
 def test_env_ranks_and_master():
     assert distributed.env_ranks({}) == (0, 1, 0)
     assert distributed.env_ranks({"RANK": "3", "WORLD_SIZE": "8", "LOCAL_RANK": "1"}) == (3, 8, 1)
-    slurm = {"SLURM_PROCID": "5", "SLURM_NTASKS": "8", "SLURM_LOCALID": "1", "SLURM_JOB_ID": "4242",
-             "SLURM_JOB_NODELIST": "gpu[07-08],cpu1"}
+    slurm = {
+        "SLURM_PROCID": "5",
+        "SLURM_NTASKS": "8",
+        "SLURM_LOCALID": "1",
+        "SLURM_JOB_ID": "4242",
+        "SLURM_JOB_NODELIST": "gpu[07-08],cpu1",
+    }
     assert distributed.env_ranks(slurm) == (5, 8, 1)
     # torchrun's variables win over SLURM's (torchrun inside an sbatch job)
     assert distributed.env_ranks({**slurm, "RANK": "0", "WORLD_SIZE": "2"}) == (0, 2, 0)

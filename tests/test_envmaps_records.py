@@ -3,8 +3,8 @@ also after Snakemake deletes the failed job's declared outputs (the maps and the
 earlier runs are removed. Uses users' maps only (no sky bakes), so it runs in about a second."""
 
 import numpy as np
-
 from data_helpers import frng, write_config
+
 from frng import envmap
 
 
@@ -14,7 +14,10 @@ def _maps(tmp_path, bad: bool):
     rng = np.random.default_rng(0)
     for name in ("a_good", "b_good"):
         envmap.write(folder / f"{name}.exr", rng.uniform(0.1, 1.0, (16, 32, 3)).astype(np.float32))
-    extra = [{"path": str(folder / "a_good.exr"), "split": "train"}, {"path": str(folder / "b_good.exr"), "split": "test"}]
+    extra = [
+        {"path": str(folder / "a_good.exr"), "split": "train"},
+        {"path": str(folder / "b_good.exr"), "split": "test"},
+    ]
     if bad:
         (folder / "c_bad.exr").write_bytes(b"not an exr at all")
         extra.append({"path": str(folder / "c_bad.exr"), "split": "train"})
@@ -22,8 +25,11 @@ def _maps(tmp_path, bad: bool):
 
 
 def _config(tmp_path, bad: bool):
-    return write_config(tmp_path / "c.yaml", tmp_path / "results",
-                        envmaps={"bundled": [], "skies": {"models": []}, "extra": _maps(tmp_path, bad), "width": 16})
+    return write_config(
+        tmp_path / "c.yaml",
+        tmp_path / "results",
+        envmaps={"bundled": [], "skies": {"models": []}, "extra": _maps(tmp_path, bad), "width": 16},
+    )
 
 
 def _orphans(out):
@@ -47,8 +53,8 @@ def test_orphaned_records_and_staging_folders_are_removed(tmp_path):
     cfg = _config(tmp_path, bad=False)
     out = tmp_path / "results" / "envmaps"
     out.mkdir(parents=True)
-    (out / "gone_r0.json").write_text("{}\n")          # its map was deleted (e.g. by Snakemake after a failure)
-    (out / ".tmp-envmaps-abcd1234").mkdir()             # staging folder of a killed run
+    (out / "gone_r0.json").write_text("{}\n")  # its map was deleted (e.g. by Snakemake after a failure)
+    (out / ".tmp-envmaps-abcd1234").mkdir()  # staging folder of a killed run
     (out / ".tmp-envmaps-abcd1234" / "x.exr").write_bytes(b"partial")
     frng("envmaps", "--config", str(cfg))
     assert not (out / "gone_r0.json").exists() and not (out / ".tmp-envmaps-abcd1234").exists()

@@ -5,18 +5,23 @@ import math
 
 import numpy as np
 import torch
-
 from data_helpers import frng, write_config
+
 from frng import config as frng_config
 from frng import envmap, io
 from frng.data import catalog, envmaps
 
 
 def _cfg(count=3, seed=0):
-    return frng_config.validate({"tier": "custom", "seed": seed, "objects": {"count": 2, "test_count": 1},
-                                 "envmaps": {"bundled": ["city"], "skies": {"models": []}, "rotations": 1,
-                                             "studio": {"count": count}},
-                                 "render": {"resolution": 32, "input_lights": 1, "target_lights": 1}})
+    return frng_config.validate(
+        {
+            "tier": "custom",
+            "seed": seed,
+            "objects": {"count": 2, "test_count": 1},
+            "envmaps": {"bundled": ["city"], "skies": {"models": []}, "rotations": 1, "studio": {"count": count}},
+            "render": {"resolution": 32, "input_lights": 1, "target_lights": 1},
+        }
+    )
 
 
 def test_studio_plan_is_seeded_and_off_by_default():
@@ -26,8 +31,9 @@ def test_studio_plan_is_seeded_and_off_by_default():
     assert [e.base for e in studios] == ["procstudio_0", "procstudio_1", "procstudio_2"]
     assert [e.to_dict() for e in a] == [e.to_dict() for e in b]
     assert [e.studio for e in studios] != [e.studio for e in catalog.envmap_plan(_cfg(seed=1)) if e.source == "studio"]
-    d = catalog.StudioConfig(**{k: tuple(v) if isinstance(v, list) else v
-                                for k, v in frng_config.schema_defaults("envmaps.studio").items()})
+    d = catalog.StudioConfig(
+        **{k: tuple(v) if isinstance(v, list) else v for k, v in frng_config.schema_defaults("envmaps.studio").items()}
+    )
     for e in studios:
         lights = e.studio["lights"]
         assert d.lights[0] <= len(lights) <= d.lights[1]
@@ -45,11 +51,29 @@ def test_blackbody_colours():
 
 
 def test_studio_map_puts_each_light_where_the_plan_says():
-    params = {"background": 0.02, "lights": [
-        {"azimuth_deg": 60.0, "elevation_deg": 30.0, "width_deg": 20.0, "height_deg": 10.0, "roll_deg": 0.0,
-         "kelvin": 3000.0, "strength": 1.0},
-        {"azimuth_deg": 250.0, "elevation_deg": 5.0, "width_deg": 30.0, "height_deg": 30.0, "roll_deg": 20.0,
-         "kelvin": 9000.0, "strength": 2.0}]}
+    params = {
+        "background": 0.02,
+        "lights": [
+            {
+                "azimuth_deg": 60.0,
+                "elevation_deg": 30.0,
+                "width_deg": 20.0,
+                "height_deg": 10.0,
+                "roll_deg": 0.0,
+                "kelvin": 3000.0,
+                "strength": 1.0,
+            },
+            {
+                "azimuth_deg": 250.0,
+                "elevation_deg": 5.0,
+                "width_deg": 30.0,
+                "height_deg": 30.0,
+                "roll_deg": 20.0,
+                "kelvin": 9000.0,
+                "strength": 2.0,
+            },
+        ],
+    }
     img = envmaps.studio_map(params, 256)
     assert img.shape == (128, 256, 3) and np.isfinite(img).all()
     d = envmap.pixel_directions(128, 256, dtype=torch.float64).numpy()
@@ -69,13 +93,26 @@ def test_studio_map_puts_each_light_where_the_plan_says():
 
 
 def test_studio_maps_are_written_by_the_envmaps_stage(tmp_path):
-    cfg = write_config(tmp_path / "config.yaml", tmp_path / "results",
-                       envmaps={"bundled": [], "skies": {"models": []}, "width": 32, "rotations": 2,
-                                "test_fraction": 0.5, "studio": {"count": 2}})
+    cfg = write_config(
+        tmp_path / "config.yaml",
+        tmp_path / "results",
+        envmaps={
+            "bundled": [],
+            "skies": {"models": []},
+            "width": 32,
+            "rotations": 2,
+            "test_fraction": 0.5,
+            "studio": {"count": 2},
+        },
+    )
     frng("envmaps", "--config", str(cfg))
     index = io.read_json(tmp_path / "results" / "envmaps" / "index.json")
-    assert sorted(m["name"] for m in index["maps"]) == ["procstudio_0_r0", "procstudio_0_r1", "procstudio_1_r0",
-                                                        "procstudio_1_r1"]
+    assert sorted(m["name"] for m in index["maps"]) == [
+        "procstudio_0_r0",
+        "procstudio_0_r1",
+        "procstudio_1_r0",
+        "procstudio_1_r1",
+    ]
     assert {m["split"] for m in index["maps"]} == {"train", "test"}
     for m in index["maps"]:
         assert m["source"] == "studio" and m["studio"]["lights"] and m["licence"] == catalog.GENERATED_LICENCE

@@ -93,8 +93,13 @@ def test_env_pins_match_lock(env):
     assert SpecifierSet(requires).contains(version + (".0" if version.count(".") == 1 else "")), (py, requires)
     # torch comes from the CPU index (the CUDA build of the same version on a cluster: see envs/torch.yaml)
     if any(norm(PIN.match(r).group(1)) == "torch" for r in pip if PIN.match(r)):
-        extra = [p for dep in yaml.safe_load(env.read_text())["dependencies"] if isinstance(dep, dict)
-                 for p in dep.get("pip", []) if str(p).startswith("--extra-index-url")]
+        extra = [
+            p
+            for dep in yaml.safe_load(env.read_text())["dependencies"]
+            if isinstance(dep, dict)
+            for p in dep.get("pip", [])
+            if str(p).startswith("--extra-index-url")
+        ]
         assert extra, "torch needs the PyTorch index (--extra-index-url)"
 
 

@@ -35,22 +35,30 @@ def test_cross_light_rows(tmp_path):
     meta = Path(L.object_meta(oid))
     meta.parent.mkdir(parents=True)
     io.write_json(meta, {"material_class": "fur"})
-    gt = {"l0": _img(np.array([0.8, 0.2, 0.2]), np.s_[8:24, 16:24]),
-          "l1": _img(np.array([0.1, 0.3, 0.9]), np.s_[8:16, 8:24])}
+    gt = {
+        "l0": _img(np.array([0.8, 0.2, 0.2]), np.s_[8:24, 16:24]),
+        "l1": _img(np.array([0.1, 0.3, 0.9]), np.s_[8:16, 8:24]),
+    }
     for light in lights:
         _write(L.object_image(oid, "targets", light, "t0"), gt[light])
     # a "method" whose image for each light is the OTHER light's ground truth: perfect against the wrong light
     run_dir = tmp_path / "relight" / "backbone" / oid
-    io.write_json(RelightFolder(run_dir).record(), {"object": oid, "name": "backbone", "method": "backbone",
-                                                    "lights": lights, "target_views": views})
+    io.write_json(
+        RelightFolder(run_dir).record(),
+        {"object": oid, "name": "backbone", "method": "backbone", "lights": lights, "target_views": views},
+    )
     for light in lights:
         _write(RelightFolder(run_dir).image(light, "t0"), gt[E.other_light(lights, light)])
     rows = E.cross_light_run(tmp_path, run_dir, "aligned", (1.0, 1.0, 1.0))
     assert [(r["light"], r["scored_against"]) for r in rows] == [("l0", "l1"), ("l1", "l0")]
     assert all(r["psnr"] == 100.0 and r["run"] == "backbone" and r["dataset"] == "fur" for r in rows)
     gt_rows = E.cross_light_run(tmp_path, run_dir, "aligned", (1.0, 1.0, 1.0), ground_truth=True)
-    assert [(r["light"], r["scored_against"]) for r in gt_rows] == [("l0", "l1"), ("l0", "l0"), ("l1", "l0"),
-                                                                    ("l1", "l1")]
+    assert [(r["light"], r["scored_against"]) for r in gt_rows] == [
+        ("l0", "l1"),
+        ("l0", "l0"),
+        ("l1", "l0"),
+        ("l1", "l1"),
+    ]
     own = [r for r in gt_rows if r["light"] == r["scored_against"]]
     other = [r for r in gt_rows if r["light"] != r["scored_against"]]
     assert all(r["psnr"] == 100.0 and r["ssim"] == pytest.approx(1.0) for r in own)

@@ -4,8 +4,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from frng.report import figures as F
 from frng.io import read_png, tonemap
+from frng.report import figures as F
 
 
 def _disc(h=32, w=32, colour=(0.8, 0.3, 0.1)):
@@ -23,8 +23,15 @@ def test_comparison_grid_layout_and_labels(tmp_path):
     img = _disc()
     rows = [[img, img, img], [img, None, img]]
     out = tmp_path / "grid.png"
-    lay = F.comparison_grid(out, rows, row_labels=["light 0", "light 1"], col_labels=["ground truth", "backbone", "F-RNG"],
-                            annotations=[[None, 24.5, 27.25], [None, None, "x"]], title="object 7", min_cell_px=64)
+    lay = F.comparison_grid(
+        out,
+        rows,
+        row_labels=["light 0", "light 1"],
+        col_labels=["ground truth", "backbone", "F-RNG"],
+        annotations=[[None, 24.5, 27.25], [None, None, "x"]],
+        title="object 7",
+        min_cell_px=64,
+    )
     png = read_png(out)
     W, H = lay["size"]
     assert png.shape[:2] == (H, W)
@@ -40,16 +47,22 @@ def test_comparison_grid_layout_and_labels(tmp_path):
     assert _dark(png[:y0, x0:x1]) > 20
     # an empty cell stays white
     bx0 = lay["cells"][0][1][0]
-    assert png[lay["cells"][1][0][1]:lay["cells"][1][0][3], bx0:bx0 + 64].min() > 0.99
+    assert png[lay["cells"][1][0][1] : lay["cells"][1][0][3], bx0 : bx0 + 64].min() > 0.99
     # the PSNR caption box (dark) sits at the bottom-left of the annotated cell
     cx0, cy0, cx1, cy1 = lay["cells"][0][1]
-    assert _dark(png[cy1 - 14:cy1, cx0:cx0 + 50]) > 100
+    assert _dark(png[cy1 - 14 : cy1, cx0 : cx0 + 50]) > 100
 
 
 def test_ablation_grid_and_contact_sheet(tmp_path):
     img = _disc()
-    lay = F.ablation_grid(tmp_path / "abl.png", {"full": [img, img], "w/o IDM priors": [img, img]}, ground_truth=[img, img],
-                          row_labels=["a", "b"], metrics={"full": [27.0, 26.0]}, cell=48)
+    lay = F.ablation_grid(
+        tmp_path / "abl.png",
+        {"full": [img, img], "w/o IDM priors": [img, img]},
+        ground_truth=[img, img],
+        row_labels=["a", "b"],
+        metrics={"full": [27.0, 26.0]},
+        cell=48,
+    )
     assert len(lay["cells"]) == 2 and len(lay["cells"][0]) == 3
     assert read_png(tmp_path / "abl.png").shape[:2] == lay["size"][::-1]
     x0, y0, x1, y1 = lay["cells"][0][0]
@@ -63,8 +76,18 @@ def test_ablation_grid_and_contact_sheet(tmp_path):
 def test_object_comparison(tmp_path):
     img = _disc()
     env = np.ones((16, 32, 3), np.float32)
-    lay = F.object_comparison(tmp_path / "obj.png", [img] * 6, [img] * 2, [img] * 2, [img] * 2, ["l0", "l1"],
-                              envmaps=[env, env], psnr_backbone=[20.0, 21.0], psnr_frng=[25.0, 26.0], min_cell_px=64)
+    lay = F.object_comparison(
+        tmp_path / "obj.png",
+        [img] * 6,
+        [img] * 2,
+        [img] * 2,
+        [img] * 2,
+        ["l0", "l1"],
+        envmaps=[env, env],
+        psnr_backbone=[20.0, 21.0],
+        psnr_frng=[25.0, 26.0],
+        min_cell_px=64,
+    )
     assert [len(r) for r in lay["cells"]] == [5, 5]
     assert lay["cells"][1][0] is None  # the input mosaic only in the first row
     assert read_png(tmp_path / "obj.png").shape[:2] == lay["size"][::-1]
@@ -85,14 +108,14 @@ def test_saliency_overlay_rectangles(tmp_path):
     green = (panel[..., 1] > 0.9) & (panel[..., 0] < 0.1)
     ps, t = patch * scale, max(1, patch * scale // 10)
     for i, j in [(1, 2), (3, 5)]:
-        box = green[i * ps:(i + 1) * ps, j * ps:(j + 1) * ps]
+        box = green[i * ps : (i + 1) * ps, j * ps : (j + 1) * ps]
         assert box[:t].all() and box[-t:].all() and box[:, :t].all() and box[:, -t:].all()  # full outline
         assert not box[t:-t, t:-t].any()  # interior untouched
     n_sel = sel.sum()
     assert green.sum() == n_sel * (ps * ps - (ps - 2 * t) ** 2)  # nothing outside the selected patches
     # the heat-map panel differs from the plain image; per-pixel saliency accepted too
     hx0, hy0, hx1, hy1 = lay["cells"][0][1]
-    assert np.abs(png[hy0:hy1, hx0:hx1] - png[y0:y1, lay["cells"][0][0][0]:lay["cells"][0][0][2]]).max() > 0.1
+    assert np.abs(png[hy0:hy1, hx0:hx1] - png[y0:y1, lay["cells"][0][0][0] : lay["cells"][0][0][2]]).max() > 0.1
     F.saliency_overlay(tmp_path / "sal2.png", img, np.random.default_rng(1).random((32, 48)), sel, patch, scale=1)
     with pytest.raises(ValueError, match=r"selected mask must be \(4, 6\)"):
         F.saliency_panels(img, sal, sel[:2], patch)

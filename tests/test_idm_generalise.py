@@ -17,8 +17,7 @@ from frng.priors.intrinsics import IntrinsicPriors
 from frng.priors.multiview import geometry_cues
 
 NEAR, FAR, RADIUS = 1.0, 4.5, 0.6
-TINY = dict(width=32, heads=2, depth=1, patch=8, pixel_features=8, near=NEAR, far=FAR, head_hidden=16,
-            cue_bins=24)
+TINY = dict(width=32, heads=2, depth=1, patch=8, pixel_features=8, near=NEAR, far=FAR, head_hidden=16, cue_bins=24)
 
 
 def trainer_config(train: dict) -> dict:
@@ -26,23 +25,36 @@ def trainer_config(train: dict) -> dict:
     the schema's defaults for the rest (objects, envmaps and render are required but unused here)."""
     from frng import config as frng_config
 
-    return frng_config.validate({
-        "tier": "custom", "seed": 0, "device": "cpu", "objects": {"count": 2, "test_count": 1}, "envmaps": {},
-        "render": {"resolution": 32}, "model": {"patch_size": 8}, "backbone": {"near": NEAR, "far": FAR},
-        "idm": {k: v for k, v in TINY.items() if k not in ("patch", "near", "far")} | {"train": train}})
+    return frng_config.validate(
+        {
+            "tier": "custom",
+            "seed": 0,
+            "device": "cpu",
+            "objects": {"count": 2, "test_count": 1},
+            "envmaps": {},
+            "render": {"resolution": 32},
+            "model": {"patch_size": 8},
+            "backbone": {"near": NEAR, "far": FAR},
+            "idm": {k: v for k, v in TINY.items() if k not in ("patch", "near", "far")} | {"train": train},
+        }
+    )
 
 
 def sphere_object(V: int = 4, H: int = 32, light: str = "l0") -> PriorObject:
     """A sphere of radius RADIUS at the origin, V views on a ring (elevation 15 deg, distance 2.6), exact
     G-buffers (albedo (0.8, 0.4, 0.2), roughness 0.3, metallic 0) and a Lambert-shaded image."""
-    c2w = torch.stack([torch.tensor(camera.look_at(camera.spherical_to_cartesian(a, 15, 2.6)), dtype=torch.float32)
-                       for a in np.linspace(0, 360, V, endpoint=False)])
+    c2w = torch.stack(
+        [
+            torch.tensor(camera.look_at(camera.spherical_to_cartesian(a, 15, 2.6)), dtype=torch.float32)
+            for a in np.linspace(0, 360, V, endpoint=False)
+        ]
+    )
     intr = torch.tensor(camera.intrinsics_from_fov(50, H, H), dtype=torch.float32).expand(V, 4).clone()
     o, d = camera.pixel_rays(c2w, intr, H, H)
     b = (o * d).sum(-1)
-    disc = b * b - ((o * o).sum(-1) - RADIUS ** 2)
+    disc = b * b - ((o * o).sum(-1) - RADIUS**2)
     hit = disc > 0
-    t = (-b - disc.clamp_min(0).sqrt())
+    t = -b - disc.clamp_min(0).sqrt()
     pts = o + d * t[..., None]
     normal = torch.nn.functional.normalize(pts, dim=-1)
     m = hit.float()[..., None]
@@ -50,8 +62,9 @@ def sphere_object(V: int = 4, H: int = 32, light: str = "l0") -> PriorObject:
     albedo = torch.tensor([0.8, 0.4, 0.2]).expand(V, H, H, 3)
     shade = 0.3 + 0.7 * (normal @ torch.nn.functional.normalize(torch.tensor([0.3, 0.5, 0.8]), dim=0)).clamp_min(0)
     rgb = albedo * shade[..., None] * m
-    gb = IntrinsicPriors(normal=normal * m, depth=z * m, albedo=albedo * m, roughness=0.3 * m,
-                         metallic=torch.zeros_like(m), mask=m)
+    gb = IntrinsicPriors(
+        normal=normal * m, depth=z * m, albedo=albedo * m, roughness=0.3 * m, metallic=torch.zeros_like(m), mask=m
+    )
     views = Views([f"in_{i:02d}" for i in range(V)], rgb.contiguous(), m.contiguous(), c2w, intr)
     return PriorObject("sphere", "train", {light: views}, {}, gb, rig_views=V)
 

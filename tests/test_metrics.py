@@ -100,15 +100,29 @@ def test_ssim_matches_skimage_and_encoding():
     pred[..., 3] = gt[..., 3]
     p = srgb_encode(composite(pred, (1, 1, 1)))
     g = srgb_encode(composite(gt, (1, 1, 1)))
-    ref = structural_similarity(p.astype(np.float64), g.astype(np.float64), data_range=1.0, channel_axis=-1,
-                                gaussian_weights=True, sigma=1.5, use_sample_covariance=False)
+    ref = structural_similarity(
+        p.astype(np.float64),
+        g.astype(np.float64),
+        data_range=1.0,
+        channel_axis=-1,
+        gaussian_weights=True,
+        sigma=1.5,
+        use_sample_covariance=False,
+    )
     out = M.evaluate_pair(pred, gt, protocol="plain")
     assert out["ssim"] == pytest.approx(ref, abs=1e-9)
     assert out["psnr"] == pytest.approx(-10 * np.log10(np.mean((p.astype(np.float64) - g) ** 2)), abs=1e-6)
     p2, g2, mask, _ = M.prepare(pred, gt, protocol="aligned")
-    _, smap = structural_similarity(p2.astype(np.float64), g2.astype(np.float64), data_range=1.0,
-                                    channel_axis=-1, gaussian_weights=True, sigma=1.5,
-                                    use_sample_covariance=False, full=True)
+    _, smap = structural_similarity(
+        p2.astype(np.float64),
+        g2.astype(np.float64),
+        data_range=1.0,
+        channel_axis=-1,
+        gaussian_weights=True,
+        sigma=1.5,
+        use_sample_covariance=False,
+        full=True,
+    )
     assert M.evaluate_pair(pred, gt)["ssim"] == pytest.approx(smap.mean(-1)[mask].mean(), abs=1e-9)
 
 
@@ -132,8 +146,7 @@ def test_rows_csv_aggregate(tmp_path):
             rng = np.random.default_rng(view)
             pred = gt.copy()
             pred[..., :3] = np.clip(pred[..., :3] + rng.normal(0, noise, gt[..., :3].shape), 0, None) * gt[..., 3:]
-            rows.append({"dataset": "synthetic", "variant": variant, "view": view,
-                         **M.evaluate_pair(pred, gt)})
+            rows.append({"dataset": "synthetic", "variant": variant, "view": view, **M.evaluate_pair(pred, gt)})
     df = M.to_frame(rows)
     path = M.write_csv(df, tmp_path / "metrics" / "per_image.csv")
     back = M.read_csv(path)

@@ -6,9 +6,14 @@ import torch
 import torch.nn.functional as F
 
 from frng import camera
-from frng.gaussians import GaussianDecodeConfig, pixel_gaussians
+from frng.gaussians import GaussianDecodeConfig
 from frng.model.fine_geometry import (
-    FineGeoDetokenizer, FineGeometry, FineGeometryConfig, bilinear_tokens, fine_gaussian_uv, fine_keep_mask,
+    FineGeoDetokenizer,
+    FineGeometry,
+    FineGeometryConfig,
+    bilinear_tokens,
+    fine_gaussian_uv,
+    fine_keep_mask,
     fine_positions,
 )
 from frng.model.saliency import select_top_k
@@ -47,7 +52,9 @@ def test_interpolation_matches_grid_sample_and_is_bilinear():
     ref = F.grid_sample(tok.permute(0, 3, 1, 2), grid, align_corners=True, padding_mode="border")
     torch.testing.assert_close(ours, ref[:, :, 0].permute(0, 2, 1))
     # border clamp: positions outside the grid take the border value
-    out = bilinear_tokens(tok, torch.tensor([[[-0.25, -0.25], [h - 0.75, w - 0.75]]], dtype=torch.float64).expand(V, -1, -1))
+    out = bilinear_tokens(
+        tok, torch.tensor([[[-0.25, -0.25], [h - 0.75, w - 0.75]]], dtype=torch.float64).expand(V, -1, -1)
+    )
     torch.testing.assert_close(out[:, 0], tok[:, 0, 0])
     torch.testing.assert_close(out[:, 1], tok[:, -1, -1])
 
@@ -64,7 +71,9 @@ def test_fine_positions_and_uv_layout():
     assert len({tuple(p) for p in uv.reshape(-1, 2).tolist()}) == 256
     # fine token (a=0, b=1) covers cols [12, 16), rows [16, 20); Gaussian order y*p + x
     t = uv[0, 1].reshape(8, 8, 2)
-    assert t[0, 0].tolist() == [12.25, 16.25] and t[0, 1].tolist() == [12.75, 16.25] and t[1, 0].tolist() == [12.25, 16.75]
+    assert (
+        t[0, 0].tolist() == [12.25, 16.25] and t[0, 1].tolist() == [12.75, 16.25] and t[1, 0].tolist() == [12.25, 16.75]
+    )
 
 
 @pytest.mark.parametrize("V", [2, 6, 10])
@@ -127,8 +136,13 @@ def test_no_prior_variant_never_reads_priors():
 def test_prior_tokenizer_and_patchify_roundtrip():
     torch.manual_seed(0)
     V, H, W = 3, 16, 24
-    priors = {"normal": torch.randn(V, H, W, 3), "albedo": torch.rand(V, H, W, 3), "roughness": torch.rand(V, H, W),
-              "metallic": torch.rand(V, H, W, 1), "depth": torch.rand(V, H, W)}
+    priors = {
+        "normal": torch.randn(V, H, W, 3),
+        "albedo": torch.rand(V, H, W, 3),
+        "roughness": torch.rand(V, H, W),
+        "metallic": torch.rand(V, H, W, 1),
+        "depth": torch.rand(V, H, W),
+    }
     x = stack_priors(priors)
     assert x.shape == (V, H, W, PRIOR_CHANNELS)
     assert torch.equal(x[..., 6], priors["roughness"]) and torch.equal(x[..., 3:6], priors["albedo"])
@@ -136,7 +150,7 @@ def test_prior_tokenizer_and_patchify_roundtrip():
     assert patches.shape == (V, 2, 3, 64 * 8)
     assert torch.equal(unpatchify(patches, 8, 8), x)
     # pixel (y, x) of patch (i, j) lands at (y*p + x)*C + c
-    assert torch.equal(patches[1, 1, 2, (3 * 8 + 5) * 8: (3 * 8 + 5) * 8 + 8], x[1, 8 + 3, 16 + 5])
+    assert torch.equal(patches[1, 1, 2, (3 * 8 + 5) * 8 : (3 * 8 + 5) * 8 + 8], x[1, 8 + 3, 16 + 5])
     tok = PriorTokenizer(32, 8)
     t = tok(x)
     assert t.shape == (V, 2, 3, 32)

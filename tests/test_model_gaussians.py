@@ -8,14 +8,24 @@ import torch
 
 from frng import camera
 from frng.gaussians import (
-    FAR, NEAR, OPACITY_OFFSET, SCALE_MAX, SCALE_OFFSET, GaussianDecodeConfig, Gaussians, decode, decode_raw,
+    FAR,
+    NEAR,
+    OPACITY_OFFSET,
+    SCALE_MAX,
+    SCALE_OFFSET,
+    GaussianDecodeConfig,
+    Gaussians,
+    decode,
+    decode_raw,
     pixel_gaussians,
 )
 
 
 def rig(V=2, size=16):
-    c2w = torch.tensor(np.stack([camera.look_at(camera.spherical_to_cartesian(90 * v, 10, 2.6)) for v in range(V)]),
-                       dtype=torch.float32)
+    c2w = torch.tensor(
+        np.stack([camera.look_at(camera.spherical_to_cartesian(90 * v, 10, 2.6)) for v in range(V)]),
+        dtype=torch.float32,
+    )
     intr = torch.tensor(camera.intrinsics_from_fov(50, size, size), dtype=torch.float32).expand(V, 4).contiguous()
     return c2w, intr
 
@@ -65,7 +75,9 @@ def test_pixel_gaussians_on_pixel_rays():
 
 
 def test_gaussians_container():
-    a = decode(torch.randn(4, 9), torch.zeros(4, 3), torch.tensor([[0.0, 0, 1]]).expand(4, 3), features=torch.ones(4, 2))
+    a = decode(
+        torch.randn(4, 9), torch.zeros(4, 3), torch.tensor([[0.0, 0, 1]]).expand(4, 3), features=torch.ones(4, 2)
+    )
     b = a.with_features(torch.zeros(4, 2))
     c = Gaussians.cat([a, b])
     assert len(c) == 8 and c.features.shape == (8, 2)

@@ -7,8 +7,18 @@ import torch
 from frng import camera
 from frng.gaussians import Gaussians, pixel_gaussians
 from frng.model import (
-    FineGeometry, FineGeometryConfig, LightIndependenceConfig, MaterialFormer, MaterialFormerConfig, MaterialHead,
-    PriorTokenizer, coarse_features_to_pixels, decode_pbr, light_independence_loss, select_top_k, split_sequence,
+    FineGeometry,
+    FineGeometryConfig,
+    LightIndependenceConfig,
+    MaterialFormer,
+    MaterialFormerConfig,
+    MaterialHead,
+    PriorTokenizer,
+    coarse_features_to_pixels,
+    decode_pbr,
+    light_independence_loss,
+    select_top_k,
+    split_sequence,
     to_sequence,
 )
 from frng.model.light_independence import cosine_term, kld_term
@@ -60,7 +70,7 @@ def test_end_to_end_shapes_and_gradients(V):
     assert len(gs) == V * size * size + V * M * p * p
 
     l_ind, parts = light_independence_loss(t_mat, t_mat1)
-    loss = (gs.features ** 2).mean() + gs.means.square().mean() + l_ind
+    loss = (gs.features**2).mean() + gs.means.square().mean() + l_ind
     loss.backward()
     assert l_ind.item() > 0 and parts["cos"] > 0 and parts["kld"] > 0
     for name, mod in [("tokenizer", tokenizer), ("fine", fine), ("head", head)]:

@@ -7,7 +7,13 @@ import torch
 
 from frng.config import ConfigError
 from frng.model.saliency import (
-    SaliencyConfig, boundary_weight, local_std, num_selected, patch_scores, saliency_map, salient_patches,
+    SaliencyConfig,
+    boundary_weight,
+    local_std,
+    num_selected,
+    patch_scores,
+    saliency_map,
+    salient_patches,
     select_top_k,
 )
 
@@ -41,7 +47,9 @@ def test_silhouette_suppressed():
     # the background and the silhouette pixels themselves score ~0
     assert s[0, :14].abs().max() < 1e-3 and s[0, 16, 16:48].abs().max() < 1e-3
     # selection picks interior patches
-    idx = salient_patches(img, patch=8, cfg=SaliencyConfig.from_dict({"top_k": 0.04}))  # ceil(2.56) = 3 of the 4 interior ones
+    idx = salient_patches(
+        img, patch=8, cfg=SaliencyConfig.from_dict({"top_k": 0.04})
+    )  # ceil(2.56) = 3 of the 4 interior ones
     rows, cols = idx // 8, idx % 8
     assert idx.shape == (1, 3) and ((rows >= 3) & (rows <= 4) & (cols >= 3) & (cols <= 4)).all()
 
@@ -53,8 +61,9 @@ def test_boundary_weight_monotone_and_mask_sources():
     row = w[0, 20, 5:21]
     assert row[0] == 0 and row[-1] == 1 and (row[1:] >= row[:-1]).all()
     # no background -> no suppression; explicit mask overrides alpha
-    torch.testing.assert_close(boundary_weight(torch.ones(1, 8, 8, dtype=torch.bool), SaliencyConfig.from_dict({})),
-                               torch.ones(1, 8, 8))
+    torch.testing.assert_close(
+        boundary_weight(torch.ones(1, 8, 8, dtype=torch.bool), SaliencyConfig.from_dict({})), torch.ones(1, 8, 8)
+    )
     img = textured_square(32, 8, 24)[None]
     a = saliency_map(img)
     b = saliency_map(img[..., :3], mask=img[..., 3])

@@ -93,8 +93,16 @@ def test_back_completion_fills_what_few_views_miss():
     o, d = camera.pixel_rays(c2, i2, 32, 32)
     means = (o + d * t0[two][..., None]).reshape(-1, 3)
     N = means.shape[0]
-    back = back_gaussians(means, torch.tensor([1.0, 0, 0, 0]).expand(N, 4), torch.full((N, 3), 0.01),
-                          torch.full((N,), 0.9), a2, c2, i2, far=4.0)
+    back = back_gaussians(
+        means,
+        torch.tensor([1.0, 0, 0, 0]).expand(N, 4),
+        torch.full((N, 3), 0.01),
+        torch.full((N,), 0.9),
+        a2,
+        c2,
+        i2,
+        far=4.0,
+    )
     M = back["means"].shape[0]
     assert M == int(unseen2.sum()) and back["src"].max() < N
     # on the sphere's far side (within the hull's looseness), behind the source point along its ray

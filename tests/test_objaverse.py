@@ -12,10 +12,10 @@ import types
 
 import pytest
 import yaml
-
 from asset_writers import halves, write_glb
 from conftest import ROOT, venv_bin
 from data_helpers import frng, write_config
+
 from frng import config as frng_config
 from frng.data import catalog
 from frng.data.dataset import open_object
@@ -24,9 +24,18 @@ UIDS = ["0123456789abcdef0123456789abcdef", "fedcba9876543210fedcba9876543210", 
 
 
 def _glb(cache, uid, group="000-000"):
-    return write_glb(cache / "glbs" / group / f"{uid}.glb", {"name": "painted", "pbrMetallicRoughness": {
-        "baseColorTexture": {"index": "bc"}, "metallicFactor": 0.0, "roughnessFactor": 0.7}},
-        {"bc": halves((200, 60, 40), (40, 60, 200))})
+    return write_glb(
+        cache / "glbs" / group / f"{uid}.glb",
+        {
+            "name": "painted",
+            "pbrMetallicRoughness": {
+                "baseColorTexture": {"index": "bc"},
+                "metallicFactor": 0.0,
+                "roughnessFactor": 0.7,
+            },
+        },
+        {"bc": halves((200, 60, 40), (40, 60, 200))},
+    )
 
 
 def _annotations(cache, group="000-000", **ann):
@@ -36,11 +45,19 @@ def _annotations(cache, group="000-000", **ann):
 
 
 def _cfg(cache, **objaverse):
-    return frng_config.validate({
-        "tier": "custom", "objects": {"count": 2, "test_count": 1, "sources": ["primitives"],
-                                      "objaverse": {"cache": str(cache), **objaverse}},
-        "envmaps": {"bundled": ["city", "studio", "forest"], "skies": {"models": []}, "rotations": 1},
-        "render": {"resolution": 32, "input_lights": 1, "target_lights": 1}})
+    return frng_config.validate(
+        {
+            "tier": "custom",
+            "objects": {
+                "count": 2,
+                "test_count": 1,
+                "sources": ["primitives"],
+                "objaverse": {"cache": str(cache), **objaverse},
+            },
+            "envmaps": {"bundled": ["city", "studio", "forest"], "skies": {"models": []}, "rotations": 1},
+            "render": {"resolution": 32, "input_lights": 1, "target_lights": 1},
+        }
+    )
 
 
 def test_plan_lists_uids_offline(tmp_path):
@@ -52,12 +69,17 @@ def test_plan_lists_uids_offline(tmp_path):
     with pytest.raises(frng_config.ConfigError, match="objaverse.uids"):
         _cfg(tmp_path, uids=["not-a-uid"])
     # the default adds nothing, and the other objects' specs are unchanged
-    base = frng_config.validate({"tier": "custom", "objects": {"count": 2, "test_count": 1, "sources": ["primitives"]},
-                                 "envmaps": {"bundled": ["city", "studio", "forest"], "skies": {"models": []},
-                                             "rotations": 1}, "render": {"resolution": 32, "input_lights": 1,
-                                                                         "target_lights": 1}})
-    assert [o.to_dict() for o in catalog.plan(base).objects] == \
-        [o.to_dict() for o in catalog.plan(cfg).objects if o.source != "objaverse"]
+    base = frng_config.validate(
+        {
+            "tier": "custom",
+            "objects": {"count": 2, "test_count": 1, "sources": ["primitives"]},
+            "envmaps": {"bundled": ["city", "studio", "forest"], "skies": {"models": []}, "rotations": 1},
+            "render": {"resolution": 32, "input_lights": 1, "target_lights": 1},
+        }
+    )
+    assert [o.to_dict() for o in catalog.plan(base).objects] == [
+        o.to_dict() for o in catalog.plan(cfg).objects if o.source != "objaverse"
+    ]
 
 
 def test_cache_is_read_and_missing_uids_are_named(tmp_path, monkeypatch):
@@ -98,10 +120,14 @@ def test_missing_uids_are_fetched_by_the_package(tmp_path, monkeypatch):
 
 def test_annotation_filter_and_count(tmp_path, monkeypatch):
     cache = tmp_path / "cache"
-    _annotations(cache, **{
-        UIDS[0]: {"name": "chair", "license": "by", "tags": [{"name": "chair"}], "faceCount": 100},
-        UIDS[1]: {"name": "big chair", "license": "by", "tags": [{"name": "chair"}], "faceCount": 10**6},
-        UIDS[2]: {"name": "car", "license": "cc0", "tags": [{"name": "car"}], "faceCount": 50}})
+    _annotations(
+        cache,
+        **{
+            UIDS[0]: {"name": "chair", "license": "by", "tags": [{"name": "chair"}], "faceCount": 100},
+            UIDS[1]: {"name": "big chair", "license": "by", "tags": [{"name": "chair"}], "faceCount": 10**6},
+            UIDS[2]: {"name": "car", "license": "cc0", "tags": [{"name": "car"}], "faceCount": 50},
+        },
+    )
     cfg = _cfg(cache, filter={"tags": ["chair", "car"], "max_faces": 1000}, count=2)
     assert sorted(o.mesh for o in catalog.plan(cfg).objects if o.source == "objaverse") == sorted([UIDS[0], UIDS[2]])
     ov = catalog.config_section(cfg, "objects").objaverse
@@ -118,12 +144,23 @@ def test_annotation_filter_and_count(tmp_path, monkeypatch):
 def test_objaverse_object_is_curated_from_the_cache(tmp_path):
     cache = tmp_path / "cache"
     _glb(cache, UIDS[0])
-    _annotations(cache, **{UIDS[0]: {"name": "painted box", "license": "by",
-                                     "viewerUrl": f"https://sketchfab.com/3d-models/{UIDS[0]}"}})
-    cfg = write_config(tmp_path / "config.yaml", tmp_path / "results",
-                       objects={"count": 2, "test_count": 1, "sources": ["primitives"],
-                                "objaverse": {"uids": UIDS[:2], "cache": str(cache), "download": False}},
-                       render={"resolution": 32, "spp": 2, "target_views": 1})
+    _annotations(
+        cache,
+        **{
+            UIDS[0]: {"name": "painted box", "license": "by", "viewerUrl": f"https://sketchfab.com/3d-models/{UIDS[0]}"}
+        },
+    )
+    cfg = write_config(
+        tmp_path / "config.yaml",
+        tmp_path / "results",
+        objects={
+            "count": 2,
+            "test_count": 1,
+            "sources": ["primitives"],
+            "objaverse": {"uids": UIDS[:2], "cache": str(cache), "download": False},
+        },
+        render={"resolution": 32, "spp": 2, "target_views": 1},
+    )
     frng("envmaps", "--config", str(cfg))
     frng("curate", "--config", str(cfg), "--object", f"objaverse_{UIDS[0]}")
     meta = open_object(tmp_path / "results", f"objaverse_{UIDS[0]}").meta
@@ -138,11 +175,29 @@ def test_dry_run_with_objaverse_uids_is_offline(tmp_path):
     cfg["objects"]["objaverse"] = {"uids": UIDS[:2], "test_count": 1, "cache": str(tmp_path / "empty")}
     path = tmp_path / "config.yaml"
     path.write_text(yaml.safe_dump(cfg))
-    proc = subprocess.run([venv_bin("snakemake"), "--snakefile", "workflow/Snakefile", "--configfile", str(path),
-                           "--config", f"results={tmp_path / 'results'}", "-n", "--quiet", "rules"],
-                          cwd=ROOT, capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [
+            venv_bin("snakemake"),
+            "--snakefile",
+            "workflow/Snakefile",
+            "--configfile",
+            str(path),
+            "--config",
+            f"results={tmp_path / 'results'}",
+            "-n",
+            "--quiet",
+            "rules",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert not (tmp_path / "empty").exists()
-    counts = {l.split()[0]: int(l.split()[1]) for l in (proc.stdout + proc.stderr).splitlines()
-              if len(l.split()) == 2 and l.split()[1].isdigit()}
+    counts = {
+        l.split()[0]: int(l.split()[1])
+        for l in (proc.stdout + proc.stderr).splitlines()
+        if len(l.split()) == 2 and l.split()[1].isdigit()
+    }
     assert counts["curate"] == cfg["objects"]["count"] + 2

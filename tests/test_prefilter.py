@@ -23,8 +23,9 @@ def test_prefilter_keeps_energy_and_blurs_more_at_lower_kappa():
     e_in = float((env * omega).sum())
     for lvl in pref:  # a normalised lobe moves light around, it neither makes nor loses it (within ~5%)
         assert abs(float((lvl * omega).sum()) - e_in) / e_in < 0.05
-    at_spot = [float(lookup(pref, torch.tensor([[1.0, 0.0, 0.0]]), torch.tensor([float(i)]))[0, 0])
-               for i in range(len(KAPPAS))]
+    at_spot = [
+        float(lookup(pref, torch.tensor([[1.0, 0.0, 0.0]]), torch.tensor([float(i)]))[0, 0]) for i in range(len(KAPPAS))
+    ]
     assert all(a > b for a, b in zip(at_spot, at_spot[1:]))  # peak falls as the lobe widens
     away = float(lookup(pref, torch.tensor([[-1.0, 0.0, 0.0]]), torch.tensor([0.0]))[0, 0])
     assert away < 0.05 * at_spot[0]

@@ -11,9 +11,6 @@ from pathlib import Path
 
 import pytest
 import torch
-import yaml
-
-from frng import config as frng_config
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -92,8 +89,9 @@ def test_priors_beat_trivial_baselines(smoke):
     res = Path(config["results"])
     assert (res / "backbone" / "model.pt").exists() and (res / "idm" / "model.pt").exists()
     train_objs, test = load_split(config, "train"), load_split(config, "test")
-    rows = evaluate.eval_backbone(config, load_backbone(res / "backbone" / "model.pt"), test,
-                                  evaluate.mean_image(train_objs))
+    rows = evaluate.eval_backbone(
+        config, load_backbone(res / "backbone" / "model.pt"), test, evaluate.mean_image(train_objs)
+    )
 
     def mean(method, key):
         v = [r[key] for r in rows if r["method"] == method]
@@ -124,7 +122,7 @@ def test_backbone_overfits_one_object(smoke):
     tcfg = bt.BackboneTrainConfig.from_dict({**config["backbone"]["train"], "bf16": False})
     opt = torch.optim.Adam(model.parameters(), lr=3e-3)
     l2 = []
-    for step in range(60):
+    for _step in range(60):
         torch.manual_seed(1)  # same timestep and noise
         losses = bt.step_loss(model, obj, tcfg, 0, random.Random(1), torch.device("cpu"))
         opt.zero_grad()

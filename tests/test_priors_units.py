@@ -8,20 +8,32 @@ import pytest
 import torch
 
 from frng import camera, io
-from frng.priors import BACKBONES, IDMS, build_idm, freeze, load_backbone
-from frng.priors import backbone as bb
 from frng import training as tr
+from frng.priors import BACKBONES, IDMS, build_idm, load_backbone
+from frng.priors import backbone as bb
 from frng.priors.diffusion_renderer import DiffusionRendererError, read_priors
 from frng.priors.idm import IDMConfig, LearnedIDM, idm_loss
 from frng.render.sh import eval_sh
 
-TINY = {"width": 32, "heads": 2, "geo_depth": 1, "app_depth": 1, "env_height": 8, "sh_degree": 1, "den_views": 2,
-        "patch": 8}
+TINY = {
+    "width": 32,
+    "heads": 2,
+    "geo_depth": 1,
+    "app_depth": 1,
+    "env_height": 8,
+    "sh_degree": 1,
+    "den_views": 2,
+    "patch": 8,
+}
 
 
 def _rig(V=3, H=16):
-    c2w = torch.stack([torch.tensor(camera.look_at(camera.spherical_to_cartesian(a, 15, 2.6)), dtype=torch.float32)
-                       for a in np.linspace(0, 360, V, endpoint=False)])
+    c2w = torch.stack(
+        [
+            torch.tensor(camera.look_at(camera.spherical_to_cartesian(a, 15, 2.6)), dtype=torch.float32)
+            for a in np.linspace(0, 360, V, endpoint=False)
+        ]
+    )
     intr = torch.tensor(camera.intrinsics_from_fov(50, H, H), dtype=torch.float32).expand(V, 4).clone()
     return c2w, intr
 
@@ -95,14 +107,22 @@ def test_sh_degree0_and_1_match_closed_form():
 
 def test_learned_idm_shapes_and_loss_decreases():
     torch.manual_seed(0)
-    m = LearnedIDM(IDMConfig.from_dict({"width": 32, "heads": 2, "depth": 1, "pixel_features": 8, "patch": 8, "near": 1.0,
-                                           "far": 4.5}))
+    m = LearnedIDM(
+        IDMConfig.from_dict(
+            {"width": 32, "heads": 2, "depth": 1, "pixel_features": 8, "patch": 8, "near": 1.0, "far": 4.5}
+        )
+    )
     c2w, intr = _rig(2)
     imgs, alpha = torch.rand(1, 2, 16, 16, 3), torch.ones(1, 2, 16, 16, 1)
     n = torch.nn.functional.normalize(torch.randn(1, 2, 16, 16, 3), dim=-1)
-    tgt = {"normal": n, "depth": torch.full((1, 2, 16, 16, 1), 2.5), "albedo": torch.full((1, 2, 16, 16, 3), 0.3),
-           "roughness": torch.full((1, 2, 16, 16, 1), 0.7), "metallic": torch.zeros(1, 2, 16, 16, 1),
-           "mask": alpha}
+    tgt = {
+        "normal": n,
+        "depth": torch.full((1, 2, 16, 16, 1), 2.5),
+        "albedo": torch.full((1, 2, 16, 16, 3), 0.3),
+        "roughness": torch.full((1, 2, 16, 16, 1), 0.7),
+        "metallic": torch.zeros(1, 2, 16, 16, 1),
+        "mask": alpha,
+    }
     opt = torch.optim.Adam(m.parameters(), 3e-3)
     first = None
     for _ in range(30):
@@ -118,6 +138,7 @@ def test_learned_idm_shapes_and_loss_decreases():
 
 
 # -- DiffusionRenderer adapter on fixture files in its exact layout ---------------------------------------
+
 
 def _write_dr(folder, V, H, W, normal_cam):
     folder.mkdir(parents=True, exist_ok=True)
@@ -137,8 +158,9 @@ def test_diffusion_renderer_reader(tmp_path):
     alpha = torch.ones(V, H, H, 1)
     pri = read_priors(tmp_path / "obj", c2w, alpha, near=1.0, far=4.0)
     assert pri.albedo.shape == (V, H, H, 3)
-    assert torch.allclose(pri.albedo, torch.full_like(pri.albedo, float(io.srgb_decode(np.float32(128 / 255)))),
-                          atol=1e-3)
+    assert torch.allclose(
+        pri.albedo, torch.full_like(pri.albedo, float(io.srgb_decode(np.float32(128 / 255)))), atol=1e-3
+    )
     assert torch.allclose(pri.metallic, torch.ones_like(pri.metallic), atol=1e-3)
     assert torch.allclose(pri.roughness, torch.full_like(pri.roughness, 64 / 255), atol=1e-3)
     assert torch.allclose(pri.depth, torch.ones_like(pri.depth))
@@ -208,7 +230,7 @@ def test_untrained_backbone_relights_with_light_cue():
         out = m.relight(imgs, alpha, c2w, intr, [top, bottom], c2w[:1], intr[:1])
         H = imgs.shape[1]
         up = [float(rgb[0, : H // 2][a[0, : H // 2, :, 0] > 0.5].mean()) for rgb, a in out]
-        down = [float(rgb[0, H // 2:][a[0, H // 2:, :, 0] > 0.5].mean()) for rgb, a in out]
+        down = [float(rgb[0, H // 2 :][a[0, H // 2 :, :, 0] > 0.5].mean()) for rgb, a in out]
         means[cue] = (up, down)
     (up, down) = means[True]
     assert up[0] / down[0] > 1.5 * up[1] / down[1]  # the upper half is brighter under the top light

@@ -12,8 +12,8 @@ import subprocess
 
 import pytest
 import yaml
-
 from conftest import ROOT, venv_bin
+
 from frng import config as frng_config
 
 
@@ -34,8 +34,15 @@ def snakemake(configfile, *args, targets=(), workdir=None, timeout=300):
 def touch_run(tmp_path, configfile, results, *extra):
     """A real (non-dry) run that executes no stage: the env-map job, touched. Its ``.snakemake`` (locks, metadata)
     lives under ``tmp_path``, not in the repository."""
-    return snakemake(configfile, "--touch", "--cores", "1", *extra, targets=[results / "envmaps" / "index.json"],
-                     workdir=tmp_path / "workdir")
+    return snakemake(
+        configfile,
+        "--touch",
+        "--cores",
+        "1",
+        *extra,
+        targets=[results / "envmaps" / "index.json"],
+        workdir=tmp_path / "workdir",
+    )
 
 
 def dry_run(configfile, *extra):
@@ -59,8 +66,13 @@ def smoke_config(results, **changes):
 def minimal_config(results):
     """A custom config that leaves most sections out: the schema's defaults must fill them, not the default tier."""
     smoke = smoke_config(results)
-    return {"tier": "custom", "results": str(results), "objects": smoke["objects"], "envmaps": smoke["envmaps"],
-            "render": {"resolution": 32, "spp": 4, "target_views": 2, "target_lights": 2}}
+    return {
+        "tier": "custom",
+        "results": str(results),
+        "objects": smoke["objects"],
+        "envmaps": smoke["envmaps"],
+        "render": {"resolution": 32, "spp": 4, "target_views": 2, "target_lights": 2},
+    }
 
 
 def frng_config_output(path) -> dict:
@@ -73,8 +85,11 @@ def frng_config_output(path) -> dict:
 def assert_same_keys(expected: dict, actual: dict, what: str):
     """Key by key (dotted leaves), listing every difference."""
     a, b = frng_config.flatten(expected), frng_config.flatten(actual)
-    diff = [f"{k}: frng config {a.get(k, '<absent>')!r}, snakemake {b.get(k, '<absent>')!r}"
-            for k in sorted(set(a) | set(b)) if a.get(k, "<absent>") != b.get(k, "<absent>")]
+    diff = [
+        f"{k}: frng config {a.get(k, '<absent>')!r}, snakemake {b.get(k, '<absent>')!r}"
+        for k in sorted(set(a) | set(b))
+        if a.get(k, "<absent>") != b.get(k, "<absent>")
+    ]
     assert not diff, f"{what}: {len(diff)} key(s) differ:\n" + "\n".join(diff)
 
 
@@ -83,6 +98,7 @@ def _out(proc):
 
 
 # -- problem 1: one effective config per results folder, written only when jobs run ------------------------------
+
 
 def test_dry_run_writes_no_config(tmp_path):
     results = tmp_path / "results"
@@ -140,12 +156,15 @@ def test_same_config_keeps_the_recorded_file(tmp_path):
 
 
 def test_each_shipped_tier_has_its_own_results_folder():
-    folders = {name: frng_config.load(ROOT / "config" / name)["results"]
-               for name in ("config.yaml", "smoke.yaml", "paper.yaml")}
+    folders = {
+        name: frng_config.load(ROOT / "config" / name)["results"]
+        for name in ("config.yaml", "smoke.yaml", "paper.yaml")
+    }
     assert folders == {"config.yaml": "results", "smoke.yaml": "results/smoke", "paper.yaml": "results/paper"}
 
 
 # -- problem 2: a --configfile is the whole config ---------------------------------------------------------------
+
 
 def test_snakemake_runs_what_frng_config_prints(tmp_path):
     """Key by key: the effective config a run records for a minimal custom config == ``frng config`` of it."""
@@ -153,8 +172,7 @@ def test_snakemake_runs_what_frng_config_prints(tmp_path):
     path = write_config(tmp_path / "minimal.yaml", minimal_config(results))
     proc = touch_run(tmp_path, path, results)
     assert proc.returncode == 0, _out(proc)
-    assert_same_keys(frng_config_output(path), yaml.safe_load((results / "config.yaml").read_text()),
-                     "minimal config")
+    assert_same_keys(frng_config_output(path), yaml.safe_load((results / "config.yaml").read_text()), "minimal config")
 
 
 @pytest.mark.parametrize("tier", ["minimal", "paper"])
@@ -194,8 +212,10 @@ def test_no_configfile_runs_the_default_tier(tmp_path):
     assert_same_keys(expected, yaml.safe_load((results / "config.yaml").read_text()), "default tier")
 
 
-@pytest.mark.parametrize("value, expected", [(True, True), ("true", True), ("True", True), ("1", True),
-                                             (False, False), ("false", False), (None, False)])
+@pytest.mark.parametrize(
+    "value, expected",
+    [(True, True), ("true", True), ("True", True), ("1", True), (False, False), ("false", False), (None, False)],
+)
 def test_overwrite_switch_is_popped(value, expected):
     cfg = {"results": "x", frng_config.OVERWRITE_SWITCH: value}
     assert frng_config.pop_switch(cfg) is expected
@@ -209,6 +229,7 @@ def test_overwrite_switch_rejects_non_boolean():
 
 # -- point 6: outputs honour the umask ---------------------------------------------------------------------------
 
+
 @pytest.fixture
 def umask():
     """Set the process umask for one test (restored after)."""
@@ -217,8 +238,9 @@ def umask():
     os.umask(old)
 
 
-@pytest.mark.parametrize("mask, file_mode, dir_mode", [(0o022, 0o644, 0o755), (0o002, 0o664, 0o775),
-                                                       (0o077, 0o600, 0o700)])
+@pytest.mark.parametrize(
+    "mask, file_mode, dir_mode", [(0o022, 0o644, 0o755), (0o002, 0o664, 0o775), (0o077, 0o600, 0o700)]
+)
 def test_outputs_honour_the_umask(tmp_path, umask, mask, file_mode, dir_mode):
     import numpy as np
 

@@ -18,7 +18,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-
 from conftest import ROOT, venv_bin
 
 TOLERANCE_DB = 0.5
@@ -44,9 +43,24 @@ def smoke(tmp_path_factory):
         config = frng_config.typed(frng_config.load(d / "smoke.yaml"))
         L = Layout(config.results)
         targets = [L.model("full")] + [L.relight_timing(o) for o in catalog.plan(config).split("test")]
-        r = subprocess.run([venv_bin("snakemake"), "--snakefile", "workflow/Snakefile", "--profile",
-                            str(ROOT / "profiles" / "local"), "--configfile", str(d / "smoke.yaml"), "--cores", "2",
-                            *targets], cwd=ROOT, capture_output=True, text=True, timeout=1800)
+        r = subprocess.run(
+            [
+                venv_bin("snakemake"),
+                "--snakefile",
+                "workflow/Snakefile",
+                "--profile",
+                str(ROOT / "profiles" / "local"),
+                "--configfile",
+                str(d / "smoke.yaml"),
+                "--cores",
+                "2",
+                *targets,
+            ],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=1800,
+        )
         assert r.returncode == 0, (r.stdout + r.stderr)[-3000:]
         config = frng_config.typed(frng_config.load(Path(config.results) / "config.yaml"))
     oid = catalog.plan(config).split("test")[0]
@@ -84,13 +98,27 @@ def test_folder_of_pngs_to_a_relit_turntable(smoke, tmp_path):
     results = Path(config.results)
     model = Layout(results).model("full")
     py = [sys.executable, "-m", "frng"]
-    run = lambda *a: subprocess.run(py + [str(x) for x in a], cwd=ROOT, capture_output=True, text=True,  # noqa
-                                    timeout=600)
+    run = lambda *a: subprocess.run(
+        py + [str(x) for x in a],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,  # noqa
+        timeout=600,
+    )
     r = run("reconstruct", "--export-object", oid, "--out", tmp_path / "demo", "--model", model)
     assert r.returncode == 0, r.stdout + r.stderr
     assert len(list((tmp_path / "demo" / "images").glob("*.png"))) == 6
-    r = run("reconstruct", "--images", tmp_path / "demo" / "images", "--rig", "paper", "--model", model,
-            "--out", tmp_path / "asset")
+    r = run(
+        "reconstruct",
+        "--images",
+        tmp_path / "demo" / "images",
+        "--rig",
+        "paper",
+        "--model",
+        model,
+        "--out",
+        tmp_path / "asset",
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     assert "light estimated" in r.stdout
     g, feats, _, meta = load_asset(tmp_path / "asset")
@@ -99,8 +127,18 @@ def test_folder_of_pngs_to_a_relit_turntable(smoke, tmp_path):
     assert (tmp_path / "asset" / "contact_sheet.png").stat().st_size > 0
     assert (tmp_path / "asset" / "input_light.exr").exists()
     light = io.read_json(Layout(results).object_meta(oid))["target_lights"][0]
-    r = run("render-asset", tmp_path / "asset", "--env", Layout(results).envmap(light), "--turntable", 8,
-            "--elevation", 20, "--out", tmp_path / "turn")
+    r = run(
+        "render-asset",
+        tmp_path / "asset",
+        "--env",
+        Layout(results).envmap(light),
+        "--turntable",
+        8,
+        "--elevation",
+        20,
+        "--out",
+        tmp_path / "turn",
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     frames = iio.imread(tmp_path / "turn" / "turntable.gif", index=None)
     assert frames.shape[0] == 8

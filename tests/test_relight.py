@@ -90,12 +90,15 @@ def _corrupt_envmap(res, oid, meta):
     return p
 
 
-@pytest.mark.parametrize("corrupt, words", [
-    (_corrupt_missing, "does not exist"),
-    (_corrupt_size, "expected 32x32"),
-    (_corrupt_bytes, "cannot read EXR"),
-    (_corrupt_envmap, "2:1"),
-])
+@pytest.mark.parametrize(
+    "corrupt, words",
+    [
+        (_corrupt_missing, "does not exist"),
+        (_corrupt_size, "expected 32x32"),
+        (_corrupt_bytes, "cannot read EXR"),
+        (_corrupt_envmap, "2:1"),
+    ],
+)
 def test_bad_input_names_the_file_and_writes_nothing(private_object, corrupt, words):
     path, config, oid, meta, res = _fresh(private_object, corrupt.__name__)
     relight.validate_inputs(config, oid)  # the clean copy is fine
@@ -109,8 +112,12 @@ def test_bad_input_names_the_file_and_writes_nothing(private_object, corrupt, wo
 def test_cli_reports_bad_input(private_object):
     path, config, oid, meta, res = _fresh(private_object, "cli")
     bad = _corrupt_bytes(res, oid, meta)
-    r = subprocess.run([sys.executable, "-m", "frng", "relight", "--config", str(path), "--object", oid],
-                       capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [sys.executable, "-m", "frng", "relight", "--config", str(path), "--object", oid],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 2 and str(bad) in r.stdout + r.stderr
     assert not (res / "relight").exists()
 
@@ -119,13 +126,40 @@ def test_bench_relight_reports_both_methods():
     """`frng bench relight` at smoke sizes: one JSON line with both methods' costs (values, not timings, checked)."""
     import json
 
-    r = subprocess.run([sys.executable, "-m", "frng", "bench", "relight", "--configs", str(ROOT / "config" / "smoke.yaml"),
-                        "--resolution", "32", "--repeats", "1", "--lights", "2", "--target-views", "2", "--json"],
-                       capture_output=True, text=True, timeout=300, cwd=ROOT)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "frng",
+            "bench",
+            "relight",
+            "--configs",
+            str(ROOT / "config" / "smoke.yaml"),
+            "--resolution",
+            "32",
+            "--repeats",
+            "1",
+            "--lights",
+            "2",
+            "--target-views",
+            "2",
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=ROOT,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     row = json.loads(r.stdout.strip().splitlines()[-1])
-    for key in ("reconstruction_s", "frng_ms_per_image", "frng_ms_per_image_amortised", "backbone_ms_per_image",
-                "speedup", "gaussians"):
+    for key in (
+        "reconstruction_s",
+        "frng_ms_per_image",
+        "frng_ms_per_image_amortised",
+        "backbone_ms_per_image",
+        "speedup",
+        "gaussians",
+    ):
         assert np.isfinite(row[key]) and row[key] > 0, (key, row)
     assert row["resolution"] == 32 and row["lights"] == 2 and row["target_views"] == 2
     # amortising the light-independent rasterization over 2 lights can only help
@@ -133,6 +167,7 @@ def test_bench_relight_reports_both_methods():
 
 
 # -- issue 12, point 6: an RGB-only input view and a training object are refused (no Blender: synthetic inputs) ----
+
 
 def _synthetic_object(tmp_path, split):
     """A results folder with one object of the smoke plan's ``split`` whose input views are RGB-only EXRs."""
@@ -149,9 +184,15 @@ def _synthetic_object(tmp_path, split):
     root = tmp_path / "results" / "objects" / spec.id
     res = config["render"]["resolution"]
     views = [{"name": f"in_{k:02d}"} for k in range(2)]
-    io.write_json(root / "meta.json", {"split": spec.split, "views": {"inputs": views},
-                                       "input_lights": list(spec.input_lights),
-                                       "target_lights": list(spec.target_lights)})
+    io.write_json(
+        root / "meta.json",
+        {
+            "split": spec.split,
+            "views": {"inputs": views},
+            "input_lights": list(spec.input_lights),
+            "target_lights": list(spec.target_lights),
+        },
+    )
     for v in views:
         io.write_exr(root / "inputs" / spec.input_lights[0] / f"{v['name']}.exr", np.ones((res, res, 3), np.float32))
     return config, spec.id, root

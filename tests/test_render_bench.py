@@ -7,8 +7,13 @@ from conftest import venv_bin
 
 
 def test_bench_render_json():
-    out = subprocess.run([venv_bin("frng"), "bench", "render", "--sizes", "16", "--channels", "3", "8", "--repeats", "1",
-                          "--json"], capture_output=True, text=True, check=True, timeout=120).stdout
+    out = subprocess.run(
+        [venv_bin("frng"), "bench", "render", "--sizes", "16", "--channels", "3", "8", "--repeats", "1", "--json"],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=120,
+    ).stdout
     rows = [json.loads(line) for line in out.splitlines() if line.strip()]
     assert [r["channels"] for r in rows] == [3, 8]
     for r in rows:

@@ -13,14 +13,15 @@ import pytest
 import torch
 
 from frng import camera
-from frng.render import rasterize
-from frng.render import gsplat_backend
+from frng.render import gsplat_backend, rasterize
 
 DT = torch.float64
 
 
 def _cams(azimuths, H, W, elev=20.0, dist=2.5, fov=50.0):
-    c2w = torch.tensor(np.stack([camera.look_at(camera.spherical_to_cartesian(a, elev, dist)) for a in azimuths]), dtype=DT)
+    c2w = torch.tensor(
+        np.stack([camera.look_at(camera.spherical_to_cartesian(a, elev, dist)) for a in azimuths]), dtype=DT
+    )
     K = torch.tensor(camera.intrinsics_from_fov(fov, W, H), dtype=DT).expand(len(azimuths), 4).clone()
     return c2w, K
 
@@ -56,7 +57,9 @@ def test_tiles_match_reference_values_and_gradients(tile, per_view):
         assert a.shape == b.shape
         assert torch.allclose(a, b, atol=1e-9, rtol=0), name
     assert ref[1].max() > 0.9 and (ref[1] == 0).any()  # the scene has opaque and empty pixels
-    for ga, gb, name in zip(_grads(fast, params), _grads(ref, params), ["means", "quats", "scales", "opacities", "features"]):
+    for ga, gb, name in zip(
+        _grads(fast, params), _grads(ref, params), ["means", "quats", "scales", "opacities", "features"]
+    ):
         assert torch.isfinite(ga).all()
         assert gb.abs().max() > 0, name
         assert torch.allclose(ga, gb, atol=1e-9 * max(1.0, gb.abs().max().item()), rtol=1e-7), name
@@ -103,8 +106,9 @@ def test_single_gaussian_matches_analytic_2d_gaussian():
     quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]], dtype=DT)
     scales = torch.tensor([[sx, sy, 0.05]], dtype=DT)
     feats = torch.tensor([[1.0, 2.0]], dtype=DT)
-    out, alpha, depth = rasterize(means, quats, scales, torch.tensor([op], dtype=DT), feats, c2w, K, H, W,
-                                  backend="torch", eps2d=eps2d)
+    out, alpha, depth = rasterize(
+        means, quats, scales, torch.tensor([op], dtype=DT), feats, c2w, K, H, W, backend="torch", eps2d=eps2d
+    )
     vx, vy = (f * sx / d) ** 2 + eps2d, (f * sy / d) ** 2 + eps2d
     uv = camera.pixel_centers(H, W, dtype=DT)
     m2 = (uv[..., 0] - 24.3) ** 2 / vx + (uv[..., 1] - 23.6) ** 2 / vy
@@ -130,8 +134,12 @@ def test_depth_ordering_of_two_overlapping_gaussians(backend):
         means = torch.tensor([[0, 0, z_red], [0.02, 0, z_blue]], dtype=DT)
         out, alpha, _ = rasterize(means, quats, scales, op, red_blue, c2w, K, H, W, backend=backend)
         # each Gaussian alone gives its own alpha map
-        a_red = rasterize(means[:1], quats[:1], scales[:1], op[:1], red_blue[:1], c2w, K, H, W, backend=backend)[1][0, ..., 0]
-        a_blue = rasterize(means[1:], quats[1:], scales[1:], op[1:], red_blue[1:], c2w, K, H, W, backend=backend)[1][0, ..., 0]
+        a_red = rasterize(means[:1], quats[:1], scales[:1], op[:1], red_blue[:1], c2w, K, H, W, backend=backend)[1][
+            0, ..., 0
+        ]
+        a_blue = rasterize(means[1:], quats[1:], scales[1:], op[1:], red_blue[1:], c2w, K, H, W, backend=backend)[1][
+            0, ..., 0
+        ]
         if z_red < z_blue:  # red in front: red = a_r, blue = (1 - a_r) a_b
             exp_r, exp_b = a_red, (1 - a_red) * a_blue
         else:
@@ -147,16 +155,18 @@ def test_no_nan_for_degenerate_and_behind_camera_gaussians():
     H = W = 16
     c2w, K = _cams([0], H, W, dist=2.0)
     eye = c2w[0, :3, 3]
-    means = torch.stack([
-        eye,  # exactly at the camera centre
-        eye - c2w[0, :3, 2] * 0.5,  # behind the camera
-        eye + c2w[0, :3, 2] * 1e-4,  # in front, closer than the near plane
-        torch.tensor([0.0, 0, 0], dtype=DT),  # zero scales
-        torch.tensor([0.1, 0, 0], dtype=DT),  # zero quaternion
-        torch.tensor([0.0, 0.2, 0.1], dtype=DT),  # huge scales
-        torch.tensor([5.0, 5.0, 0.0], dtype=DT),  # far outside the frustum
-        torch.tensor([0.0, -0.1, 0.0], dtype=DT),  # normal
-    ]).requires_grad_()
+    means = torch.stack(
+        [
+            eye,  # exactly at the camera centre
+            eye - c2w[0, :3, 2] * 0.5,  # behind the camera
+            eye + c2w[0, :3, 2] * 1e-4,  # in front, closer than the near plane
+            torch.tensor([0.0, 0, 0], dtype=DT),  # zero scales
+            torch.tensor([0.1, 0, 0], dtype=DT),  # zero quaternion
+            torch.tensor([0.0, 0.2, 0.1], dtype=DT),  # huge scales
+            torch.tensor([5.0, 5.0, 0.0], dtype=DT),  # far outside the frustum
+            torch.tensor([0.0, -0.1, 0.0], dtype=DT),  # normal
+        ]
+    ).requires_grad_()
     quats = torch.randn(8, 4, dtype=DT)
     quats[4] = 0
     quats.requires_grad_()
@@ -181,8 +191,17 @@ def test_max_radius_clamps_the_footprint():
     H = W = 64
     c2w = torch.eye(4, dtype=DT)[None]
     K = torch.tensor([[60.0, 60.0, 32.0, 32.0]], dtype=DT)
-    args = (torch.tensor([[0, 0, 2.0]], dtype=DT), torch.tensor([[1.0, 0, 0, 0]], dtype=DT),
-            torch.full((1, 3), 0.5, dtype=DT), torch.tensor([0.5], dtype=DT), torch.ones(1, 1, dtype=DT), c2w, K, H, W)
+    args = (
+        torch.tensor([[0, 0, 2.0]], dtype=DT),
+        torch.tensor([[1.0, 0, 0, 0]], dtype=DT),
+        torch.full((1, 3), 0.5, dtype=DT),
+        torch.tensor([0.5], dtype=DT),
+        torch.ones(1, 1, dtype=DT),
+        c2w,
+        K,
+        H,
+        W,
+    )
     _, free, _ = rasterize(*args, backend="torch")
     _, capped, _ = rasterize(*args, backend="torch", max_radius_px=6.0)
     ys, xs = torch.nonzero(capped[0, ..., 0] > 0, as_tuple=True)

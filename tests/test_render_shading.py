@@ -9,8 +9,15 @@ import torch
 
 from frng import envmap
 from frng.render import rasterize
-from frng.render.shading import (NeuralDecoder, ShadingConfig, deferred_shade, ggx_diffuse_brdf, ggx_reflectance,
-                                 lambert_sh, shade_pixels)
+from frng.render.shading import (
+    NeuralDecoder,
+    ShadingConfig,
+    deferred_shade,
+    ggx_diffuse_brdf,
+    ggx_reflectance,
+    lambert_sh,
+    shade_pixels,
+)
 
 DT = torch.float64
 
@@ -112,8 +119,14 @@ def test_attenuating_decoder_can_darken_its_base_and_splits_exactly():
     g = torch.Generator().manual_seed(0)
     P, K = 40, 30
     unit = lambda x: x / x.norm(dim=-1, keepdim=True)  # noqa: E731
-    feats = torch.cat([unit(torch.randn(P, 3, generator=g, dtype=DT)), torch.rand(P, 3, generator=g, dtype=DT),
-                       torch.randn(P, 2, generator=g, dtype=DT)], -1)
+    feats = torch.cat(
+        [
+            unit(torch.randn(P, 3, generator=g, dtype=DT)),
+            torch.rand(P, 3, generator=g, dtype=DT),
+            torch.randn(P, 2, generator=g, dtype=DT),
+        ],
+        -1,
+    )
     wo, wi = unit(torch.randn(P, 3, generator=g, dtype=DT)), unit(torch.randn(K, 3, generator=g, dtype=DT))
     dec = NeuralDecoder(8, width=16, depth=2, cosine=True, attenuation=True).double().requires_grad_(False)
     assert dec.out.out_features == 6
@@ -176,8 +189,12 @@ def test_ggx_white_furnace():
     # closed form at roughness 1 (alpha = 1: D = 1/pi, G1(c) = 2c / (1 + c)), normal incidence: 1 - ln 2
     assert abs(normal_incidence[-1] - (1 - math.log(2))) < 2e-3
     # metal with albedo 0.5: Schlick F0 = 0.5 scales the lobe (near normal incidence ~ 0.5 x furnace value)
-    half = shade_pixels(ggx_reflectance, [0.5 * ones[:1], torch.full((1, 1), 0.3, dtype=DT), torch.ones(1, 1, dtype=DT),
-                                          n[None]], wo[:1], q)
+    half = shade_pixels(
+        ggx_reflectance,
+        [0.5 * ones[:1], torch.full((1, 1), 0.3, dtype=DT), torch.ones(1, 1, dtype=DT), n[None]],
+        wo[:1],
+        q,
+    )
     assert 0.45 < half.mean() < 0.53
 
 
@@ -212,4 +229,9 @@ def test_grad_split_value_and_gradient():
 
 def test_shading_config_from_config():
     cfg = ShadingConfig.from_config({"shading": {"spp_train": 64, "spp_grad": 24, "decoder_width": 256}})
-    assert (cfg.spp_train, cfg.spp_grad, cfg.decoder_width, cfg.spp_infer) == (64, 24, 256, ShadingConfig.from_dict({}).spp_infer)
+    assert (cfg.spp_train, cfg.spp_grad, cfg.decoder_width, cfg.spp_infer) == (
+        64,
+        24,
+        256,
+        ShadingConfig.from_dict({}).spp_infer,
+    )

@@ -18,8 +18,8 @@ import subprocess
 
 import pytest
 import yaml
-
 from conftest import ROOT, venv_bin
+
 from frng import config as frng_config
 
 
@@ -52,7 +52,9 @@ def test_paths_with_spaces_are_quoted_and_stages_are_execed(tmp_path):
     commands = [line.split("Shell command: ", 1)[1] for line in out.splitlines() if "Shell command: " in line]
     commands = [c for c in commands if c != "None"]  # run: rules (indexes, digests) run no shell
     stages = {m.group(1) for c in commands for m in [re.search(r" -m frng ([\w-]+)| (train) --config", c)] if m}
-    stages = {s.replace("-", "_") for s in stages} | ({"model_alias"} if any(c.startswith("(cp") for c in commands) else set())
+    stages = {s.replace("-", "_") for s in stages} | (
+        {"model_alias"} if any(c.startswith("(cp") for c in commands) else set()
+    )
     assert {"curate", "train", "relight", "evaluate", "model_alias"} <= stages, stages
     for cmd in commands:
         assert cmd.startswith("exec ") or cmd.startswith("("), f"not exec'd: {cmd}"

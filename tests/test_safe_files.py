@@ -72,8 +72,10 @@ def test_crafted_pickles_run_nothing(tmp_path, zipped):
     assert state is None and str(out / "checkpoint.pt") in why and "refusing" in why and not marker.exists()
     # caches and IDM priors (safetensors): named, nothing ran
     real_model, _ = _crafted(tmp_path, "unused.pt", zipped)
-    for name, load in [("cache.safetensors", lambda p: load_backbone_cache(p, real_model)),
-                       ("prior.safetensors", load_idm_priors)]:
+    for name, load in [
+        ("cache.safetensors", lambda p: load_backbone_cache(p, real_model)),
+        ("prior.safetensors", load_idm_priors),
+    ]:
         path, marker = _crafted(tmp_path, name, zipped)
         with pytest.raises(io.CorruptFileError) as e:
             load(path)
@@ -106,27 +108,54 @@ def test_real_checkpoint_state_loads_safely(tmp_path):
     opt = torch.optim.AdamW(model.parameters(), lr=1e-3)
     model(torch.randn(4, 3)).sum().backward()
     opt.step()
-    rngs = {"py": random.Random(1), "torch": torch.Generator().manual_seed(2), "np": np.random.default_rng(3),
-            "mt": np.random.Generator(np.random.MT19937(4)), "legacy": np.random.RandomState(5)}
+    rngs = {
+        "py": random.Random(1),
+        "torch": torch.Generator().manual_seed(2),
+        "np": np.random.default_rng(3),
+        "mt": np.random.Generator(np.random.MT19937(4)),
+        "legacy": np.random.RandomState(5),
+    }
     np.random.seed(6)
-    state = {"format": 2, "step": 3, "model": model.state_dict(), "optimizer": opt.state_dict(),
-             "rng": [rng_state("cpu", rngs)], "history": [{"step": 1, "total": 0.5}], "elapsed": 1.5,
-             "fingerprint": {"a": [1, 2.0, "x", None, True]}}
+    state = {
+        "format": 2,
+        "step": 3,
+        "model": model.state_dict(),
+        "optimizer": opt.state_dict(),
+        "rng": [rng_state("cpu", rngs)],
+        "history": [{"step": 1, "total": 0.5}],
+        "elapsed": 1.5,
+        "fingerprint": {"a": [1, 2.0, "x", None, True]},
+    }
     save_torch(state, tmp_path / "checkpoint.pt")
-    expect = (random.random(), np.random.rand(), torch.rand(1).item(), rngs["py"].random(),
-              torch.rand(1, generator=rngs["torch"]).item(), rngs["np"].random(), rngs["mt"].random(),
-              rngs["legacy"].rand())
+    expect = (
+        random.random(),
+        np.random.rand(),
+        torch.rand(1).item(),
+        rngs["py"].random(),
+        torch.rand(1, generator=rngs["torch"]).item(),
+        rngs["np"].random(),
+        rngs["mt"].random(),
+        rngs["legacy"].rand(),
+    )
     back = io.load_torch(tmp_path / "checkpoint.pt", "checkpoint")
     set_rng_state(back["rng"][0], "cpu", rngs)
-    got = (random.random(), np.random.rand(), torch.rand(1).item(), rngs["py"].random(),
-           torch.rand(1, generator=rngs["torch"]).item(), rngs["np"].random(), rngs["mt"].random(),
-           rngs["legacy"].rand())
+    got = (
+        random.random(),
+        np.random.rand(),
+        torch.rand(1).item(),
+        rngs["py"].random(),
+        torch.rand(1, generator=rngs["torch"]).item(),
+        rngs["np"].random(),
+        rngs["mt"].random(),
+        rngs["legacy"].rand(),
+    )
     assert got == expect
     opt.load_state_dict(back["optimizer"])
     model.load_state_dict(back["model"])
 
 
 # -- 3: truncated / corrupt intermediate files are named ---------------------------------------------------
+
 
 def test_truncated_files_are_named(tmp_path):
     from frng.model.frng import FRNG
@@ -164,14 +193,24 @@ def test_training_set_index_is_checked(tmp_path):
 
 # -- 4: RGB-only views --------------------------------------------------------------------------------------
 
+
 def test_rgb_only_views_are_refused(tmp_path):
     from frng import metrics
     from frng.data.dataset import ObjectData
 
     root = tmp_path / "objects" / "o"
     view = {"name": "v0", "c2w": np.eye(4).tolist(), "intrinsics": [10, 10, 4, 4]}
-    obj = ObjectData(root, {"id": "o", "views": {"inputs": [view]}, "input_lights": ["L"], "target_lights": [],
-                            "split": "train", "material_class": "diffuse"})
+    obj = ObjectData(
+        root,
+        {
+            "id": "o",
+            "views": {"inputs": [view]},
+            "input_lights": ["L"],
+            "target_lights": [],
+            "split": "train",
+            "material_class": "diffuse",
+        },
+    )
     rgb = np.full((16, 16, 3), 0.5, np.float32)
     path = Path(obj.files.image("inputs", "L", "v0"))
     io.write_exr(path, rgb)
@@ -188,6 +227,7 @@ def test_rgb_only_views_are_refused(tmp_path):
 
 # -- 5: permissions ------------------------------------------------------------------------------------------
 
+
 def test_safetensors_outputs_follow_the_umask(tmp_path):
     from frng.asset import DECODER_FILE, save_asset
     from frng.gaussians import Gaussians
@@ -198,11 +238,20 @@ def test_safetensors_outputs_follow_the_umask(tmp_path):
         _save({"a": torch.zeros(3)}, {"version": "1"}, tmp_path / "c.safetensors")
         assert (tmp_path / "c.safetensors").stat().st_mode & 0o777 == 0o644
         n = 4
-        g = Gaussians(means=torch.zeros(n, 3), quats=torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
-                      scales=torch.full((n, 3), 0.1), opacities=torch.full((n,), 0.5))
+        g = Gaussians(
+            means=torch.zeros(n, 3),
+            quats=torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+            scales=torch.full((n, 3), 0.1),
+            opacities=torch.full((n,), 0.5),
+        )
         dec = torch.nn.Linear(2, 3).state_dict()
-        folder = save_asset(tmp_path / "asset", g, torch.zeros(n, 2), dec,
-                            {"object_id": "o", "decoder": {"width": 1, "depth": 1, "input_encoding": "x"}})
+        folder = save_asset(
+            tmp_path / "asset",
+            g,
+            torch.zeros(n, 2),
+            dec,
+            {"object_id": "o", "decoder": {"width": 1, "depth": 1, "input_encoding": "x"}},
+        )
         assert (folder / DECODER_FILE).stat().st_mode & 0o777 == 0o644
         io.save_torch({"a": 1}, tmp_path / "m.pt")
         assert (tmp_path / "m.pt").stat().st_mode & 0o777 == 0o644
@@ -211,6 +260,7 @@ def test_safetensors_outputs_follow_the_umask(tmp_path):
 
 
 # -- 8: same object, same bytes ------------------------------------------------------------------------------
+
 
 def test_same_object_same_bytes(tmp_path):
     from frng.training import save_torch
@@ -236,12 +286,15 @@ def test_identical_retrain_same_model_bytes(tmp_path):
 
 # -- 9: late or unclear errors -------------------------------------------------------------------------------
 
+
 def test_cross_key_checks():
     from frng import config as frng_config
 
     base = frng_config.read_yaml(Path(__file__).parent.parent / "config" / "smoke.yaml")
-    for section, bad, key in [("shading", {"spp_train": 8, "spp_grad": 16}, "shading.spp_grad"),
-                              ("backbone", {"near": 5.0, "far": 4.0}, "backbone.near")]:
+    for section, bad, key in [
+        ("shading", {"spp_train": 8, "spp_grad": 16}, "shading.spp_grad"),
+        ("backbone", {"near": 5.0, "far": 4.0}, "backbone.near"),
+    ]:
         cfg = copy.deepcopy(base)
         cfg.setdefault(section, {}).update(bad)
         with pytest.raises(frng_config.ConfigError, match=key.replace(".", r"\.")):
@@ -256,8 +309,9 @@ def test_full_disk_names_the_file(tmp_path, monkeypatch):
 
     monkeypatch.setattr(OpenEXR.File, "write", full)
     st = os.statvfs(tmp_path)
-    fake = os.statvfs_result((st.f_bsize, st.f_frsize, st.f_blocks, 0, 0, st.f_files, st.f_ffree, st.f_favail,
-                              st.f_flag, st.f_namemax))
+    fake = os.statvfs_result(
+        (st.f_bsize, st.f_frsize, st.f_blocks, 0, 0, st.f_files, st.f_ffree, st.f_favail, st.f_flag, st.f_namemax)
+    )
     monkeypatch.setattr(io.os, "statvfs", lambda p: fake)
     path = tmp_path / "img.exr"
     with pytest.raises(OSError, match="no space left on device") as e:
@@ -287,7 +341,7 @@ def test_huge_header_exr_says_so(tmp_path):
     data = bytearray(path.read_bytes())
     key = b"dataWindow\x00box2i\x00"
     i = data.find(key) + len(key) + 4
-    data[i:i + 16] = struct.pack("<4i", 0, 0, 200000, 200000)  # a 200001^2 data window
+    data[i : i + 16] = struct.pack("<4i", 0, 0, 200000, 200000)  # a 200001^2 data window
     path.write_bytes(bytes(data))
     with pytest.raises(io.ImageError, match="200001x200001") as e:
         io.read_exr_channels(path)
@@ -298,8 +352,9 @@ def test_ascii_ply_parse_error_names_the_file(tmp_path):
     from frng.asset import AssetError, read_ply
 
     path = tmp_path / "bad.ply"
-    path.write_text("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nend_header\n"
-                    "1 2\n3 oops\n")
+    path.write_text(
+        "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nend_header\n1 2\n3 oops\n"
+    )
     with pytest.raises(AssetError, match="oops") as e:
         read_ply(path)
     assert str(path) in str(e.value) and "vertex 1" in str(e.value)
@@ -309,9 +364,12 @@ def test_stage_errors_are_one_line(capsys):
     """A corrupt file, an RGB-only view or a full disk ends a stage in one line naming the file, not a traceback."""
     from frng import cli
 
-    for err in [io.CorruptFileError("/r/backbone/cache/o.safetensors: cannot read cache: truncated or corrupt"),
-                io.ImageError("/r/objects/o/inputs/L/in_00.exr: no alpha channel"),
-                io.write_failure("/r/x.safetensors", OSError(28, "No space left on device (os error 28)"))]:
+    for err in [
+        io.CorruptFileError("/r/backbone/cache/o.safetensors: cannot read cache: truncated or corrupt"),
+        io.ImageError("/r/objects/o/inputs/L/in_00.exr: no alpha channel"),
+        io.write_failure("/r/x.safetensors", OSError(28, "No space left on device (os error 28)")),
+    ]:
+
         def run(args, err=err):
             raise err
 

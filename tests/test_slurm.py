@@ -23,7 +23,6 @@ import time
 from pathlib import Path
 
 import pytest
-
 from slurm_cluster import Cluster, Unavailable, ensure_installed
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -100,13 +99,18 @@ def test_interrupted_run_resumes(cluster, tmp_path):
     objs = ["a", "b", "c"]
     cfg = ["--config", f"objects={json.dumps(objs)}", "slow=c"]
     log = (tmp_path / "run1.log").open("w")
-    run1 = subprocess.Popen(_snakemake(*cfg, "slow_s=300", workdir=wd), cwd=ROOT, stdout=log,
-                            stderr=subprocess.STDOUT, text=True)
+    run1 = subprocess.Popen(
+        _snakemake(*cfg, "slow_s=300", workdir=wd), cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, text=True
+    )
     try:
         done = lambda o: (wd / "objects" / o / "meta.json").exists()  # noqa: E731
         # c's job is mid-way: its first file is written, the job still runs
-        _wait(lambda: done("a") and done("b") and (wd / "objects/c/image.txt").exists(), 240,
-              "a and b to finish and c to start", run1)
+        _wait(
+            lambda: done("a") and done("b") and (wd / "objects/c/image.txt").exists(),
+            240,
+            "a and b to finish and c to start",
+            run1,
+        )
         c_log = wd / "logs" / "curate" / "c.log"
         job = _wait(lambda: c_log.exists() and c_log.read_text().split()[-1:], 30, "c's SLURM job id")[0]
         running = {j["id"]: j["state"] for j in cluster.jobs()}
@@ -145,15 +149,25 @@ SMOKE = ["--snakefile", str(ROOT / "workflow" / "Snakefile"), "--configfile", st
 
 
 def _smoke_plans(results: Path) -> tuple[bool, str]:
-    r = subprocess.run([SNAKEMAKE, *SMOKE, "--config", f"results={results}", "-n", "-q", "rules", "--cores", "1"],
-                       cwd=ROOT, capture_output=True, text=True, timeout=180)
+    r = subprocess.run(
+        [SNAKEMAKE, *SMOKE, "--config", f"results={results}", "-n", "-q", "rules", "--cores", "1"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
     return r.returncode == 0, _tail(r, 300)
 
 
 def _targets(results: Path) -> list[Path]:
     """Every file the workflow makes for `rule all`, from snakemake itself (`--summary` of the DAG)."""
-    r = subprocess.run([SNAKEMAKE, *SMOKE, "--config", f"results={results}", "--summary", "--cores", "1"],
-                       cwd=ROOT, capture_output=True, text=True, timeout=180)
+    r = subprocess.run(
+        [SNAKEMAKE, *SMOKE, "--config", f"results={results}", "--summary", "--cores", "1"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
     assert r.returncode == 0, _tail(r)
     rows = [line.split("\t") for line in r.stdout.splitlines()[1:] if "\t" in line]
     return [Path(row[0]) if Path(row[0]).is_absolute() else ROOT / row[0] for row in rows]
@@ -172,14 +186,23 @@ def test_smoke_workflow_on_slurm(cluster, tmp_path):
     assert targets, "snakemake listed no targets for the smoke workflow"
     objects = results / "objects"
     meta = lambda o: objects / o / "meta.json"  # noqa: E731  the file that marks an object complete
-    cmd = [SNAKEMAKE, *SMOKE, "--profile", PROFILE, "--config", f"results={results}",
-           "--slurm-logdir", str(tmp_path / "slurm_logs")]
+    cmd = [
+        SNAKEMAKE,
+        *SMOKE,
+        "--profile",
+        PROFILE,
+        "--config",
+        f"results={results}",
+        "--slurm-logdir",
+        str(tmp_path / "slurm_logs"),
+    ]
 
     # run 1: once one object is curated, cancel a curate job that is running (mid-way) for another
     log = (tmp_path / "run1.log").open("w")
     run1 = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, text=True)
     cancelled = None
     try:
+
         def running_unfinished():
             if not list(objects.glob("*/meta.json")):
                 return None
@@ -222,6 +245,11 @@ def test_smoke_workflow_on_slurm(cluster, tmp_path):
     for name, cols in TABLE_COLUMNS.items():
         table = pd.read_csv(results / "tables" / f"{name}.csv")
         assert set(cols) <= set(table.columns) and len(table), f"{name}.csv: {list(table.columns)}, {len(table)} rows"
-    again = subprocess.run([SNAKEMAKE, *SMOKE, "--config", f"results={results}", "-n", "--cores", "1"],
-                           cwd=ROOT, capture_output=True, text=True, timeout=180)
+    again = subprocess.run(
+        [SNAKEMAKE, *SMOKE, "--config", f"results={results}", "-n", "--cores", "1"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
     assert "Nothing to be done" in again.stdout + again.stderr, _tail(again)

@@ -26,9 +26,22 @@ def _tail(text: str, n: int = 4000) -> str:
 def smoke_run(tmp_path_factory):
     pytest.importorskip("bpy")
     results = tmp_path_factory.mktemp("smoke_e2e") / "results"
-    r = subprocess.run([SNAKEMAKE, *SMOKE, "--profile", str(ROOT / "profiles" / "local"), "--config",
-                        f"results={results}", "--cores", "2"], cwd=ROOT, capture_output=True, text=True,
-                       timeout=1500)
+    r = subprocess.run(
+        [
+            SNAKEMAKE,
+            *SMOKE,
+            "--profile",
+            str(ROOT / "profiles" / "local"),
+            "--config",
+            f"results={results}",
+            "--cores",
+            "2",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=1500,
+    )
     assert r.returncode == 0, _tail(r.stdout + r.stderr)
     from frng import config as frng_config
 
@@ -81,14 +94,23 @@ def test_figures_asset_and_report(smoke_run):
     results, config = smoke_run
     tests = catalog.plan(config).split("test")
     figs = results / "figures"
-    for p in [figs / "ablation.png", figs / "loss_curves.png",
-              *(figs / "comparison" / f"{o}.png" for o in tests), *(figs / "saliency" / f"{o}.png" for o in tests)]:
+    for p in [
+        figs / "ablation.png",
+        figs / "loss_curves.png",
+        *(figs / "comparison" / f"{o}.png" for o in tests),
+        *(figs / "saliency" / f"{o}.png" for o in tests),
+    ]:
         assert p.stat().st_size > 1000, p
     gaussians, features, decoder, meta = load_asset(results / "relight" / "full" / tests[0] / "asset")
     assert features.shape[0] == gaussians.means.shape[0] > 0 and np.isfinite(features.numpy()).all()
     report = results / "report.html"
-    r = subprocess.run([SNAKEMAKE, *SMOKE, "--config", f"results={results}", "--report", str(report)], cwd=ROOT,
-                       capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [SNAKEMAKE, *SMOKE, "--config", f"results={results}", "--report", str(report)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, _tail(r.stdout + r.stderr)
     html = report.read_text()
     assert "vs_backbone" in html and "ablation.png" in html

@@ -40,23 +40,23 @@ RULE_STAGES = {
 NO_STAGE = {
     "model_alias": "Snakemake bookkeeping: `cp` of the full model into the K-sweep entry that equals it",
     "training_set_caches": "Snakemake bookkeeping: a `run:` block writing an index of the training split's files "
-                           "(frng.io.write_file_index)",
+    "(frng.io.write_file_index)",
     "training_set_priors": "Snakemake bookkeeping: likewise, the index of the training split's IDM priors",
     "config_digest": "Snakemake bookkeeping: a `run:` block recording a rule's config digest in the results folder "
-                     "(frng.config.write_rule_digest)",
+    "(frng.config.write_rule_digest)",
 }
 # stage modules without a rule, and why
 STAGES_WITHOUT_RULE = {
     "frng.stages.bench": "benchmarks are run by hand (`make bench`), never by the workflow",
     "frng.stages.export_benchmark": "writes curated objects in the public benchmarks' layouts, run by hand and by "
-                                    "tests/test_benchmarks.py (nothing downstream in the workflow reads it)",
+    "tests/test_benchmarks.py (nothing downstream in the workflow reads it)",
     "frng.stages.reconstruct": "your own photos -> an asset, run by hand (tests/test_reconstruct.py)",
     "frng.stages.render_asset": "renders an asset folder, run by hand (tests/test_reconstruct.py)",
 }
 # ``frng`` subcommands whose module is not in frng/stages/, and why
 OUTSIDE_STAGES = {
     "config": "frng.config validates configs for every stage and the workflow; `frng config` is its own CLI, run "
-              "by make before snakemake (no rule)",
+    "by make before snakemake (no rule)",
 }
 # ``frng <subcommand> <action>`` of the rules' commands (a stage with sub-subcommands)
 SUB_ACTIONS = {"dataset": ["preview"], "bench": ["render", "relight"]}
@@ -94,7 +94,8 @@ def test_every_rule_is_mapped_once():
     assert not set(RULE_STAGES) & set(NO_STAGE)
     assert rules == set(RULE_STAGES) | set(NO_STAGE), (
         f"rules without an entry here: {sorted(rules - set(RULE_STAGES) - set(NO_STAGE))}; "
-        f"entries without a rule: {sorted(set(RULE_STAGES) | set(NO_STAGE) - rules)}")
+        f"entries without a rule: {sorted(set(RULE_STAGES) | set(NO_STAGE) - rules)}"
+    )
 
 
 @pytest.mark.parametrize("rule", sorted(RULE_STAGES))
@@ -123,7 +124,8 @@ def test_every_stage_has_a_rule_and_a_subcommand():
     assert not ruled & exempt
     assert set(modules) == ruled | exempt, (
         f"stages without a rule: {sorted(set(modules) - ruled - exempt)}; "
-        f"missing stage modules: {sorted(ruled | exempt - set(modules))}")
+        f"missing stage modules: {sorted(ruled | exempt - set(modules))}"
+    )
     dispatched = {m for m, _ in cli.STAGES.values()}
     assert set(modules) <= dispatched, f"stages no subcommand runs: {sorted(set(modules) - dispatched)}"
 
@@ -144,8 +146,10 @@ def test_stage_module_holds_only_cli_and_orchestration(module):
     assert callable(mod.configure) and callable(mod.run)
 
 
-@pytest.mark.parametrize("argv", [[sub] for sub in cli.STAGES]
-                         + [[sub, action] for sub, actions in SUB_ACTIONS.items() for action in actions])
+@pytest.mark.parametrize(
+    "argv",
+    [[sub] for sub in cli.STAGES] + [[sub, action] for sub, actions in SUB_ACTIONS.items() for action in actions],
+)
 def test_stage_help(argv, capsys):
     with pytest.raises(SystemExit) as e:
         cli.main([*argv, "--help"])
@@ -155,8 +159,9 @@ def test_stage_help(argv, capsys):
 
 
 def test_top_level_help_lists_every_stage():
-    proc = subprocess.run([sys.executable, "-m", "frng", "--help"], cwd=ROOT, capture_output=True, text=True,
-                          timeout=60)
+    proc = subprocess.run(
+        [sys.executable, "-m", "frng", "--help"], cwd=ROOT, capture_output=True, text=True, timeout=60
+    )
     assert proc.returncode == 0, proc.stderr
     for sub in cli.STAGES:
         assert re.search(rf"^  {re.escape(sub)}\s", proc.stdout, re.M), sub

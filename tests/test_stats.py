@@ -46,8 +46,9 @@ def test_seeded_and_resamples_objects_not_images():
 
 
 def test_paired_matches_on_keys_and_nan_pairs_are_dropped():
-    da = pd.DataFrame({"object": ["o", "o", "p"], "light": ["l1", "l2", "l1"], "view": ["v", "v", "v"],
-                       "psnr": [20.0, 21.0, np.nan]})
+    da = pd.DataFrame(
+        {"object": ["o", "o", "p"], "light": ["l1", "l2", "l1"], "view": ["v", "v", "v"], "psnr": [20.0, 21.0, np.nan]}
+    )
     db = da.iloc[::-1].assign(psnr=[5.0, 19.0, 18.0])  # p/l1 -> 5 (NaN in a), o/l2 -> 19, o/l1 -> 18
     r = paired(da, db, "psnr")
     assert r.images == 2 and r.objects == 1 and r.diff == pytest.approx(2.0)

@@ -8,12 +8,14 @@ from frng.report import tables as T
 
 
 def _ablation():
-    return pd.DataFrame({
-        "variant": ["full", "w/o fine-grained Gaussians", "w/o IDM priors"],
-        "psnr": [32.44, 31.46, 31.21],
-        "ssim": [0.947, 0.957, 0.945],
-        "lpips": [0.049, 0.047, 0.043],
-    })
+    return pd.DataFrame(
+        {
+            "variant": ["full", "w/o fine-grained Gaussians", "w/o IDM priors"],
+            "psnr": [32.44, 31.46, 31.21],
+            "ssim": [0.947, 0.957, 0.945],
+            "lpips": [0.049, 0.047, 0.043],
+        }
+    )
 
 
 def test_direction():
@@ -46,8 +48,14 @@ def test_best_marking_markdown_and_latex(tmp_path):
 
 
 def test_ties_second_and_groups():
-    df = pd.DataFrame({"dataset": ["a", "a", "a", "b", "b"], "method": ["x", "y", "z", "x", "y"],
-                       "psnr": [30.001, 30.004, 29.0, 20.0, 25.0], "lpips": [0.1, 0.2, 0.3, 0.5, 0.4]})
+    df = pd.DataFrame(
+        {
+            "dataset": ["a", "a", "a", "b", "b"],
+            "method": ["x", "y", "z", "x", "y"],
+            "psnr": [30.001, 30.004, 29.0, 20.0, 25.0],
+            "lpips": [0.1, 0.2, 0.3, 0.5, 0.4],
+        }
+    )
     md, tex = T.render(df, best_within=["dataset"], second=True)
     assert md.count("**30.00**") == 2  # tie at displayed precision: both best
     assert "*29.00*" in md  # second-best distinct value
@@ -56,33 +64,62 @@ def test_ties_second_and_groups():
 
 
 def test_vs_backbone_and_timing(tmp_path):
-    m = pd.DataFrame({"dataset": ["objaverse", "objaverse"], "method": ["F-RNG", "backbone"],
-                      "n": [10, 10], "psnr": [31.77, 30.02], "ssim": [0.945, 0.950], "lpips": [0.047, 0.049]})
+    m = pd.DataFrame(
+        {
+            "dataset": ["objaverse", "objaverse"],
+            "method": ["F-RNG", "backbone"],
+            "n": [10, 10],
+            "psnr": [31.77, 30.02],
+            "ssim": [0.945, 0.950],
+            "lpips": [0.047, 0.049],
+        }
+    )
     rows, footer = T.vs_backbone(m, {"F-RNG": 246.0, "backbone": 6826.0})
     out = T.write_table(rows, tmp_path / "vs_backbone.md", footer=footer, best_within=["dataset"])
     tex = out["tex"].read_text()
     assert tex.count("\\midrule") == 2 and "\\cellcolor{tabfirst}{246.0}" in tex
     assert "6826.0" in tex and "\\cellcolor{tabfirst}{6826.0}" not in tex
     assert len(pd.read_csv(out["csv"])) == 4
-    t = T.timing(pd.DataFrame({"method": ["F-RNG", "backbone"], "reconstruction_s": [7.0, 5.0],
-                               "relight_ms_per_image": [246.0, 6826.0], "resolution": [64, 64], "spp": [64, 64]}),
-                 reference="backbone")
+    t = T.timing(
+        pd.DataFrame(
+            {
+                "method": ["F-RNG", "backbone"],
+                "reconstruction_s": [7.0, 5.0],
+                "relight_ms_per_image": [246.0, 6826.0],
+                "resolution": [64, 64],
+                "spp": [64, 64],
+            }
+        ),
+        reference="backbone",
+    )
     assert t["speedup"].tolist() == pytest.approx([6826.0 / 246.0, 1.0])
     md, _ = T.render(t)
     assert "**27.7**" in md and "| 64 |" in md
 
 
 def test_intervals_render_as_one_cell(tmp_path):
-    df = pd.DataFrame({"variant": ["full", "w/o fine"], "psnr": [18.72, 18.38],
-                       "dpsnr": [float("nan"), -0.3412], "dpsnr_lo": [float("nan"), -0.5801],
-                       "dpsnr_hi": [float("nan"), -0.2549], "dlpips": [float("nan"), 0.00234],
-                       "dlpips_lo": [float("nan"), 0.0011], "dlpips_hi": [float("nan"), 0.0036],
-                       "better": [float("nan"), 0.0], "objects": [float("nan"), 16.0]})
+    df = pd.DataFrame(
+        {
+            "variant": ["full", "w/o fine"],
+            "psnr": [18.72, 18.38],
+            "dpsnr": [float("nan"), -0.3412],
+            "dpsnr_lo": [float("nan"), -0.5801],
+            "dpsnr_hi": [float("nan"), -0.2549],
+            "dlpips": [float("nan"), 0.00234],
+            "dlpips_lo": [float("nan"), 0.0011],
+            "dlpips_hi": [float("nan"), 0.0036],
+            "better": [float("nan"), 0.0],
+            "objects": [float("nan"), 16.0],
+        }
+    )
     out = T.write_table(df, tmp_path / "t")
     md, tex = out["md"].read_text(), out["tex"].read_text()
     assert "| w/o fine | 18.38 | -0.34 [-0.58, -0.25] | +0.0023 [0.0011, 0.0036] | 0/16 |" in md
-    assert "ΔPSNR [95% CI]" in md and "_lo" not in md and "objects" not in md.split("\n")[0].replace(
-        "objects higher PSNR", "")
+    assert (
+        "ΔPSNR [95% CI]" in md
+        and "_lo" not in md
+        and "objects" not in md.split("\n")[0].replace("objects higher PSNR", "")
+    )
     assert "$\\Delta$PSNR [95\\% CI]" in tex and "-0.34 [-0.58, -0.25]" in tex and "0/16" in tex
     assert tex.count("\\begin{tabular}{lcccc}") == 1  # variant, psnr, dpsnr, dlpips, better
     csv = pd.read_csv(out["csv"])
@@ -90,18 +127,37 @@ def test_intervals_render_as_one_cell(tmp_path):
 
 
 def _per_image(run, variant, shift, seed_shift=0.0, objects=("o0", "o1", "o2"), dataset="diffuse"):
-    return [dict(dataset=dataset, object=o, run=run, method="backbone" if run == "backbone" else "F-RNG",
-                 variant=variant, views=6, k=8.0, light=l, view="v0", protocol="aligned",
-                 psnr=17.0 + shift + seed_shift + 0.5 * j + 0.25 * i, ssim=0.5 + 0.01 * shift, lpips=0.1 - 0.01 * shift)
-            for j, o in enumerate(objects) for i, l in enumerate(("l0", "l1"))]
+    return [
+        dict(
+            dataset=dataset,
+            object=o,
+            run=run,
+            method="backbone" if run == "backbone" else "F-RNG",
+            variant=variant,
+            views=6,
+            k=8.0,
+            light=l,
+            view="v0",
+            protocol="aligned",
+            psnr=17.0 + shift + seed_shift + 0.5 * j + 0.25 * i,
+            ssim=0.5 + 0.01 * shift,
+            lpips=0.1 - 0.01 * shift,
+        )
+        for j, o in enumerate(objects)
+        for i, l in enumerate(("l0", "l1"))
+    ]
 
 
 def test_vs_backbone_and_ablation_average_seeds_and_report_intervals():
     from frng.report.paper_tables import ablation_table, vs_backbone_table
 
-    rows = (_per_image("backbone", "backbone", 0.0) + _per_image("full", "full", 1.0)
-            + _per_image("full@s1", "full@s1", 1.0, seed_shift=0.2)
-            + _per_image("no-fine", "no-fine", 0.7) + _per_image("no-fine@s1", "no-fine@s1", 0.7, seed_shift=-0.2))
+    rows = (
+        _per_image("backbone", "backbone", 0.0)
+        + _per_image("full", "full", 1.0)
+        + _per_image("full@s1", "full@s1", 1.0, seed_shift=0.2)
+        + _per_image("no-fine", "no-fine", 0.7)
+        + _per_image("no-fine@s1", "no-fine@s1", 0.7, seed_shift=-0.2)
+    )
     df = pd.DataFrame(rows)
     timing = [{"F-RNG": {"relight_ms_per_image": 20.0}, "backbone": {"relight_ms_per_image": 40.0}}]
     vs, footer = vs_backbone_table(df, timing)

@@ -4,7 +4,6 @@ priors (G-buffers), on the session's shared smoke dataset (tests/conftest.py).""
 
 import csv
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -13,7 +12,6 @@ from pathlib import Path
 
 import pytest
 import torch
-
 from conftest import smoke_results
 
 
@@ -52,16 +50,22 @@ def _fixed_loss(model, objects, config) -> float:
         for obj in objects:
             rec = model.reconstruct(obj.views, 0, obj.priors, obj.images, input_env=obj.env_in)
             for _, env, c2w, K, rgba in obj.targets:
-                out = model.render(rec, env, c2w[:2], K[:2], *rgba.shape[1:3], spp=model.shading_cfg.spp_train,
-                                   generator=torch.Generator().manual_seed(123))
+                out = model.render(
+                    rec,
+                    env,
+                    c2w[:2],
+                    K[:2],
+                    *rgba.shape[1:3],
+                    spp=model.shading_cfg.spp_train,
+                    generator=torch.Generator().manual_seed(123),
+                )
                 vals.append(float(l2_loss(out, rgba[:2], bg, pixels=TrainConfig.from_config(config).l2_pixels)[0]))
     return sum(vals) / len(vals)
 
 
 def test_frozen_backbone_gets_no_gradient(frng_smoke):
-    from frng.model.light_independence import LightIndependenceConfig
-    from frng.priors import load_backbone
     from frng.model.train import StepLoss, TrainConfig, build_model
+    from frng.priors import load_backbone
 
     _, config = frng_smoke
     res = Path(config["results"])
@@ -168,8 +172,9 @@ def _black_holes(model, objects) -> tuple[int, int]:
         for obj in objects:
             rec = model.reconstruct(obj.views, 0, obj.priors, obj.images, input_env=obj.env_in)
             for _, env, c2w, K, rgba in obj.targets:
-                out = model.render(rec, env, c2w, K, *rgba.shape[1:3], spp=64,
-                                   generator=torch.Generator().manual_seed(7))
+                out = model.render(
+                    rec, env, c2w, K, *rgba.shape[1:3], spp=64, generator=torch.Generator().manual_seed(7)
+                )
                 lt = (rgba[..., :3] / rgba[..., 3:4].clamp_min(1e-3)) @ lum
                 lo = (out[..., :3] / out[..., 3:4].clamp_min(1e-3)) @ lum
                 m = (rgba[..., 3] > 0.5) & (out[..., 3] > 0.5) & (lt > 0.02)
@@ -189,8 +194,9 @@ def test_no_neural_renders_no_black_holes(frng_smoke):
     _, config = frng_smoke
     objs = _objects(config)[:2]
     torch.manual_seed(0)
-    path = train_mod.train(config, "no-neural", Path(config["results"]) / "models" / "no-neural-holes", steps=8,
-                           objects=objs)
+    path = train_mod.train(
+        config, "no-neural", Path(config["results"]) / "models" / "no-neural-holes", steps=8, objects=objs
+    )
     holes, lit = _black_holes(FRNG.load(path, "cpu"), objs)
     print(f"no-neural black holes: {holes} of {lit} lit pixels")
     assert lit > 100 and holes <= lit // 1000
@@ -206,8 +212,20 @@ def test_train_killed_then_resumed(frng_smoke, tmp_path):
     p.write_text(yaml.safe_dump(cfg))
     out = tmp_path / "no-ind"
     steps = 8
-    cmd = [sys.executable, "-m", "frng", "train", "--config", str(p), "--variant", "no-ind", "--steps", str(steps),
-           "--out", str(out)]
+    cmd = [
+        sys.executable,
+        "-m",
+        "frng",
+        "train",
+        "--config",
+        str(p),
+        "--variant",
+        "no-ind",
+        "--steps",
+        str(steps),
+        "--out",
+        str(out),
+    ]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     ckpt = out / "checkpoint.pt"
     deadline = time.time() + 120

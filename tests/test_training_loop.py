@@ -22,10 +22,10 @@ from types import SimpleNamespace
 import pytest
 import torch
 import torch.multiprocessing as mp
+from test_idm_generalise import TINY, sphere_object, trainer_config
 
 from frng import training as tr
 from frng.priors import idm_train
-from test_idm_generalise import TINY, sphere_object, trainer_config
 
 HERE = Path(__file__).resolve().parent
 STEPS = 10
@@ -171,11 +171,24 @@ def _toy_fit(out: Path, total: int, stop_after=None, info=None, nan_at=None) -> 
         return {"total": float(loss.detach())}
 
     tcfg = SimpleNamespace(lr=1e-2, warmup=2, grad_clip=1.0, checkpoint_every=100)
-    return tr.fit(step_fn, tcfg, model=model, optimizer=opt, out=out, total=total, fingerprint={"toy": 1},
-                  loss_names=["total"], save_model=lambda p: tr.save_torch({"state_dict": model.state_dict()}, p),
-                  summary=lambda run: {"steps": run.steps, "skipped": run.skipped}, title="toy", desc="toy",
-                  rngs={"sample": rng}, device="cpu", stop_after=stop_after,
-                  hooks=distributed.fit_hooks(info) if info else None)
+    return tr.fit(
+        step_fn,
+        tcfg,
+        model=model,
+        optimizer=opt,
+        out=out,
+        total=total,
+        fingerprint={"toy": 1},
+        loss_names=["total"],
+        save_model=lambda p: tr.save_torch({"state_dict": model.state_dict()}, p),
+        summary=lambda run: {"steps": run.steps, "skipped": run.skipped},
+        title="toy",
+        desc="toy",
+        rngs={"sample": rng},
+        device="cpu",
+        stop_after=stop_after,
+        hooks=distributed.fit_hooks(info) if info else None,
+    )
 
 
 def test_nonfinite_step_makes_no_update(tmp_path, monkeypatch):
@@ -193,8 +206,13 @@ def _ddp_worker(rank: int, world: int, port: int, out: str, stop_after) -> None:
     from frng import distributed
 
     torch.set_num_threads(1)
-    env = {"RANK": str(rank), "WORLD_SIZE": str(world), "LOCAL_RANK": str(rank),
-           "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port)}
+    env = {
+        "RANK": str(rank),
+        "WORLD_SIZE": str(world),
+        "LOCAL_RANK": str(rank),
+        "MASTER_ADDR": "127.0.0.1",
+        "MASTER_PORT": str(port),
+    }
     info = distributed.init(device="cpu", environ=env, timeout_s=60)
     try:
         _toy_fit(Path(out), 8, stop_after=stop_after, info=info)

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 import torch
-
 from data_helpers import frng, write_config
+
 from frng import camera, envmap, io
 from frng.data.dataset import open_object
 
@@ -34,22 +34,39 @@ def test_user_mesh_and_envmaps_are_curated(tmp_path):
     write_sky(skies / "a.exr", sun_az=30.0)
     write_sky(tmp_path / "b.exr", sun_az=200.0)
     cfg = write_config(
-        tmp_path / "config.yaml", tmp_path / "results",
-        objects={"count": 1, "test_count": 0, "sources": ["primitives"],
-                 "extra": [{"path": str(meshes), "split": "test", "material": "specular", "licence": "CC0 (test)"}]},
-        envmaps={"bundled": [], "skies": {"models": []}, "width": 32, "rotations": 1,
-                 "extra": [{"path": str(skies), "split": "train"}, {"path": str(tmp_path / "b.exr"), "split": "test"}]},
+        tmp_path / "config.yaml",
+        tmp_path / "results",
+        objects={
+            "count": 1,
+            "test_count": 0,
+            "sources": ["primitives"],
+            "extra": [{"path": str(meshes), "split": "test", "material": "specular", "licence": "CC0 (test)"}],
+        },
+        envmaps={
+            "bundled": [],
+            "skies": {"models": []},
+            "width": 32,
+            "rotations": 1,
+            "extra": [{"path": str(skies), "split": "train"}, {"path": str(tmp_path / "b.exr"), "split": "test"}],
+        },
         render={"resolution": 32, "spp": 2},
     )
     frng("envmaps", "--config", str(cfg))
     index = io.read_json(tmp_path / "results" / "envmaps" / "index.json")
-    assert {(m["base"], m["source"], m["split"]) for m in index["maps"]} == {("user_a", "user", "train"),
-                                                                               ("user_b", "user", "test")}
+    assert {(m["base"], m["source"], m["split"]) for m in index["maps"]} == {
+        ("user_a", "user", "train"),
+        ("user_b", "user", "test"),
+    }
     frng("curate", "--config", str(cfg), "--object", "user_box")
 
     obj = open_object(tmp_path / "results", "user_box")
     meta = obj.meta
-    assert (meta["source"], meta["split"], meta["material_class"], meta["licence"]) == ("user", "test", "specular", "CC0 (test)")
+    assert (meta["source"], meta["split"], meta["material_class"], meta["licence"]) == (
+        "user",
+        "test",
+        "specular",
+        "CC0 (test)",
+    )
     assert obj.input_lights == ["user_b_r0"] and all(l == "user_b_r0" for l in obj.target_lights)
 
     # The box's corners, mapped file -> world with the recorded transform, project onto the silhouette's bbox.

@@ -55,7 +55,9 @@ def test_training_seeds_add_seeded_variants_and_runs():
     config = _cfg(seeds=[0, 1, 3])
     assert V.model_seed(config) == 0 and V.extra_seeds(config) == [1, 3]
     seeded = V.seeded_variants(config)
-    assert seeded == [V.seed_variant(v, s) for s in (1, 3) for v in dict.fromkeys(["full", *config["frng"]["variants"]])]
+    assert seeded == [
+        V.seed_variant(v, s) for s in (1, 3) for v in dict.fromkeys(["full", *config["frng"]["variants"]])
+    ]
     assert "full@s1" in V.trained_variants(config) and "no-fine@s3" in V.all_variants(config)
     assert not any("@" in v for v in V.all_variants(config) if v.startswith("k"))  # the K sweep is not repeated
     assert V.split_seed("no-fine@s3") == ("no-fine", 3) and V.split_seed("full") == ("full", None)
@@ -92,11 +94,17 @@ def test_train_stage_trains_a_seeded_variant_with_its_seed(monkeypatch, tmp_path
     from frng.stages import train as stage
 
     seen = {}
-    monkeypatch.setattr(stage, "train", lambda config, variant, out, backbone, steps=None: seen.update(
-        variant=variant, seed=config.model_seed, out=out) or out / "model.pt")
+    monkeypatch.setattr(
+        stage,
+        "train",
+        lambda config, variant, out, backbone, steps=None: (
+            seen.update(variant=variant, seed=config.model_seed, out=out) or out / "model.pt"
+        ),
+    )
     cfg = tmp_path / "c.yaml"
     cfg.write_text(yaml.safe_dump(_cfg(seeds=[0, 2]) | {"results": str(tmp_path)}))
-    args = argparse.Namespace(config=str(cfg), variant="no-fine@s2", out=None, backbone=None, steps=None,
-                              list_variants=False)
+    args = argparse.Namespace(
+        config=str(cfg), variant="no-fine@s2", out=None, backbone=None, steps=None, list_variants=False
+    )
     assert stage.run(args) == 0
     assert seen["variant"] == "no-fine" and seen["seed"] == 2 and seen["out"].name == "no-fine@s2"

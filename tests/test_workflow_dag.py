@@ -71,8 +71,20 @@ def _child_cpu() -> float:
 
 
 def _plan(configfile: Path, results: Path) -> tuple[dict[str, int], float, str]:
-    cmd = [SNAKEMAKE, "--snakefile", str(ROOT / "workflow" / "Snakefile"), "--configfile", str(configfile),
-           "--config", f"results={results}", "-n", "-q", "rules", "--cores", "1"]
+    cmd = [
+        SNAKEMAKE,
+        "--snakefile",
+        str(ROOT / "workflow" / "Snakefile"),
+        "--configfile",
+        str(configfile),
+        "--config",
+        f"results={results}",
+        "-n",
+        "-q",
+        "rules",
+        "--cores",
+        "1",
+    ]
     t0, c0 = time.monotonic(), _child_cpu()
     r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
     wall, cpu = time.monotonic() - t0, _child_cpu() - c0
@@ -120,9 +132,23 @@ def test_slurm_profile_resolves(tmp_path):
     import os
 
     env = {**os.environ, "FRNG_SLURM_PARTITION": "mypart", "FRNG_SLURM_ACCOUNT": "myacct"}
-    r = subprocess.run([SNAKEMAKE, "--snakefile", str(ROOT / "tests" / "slurm_toy" / "Snakefile"), "--directory",
-                        str(tmp_path), "--profile", str(ROOT / "profiles" / "slurm"), "-n"],
-                       cwd=ROOT, capture_output=True, text=True, timeout=120, env=env)
+    r = subprocess.run(
+        [
+            SNAKEMAKE,
+            "--snakefile",
+            str(ROOT / "tests" / "slurm_toy" / "Snakefile"),
+            "--directory",
+            str(tmp_path),
+            "--profile",
+            str(ROOT / "profiles" / "slurm"),
+            "-n",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+    )
     out = r.stdout + r.stderr
     assert r.returncode == 0, out[-3000:]
     jobs = {m.group(1): m.group(2) for m in re.finditer(r"(?ms)^rule (\w+):.*?^\s+resources: ([^\n]+)", out)}

@@ -7,15 +7,26 @@ import subprocess
 import time
 
 import pytest
-
 from conftest import ROOT, venv_bin
+
 from frng import config as frng_config
 from frng.data import catalog
 
 
 def dry_run(configfile, results, *extra):
-    cmd = [venv_bin("snakemake"), "--snakefile", "workflow/Snakefile", "--configfile", configfile,
-           "--config", f"results={results}", "-n", "--quiet", "rules", *extra]
+    cmd = [
+        venv_bin("snakemake"),
+        "--snakefile",
+        "workflow/Snakefile",
+        "--configfile",
+        configfile,
+        "--config",
+        f"results={results}",
+        "-n",
+        "--quiet",
+        "rules",
+        *extra,
+    ]
     return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
 
 
@@ -51,8 +62,16 @@ def test_smoke_dry_run_lists_dataset_jobs(tmp_path):
 def test_snakemake_lint_is_clean(configfile, tmp_path):
     """`snakemake --lint` (as `make lint`) reports nothing: e.g. no folder params hard-coded beside the outputs
     they are a prefix of (they are derived from the output, so they follow it on a non-shared filesystem)."""
-    cmd = [venv_bin("snakemake"), "--snakefile", "workflow/Snakefile", "--configfile", configfile,
-           "--config", f"results={tmp_path / 'results'}", "--lint"]
+    cmd = [
+        venv_bin("snakemake"),
+        "--snakefile",
+        "workflow/Snakefile",
+        "--configfile",
+        configfile,
+        "--config",
+        f"results={tmp_path / 'results'}",
+        "--lint",
+    ]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, (proc.stdout + proc.stderr)[-3000:]
 

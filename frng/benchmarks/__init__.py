@@ -21,8 +21,12 @@ from pathlib import Path
 
 from frng.benchmarks.plan import BenchmarkError, entries, object_id  # noqa: F401
 
-LAYOUTS = {"tensoir": "frng.benchmarks.tensoir", "orb": "frng.benchmarks.orb", "owl": "frng.benchmarks.owl",
-           "nerf-synthetic": "frng.benchmarks.nerf_synthetic"}
+LAYOUTS = {
+    "tensoir": "frng.benchmarks.tensoir",
+    "orb": "frng.benchmarks.orb",
+    "owl": "frng.benchmarks.owl",
+    "nerf-synthetic": "frng.benchmarks.nerf_synthetic",
+}
 
 
 def module(layout: str):
@@ -31,8 +35,17 @@ def module(layout: str):
     return importlib.import_module(LAYOUTS[layout])
 
 
-def import_scene(layout: str, path: str | Path, results: str | Path, resolution: int, envmap_width: int,
-                 extra_inputs: int = 0, max_targets: int | None = None, oid: str | None = None, **options) -> Path:
+def import_scene(
+    layout: str,
+    path: str | Path,
+    results: str | Path,
+    resolution: int,
+    envmap_width: int,
+    extra_inputs: int = 0,
+    max_targets: int | None = None,
+    oid: str | None = None,
+    **options,
+) -> Path:
     """Read a benchmark folder and write it into ``{results}/objects/{id}``; returns that folder."""
     from frng.benchmarks.common import write_object
 

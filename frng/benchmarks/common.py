@@ -84,6 +84,7 @@ class Scene:
 
 # -- small readers shared by the layouts ------------------------------------------------------------------------
 
+
 def need(path: Path, what: str = "file") -> Path:
     path = Path(path)
     if not path.exists():
@@ -161,18 +162,23 @@ def same_size(views: list[View]) -> None:
     """Every image of a split must have the same size as its mask (and the benchmarks ship one size per scene)."""
     for v in views:
         if v.rgb.shape[:2] != v.mask.shape[:2]:
-            raise BenchmarkError(f"{v.source}: image is {v.rgb.shape[1]}x{v.rgb.shape[0]} but its mask is "
-                                 f"{v.mask.shape[1]}x{v.mask.shape[0]}")
+            raise BenchmarkError(
+                f"{v.source}: image is {v.rgb.shape[1]}x{v.rgb.shape[0]} but its mask is "
+                f"{v.mask.shape[1]}x{v.mask.shape[0]}"
+            )
     sizes = {v.rgb.shape[:2] for v in views}
     if len(sizes) > 1:
         first = views[0]
         odd = next(v for v in views if v.rgb.shape[:2] != first.rgb.shape[:2])
-        raise BenchmarkError(f"{odd.source}: image is {odd.rgb.shape[1]}x{odd.rgb.shape[0]}, the scene's "
-                             f"{first.source} is {first.rgb.shape[1]}x{first.rgb.shape[0]} (images of different "
-                             f"sizes)")
+        raise BenchmarkError(
+            f"{odd.source}: image is {odd.rgb.shape[1]}x{odd.rgb.shape[0]}, the scene's "
+            f"{first.source} is {first.rgb.shape[1]}x{first.rgb.shape[0]} (images of different "
+            f"sizes)"
+        )
 
 
 # -- env maps: direction look-ups -------------------------------------------------------------------------------
+
 
 def map_directions(height: int) -> np.ndarray:
     """World direction (H, 2H, 3) of every pixel centre of a map in frng.envmap's convention."""
@@ -209,6 +215,7 @@ def rotate_map(image: np.ndarray, R: np.ndarray) -> np.ndarray:
 
 
 # -- geometry ---------------------------------------------------------------------------------------------------
+
 
 def optical_axes_centre(c2ws: np.ndarray) -> np.ndarray:
     """Least-squares point closest to every camera's optical axis (OpenCV +z)."""
@@ -295,6 +302,7 @@ def select_rig(c2ws: list[np.ndarray], n_extra: int = 0) -> list[int]:
 
 # -- images -----------------------------------------------------------------------------------------------------
 
+
 def square_crop(view: View) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(rgb, mask, K) cropped to a square around the mask's bounding-box centre (clamped to the image)."""
     H, W = view.mask.shape
@@ -308,7 +316,7 @@ def square_crop(view: View) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     x0 = int(np.clip(round(cx - n / 2), 0, W - n))
     K[2] -= x0
     K[3] -= y0
-    return view.rgb[y0:y0 + n, x0:x0 + n], view.mask[y0:y0 + n, x0:x0 + n], K
+    return view.rgb[y0 : y0 + n, x0 : x0 + n], view.mask[y0 : y0 + n, x0 : x0 + n], K
 
 
 def area_resize(img: np.ndarray, size: int) -> np.ndarray:
@@ -321,8 +329,7 @@ def area_resize(img: np.ndarray, size: int) -> np.ndarray:
         return img.reshape(size, f, size, f, -1).mean((1, 3)).astype(np.float32)
     from skimage.transform import resize
 
-    return resize(img, (size, size, img.shape[-1]), order=1, anti_aliasing=True, preserve_range=True).astype(
-        np.float32)
+    return resize(img, (size, size, img.shape[-1]), order=1, anti_aliasing=True, preserve_range=True).astype(np.float32)
 
 
 def to_contract(view: View, res: int) -> tuple[np.ndarray, np.ndarray]:
@@ -337,9 +344,17 @@ def to_contract(view: View, res: int) -> tuple[np.ndarray, np.ndarray]:
 
 # -- the writer -------------------------------------------------------------------------------------------------
 
-def write_object(scene: Scene, results: str | Path, resolution: int, envmap_width: int, extra_inputs: int = 0,
-                 max_targets: int | None = None, oid: str | None = None, pairs: list[tuple[str, str]] | None = None
-                 ) -> Path:
+
+def write_object(
+    scene: Scene,
+    results: str | Path,
+    resolution: int,
+    envmap_width: int,
+    extra_inputs: int = 0,
+    max_targets: int | None = None,
+    oid: str | None = None,
+    pairs: list[tuple[str, str]] | None = None,
+) -> Path:
     """Write ``scene`` into ``{results}/objects/{oid}`` (+ its lights into ``{results}/envmaps/``); returns the
     object folder. See the module docstring for every conversion."""
     from frng.benchmarks.plan import scene_name
@@ -396,25 +411,42 @@ def write_object(scene: Scene, results: str | Path, resolution: int, envmap_widt
             if world.shape[1] != envmap_width:
                 world = envmap.resize(world, envmap_width)
             path = Path(L.envmap(light_name[name]))
-            lights[light_name[name]] = {"base": name, "source": "benchmark", "split": "test",
-                                        "rotation_deg": 0.0, "licence": f"{scene.layout} benchmark",
-                                        "scale": 1.0, "file": os.path.relpath(path, results)}
+            lights[light_name[name]] = {
+                "base": name,
+                "source": "benchmark",
+                "split": "test",
+                "rotation_deg": 0.0,
+                "licence": f"{scene.layout} benchmark",
+                "scale": 1.0,
+                "file": os.path.relpath(path, results),
+            }
             envmap.write(path, world)
             written_maps.append(path)
         meta = {
-            "id": oid, "split": "test", "seed": 0, "source": "benchmark", "mesh": None,
-            "licence": f"{scene.layout} benchmark (see its licence)", "up_axis": "z",
+            "id": oid,
+            "split": "test",
+            "seed": 0,
+            "source": "benchmark",
+            "mesh": None,
+            "licence": f"{scene.layout} benchmark (see its licence)",
+            "up_axis": "z",
             "material_class": scene.layout,
             "render": {"resolution": resolution},
-            "input_lights": [in_light], "target_lights": target_lights, "lights": lights,
+            "input_lights": [in_light],
+            "target_lights": target_lights,
+            "lights": lights,
             "views": {"inputs": views_in, "targets": views_tgt},
             "benchmark": {
-                "layout": scene.layout, "scene": scene.scene, "path": str(Path(scene.path).resolve()),
-                "protocol": scene.protocol, "source_to_world": T.tolist(),
+                "layout": scene.layout,
+                "scene": scene.scene,
+                "path": str(Path(scene.path).resolve()),
+                "protocol": scene.protocol,
+                "source_to_world": T.tolist(),
                 "input_views_from": [scene.train[i].source for i in rig],
                 "input_view_rule": "6-view rig directions (frng.data.rig) matched to the nearest training views, "
-                                   "then farthest-point extra views (frng.benchmarks.common.select_rig)",
-                "pairs": pairs or gt_pairs, "per_view_light": per_view_light,
+                "then farthest-point extra views (frng.benchmarks.common.select_rig)",
+                "pairs": pairs or gt_pairs,
+                "per_view_light": per_view_light,
                 "exposures": exposures,
                 **scene.notes,
             },
@@ -432,11 +464,19 @@ def write_object(scene: Scene, results: str | Path, resolution: int, envmap_widt
 
 
 def _camera(name: str, kind: str, v: View, K: np.ndarray, res: int) -> dict:
-    return {"name": name, "kind": kind, "c2w": np.asarray(v.c2w, dtype=float).tolist(),
-            "intrinsics": [float(x) for x in K], "width": res, "height": res, "source": v.source}
+    return {
+        "name": name,
+        "kind": kind,
+        "c2w": np.asarray(v.c2w, dtype=float).tolist(),
+        "intrinsics": [float(x) for x in K],
+        "width": res,
+        "height": res,
+        "source": v.source,
+    }
 
 
 # -- exporting: what a curated object offers -------------------------------------------------------------------
+
 
 @dataclass
 class Curated:
@@ -458,8 +498,12 @@ def open_curated(results: str | Path, oid: str) -> Curated:
     obj = open_object(results, oid)
     ins = obj.meta["views"]["inputs"]
     return Curated(
-        oid=oid, inputs=ins[:6], targets=obj.meta["views"]["targets"], input_light=obj.input_lights[0],
-        target_lights=obj.target_lights, extra=ins[6:],
+        oid=oid,
+        inputs=ins[:6],
+        targets=obj.meta["views"]["targets"],
+        input_light=obj.input_lights[0],
+        target_lights=obj.target_lights,
+        extra=ins[6:],
         image=lambda kind, light, view: io.read_rgba(obj.files.image(kind, light, view)),
         envmap=lambda light: envmap.read(obj.envmap_path(light, results)),
     )

@@ -26,8 +26,18 @@ from pathlib import Path
 import numpy as np
 
 from frng import camera, envmap, io
-from frng.benchmarks.common import (BenchmarkError, Curated, Scene, View, fov_x, need, read_json, read_map,
-                                    read_srgba_png, write_srgba_png)
+from frng.benchmarks.common import (
+    BenchmarkError,
+    Curated,
+    Scene,
+    View,
+    fov_x,
+    need,
+    read_json,
+    read_map,
+    read_srgba_png,
+    write_srgba_png,
+)
 
 LAYOUT = "nerf-synthetic"
 PROTOCOL = "nerf-synthetic"
@@ -50,9 +60,17 @@ def read_split(root: Path, split: str, light: str = LIGHT) -> list[View]:
         m = np.asarray(fr["transform_matrix"], dtype=np.float64)
         if m.shape != (4, 4):
             raise BenchmarkError(f"{path}: frame {i} transform_matrix is not 4x4")
-        views.append(View(name=Path(fr["file_path"]).name, c2w=camera.c2w_from_blender(m),
-                          K=np.array([focal, focal, w / 2.0, rgb.shape[0] / 2.0]), rgb=rgb, mask=a, light=light,
-                          source=str(png)))
+        views.append(
+            View(
+                name=Path(fr["file_path"]).name,
+                c2w=camera.c2w_from_blender(m),
+                K=np.array([focal, focal, w / 2.0, rgb.shape[0] / 2.0]),
+                rgb=rgb,
+                mask=a,
+                light=light,
+                source=str(png),
+            )
+        )
     return views
 
 
@@ -71,28 +89,45 @@ def read(path: str | Path, envmap_file: str | Path | None = None, split: str = "
     else:
         light = np.ones((64, 128, 3), dtype=np.float32)
         notes["envmap"] = "constant radiance 1 (NeRF-synthetic publishes no light)"
-    return Scene(layout=LAYOUT, scene=root.name, path=str(root), protocol=PROTOCOL, train=train, test=test,
-                 lights={LIGHT: light}, input_light=LIGHT, notes=notes)
+    return Scene(
+        layout=LAYOUT,
+        scene=root.name,
+        path=str(root),
+        protocol=PROTOCOL,
+        train=train,
+        test=test,
+        lights={LIGHT: light},
+        input_light=LIGHT,
+        notes=notes,
+    )
 
 
 def _transforms(path: Path, views: list[dict], folder: str, images: list[np.ndarray]) -> None:
     frames = []
     for k, (v, rgba) in enumerate(zip(views, images)):
         write_srgba_png(path.parent / folder / f"r_{k}.png", rgba)
-        frames.append({"file_path": f"./{folder}/r_{k}", "rotation": 0.0,
-                       "transform_matrix": camera.c2w_to_blender(np.asarray(v["c2w"], dtype=np.float64)).tolist()})
+        frames.append(
+            {
+                "file_path": f"./{folder}/r_{k}",
+                "rotation": 0.0,
+                "transform_matrix": camera.c2w_to_blender(np.asarray(v["c2w"], dtype=np.float64)).tolist(),
+            }
+        )
     io.write_json(path, {"camera_angle_x": fov_x(views[0]["intrinsics"], int(views[0]["width"])), "frames": frames})
 
 
 def write(cur: Curated, out: str | Path, scene: str | None = None) -> Path:
     if not cur.extra:
-        raise BenchmarkError(f"{cur.oid}: has no extra input views (in_06 ..) to serve as NeRF-synthetic test views "
-                             f"under the input light (render.extra_input_views = 0)")
+        raise BenchmarkError(
+            f"{cur.oid}: has no extra input views (in_06 ..) to serve as NeRF-synthetic test views "
+            f"under the input light (render.extra_input_views = 0)"
+        )
     out = Path(out)
     root = out / (scene or cur.oid)
     L = cur.input_light
-    _transforms(root / "transforms_train.json", cur.inputs, "train",
-                [cur.image("inputs", L, v["name"]) for v in cur.inputs])
+    _transforms(
+        root / "transforms_train.json", cur.inputs, "train", [cur.image("inputs", L, v["name"]) for v in cur.inputs]
+    )
     test_imgs = [cur.image("inputs", L, v["name"]) for v in cur.extra]
     _transforms(root / "transforms_test.json", cur.extra, "test", test_imgs)
     _transforms(root / "transforms_val.json", cur.extra, "val", test_imgs)

@@ -42,14 +42,29 @@ from pathlib import Path
 import numpy as np
 
 from frng import camera, envmap, io
-from frng.benchmarks.common import (BenchmarkError, Curated, Scene, View, blender_uv, fov_x, map_directions, need,
-                                    read_exr_rgb, read_json, read_map, read_mask_png, read_png, sample_map)
+from frng.benchmarks.common import (
+    BenchmarkError,
+    Curated,
+    Scene,
+    View,
+    blender_uv,
+    fov_x,
+    map_directions,
+    need,
+    read_exr_rgb,
+    read_json,
+    read_map,
+    read_mask_png,
+    read_png,
+    sample_map,
+)
 
 LAYOUT = "orb"
 PROTOCOL = "orb"
 
 
 # -- env-map conventions ---------------------------------------------------------------------------------------
+
 
 def _bilinear_idx(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """cv2.remap(INTER_LINEAR) at pixel-index coordinates: x periodic, y clamped."""
@@ -58,8 +73,9 @@ def _bilinear_idx(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
     tx, ty = (x - x0)[..., None], (y - y0)[..., None]
     x0m, x1m, y1 = x0 % W, (x0 + 1) % W, np.minimum(y0 + 1, H - 1)
-    return ((1 - ty) * ((1 - tx) * img[y0, x0m] + tx * img[y0, x1m])
-            + ty * ((1 - tx) * img[y1, x0m] + tx * img[y1, x1m])).astype(np.float32)
+    return (
+        (1 - ty) * ((1 - tx) * img[y0, x0m] + tx * img[y0, x1m]) + ty * ((1 - tx) * img[y1, x0m] + tx * img[y1, x1m])
+    ).astype(np.float32)
 
 
 def orb_pixel_dirs(H: int, W: int) -> np.ndarray:
@@ -89,6 +105,7 @@ def world_map_to_camera(world: np.ndarray, c2w_gl: np.ndarray, height: int | Non
 
 # -- reader ----------------------------------------------------------------------------------------------------
 
+
 def _frames(path: Path) -> dict:
     meta = read_json(path)
     if "frames" not in meta:
@@ -112,8 +129,15 @@ def _view(root: Path, fr: dict, angle: float, light: str, where: Path, i: int) -
     w = rgb.shape[1]
     focal = 0.5 * w / math.tan(0.5 * angle)
     c2w_gl = np.asarray(fr["transform_matrix"], dtype=np.float64)
-    v = View(name=f"{Path(fp).name}", c2w=camera.c2w_from_blender(c2w_gl), K=np.array([focal, focal, w / 2.0,
-             rgb.shape[0] / 2.0]), rgb=np.maximum(rgb, 0.0), mask=mask, light=light, source=str(src))
+    v = View(
+        name=f"{Path(fp).name}",
+        c2w=camera.c2w_from_blender(c2w_gl),
+        K=np.array([focal, focal, w / 2.0, rgb.shape[0] / 2.0]),
+        rgb=np.maximum(rgb, 0.0),
+        mask=mask,
+        light=light,
+        source=str(src),
+    )
     v.c2w_gl = c2w_gl  # type: ignore[attr-defined]
     return v
 
@@ -133,9 +157,13 @@ def read(path: str | Path, ground_truth: str | Path | None = None, envmap_height
     if not test_meta["frames"]:
         raise BenchmarkError(f"{te_path}: no frames (the input light is read from the first test view's map)")
     fr0 = test_meta["frames"][0]
-    lights = {scene: camera_map_to_world(read_map(gt_root / scene / "env_map" / (Path(fr0["file_path"]).name
-                                                                                  + ".exr")),
-                                         np.asarray(fr0["transform_matrix"]), envmap_height)}
+    lights = {
+        scene: camera_map_to_world(
+            read_map(gt_root / scene / "env_map" / (Path(fr0["file_path"]).name + ".exr")),
+            np.asarray(fr0["transform_matrix"]),
+            envmap_height,
+        )
+    }
     nv_path = need(root / "transforms_novel.json", "transforms_novel.json (Stanford-ORB relighting targets)")
     novel = _frames(nv_path)
     test = []
@@ -147,15 +175,27 @@ def read(path: str | Path, ground_truth: str | Path | None = None, envmap_height
         v = _view(root.parent / sname, fr, a, sname, nv_path, i)
         v.name = f"{sname}/{v.name}"
         if sname not in lights:
-            lights[sname] = camera_map_to_world(read_map(gt_root / sname / "env_map" /
-                                                         (Path(fr["file_path"]).name + ".exr")),
-                                                np.asarray(fr["transform_matrix"]), envmap_height)
+            lights[sname] = camera_map_to_world(
+                read_map(gt_root / sname / "env_map" / (Path(fr["file_path"]).name + ".exr")),
+                np.asarray(fr["transform_matrix"]),
+                envmap_height,
+            )
         test.append(v)
-    return Scene(layout=LAYOUT, scene=scene, path=str(root), protocol=PROTOCOL, train=train, test=test,
-                 lights=lights, input_light=scene, notes={"ground_truth": str(gt_root.resolve())})
+    return Scene(
+        layout=LAYOUT,
+        scene=scene,
+        path=str(root),
+        protocol=PROTOCOL,
+        train=train,
+        test=test,
+        lights=lights,
+        input_light=scene,
+        notes={"ground_truth": str(gt_root.resolve())},
+    )
 
 
 # -- writer ----------------------------------------------------------------------------------------------------
+
 
 def _write_frame(folder: Path, split: str, k: int, rgba: np.ndarray) -> str:
     a = rgba[..., 3:4]
@@ -177,8 +217,10 @@ def write(cur: Curated, out: str | Path, scene: str | None = None) -> Path:
     gt = out / "ground_truth"
     angle = fov_x(cur.inputs[0]["intrinsics"], int(cur.inputs[0]["width"]))
     views = cur.inputs + cur.extra
-    frames = [_frame(v, _write_frame(root, "train", k, cur.image("inputs", cur.input_light, v["name"])))
-              for k, v in enumerate(views)]
+    frames = [
+        _frame(v, _write_frame(root, "train", k, cur.image("inputs", cur.input_light, v["name"])))
+        for k, v in enumerate(views)
+    ]
     io.write_json(root / "transforms_train.json", {"camera_angle_x": angle, "frames": frames})
     tests = cur.extra or cur.inputs[:1]
     frames = []

@@ -36,8 +36,18 @@ from pathlib import Path
 import numpy as np
 
 from frng import io
-from frng.benchmarks.common import (BenchmarkError, Curated, Scene, View, need, read_map, read_mask_png, read_png,
-                                    rotate_map, write_hdr)
+from frng.benchmarks.common import (
+    BenchmarkError,
+    Curated,
+    Scene,
+    View,
+    need,
+    read_map,
+    read_mask_png,
+    read_png,
+    rotate_map,
+    write_hdr,
+)
 
 LAYOUT = "owl"
 PROTOCOL = "owl"
@@ -77,11 +87,11 @@ def read_matrix(path: Path) -> np.ndarray:
 
 
 def untonemap(img: np.ndarray, exposure: float) -> np.ndarray:
-    return (np.power(np.clip(img[..., :3], 0, 1), GAMMA) / 2.0 ** exposure).astype(np.float32)
+    return (np.power(np.clip(img[..., :3], 0, 1), GAMMA) / 2.0**exposure).astype(np.float32)
 
 
 def tonemap(lin: np.ndarray, exposure: float) -> np.ndarray:
-    return np.clip(np.power(np.clip(lin * 2.0 ** exposure, 0, None), 1 / GAMMA), 0, 1)
+    return np.clip(np.power(np.clip(lin * 2.0**exposure, 0, None), 1 / GAMMA), 0, 1)
 
 
 def _view(image: Path, mask: Path, cam: Path, exposure: float, light: str) -> View:
@@ -89,8 +99,16 @@ def _view(image: Path, mask: Path, cam: Path, exposure: float, light: str) -> Vi
     rgb = untonemap(read_png(image), exposure)
     if rgb.shape[:2] != (h, w):
         raise BenchmarkError(f"{image}: image is {rgb.shape[1]}x{rgb.shape[0]}, {cam.name} says {w}x{h}")
-    return View(name=image.stem, c2w=c2w, K=K, rgb=rgb, mask=read_mask_png(mask), light=light, source=str(image),
-                exposure=exposure)
+    return View(
+        name=image.stem,
+        c2w=c2w,
+        K=K,
+        rgb=rgb,
+        mask=read_mask_png(mask),
+        light=light,
+        source=str(image),
+        exposure=exposure,
+    )
 
 
 def _ids(folder: Path, prefix: str) -> list[str]:
@@ -105,25 +123,37 @@ def read(path: str | Path, envmap_height: int | None = None) -> Scene:
     ids = _ids(inputs, "image_")
     if not ids:
         raise BenchmarkError(f"{inputs}: no image_xxxx.png (OWL layout)")
-    train = [_view(inputs / f"image_{i}.png", inputs / f"mask_{i}.png", inputs / f"camera_{i}.txt", e_in, "input")
-             for i in ids]
+    train = [
+        _view(inputs / f"image_{i}.png", inputs / f"mask_{i}.png", inputs / f"camera_{i}.txt", e_in, "input")
+        for i in ids
+    ]
     R_in = read_matrix(root / "world_to_env.txt")[:3, :3]
     lights = {"input": _resize(read_map(root / "env.hdr"), envmap_height)}
     test = []
     for i in _ids(root, "gt_image_"):
         e = read_scalar(root / f"gt_exposure_{i}.txt")
         light = f"gt_{i}"
-        test.append(_view(root / f"gt_image_{i}.png", root / f"gt_mask_{i}.png", root / f"gt_camera_{i}.txt", e,
-                          light))
+        test.append(_view(root / f"gt_image_{i}.png", root / f"gt_mask_{i}.png", root / f"gt_camera_{i}.txt", e, light))
         R_k = read_matrix(root / f"gt_world_to_env_{i}.txt")[:3, :3]
         # E'(d) = E_k(R_k R_in^T d): rotate_map(E, R) gives E(R^T d), so R = (R_k R_in^T)^T
         lights[light] = rotate_map(_resize(read_map(root / f"gt_env_{i}.hdr"), envmap_height), (R_k @ R_in.T).T)
     # the maps are already in the rotated (env) frame: hand the rotation to the normalisation for the cameras only
     obj = root.parent.name if root.name == "test" else root.name
-    scene = Scene(layout=LAYOUT, scene=obj, path=str(root), protocol=PROTOCOL, train=train, test=test,
-                  lights=lights, input_light="input", world_rotation=R_in,
-                  notes={"input_light": "env.hdr (OWL: for debugging; F-RNG's setting has a known input light)",
-                         "lights_in_world_frame": True})
+    scene = Scene(
+        layout=LAYOUT,
+        scene=obj,
+        path=str(root),
+        protocol=PROTOCOL,
+        train=train,
+        test=test,
+        lights=lights,
+        input_light="input",
+        world_rotation=R_in,
+        notes={
+            "input_light": "env.hdr (OWL: for debugging; F-RNG's setting has a known input light)",
+            "lights_in_world_frame": True,
+        },
+    )
     return scene
 
 
@@ -136,17 +166,24 @@ def _resize(img: np.ndarray, height: int) -> np.ndarray:
 def _exposure(rgb: np.ndarray, mask: np.ndarray) -> float:
     fg = rgb[mask > 0]
     peak = float(fg.max()) if fg.size else 1.0
-    return math.log2(0.95 ** GAMMA / peak) if peak > 0 else 0.0
+    return math.log2(0.95**GAMMA / peak) if peak > 0 else 0.0
 
 
 def _write_camera(path: Path, v: dict) -> None:
     w2c = np.linalg.inv(np.asarray(v["c2w"], dtype=np.float64))
     fx, fy, cx, cy = v["intrinsics"]
-    rows = [[fx, 0, cx], [0, fy, cy], [0, 0, 1], *w2c[:3, :3].tolist(), w2c[:3, 3].tolist(),
-            [int(v["width"]), int(v["height"]), 3]]
+    rows = [
+        [fx, 0, cx],
+        [0, fy, cy],
+        [0, 0, 1],
+        *w2c[:3, :3].tolist(),
+        w2c[:3, 3].tolist(),
+        [int(v["width"]), int(v["height"]), 3],
+    ]
     with io.atomic_path(path) as tmp:
-        tmp.write_text("\n".join(" ".join(repr(float(x)) if j < 7 else str(int(x)) for x in r)
-                                 for j, r in enumerate(rows)) + "\n")
+        tmp.write_text(
+            "\n".join(" ".join(repr(float(x)) if j < 7 else str(int(x)) for x in r) for j, r in enumerate(rows)) + "\n"
+        )
 
 
 def _write_image(folder: Path, stem: str, mask_stem: str, rgba: np.ndarray, exposure: float | None) -> float:
@@ -165,8 +202,9 @@ def write(cur: Curated, out: str | Path, scene: str | None = None) -> Path:
     views = cur.inputs + cur.extra
     imgs = [cur.image("inputs", cur.input_light, v["name"]) for v in views]
     # one exposure for all input images (exposure.txt), from the brightest
-    e_in = min(_exposure(np.where(i[..., 3:] > 1e-6, i[..., :3] / np.maximum(i[..., 3:], 1e-6), 0), i[..., 3])
-               for i in imgs)
+    e_in = min(
+        _exposure(np.where(i[..., 3:] > 1e-6, i[..., :3] / np.maximum(i[..., 3:], 1e-6), 0), i[..., 3]) for i in imgs
+    )
     for k, (v, img) in enumerate(zip(views, imgs)):
         _write_image(inputs, f"image_{k:04d}", f"mask_{k:04d}", img, e_in)
         _write_camera(inputs / f"camera_{k:04d}.txt", v)
@@ -179,8 +217,9 @@ def write(cur: Curated, out: str | Path, scene: str | None = None) -> Path:
     for light in cur.target_lights:
         env = cur.envmap(light)
         for v in cur.targets:
-            e = _write_image(root, f"gt_image_{k:04d}", f"gt_mask_{k:04d}", cur.image("targets", light, v["name"]),
-                             None)
+            e = _write_image(
+                root, f"gt_image_{k:04d}", f"gt_mask_{k:04d}", cur.image("targets", light, v["name"]), None
+            )
             _write_camera(root / f"gt_camera_{k:04d}.txt", v)
             _text(root / f"gt_exposure_{k:04d}.txt", f"{e!r}\n")
             write_hdr(root / f"gt_env_{k:04d}.hdr", env)

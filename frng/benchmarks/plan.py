@@ -33,15 +33,21 @@ def entries(config) -> list[dict]:
         e = dict(e)
         e["id"] = e.get("id") or object_id(e["layout"], scene_name(e["layout"], e["path"]))
         if e["id"] in seen:
-            raise BenchmarkError(f"benchmarks[{i}] and benchmarks[{seen[e['id']]}] both import to {e['id']!r}; "
-                                 f"give one an `id`")
+            raise BenchmarkError(
+                f"benchmarks[{i}] and benchmarks[{seen[e['id']]}] both import to {e['id']!r}; give one an `id`"
+            )
         seen[e["id"]] = i
         out.append(e)
     return out
 
 
-IMPORT_OPTIONS = {"envmaps": "--envmaps", "input_light": "--input-light", "lights": "--lights",
-                  "ground_truth": "--ground-truth", "envmap_file": "--envmap"}
+IMPORT_OPTIONS = {
+    "envmaps": "--envmaps",
+    "input_light": "--input-light",
+    "lights": "--lights",
+    "ground_truth": "--ground-truth",
+    "envmap_file": "--envmap",
+}
 """``benchmarks[].options`` key -> its ``frng import`` flag."""
 
 

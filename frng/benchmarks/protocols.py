@@ -62,13 +62,18 @@ def _rgba(x: np.ndarray) -> np.ndarray:
 
 # -- TensoIR / NeRF-synthetic ----------------------------------------------------------------------------------
 
+
 def tensoir(pred: np.ndarray, gt: np.ndarray, lpips: bool = True, **_) -> dict:
     """White background, whole image, no scaling (see the module docstring)."""
     from frng import metrics as M
 
     p, g, _, _ = M.prepare(_rgba(pred), _rgba(gt), protocol="plain", background=(1.0, 1.0, 1.0))
-    return {"psnr": M.psnr(p, g, cap_db=None), "ssim": M.ssim(p, g) if min(p.shape[:2]) >= 11 else math.nan,
-            "lpips": M.lpips(p, g) if lpips and min(p.shape[:2]) >= 32 else math.nan, "protocol": "tensoir"}
+    return {
+        "psnr": M.psnr(p, g, cap_db=None),
+        "ssim": M.ssim(p, g) if min(p.shape[:2]) >= 11 else math.nan,
+        "lpips": M.lpips(p, g) if lpips and min(p.shape[:2]) >= 32 else math.nan,
+        "protocol": "tensoir",
+    }
 
 
 def nerf_synthetic(pred: np.ndarray, gt: np.ndarray, lpips: bool = True, **_) -> dict:
@@ -76,6 +81,7 @@ def nerf_synthetic(pred: np.ndarray, gt: np.ndarray, lpips: bool = True, **_) ->
 
 
 # -- Stanford-ORB --------------------------------------------------------------------------------------------
+
 
 def orb_srgb(x: np.ndarray) -> np.ndarray:
     """ORB's ``rgb_to_srgb`` (orb/utils/preprocess.py): the sRGB curve, 12.92 x below 0.0031308."""
@@ -91,8 +97,15 @@ def orb_erode(mask: np.ndarray) -> np.ndarray:
     return (minimum_filter(m8, size=5, mode="constant", cval=255) > 127).astype(np.float32)
 
 
-def orb_psnr(pred_rgb: np.ndarray, gt_rgb: np.ndarray, mask: np.ndarray, max_value: float, use_gt_median: bool,
-             tonemapping: bool, scale_invariant: bool = True) -> float:
+def orb_psnr(
+    pred_rgb: np.ndarray,
+    gt_rgb: np.ndarray,
+    mask: np.ndarray,
+    max_value: float,
+    use_gt_median: bool,
+    tonemapping: bool,
+    scale_invariant: bool = True,
+) -> float:
     """``calc_PSNR(..., divide_mask=False)`` of Stanford-ORB for linear RGB images and a [0, 1] mask."""
     m = orb_erode(mask)
     p = np.asarray(pred_rgb, dtype=np.float64) * m[..., None]
@@ -107,7 +120,7 @@ def orb_psnr(pred_rgb: np.ndarray, gt_rgb: np.ndarray, mask: np.ndarray, max_val
         for c in range(3):
             if (pp[:, c] ** 2).sum() <= 1e-6:
                 pp[:, c] = 1.0
-        scale = (gp * pp).sum(0) / (pp ** 2).sum(0)
+        scale = (gp * pp).sum(0) / (pp**2).sum(0)
         p = scale * p
     p, g = np.clip(p, 0, max_value), np.clip(g, 0, max_value)
     if tonemapping:
@@ -129,13 +142,15 @@ def orb(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None, **_) -
 
 # -- OWL -----------------------------------------------------------------------------------------------------
 
+
 def owl_tonemap(linear: np.ndarray, exposure: float, gamma: float = OWL_GAMMA) -> np.ndarray:
     """``apply_exposure_and_gamma`` (utils/hdri.py): ``clip(x 2^e, 0, inf)^(1/gamma)`` (unclipped above)."""
-    return np.power(np.clip(np.asarray(linear, dtype=np.float64) * 2.0 ** exposure, 0, None), 1.0 / gamma)
+    return np.power(np.clip(np.asarray(linear, dtype=np.float64) * 2.0**exposure, 0, None), 1.0 / gamma)
 
 
-def owl_fit(pred_linear: np.ndarray, gt: np.ndarray, mask: np.ndarray, balance_colors: bool = True,
-            autoexposure: bool = True) -> tuple[np.ndarray, float, np.ndarray]:
+def owl_fit(
+    pred_linear: np.ndarray, gt: np.ndarray, mask: np.ndarray, balance_colors: bool = True, autoexposure: bool = True
+) -> tuple[np.ndarray, float, np.ndarray]:
     """``scale_and_tonemap_prediction_image`` of OWL: (tone-mapped prediction in [0, 1], exposure, balance)."""
     from scipy.optimize import minimize, minimize_scalar
 
@@ -143,7 +158,8 @@ def owl_fit(pred_linear: np.ndarray, gt: np.ndarray, mask: np.ndarray, balance_c
     pr = np.asarray(pred_linear, dtype=np.float32)
     gt = np.asarray(gt, dtype=np.float32)
     m = (gt.max(axis=-1, keepdims=True) < 1).astype(np.float32) * np.asarray(mask, np.float32).reshape(
-        gt.shape[:2] + (1,))
+        gt.shape[:2] + (1,)
+    )
     sel = m[..., 0] > 0.9
 
     def fn_e(x):
@@ -153,10 +169,11 @@ def owl_fit(pred_linear: np.ndarray, gt: np.ndarray, mask: np.ndarray, balance_c
     if autoexposure:
         smallest = pr[sel].min(axis=-1)
         smallest = smallest[smallest > 0].min()
-        max_exposure = np.log2(0.95 ** gamma / smallest)
+        max_exposure = np.log2(0.95**gamma / smallest)
         exposure = float(minimize_scalar(fn_e, (-10, max_exposure)).x)
     balance = np.ones(3, dtype=np.float32)
     if balance_colors:
+
         def fn_c(x):
             tmp = pr[sel].reshape(-1, 3) * x[None, :]
             return np.abs(np.clip(owl_tonemap(tmp, exposure, gamma), 0, 1) - gt[sel]).mean()
@@ -166,8 +183,9 @@ def owl_fit(pred_linear: np.ndarray, gt: np.ndarray, mask: np.ndarray, balance_c
     return np.clip(owl_tonemap(pr, exposure, gamma), 0, 1).astype(np.float32), exposure, balance
 
 
-def owl(pred: np.ndarray, gt: np.ndarray, exposure: float = 0.0, mask: np.ndarray | None = None,
-        lpips: bool = True, **_) -> dict:
+def owl(
+    pred: np.ndarray, gt: np.ndarray, exposure: float = 0.0, mask: np.ndarray | None = None, lpips: bool = True, **_
+) -> dict:
     """OWL's evaluation of a linear prediction against the tone-mapped ground truth (gt exposure ``exposure``)."""
     from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
@@ -187,8 +205,16 @@ def owl(pred: np.ndarray, gt: np.ndarray, exposure: float = 0.0, mask: np.ndarra
 
         # OWL feeds mask * (x * 2 - 1) to LPIPS: a [0, 1] image that is 0.5 outside the mask
         lp = M.lpips(p * mask + 0.5 * (1 - mask), gt_tm * mask + 0.5 * (1 - mask))
-    return {"psnr": psnr, "ssim": ssim, "lpips": lp, "protocol": "owl", "exposure_fit": e,
-            "balance_r": float(bal[0]), "balance_g": float(bal[1]), "balance_b": float(bal[2])}
+    return {
+        "psnr": psnr,
+        "ssim": ssim,
+        "lpips": lp,
+        "protocol": "owl",
+        "exposure_fit": e,
+        "balance_r": float(bal[0]),
+        "balance_g": float(bal[1]),
+        "balance_b": float(bal[2]),
+    }
 
 
 PROTOCOLS = {"tensoir": tensoir, "nerf-synthetic": nerf_synthetic, "orb": orb, "owl": owl}

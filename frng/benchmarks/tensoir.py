@@ -34,8 +34,19 @@ from pathlib import Path
 import numpy as np
 
 from frng import camera, io
-from frng.benchmarks.common import (BenchmarkError, Curated, Scene, View, fov_x, need, read_json, read_map,
-                                    read_srgba_png, write_hdr, write_srgba_png)
+from frng.benchmarks.common import (
+    BenchmarkError,
+    Curated,
+    Scene,
+    View,
+    fov_x,
+    need,
+    read_json,
+    read_map,
+    read_srgba_png,
+    write_hdr,
+    write_srgba_png,
+)
 
 LAYOUT = "tensoir"
 PROTOCOL = "tensoir"
@@ -71,8 +82,9 @@ def _view(folder: Path, light: str, file_light: str | None = None) -> View:
     return View(name=folder.name, c2w=c2w, K=K, rgb=rgb, mask=a, light=light, source=str(png))
 
 
-def read(path: str | Path, envmaps: str | Path | None = None, input_light: str | None = None,
-         lights: list[str] | None = None) -> Scene:
+def read(
+    path: str | Path, envmaps: str | Path | None = None, input_light: str | None = None, lights: list[str] | None = None
+) -> Scene:
     root = need(Path(path), "TensoIR scene folder")
     if not root.is_dir():
         raise BenchmarkError(f"{root}: not a folder (expected a TensoIR scene with train_*/ and test_*/ folders)")
@@ -85,11 +97,15 @@ def read(path: str | Path, envmaps: str | Path | None = None, input_light: str |
     for d in train_dirs[1:]:
         common &= set(_lights_in(d))
     if input_light is None:
-        input_light = sorted(common)[0] if len(common) == 1 else (DEFAULT_INPUT_LIGHT if DEFAULT_INPUT_LIGHT in common
-                                                                 or not common else None)
+        input_light = (
+            sorted(common)[0]
+            if len(common) == 1
+            else (DEFAULT_INPUT_LIGHT if DEFAULT_INPUT_LIGHT in common or not common else None)
+        )
         if input_light is None:
-            raise BenchmarkError(f"{train_dirs[0]}: several training lights {sorted(common)}; choose one with "
-                                 f"--input-light")
+            raise BenchmarkError(
+                f"{train_dirs[0]}: several training lights {sorted(common)}; choose one with --input-light"
+            )
     train_file_light = input_light if input_light in common else None
     if train_file_light is None and not (train_dirs[0] / "rgba.png").exists():
         raise BenchmarkError(f"{train_dirs[0] / f'rgba_{input_light}.png'}: missing training image")
@@ -103,18 +119,32 @@ def read(path: str | Path, envmaps: str | Path | None = None, input_light: str |
         envmaps = next((c for c in cands if c.is_dir()), cands[0])
     envmaps = Path(envmaps)
     maps = {l: read_map(envmaps / f"{l}.hdr") for l in dict.fromkeys([input_light, *targets])}
-    return Scene(layout=LAYOUT, scene=root.name, path=str(root), protocol=PROTOCOL, train=train, test=test,
-                 lights=maps, input_light=input_light, notes={"envmaps": str(envmaps.resolve())})
+    return Scene(
+        layout=LAYOUT,
+        scene=root.name,
+        path=str(root),
+        protocol=PROTOCOL,
+        train=train,
+        test=test,
+        lights=maps,
+        input_light=input_light,
+        notes={"envmaps": str(envmaps.resolve())},
+    )
 
 
 def _write_view(folder: Path, view: dict, images: dict[str, np.ndarray]) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     c2w_blender = camera.c2w_to_blender(np.asarray(view["c2w"], dtype=np.float64))
     w, h = int(view["width"]), int(view["height"])
-    io.write_json(folder / "metadata.json", {
-        "imw": w, "imh": h, "cam_angle_x": fov_x(view["intrinsics"], w),
-        "cam_transform_mat": ",".join(repr(float(x)) for x in c2w_blender.reshape(-1)),
-    })
+    io.write_json(
+        folder / "metadata.json",
+        {
+            "imw": w,
+            "imh": h,
+            "cam_angle_x": fov_x(view["intrinsics"], w),
+            "cam_transform_mat": ",".join(repr(float(x)) for x in c2w_blender.reshape(-1)),
+        },
+    )
     for light, rgba in images.items():
         write_srgba_png(folder / f"rgba_{light}.png", rgba)
 

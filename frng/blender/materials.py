@@ -16,11 +16,11 @@ import numpy as np
 
 TEXTURE_SIZE = 256
 PATTERNS = ("checker", "stripes", "dots", "noise")
-FUR_POINTS = 6                  # control points per strand (Catmull-Rom curves)
-FUR_ROOT_RADIUS = 0.004         # strand radius at the root / tip (world units; the object fits the unit sphere)
+FUR_POINTS = 6  # control points per strand (Catmull-Rom curves)
+FUR_ROOT_RADIUS = 0.004  # strand radius at the root / tip (world units; the object fits the unit sphere)
 FUR_TIP_RADIUS = 0.0008
-FUR_TILT = 0.8                  # random tilt of a strand away from the surface normal (per axis, uniform)
-FUR_WAVE = 0.12                 # per-point jitter, as a fraction of the strand length, growing towards the tip
+FUR_TILT = 0.8  # random tilt of a strand away from the surface normal (per axis, uniform)
+FUR_WAVE = 0.12  # per-point jitter, as a fraction of the strand length, growing towards the tip
 
 
 def _colour(rng: np.random.Generator) -> list[float]:
@@ -42,25 +42,37 @@ def sample(rng: np.random.Generator, material_class: str, fur_strands: int) -> d
         p.update(roughness=float(rng.uniform(0.6, 1.0)), metallic=0.0, textured=bool(rng.uniform() < 0.6))
     elif material_class == "specular":
         metal = rng.uniform() < 0.5
-        p.update(roughness=float(rng.uniform(0.03, 0.35)), metallic=float(rng.uniform(0.8, 1.0)) if metal else 0.0,
-                 textured=bool(rng.uniform() < 0.4))
+        p.update(
+            roughness=float(rng.uniform(0.03, 0.35)),
+            metallic=float(rng.uniform(0.8, 1.0)) if metal else 0.0,
+            textured=bool(rng.uniform() < 0.4),
+        )
     elif material_class == "fur":
-        p.update(roughness=1.0, metallic=0.0, textured=False, hair={
-            "color": _colour(rng),
-            "roughness": float(rng.uniform(0.2, 0.5)),
-            "radial_roughness": float(rng.uniform(0.2, 0.5)),
-            "length": float(rng.uniform(0.08, 0.15)),
-            "strands": int(fur_strands),
-            "points": FUR_POINTS,
-            "root_radius": FUR_ROOT_RADIUS,
-            "tip_radius": FUR_TIP_RADIUS,
-        })
+        p.update(
+            roughness=1.0,
+            metallic=0.0,
+            textured=False,
+            hair={
+                "color": _colour(rng),
+                "roughness": float(rng.uniform(0.2, 0.5)),
+                "radial_roughness": float(rng.uniform(0.2, 0.5)),
+                "length": float(rng.uniform(0.08, 0.15)),
+                "strands": int(fur_strands),
+                "points": FUR_POINTS,
+                "root_radius": FUR_ROOT_RADIUS,
+                "tip_radius": FUR_TIP_RADIUS,
+            },
+        )
         p["base_color"] = [round(c * 0.6, 5) for c in p["hair"]["color"]]  # skin under the fur
     else:
         raise ValueError(f"unknown material class {material_class!r}")
     if p["textured"]:
-        p["texture"] = {"pattern": PATTERNS[int(rng.integers(len(PATTERNS)))], "color2": _colour(rng),
-                        "frequency": int(rng.integers(3, 12)), "seed": int(rng.integers(2**31))}
+        p["texture"] = {
+            "pattern": PATTERNS[int(rng.integers(len(PATTERNS)))],
+            "color2": _colour(rng),
+            "frequency": int(rng.integers(3, 12)),
+            "seed": int(rng.integers(2**31)),
+        }
     return p
 
 
@@ -81,7 +93,7 @@ def texture_pixels(tex: dict, color1, size: int = TEXTURE_SIZE) -> np.ndarray:
         i, j = gx.astype(int), gy.astype(int)
         tx, ty = gx - i, gy - j
         tx, ty = tx * tx * (3 - 2 * tx), ty * ty * (3 - 2 * ty)
-        m = ((g[j, i] * (1 - tx) + g[j, i + 1] * tx) * (1 - ty) + (g[j + 1, i] * (1 - tx) + g[j + 1, i + 1] * tx) * ty)
+        m = (g[j, i] * (1 - tx) + g[j, i + 1] * tx) * (1 - ty) + (g[j + 1, i] * (1 - tx) + g[j + 1, i + 1] * tx) * ty
         m = m.astype(np.float32)
     c1, c2 = np.asarray(color1, np.float32), np.asarray(tex["color2"], np.float32)
     rgb = c1 * (1 - m[..., None]) + c2 * m[..., None]
@@ -90,8 +102,11 @@ def texture_pixels(tex: dict, color1, size: int = TEXTURE_SIZE) -> np.ndarray:
 
 def add_aov_outputs(nt, albedo_socket, roughness, metallic) -> None:
     """AOV Output nodes: albedo <- a colour socket (or RGB list); roughness, metallic <- sockets or floats."""
-    for name, value, is_color in (("albedo", albedo_socket, True), ("roughness", roughness, False),
-                                  ("metallic", metallic, False)):
+    for name, value, is_color in (
+        ("albedo", albedo_socket, True),
+        ("roughness", roughness, False),
+        ("metallic", metallic, False),
+    ):
         node = nt.nodes.new("ShaderNodeOutputAOV")
         node.aov_name = name
         sock = node.inputs["Color" if is_color else "Value"]
@@ -162,7 +177,7 @@ def _surface_samples(obj: bpy.types.Object, n: int, rng: np.random.Generator) ->
         me.corner_normals.foreach_get("vector", cn)
     finally:
         ev.to_mesh_clear()
-    tri = co.reshape(-1, 3)[tri_v.reshape(-1, 3)]            # (T, 3 corners, 3)
+    tri = co.reshape(-1, 3)[tri_v.reshape(-1, 3)]  # (T, 3 corners, 3)
     nrm = cn.reshape(-1, 3)[tri_l.reshape(-1, 3)]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     if not np.isfinite(area).all() or area.sum() <= 0:
@@ -170,13 +185,16 @@ def _surface_samples(obj: bpy.types.Object, n: int, rng: np.random.Generator) ->
     cdf = np.cumsum(area)
     face = np.minimum(np.searchsorted(cdf, rng.uniform(0.0, cdf[-1], n), side="right"), len(area) - 1)
     r1, r2 = np.sqrt(rng.uniform(size=n)), rng.uniform(size=n)
-    w = np.stack([1 - r1, r1 * (1 - r2), r1 * r2], 1)[..., None]   # uniform barycentrics
+    w = np.stack([1 - r1, r1 * (1 - r2), r1 * r2], 1)[..., None]  # uniform barycentrics
     points = (tri[face] * w).sum(1)
     normals = (nrm[face] * w).sum(1)
     length = np.linalg.norm(normals, axis=1, keepdims=True)
     fallback = np.cross(tri[face, 1] - tri[face, 0], tri[face, 2] - tri[face, 0])
-    normals = np.where(length > 1e-8, normals / np.maximum(length, 1e-8),
-                       fallback / np.maximum(np.linalg.norm(fallback, axis=1, keepdims=True), 1e-12))
+    normals = np.where(
+        length > 1e-8,
+        normals / np.maximum(length, 1e-8),
+        fallback / np.maximum(np.linalg.norm(fallback, axis=1, keepdims=True), 1e-12),
+    )
     return points, normals
 
 
@@ -229,9 +247,9 @@ def apply(obj: bpy.types.Object, p: dict, seed: int) -> None:
 
 # -- assets' own materials (objects.extra[].material: own) ----------------------------------------------------------
 
-PLY_ROUGHNESS = 0.8             # a PLY's vertex colours carry no finish: matte dielectric
+PLY_ROUGHNESS = 0.8  # a PLY's vertex colours carry no finish: matte dielectric
 NEUTRAL = {"base_color": [0.5, 0.5, 0.5], "roughness": 0.5, "metallic": 0.0}
-DATA_SOCKETS = ("Roughness", "Metallic", "Alpha")   # Principled inputs whose textures hold data, not colour
+DATA_SOCKETS = ("Roughness", "Metallic", "Alpha")  # Principled inputs whose textures hold data, not colour
 
 
 def _upstream(socket, kind: str | None = None, seen=None) -> list:
@@ -296,6 +314,7 @@ def _vertex_colour_material(name: str, layer: str) -> bpy.types.Material:
 
 def _unsupported_inputs(bsdf) -> list[str]:
     """What a Principled BSDF does that the albedo / roughness / metallic / normal G-buffer cannot describe."""
+
     def active(name: str, threshold: float = 0.0) -> bool:
         s = bsdf.inputs.get(name)
         return s is not None and (s.is_linked or float(s.default_value) > threshold)
@@ -363,8 +382,11 @@ def adopt(obj: bpy.types.Object) -> dict:
     for i, mat in enumerate(list(me.materials)):
         reasons: list[str] = []
         if mat is None or not mat.use_nodes:
-            reasons.append("no material (neutral grey assigned)" if mat is None else "material without nodes "
-                           "(neutral grey assigned)")
+            reasons.append(
+                "no material (neutral grey assigned)"
+                if mat is None
+                else "material without nodes (neutral grey assigned)"
+            )
             mat = _neutral(f"frng_neutral_{i}")
             me.materials[i] = mat
         nt = mat.node_tree
@@ -391,12 +413,18 @@ def adopt(obj: bpy.types.Object) -> dict:
             reasons += _unsupported_inputs(bsdf)
             info["colourspace_fixed"] += _data_colourspace(bsdf, nt)
             sockets = {k: bsdf.inputs[k] for k in ("Base Color", "Roughness", "Metallic")}
-            aov = [s.links[0].from_socket if s.is_linked else (list(s.default_value) if k == "Base Color"
-                                                              else float(s.default_value))
-                   for k, s in sockets.items()]
-            slot.update(base_color=_describe(sockets["Base Color"]), roughness=_describe(sockets["Roughness"]),
-                        metallic=_describe(sockets["Metallic"]), normal=_describe(bsdf.inputs["Normal"])
-                        if bsdf.inputs["Normal"].is_linked else None)
+            aov = [
+                s.links[0].from_socket
+                if s.is_linked
+                else (list(s.default_value) if k == "Base Color" else float(s.default_value))
+                for k, s in sockets.items()
+            ]
+            slot.update(
+                base_color=_describe(sockets["Base Color"]),
+                roughness=_describe(sockets["Roughness"]),
+                metallic=_describe(sockets["Metallic"]),
+                normal=_describe(bsdf.inputs["Normal"]) if bsdf.inputs["Normal"].is_linked else None,
+            )
         else:
             aov = [NEUTRAL["base_color"], NEUTRAL["roughness"], NEUTRAL["metallic"]]
         add_aov_outputs(nt, *aov)

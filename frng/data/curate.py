@@ -46,8 +46,18 @@ from frng.data import catalog, rig
 from frng.data.envmaps import read_index
 from frng.layout import EnvmapFolder, Layout, ObjectFolder
 
-GBUFFER_CHANNELS = ("A", "normal.X", "normal.Y", "normal.Z", "depth.Z", "albedo.R", "albedo.G", "albedo.B",
-                    "roughness.Y", "metallic.Y")
+GBUFFER_CHANNELS = (
+    "A",
+    "normal.X",
+    "normal.Y",
+    "normal.Z",
+    "depth.Z",
+    "albedo.R",
+    "albedo.G",
+    "albedo.B",
+    "roughness.Y",
+    "metallic.Y",
+)
 META_VERSION = 1
 
 
@@ -78,7 +88,7 @@ class StopGuard:
         self.lock = threading.RLock()
         self.paths: list[Path] = []
 
-    def install(self) -> "StopGuard":
+    def install(self) -> StopGuard:
         r, w = os.pipe()
         os.set_blocking(w, False)
         for sig in STOP_SIGNALS:
@@ -129,9 +139,18 @@ def gbuffer_from_passes(passes: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     albedo = np.clip(passes["albedo"] * inv, 0.0, None)
     rough = np.clip(passes["roughness"][..., 0] * inv[..., 0], 0.0, 1.0)
     metal = np.clip(passes["metallic"][..., 0] * inv[..., 0], 0.0, 1.0)
-    planes = {"A": a, "normal.X": normal[..., 0], "normal.Y": normal[..., 1], "normal.Z": normal[..., 2],
-              "depth.Z": depth, "albedo.R": albedo[..., 0], "albedo.G": albedo[..., 1], "albedo.B": albedo[..., 2],
-              "roughness.Y": rough, "metallic.Y": metal}
+    planes = {
+        "A": a,
+        "normal.X": normal[..., 0],
+        "normal.Y": normal[..., 1],
+        "normal.Z": normal[..., 2],
+        "depth.Z": depth,
+        "albedo.R": albedo[..., 0],
+        "albedo.G": albedo[..., 1],
+        "albedo.B": albedo[..., 2],
+        "roughness.Y": rough,
+        "metallic.Y": metal,
+    }
     return {k: planes[k].astype(np.float32) for k in GBUFFER_CHANNELS}
 
 
@@ -148,9 +167,11 @@ def own_class(spec: catalog.ObjectSpec, folder: ObjectFolder, views) -> tuple[st
         rough.append(ch["roughness.Y"][fg])
         metal.append(ch["metallic.Y"][fg])
     r, m = float(np.concatenate(rough).mean()), float(np.concatenate(metal).mean())
-    return catalog.own_material_class(r, m), (f"mean roughness {r:.3f}, metallic {m:.3f}: specular if metallic >= "
-                                              f"{catalog.OWN_SPECULAR_METALLIC} or roughness < "
-                                              f"{catalog.OWN_SPECULAR_ROUGHNESS}, else diffuse")
+    return catalog.own_material_class(r, m), (
+        f"mean roughness {r:.3f}, metallic {m:.3f}: specular if metallic >= "
+        f"{catalog.OWN_SPECULAR_METALLIC} or roughness < "
+        f"{catalog.OWN_SPECULAR_ROUGHNESS}, else diffuse"
+    )
 
 
 def check_envmaps(spec: catalog.ObjectSpec, env_dir: Path) -> dict[str, dict]:
@@ -161,8 +182,10 @@ def check_envmaps(spec: catalog.ObjectSpec, env_dir: Path) -> dict[str, dict]:
     out = {}
     for light in dict.fromkeys(spec.input_lights + spec.target_lights):
         if light not in records:
-            raise CurationError(f"object {spec.id}: light {light!r} is not in {folder.index()}; "
-                                "re-run `frng envmaps` with the same config")
+            raise CurationError(
+                f"object {spec.id}: light {light!r} is not in {folder.index()}; "
+                "re-run `frng envmaps` with the same config"
+            )
         try:
             envmap.read(folder.envmap(light))  # raises naming the file if missing/corrupt
         except envmap.EnvMapError as e:
@@ -171,7 +194,9 @@ def check_envmaps(spec: catalog.ObjectSpec, env_dir: Path) -> dict[str, dict]:
     return out
 
 
-def curate(config: Config | dict, oid: str, env_dir: Path, out_root: Path, log=print, guard: StopGuard | None = None) -> Path:
+def curate(
+    config: Config | dict, oid: str, env_dir: Path, out_root: Path, log=print, guard: StopGuard | None = None
+) -> Path:
     """Render object ``oid`` into ``out_root/oid`` (atomically). Returns the final folder.
 
     ``guard``: a :class:`StopGuard` (installed after ``import bpy``) that removes the staging folders on SIGINT /
@@ -179,16 +204,14 @@ def curate(config: Config | dict, oid: str, env_dir: Path, out_root: Path, log=p
     import bpy  # noqa: F401  (fail early, clearly, if bpy is missing)
 
     guard = guard or _NoGuard()
-    from frng.blender import materials, objects
+    from frng.blender import materials, objects, world
     from frng.blender import scene as bscene
-    from frng.blender import world
 
     config = typed(config)
     cat = catalog.plan(config)
     spec = cat.object(oid)
     render = config.render
     lights = check_envmaps(spec, env_dir)
-    rng = np.random.default_rng(spec.seed)
     rig_rng, shape_rng, mat_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(spec.seed).spawn(3))
     inputs, targets = rig.object_views(rig_rng, render)
 
@@ -219,7 +242,8 @@ def curate(config: Config | dict, oid: str, env_dir: Path, out_root: Path, log=p
         if mesh_path is not None:
             ann = catalog.objaverse_annotation(config, spec.mesh, mesh_path) or {}
             provenance = {"uid": spec.mesh, "file": str(mesh_path)} | {
-                k: ann[k] for k in ("name", "license", "viewerUrl", "uri") if k in ann}
+                k: ann[k] for k in ("name", "license", "viewerUrl", "uri") if k in ann
+            }
             if ann.get("license"):
                 licence = f"{ann['license']} (Objaverse 1.0 / Sketchfab: {ann.get('viewerUrl', spec.mesh)})"
         try:
@@ -229,23 +253,34 @@ def curate(config: Config | dict, oid: str, env_dir: Path, out_root: Path, log=p
         if own:
             mat = materials.adopt(obj)
             for bad in mat["unsupported"]:
-                log(f"[{oid}] material slot {bad['slot']} ({bad['material']}): the G-buffer cannot describe "
-                    f"{', '.join(bad['reasons'])}")
+                log(
+                    f"[{oid}] material slot {bad['slot']} ({bad['material']}): the G-buffer cannot describe "
+                    f"{', '.join(bad['reasons'])}"
+                )
         else:
             materials.apply(obj, mat, spec.seed)
-        log(f"[{oid}] {spec.source}:{spec.mesh} material={spec.material} split={spec.split} "
+        log(
+            f"[{oid}] {spec.source}:{spec.mesh} material={spec.material} split={spec.split} "
             f"{shape['vertices']} verts; {len(inputs)} input views x {len(spec.input_lights)} lights, "
             f"{len(targets)} target views x {len(spec.target_lights)} lights at {render.resolution} px, "
-            f"{render.spp} spp")
+            f"{render.spp} spp"
+        )
 
         raw = scratch / "raw.exr"
         times: dict[str, dict[str, float]] = {}
         done_gbuffer: set[str] = set()
         n_total = len(inputs) * len(spec.input_lights) + len(targets) * len(spec.target_lights)
         n_done = 0
-        for kind, views, light_names in (("inputs", inputs, spec.input_lights), ("targets", targets, spec.target_lights)):
+        for kind, views, light_names in (
+            ("inputs", inputs, spec.input_lights),
+            ("targets", targets, spec.target_lights),
+        ):
             for light in light_names:
-                world.set_envmap(scene, Path(EnvmapFolder(env_dir).envmap(light)), sample_map_resolution=max(64, config.envmaps.width))
+                world.set_envmap(
+                    scene,
+                    Path(EnvmapFolder(env_dir).envmap(light)),
+                    sample_map_resolution=max(64, config.envmaps.width),
+                )
                 for view in views:
                     bscene.set_camera_pose(cam, view.c2w)
                     dt = bscene.render_to(scene, raw)
@@ -254,8 +289,10 @@ def curate(config: Config | dict, oid: str, env_dir: Path, out_root: Path, log=p
                     if not np.isfinite(rgba).all():
                         raise CurationError(f"object {oid}: {kind}/{light}/{view.name} has NaN/Inf pixels")
                     if rgba[..., 3].max() <= 0.0:
-                        raise CurationError(f"object {oid} ({spec.source}:{spec.mesh}): {kind}/{light}/{view.name} "
-                                            "rendered empty (all alpha 0)")
+                        raise CurationError(
+                            f"object {oid} ({spec.source}:{spec.mesh}): {kind}/{light}/{view.name} "
+                            "rendered empty (all alpha 0)"
+                        )
                     with guard.lock:
                         io.write_exr(staged.image(kind, light, view.name), rgba, ["R", "G", "B", "A"])
                         if view.name not in done_gbuffer:
@@ -263,8 +300,10 @@ def curate(config: Config | dict, oid: str, env_dir: Path, out_root: Path, log=p
                             done_gbuffer.add(view.name)
                     times.setdefault(light, {})[view.name] = round(dt, 4)
                     n_done += 1
-                    log(f"[{oid}] {n_done:4d}/{n_total} {kind}/{light}/{view.name} "
-                        f"render {dt:.3f} s  coverage {rgba[..., 3].mean():.3f}")
+                    log(
+                        f"[{oid}] {n_done:4d}/{n_total} {kind}/{light}/{view.name} "
+                        f"render {dt:.3f} s  coverage {rgba[..., 3].mean():.3f}"
+                    )
 
         material_class = spec.material
         if own:
@@ -284,11 +323,14 @@ def curate(config: Config | dict, oid: str, env_dir: Path, out_root: Path, log=p
             "material_class": material_class,
             "material": mat,
             "render": {k: getattr(render, k) for k in ("resolution", "spp", "camera_distance", "fov_deg", "threads")}
-                      | {"engine": "CYCLES", "device": "CPU", "blender": __import__("bpy").app.version_string},
+            | {"engine": "CYCLES", "device": "CPU", "blender": __import__("bpy").app.version_string},
             "input_lights": list(spec.input_lights),
             "target_lights": list(spec.target_lights),
-            "lights": {name: {k: rec[k] for k in ("base", "source", "split", "rotation_deg", "licence", "scale")}
-                       | {"file": Layout(".").envmap(name)} for name, rec in lights.items()},
+            "lights": {
+                name: {k: rec[k] for k in ("base", "source", "split", "rotation_deg", "licence", "scale")}
+                | {"file": Layout(".").envmap(name)}
+                for name, rec in lights.items()
+            },
             "views": {"inputs": [v.to_dict() for v in inputs], "targets": [v.to_dict() for v in targets]},
             "gbuffer_channels": list(GBUFFER_CHANNELS),
             "render_seconds": times,

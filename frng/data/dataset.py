@@ -51,7 +51,7 @@ class ObjectData:
     meta: dict
 
     @classmethod
-    def open(cls, root: str | Path) -> "ObjectData":
+    def open(cls, root: str | Path) -> ObjectData:
         root = Path(root)
         path = Path(ObjectFolder(root).meta())
         try:

@@ -61,11 +61,15 @@ def blackbody_rgb(kelvin: float) -> np.ndarray:
     CIE 1931 colour-matching functions (the multi-lobe fit of Wyman, Sloan and Shirley 2013), XYZ -> linear sRGB,
     negatives clipped. 6500 K is near white, 2700 K orange, 10000 K blue."""
     lam = np.arange(380.0, 781.0, 5.0)
-    x = 1.056 * _lobe(lam, 599.8, 37.9, 31.0) + 0.362 * _lobe(lam, 442.0, 16.0, 26.7) - 0.065 * _lobe(lam, 501.1, 20.4, 26.2)
+    x = (
+        1.056 * _lobe(lam, 599.8, 37.9, 31.0)
+        + 0.362 * _lobe(lam, 442.0, 16.0, 26.7)
+        - 0.065 * _lobe(lam, 501.1, 20.4, 26.2)
+    )
     y = 0.821 * _lobe(lam, 568.8, 46.9, 40.5) + 0.286 * _lobe(lam, 530.9, 16.3, 31.1)
     z = 1.217 * _lobe(lam, 437.0, 11.8, 36.0) + 0.681 * _lobe(lam, 459.0, 26.0, 13.8)
     m = lam * 1e-9
-    planck = 1.0 / (m ** 5 * (np.exp(1.4388e-2 / (m * float(kelvin))) - 1.0))
+    planck = 1.0 / (m**5 * (np.exp(1.4388e-2 / (m * float(kelvin))) - 1.0))
     xyz = np.array([(x * planck).sum(), (y * planck).sum(), (z * planck).sum()])
     rgb = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]]) @ xyz
     rgb = np.maximum(rgb, 0.0)
@@ -94,8 +98,7 @@ def studio_map(params: dict, width: int) -> np.ndarray:
         x, y = np.arctan2(d @ r, a), np.arctan2(d @ u, a)
         hw, hh = math.radians(light["width_deg"]) / 2, math.radians(light["height_deg"]) / 2
         soft_x, soft_y = max(pixel, 0.1 * hw), max(pixel, 0.1 * hh)
-        mask = (np.clip((hw - np.abs(x)) / soft_x + 0.5, 0, 1) * np.clip((hh - np.abs(y)) / soft_y + 0.5, 0, 1)
-                * (a > 0))
+        mask = np.clip((hw - np.abs(x)) / soft_x + 0.5, 0, 1) * np.clip((hh - np.abs(y)) / soft_y + 0.5, 0, 1) * (a > 0)
         img = img + mask[..., None] * float(light["strength"]) * blackbody_rgb(light["kelvin"])
     return img.astype(np.float32)
 
@@ -114,8 +117,7 @@ def load_base(spec: catalog.EnvMapSpec, work: Path, threads: int) -> np.ndarray:
 
         sky = spec.sky
         path = work / f"{spec.base}.exr"
-        world.bake_sky(path, sky["model"], sky["sun_elevation_deg"], sky["turbidity"], SKY_BAKE_WIDTH,
-                       threads=threads)
+        world.bake_sky(path, sky["model"], sky["sun_elevation_deg"], sky["turbidity"], SKY_BAKE_WIDTH, threads=threads)
         rgb = bscene.read_passes(path)["rgba"][..., :3]
         return world.ground(np.maximum(rgb, 0.0), GROUND_ALBEDO)
     raise ValueError(f"unknown env-map source {spec.source!r}")
@@ -156,21 +158,29 @@ def prepare(config: Config | dict, out: Path, log=print, guard=None) -> list[dic
             img = envmap.resize(envmap.rotate_z(bases[spec.base], spec.rotation_deg), env.width)
             raw = mean_luminance(img)
             if not np.isfinite(raw) or raw <= 0.0:
-                raise envmap.EnvMapError(f"{spec.origin}: environment map {spec.name} is black or not finite "
-                                         f"(mean luminance {raw})")
+                raise envmap.EnvMapError(
+                    f"{spec.origin}: environment map {spec.name} is black or not finite (mean luminance {raw})"
+                )
             scale = 1.0 if env.normalize is None else float(env.normalize) / raw
             img = img * np.float32(scale)
-            rec = spec.to_dict() | {"scale": scale, "mean_luminance": mean_luminance(img),
-                                    "file": EnvmapFolder(".").envmap(spec.name)}
+            rec = spec.to_dict() | {
+                "scale": scale,
+                "mean_luminance": mean_luminance(img),
+                "file": EnvmapFolder(".").envmap(spec.name),
+            }
             with guard.lock:
                 envmap.write(staged.envmap(spec.name), img)
                 io.write_json(staged.record(spec.name), rec)
             records.append(rec)
-            log(f"[envmaps] {spec.name:<32} {spec.split:<5} rot {spec.rotation_deg:7.2f} deg  "
-                f"scale {scale:9.4f}  {time.perf_counter() - t0:.2f} s")
+            log(
+                f"[envmaps] {spec.name:<32} {spec.split:<5} rot {spec.rotation_deg:7.2f} deg  "
+                f"scale {scale:9.4f}  {time.perf_counter() - t0:.2f} s"
+            )
         with guard.lock:
-            io.write_json(staged.index(), {"width": env.width, "height": env.width // 2,
-                                                   "normalize": env.normalize, "maps": records})
+            io.write_json(
+                staged.index(),
+                {"width": env.width, "height": env.width // 2, "normalize": env.normalize, "maps": records},
+            )
             for rec in records:  # the map first: a record never exists without it
                 name = rec["name"]
                 os.replace(staged.envmap(name), final.envmap(name))

@@ -36,14 +36,15 @@ def _fit(img: np.ndarray, cell: int) -> np.ndarray:
         return np.repeat(np.repeat(img, k, 0), k, 1)
     from skimage.transform import resize
 
-    return resize(img, (cell, cell, img.shape[-1]), order=0 if cell > h else 1, anti_aliasing=cell < h,
-                  preserve_range=True).astype(np.float32)
+    return resize(
+        img, (cell, cell, img.shape[-1]), order=0 if cell > h else 1, anti_aliasing=cell < h, preserve_range=True
+    ).astype(np.float32)
 
 
 def _row(cells: list[np.ndarray], n_cols: int, cell: int) -> np.ndarray:
     row = np.full((cell, n_cols * cell, 3), 0.1, np.float32)  # empty cells: the label colour
     for i, c in enumerate(cells[:n_cols]):
-        row[:, i * cell:(i + 1) * cell] = _fit(c, cell)[..., :3]
+        row[:, i * cell : (i + 1) * cell] = _fit(c, cell)[..., :3]
     return row
 
 
@@ -86,8 +87,12 @@ def contact_sheet(obj: ObjectData, cell: int = 128, max_views: int = 10, max_lig
     sheet = np.concatenate([labels, sheet], 1)
     header = np.full((22, sheet.shape[1], 3), 0.1, np.float32)
     sheet = np.concatenate([header, sheet], 0)
-    return _draw_labels(sheet, [n for n, _ in rows], cell,
-                        f"{obj.id} [{obj.split}] {obj.meta['material_class']} {obj.meta['source']}:{Path(obj.meta['mesh']).name}")
+    return _draw_labels(
+        sheet,
+        [n for n, _ in rows],
+        cell,
+        f"{obj.id} [{obj.split}] {obj.meta['material_class']} {obj.meta['source']}:{Path(obj.meta['mesh']).name}",
+    )
 
 
 def _draw_labels(sheet: np.ndarray, names: list[str], cell: int, title: str) -> np.ndarray:
@@ -101,8 +106,9 @@ def _draw_labels(sheet: np.ndarray, names: list[str], cell: int, title: str) -> 
     return np.asarray(img).astype(np.float32) / 255.0
 
 
-def write_previews(config: Config | dict, objects: list[str], out: Path, cell: int, max_views: int, max_lights: int,
-                   log=print) -> list[Path]:
+def write_previews(
+    config: Config | dict, objects: list[str], out: Path, cell: int, max_views: int, max_lights: int, log=print
+) -> list[Path]:
     L = Layout(typed(config).results)
     paths = []
     for oid in objects:

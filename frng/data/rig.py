@@ -49,21 +49,31 @@ class View:
         }
 
 
-def make_view(name: str, kind: str, azimuth_deg: float, elevation_deg: float, distance: float,
-              fov_deg: float, resolution: int) -> View:
+def make_view(
+    name: str, kind: str, azimuth_deg: float, elevation_deg: float, distance: float, fov_deg: float, resolution: int
+) -> View:
     eye = camera.spherical_to_cartesian(azimuth_deg, elevation_deg, distance)
-    return View(name, kind, float(azimuth_deg % 360.0), float(elevation_deg), camera.look_at(eye),
-                camera.intrinsics_from_fov(fov_deg, resolution, resolution), resolution, resolution)
+    return View(
+        name,
+        kind,
+        float(azimuth_deg % 360.0),
+        float(elevation_deg),
+        camera.look_at(eye),
+        camera.intrinsics_from_fov(fov_deg, resolution, resolution),
+        resolution,
+        resolution,
+    )
 
 
-def input_views(rng: np.random.Generator, n_extra: int, distance: float, fov_deg: float,
-                resolution: int) -> list[View]:
+def input_views(rng: np.random.Generator, n_extra: int, distance: float, fov_deg: float, resolution: int) -> list[View]:
     """The 6-view rig plus ``n_extra`` extra input views (names ``in_00 ..``)."""
     a0 = rng.uniform(0.0, 360.0)
     angles = [(a0 + off, el) for off, el in zip(RIG_AZIMUTH_OFFSETS_DEG, RIG_ELEVATIONS_DEG)]
     for _ in range(n_extra):
         angles.append((rng.uniform(0.0, 360.0), float(rng.choice([0.0, 45.0]))))
-    return [make_view(f"in_{i:02d}", "input", az, el, distance, fov_deg, resolution) for i, (az, el) in enumerate(angles)]
+    return [
+        make_view(f"in_{i:02d}", "input", az, el, distance, fov_deg, resolution) for i, (az, el) in enumerate(angles)
+    ]
 
 
 def target_views(rng: np.random.Generator, count: int, distance: float, fov_deg: float, resolution: int) -> list[View]:

@@ -46,7 +46,7 @@ from torch import nn
 
 from frng import camera
 from frng.config import section
-from frng.gaussians import RAW_CHANNELS, SCALE_OFFSET, GaussianDecodeConfig, Gaussians, decode_raw
+from frng.gaussians import RAW_CHANNELS, GaussianDecodeConfig, Gaussians, decode_raw
 
 
 @dataclass
@@ -64,7 +64,7 @@ class FineGeometryConfig:
             raise ValueError(f"fine.upsample ({self.upsample}) must be >= 1 and divide the patch size ({self.patch})")
 
     @classmethod
-    def from_dict(cls, d: dict) -> "FineGeometryConfig":
+    def from_dict(cls, d: dict) -> FineGeometryConfig:
         """Strict (:func:`frng.config.section`): unknown keys are errors; a module setting, not a config section:
         missing keys take the field defaults."""
         return section(cls, d)
@@ -110,8 +110,12 @@ def bilinear_tokens(tokens: torch.Tensor, pos: torch.Tensor) -> torch.Tensor:
         idx = (ri * w + ci).unsqueeze(-1).expand(-1, -1, D)
         return torch.gather(flat, 1, idx)
 
-    return ((1 - fr) * (1 - fc)) * gather(r0, c0) + ((1 - fr) * fc) * gather(r0, c1) \
-        + (fr * (1 - fc)) * gather(r1, c0) + (fr * fc) * gather(r1, c1)
+    return (
+        ((1 - fr) * (1 - fc)) * gather(r0, c0)
+        + ((1 - fr) * fc) * gather(r0, c1)
+        + (fr * (1 - fc)) * gather(r1, c0)
+        + (fr * fc) * gather(r1, c1)
+    )
 
 
 def fine_gaussian_uv(patch_idx: torch.Tensor, w: int, patch: int, s: int, dtype=torch.float32) -> torch.Tensor:
@@ -126,8 +130,16 @@ def fine_gaussian_uv(patch_idx: torch.Tensor, w: int, patch: int, s: int, dtype=
     cols = (patch_idx % w).to(dtype)
     sub = torch.arange(s, dtype=dtype, device=dev) * q  # (s,) sub-patch offsets in pixels
     g = (torch.arange(p, dtype=dtype, device=dev) + 0.5) / s  # (p,) Gaussian offsets inside a sub-patch
-    y = rows[:, :, None, None, None, None] * p + sub[None, None, :, None, None, None] + g[None, None, None, None, :, None]
-    x = cols[:, :, None, None, None, None] * p + sub[None, None, None, :, None, None] + g[None, None, None, None, None, :]
+    y = (
+        rows[:, :, None, None, None, None] * p
+        + sub[None, None, :, None, None, None]
+        + g[None, None, None, None, :, None]
+    )
+    x = (
+        cols[:, :, None, None, None, None] * p
+        + sub[None, None, None, :, None, None]
+        + g[None, None, None, None, None, :]
+    )
     uv = torch.stack(torch.broadcast_tensors(x, y), dim=-1)  # (V, n, s, s, p, p, 2)
     return uv.reshape(V, n * s * s, p * p, 2)
 
@@ -171,7 +183,7 @@ class FineGeoDetokenizer(nn.Module):
         self.proj = nn.Linear(geo_dim + prior_dim, patch * patch * channels)
 
     @torch.no_grad()
-    def init_from(self, geo_detokenizer: nn.Module) -> "FineGeoDetokenizer":
+    def init_from(self, geo_detokenizer: nn.Module) -> FineGeoDetokenizer:
         """Copy a backbone GeoDetokenizer (:class:`frng.nn.PatchDetokenizer`: ``norm`` + ``proj``) into the geometry
         half; zero the prior half. Then the output equals that detokenizer's on the same geometry token."""
         self.norm_geo.load_state_dict(geo_detokenizer.norm.state_dict())
@@ -222,8 +234,9 @@ class FineGeometry(nn.Module):
         self.cfg = cfg or FineGeometryConfig()
         base = decode_cfg or GaussianDecodeConfig()
         extra = math.log(self.cfg.upsample) if self.cfg.scale_shrink else 0.0
-        self.decode_cfg = GaussianDecodeConfig(base.near, base.far, base.scale_offset + extra, base.scale_max,
-                                               base.opacity_offset)
+        self.decode_cfg = GaussianDecodeConfig(
+            base.near, base.far, base.scale_offset + extra, base.scale_max, base.opacity_offset
+        )
         self.detokenizer = FineGeoDetokenizer(self.cfg.geo_dim, self.cfg.prior_dim, self.cfg.patch)
 
     def positions(self, patch_idx: torch.Tensor, w: int) -> torch.Tensor:
@@ -263,6 +276,13 @@ class FineGeometry(nn.Module):
 
 
 __all__ = [
-    "FineGeoDetokenizer", "FineGeometry", "FineGeometryConfig", "FineGeometryOutput", "bilinear_tokens",
-    "fine_gaussian_uv", "fine_keep_mask", "fine_positions", "sample_pixels",
+    "FineGeoDetokenizer",
+    "FineGeometry",
+    "FineGeometryConfig",
+    "FineGeometryOutput",
+    "bilinear_tokens",
+    "fine_gaussian_uv",
+    "fine_keep_mask",
+    "fine_positions",
+    "sample_pixels",
 ]

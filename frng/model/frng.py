@@ -35,7 +35,6 @@ from torch import nn
 
 from frng import camera, envmap
 from frng.config import Config, section, section_dict, typed
-from frng.training import bf16_ok
 from frng.gaussians import GaussianDecodeConfig, Gaussians
 from frng.model.fine_geometry import FineGeometry, FineGeometryConfig, fine_keep_mask, sample_pixels
 from frng.model.light_independence import LightIndependenceConfig
@@ -51,6 +50,7 @@ from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, sele
 from frng.model.tokenizers import PriorTokenizer, stack_priors
 from frng.render import RasterConfig, rasterize
 from frng.render.shading import GGX_MIN_ALBEDO, NeuralDecoder, ShadingConfig, deferred_shade, ggx_shade, lambert_sh
+from frng.training import bf16_ok
 from frng.variants import BASE_VARIANTS, all_variants, canonical_variant, k_variant, trained_variants, variant
 
 MODEL_KIND = "frng"
@@ -105,7 +105,7 @@ class FRNGConfig:
     decoder_specular: bool  # closed-form prefiltered specular base, features 6:10 (shading.decoder_specular)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "FRNGConfig":
+    def from_dict(cls, d: dict) -> FRNGConfig:
         """Strict (:func:`frng.config.section`): a model file's ``config`` with a key this code does not know, or
         without one it needs, is an error naming it."""
         return section(cls, d)
@@ -121,9 +121,17 @@ class FRNGConfig:
         return SaliencyConfig.from_dict({**self.saliency, "top_k": self.top_k})
 
     def materialformer_config(self) -> MaterialFormerConfig:
-        return MaterialFormerConfig(geo_dim=self.geo_dim, app_dim=self.geo_dim, prior_dim=self.prior_dim,
-                                    hidden=self.hidden, depth=self.depth, heads=self.heads, patch=self.patch,
-                                    feature_dim=self.feature_dim, head=self.head)
+        return MaterialFormerConfig(
+            geo_dim=self.geo_dim,
+            app_dim=self.geo_dim,
+            prior_dim=self.prior_dim,
+            hidden=self.hidden,
+            depth=self.depth,
+            heads=self.heads,
+            patch=self.patch,
+            feature_dim=self.feature_dim,
+            head=self.head,
+        )
 
 
 @dataclass
@@ -223,14 +231,20 @@ class PixelHead(nn.Module):
 
     forward(g (N, C_out), pixel (N, C_pix)) -> (N, C_out)."""
 
-    def __init__(self, out_channels: int, pixel_channels: int, hidden: int, normal_index: int | None = None,
-                 head: str = "neural"):
+    def __init__(
+        self, out_channels: int, pixel_channels: int, hidden: int, normal_index: int | None = None, head: str = "neural"
+    ):
         super().__init__()
         if head not in ("neural", "pbr"):
             raise ValueError(f"PixelHead: head must be 'neural' or 'pbr', got {head!r}")
         self.pixel_channels, self.normal_index, self.head = pixel_channels, normal_index, head
-        self.mlp = nn.Sequential(nn.Linear(out_channels + pixel_channels, hidden), nn.GELU(),
-                                 nn.Linear(hidden, hidden), nn.GELU(), nn.Linear(hidden, out_channels))
+        self.mlp = nn.Sequential(
+            nn.Linear(out_channels + pixel_channels, hidden),
+            nn.GELU(),
+            nn.Linear(hidden, hidden),
+            nn.GELU(),
+            nn.Linear(hidden, out_channels),
+        )
         nn.init.zeros_(self.mlp[-1].weight)
         nn.init.zeros_(self.mlp[-1].bias)
 
@@ -240,7 +254,7 @@ class PixelHead(nn.Module):
         if self.normal_index is None:
             return out
         i = self.normal_index
-        normal = pixel[:, i:i + 3].to(out.dtype)
+        normal = pixel[:, i : i + 3].to(out.dtype)
         ratio = pixel[:, PIXEL_RATIO].float() ** 2.2  # shading-normalised colour (gamma) -> pi c / E(n), an albedo
         if self.head == "neural":  # decoder features: 0:3 normal, 3:6 diffuse BRDF c / E(n)
             return torch.cat([out[:, :3] + normal, out[:, 3:6] + (ratio / math.pi).to(out.dtype), out[:, 6:]], -1)
@@ -265,23 +279,50 @@ class FRNG(nn.Module):
         self.shading_cfg = shading or ShadingConfig.from_dict({})
         self.tokenizer = PriorTokenizer(cfg.prior_dim, cfg.patch) if cfg.uses_priors else None
         decode = GaussianDecodeConfig(near=cfg.near, far=cfg.far)
-        self.fine = FineGeometry(FineGeometryConfig(upsample=cfg.upsample, patch=cfg.patch, geo_dim=cfg.geo_dim,
-                                                    prior_dim=cfg.prior_dim), decode) if cfg.fine else None
+        self.fine = (
+            FineGeometry(
+                FineGeometryConfig(
+                    upsample=cfg.upsample, patch=cfg.patch, geo_dim=cfg.geo_dim, prior_dim=cfg.prior_dim
+                ),
+                decode,
+            )
+            if cfg.fine
+            else None
+        )
         self.material = MaterialHead(cfg.materialformer_config())
         out_ch = self.material.cfg.out_channels
         lambertian_start = cfg.decoder_cosine or cfg.head == "pbr"  # the cosine decoder's base, or GGX's diffuse lobe
-        self.pixel_head = PixelHead(out_ch, pixel_channels(cfg.uses_priors), cfg.pixel_head,
-                                    pixel_normal_index(cfg.uses_priors) if lambertian_start else None, cfg.head) \
-            if cfg.pixel_head > 0 else None
+        self.pixel_head = (
+            PixelHead(
+                out_ch,
+                pixel_channels(cfg.uses_priors),
+                cfg.pixel_head,
+                pixel_normal_index(cfg.uses_priors) if lambertian_start else None,
+                cfg.head,
+            )
+            if cfg.pixel_head > 0
+            else None
+        )
         if lambertian_start and self.pixel_head is not None:  # start at the Lambertian relighting of the input views
             nn.init.zeros_(self.material.detokenizer.proj.weight)
             nn.init.zeros_(self.material.detokenizer.proj.bias)
         if cfg.decoder_specular and cfg.feature_dim < 10:
-            raise ValueError(f"the specular base (shading.decoder_specular) reads feature channels 6:10; "
-                             f"frng.feature_dim is {cfg.feature_dim}")
-        self.decoder = NeuralDecoder(cfg.feature_dim, cfg.decoder_width, cfg.decoder_depth, cfg.dir_freqs,
-                                     cosine=cfg.decoder_cosine, attenuation=cfg.decoder_attenuation) \
-            if cfg.head == "neural" else None
+            raise ValueError(
+                f"the specular base (shading.decoder_specular) reads feature channels 6:10; "
+                f"frng.feature_dim is {cfg.feature_dim}"
+            )
+        self.decoder = (
+            NeuralDecoder(
+                cfg.feature_dim,
+                cfg.decoder_width,
+                cfg.decoder_depth,
+                cfg.dir_freqs,
+                cosine=cfg.decoder_cosine,
+                attenuation=cfg.decoder_attenuation,
+            )
+            if cfg.head == "neural"
+            else None
+        )
         if self.decoder is not None:  # start dim: softplus(-3) ~ 0.05 reflectance x cos, not ~0.7 (over-bright renders)
             # weights keep PyTorch's init: x0.1 froze the output. With the cosine decoder the MLP only adds to the
             # Lambertian base: start it near zero (softplus(-6) ~ 0.0025)
@@ -292,8 +333,13 @@ class FRNG(nn.Module):
     # -- construction / files ------------------------------------------------------------------------------
 
     @classmethod
-    def from_backbone(cls, cfg: FRNGConfig, backbone: nn.Module, raster: RasterConfig | None = None,
-                      shading: ShadingConfig | None = None) -> "FRNG":
+    def from_backbone(
+        cls,
+        cfg: FRNGConfig,
+        backbone: nn.Module,
+        raster: RasterConfig | None = None,
+        shading: ShadingConfig | None = None,
+    ) -> FRNG:
         """A fresh model whose FineGeoDetokenizer starts as the frozen backbone's GeoDetokenizer (weights copied,
         nothing shared: the backbone gets no gradient)."""
         model = cls(cfg, raster, shading)
@@ -305,13 +351,18 @@ class FRNG(nn.Module):
         """``model.pt``: {"kind": "frng", "config", "raster", "shading", "state_dict", **extra} (atomic write)."""
         from frng.training import save_torch
 
-        state = {"kind": MODEL_KIND, "config": self.cfg.to_dict(), "raster": asdict(self.raster_cfg),
-                 "shading": asdict(self.shading_cfg), "state_dict": self.state_dict()}
+        state = {
+            "kind": MODEL_KIND,
+            "config": self.cfg.to_dict(),
+            "raster": asdict(self.raster_cfg),
+            "shading": asdict(self.shading_cfg),
+            "state_dict": self.state_dict(),
+        }
         state.update(extra or {})
         save_torch(state, path)
 
     @classmethod
-    def load(cls, path: str | Path, device: torch.device | str = "cpu") -> "FRNG":
+    def load(cls, path: str | Path, device: torch.device | str = "cpu") -> FRNG:
         """Load ``results/models/{variant}/model.pt`` in eval mode on ``device``."""
         from frng.io import load_torch
 
@@ -319,8 +370,11 @@ class FRNG(nn.Module):
         if not isinstance(state, dict) or state.get("kind") != MODEL_KIND:
             kind = state.get("kind") if isinstance(state, dict) else type(state).__name__
             raise ValueError(f"{path}: not an F-RNG model file (kind {kind!r})")
-        model = cls(FRNGConfig.from_dict(state["config"]), RasterConfig.from_dict(state.get("raster", {})),
-                    ShadingConfig.from_dict(state.get("shading", {})))
+        model = cls(
+            FRNGConfig.from_dict(state["config"]),
+            RasterConfig.from_dict(state.get("raster", {})),
+            ShadingConfig.from_dict(state.get("shading", {})),
+        )
         model.load_state_dict(state["state_dict"])
         model.meta = {k: v for k, v in state.items() if k not in ("state_dict",)}
         return model.to(device).eval()
@@ -328,11 +382,18 @@ class FRNG(nn.Module):
     def decoder_meta(self) -> dict:
         """Decoder architecture for the asset format (:mod:`frng.asset`): width, depth, input_encoding."""
         enc = "raw" if self.cfg.dir_freqs == 0 else f"raw+sincos{self.cfg.dir_freqs}"
-        return {"width": self.cfg.decoder_width, "depth": self.cfg.decoder_depth,
-                "input_encoding": f"[feature({self.cfg.feature_dim}), {enc}(w_o world), {enc}(w_i world)]",
-                "dir_freqs": self.cfg.dir_freqs, "feature_dim": self.cfg.feature_dim, "output": self._decoder_output(),
-                "cosine": self.cfg.decoder_cosine, "attenuation": self.cfg.decoder_attenuation, "head": self.cfg.head,
-                "specular": self.cfg.decoder_specular}
+        return {
+            "width": self.cfg.decoder_width,
+            "depth": self.cfg.decoder_depth,
+            "input_encoding": f"[feature({self.cfg.feature_dim}), {enc}(w_o world), {enc}(w_i world)]",
+            "dir_freqs": self.cfg.dir_freqs,
+            "feature_dim": self.cfg.feature_dim,
+            "output": self._decoder_output(),
+            "cosine": self.cfg.decoder_cosine,
+            "attenuation": self.cfg.decoder_attenuation,
+            "head": self.cfg.head,
+            "specular": self.cfg.decoder_specular,
+        }
 
     def _decoder_output(self) -> str:
         if not self.cfg.decoder_cosine:
@@ -342,8 +403,10 @@ class FRNG(nn.Module):
             base += " x (1 - sigmoid(MLP[3:6]))"
         out = f"({base} + softplus(MLP[0:3])) x max(0, n.w_i), n = normalise(feature[0:3])"
         if self.cfg.decoder_specular:
-            out += (" + softplus(feature[6:9] - 4) x prefiltered env (frng.render.prefilter, vMF kappas "
-                    "400/100/25/6) at reflect(w_o, n), level 3 sigmoid(feature[9])")
+            out += (
+                " + softplus(feature[6:9] - 4) x prefiltered env (frng.render.prefilter, vMF kappas "
+                "400/100/25/6) at reflect(w_o, n), level 3 sigmoid(feature[9])"
+            )
         return out
 
     @property
@@ -370,9 +433,15 @@ class FRNG(nn.Module):
         d = {k: v[:V].to(self.device).float() for k, v in priors.as_dict().items()}
         return self.tokenizer(stack_priors(d))
 
-    def reconstruct(self, backbone_views: dict, light: int | list[int], priors=None, images: torch.Tensor = None,
-                    keep_tokens: bool = False, input_env: torch.Tensor | None = None
-                    ) -> Reconstruction | list[Reconstruction]:
+    def reconstruct(
+        self,
+        backbone_views: dict,
+        light: int | list[int],
+        priors=None,
+        images: torch.Tensor = None,
+        keep_tokens: bool = False,
+        input_env: torch.Tensor | None = None,
+    ) -> Reconstruction | list[Reconstruction]:
         """Build the relightable asset of one object.
 
         backbone_views: ``BackboneCache.views(V)`` (t_geo (V, h, w, D), raw_prior (V, H, W, 9) optional,
@@ -413,7 +482,9 @@ class FRNG(nn.Module):
         g_coarse, g_fine = split_sequence(g_mat.float(), V, h, w)
         if self.pixel_head is not None:  # per-Gaussian pixel inputs, same order as the kept Gaussians below
             if input_env is None:
-                raise ValueError("F-RNG with a pixel head needs the input light's env map: reconstruct(..., input_env=)")
+                raise ValueError(
+                    "F-RNG with a pixel head needs the input light's env map: reconstruct(..., input_env=)"
+                )
             normals = geometry_normals(bv["means"], keep_c, c2w)
             pix_map = pixel_map(images, priors if self.cfg.uses_priors else None, V, normals, input_env)
             pix = [pix_map.reshape(-1, pix_map.shape[-1])[keep_c]]
@@ -441,8 +512,17 @@ class FRNG(nn.Module):
                 pbr = decode_pbr(raw)
                 feat = None
                 raw = torch.cat([pbr["albedo"], pbr["roughness"], pbr["metallic"], pbr["normal"]], -1)
-            out.append(Reconstruction(gauss.with_features(raw), feat, pbr, patch_idx, sal, int(keep_c.sum()),
-                                      t_mat[b : b + 1] if keep_tokens else None))
+            out.append(
+                Reconstruction(
+                    gauss.with_features(raw),
+                    feat,
+                    pbr,
+                    patch_idx,
+                    sal,
+                    int(keep_c.sum()),
+                    t_mat[b : b + 1] if keep_tokens else None,
+                )
+            )
         return out[0] if isinstance(light, int) else out
 
     def _back_completion(self, bv: dict, keep_c: torch.Tensor) -> dict | None:
@@ -454,8 +534,12 @@ class FRNG(nn.Module):
         src = bv["back_src"].long()
         sel = keep_c[src]
         rows = (torch.cumsum(keep_c.long(), 0) - 1)[src[sel]]
-        g = Gaussians(bv["back_means"][sel].float(), bv["back_quats"][sel].float(), bv["back_scales"][sel].float(),
-                      bv["back_opacities"][sel].float())
+        g = Gaussians(
+            bv["back_means"][sel].float(),
+            bv["back_quats"][sel].float(),
+            bv["back_scales"][sel].float(),
+            bv["back_opacities"][sel].float(),
+        )
         return {"gaussians": g, "rows": rows, "dirs": bv["back_dirs"][sel].float()}
 
     def _back_features(self, raw: torch.Tensor, back: dict) -> torch.Tensor:
@@ -468,7 +552,9 @@ class FRNG(nn.Module):
         ns = slice(5, 8) if self.cfg.head == "pbr" else (slice(0, 3) if self.cfg.decoder_cosine else None)
         if ns is None:
             return rb
-        return torch.cat([rb[:, :ns.start], mirror_normals(rb[:, ns], back["dirs"].to(rb.dtype)), rb[:, ns.stop:]], -1)
+        return torch.cat(
+            [rb[:, : ns.start], mirror_normals(rb[:, ns], back["dirs"].to(rb.dtype)), rb[:, ns.stop :]], -1
+        )
 
     # -- rendering --------------------------------------------------------------------------------------------
 
@@ -478,8 +564,9 @@ class FRNG(nn.Module):
         sampler = envmap.importance_sampler(env.detach().to(self.device))
         return envmap.sample(sampler, spp, self.shading_cfg.sampling, seed)
 
-    def rasterize(self, rec: Reconstruction, c2w: torch.Tensor, intr: torch.Tensor, height: int,
-                  width: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    def rasterize(
+        self, rec: Reconstruction, c2w: torch.Tensor, intr: torch.Tensor, height: int, width: int
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """The light-independent half of :meth:`render`: rasterize the per-Gaussian payload (neural features or
         Cook-Torrance parameters) at cameras c2w (Vt, 4, 4), intr (Vt, 4).
 
@@ -491,12 +578,19 @@ class FRNG(nn.Module):
         radius = rc.max_radius_px if rc.max_radius_px is not None else self.cfg.max_radius_px
         kw = {**rc.kwargs(), "max_radius_px": radius}
         c2w, intr = c2w.to(dev).float(), intr.to(dev).float()
-        maps, alpha, _ = rasterize(g.means, g.quats, g.scales, g.opacities, g.features.float(), c2w, intr,
-                                   height, width, **kw)
+        maps, alpha, _ = rasterize(
+            g.means, g.quats, g.scales, g.opacities, g.features.float(), c2w, intr, height, width, **kw
+        )
         return maps, alpha, c2w, intr
 
-    def shade(self, raster: tuple, env: torch.Tensor, spp: int | None = None,
-              generator: torch.Generator | None = None, spp_grad: int | None = None) -> torch.Tensor:
+    def shade(
+        self,
+        raster: tuple,
+        env: torch.Tensor,
+        spp: int | None = None,
+        generator: torch.Generator | None = None,
+        spp_grad: int | None = None,
+    ) -> torch.Tensor:
         """The per-light half of :meth:`render`: deferred shading of :meth:`rasterize`'s output under an env map
         (He, We, 3). Returns RGBA (Vt, H, W, 4), linear, premultiplied over black."""
         maps, alpha, c2w, intr = raster
@@ -508,24 +602,57 @@ class FRNG(nn.Module):
         with torch.autocast(maps.device.type, dtype=torch.bfloat16, enabled=amp):
             if self.cfg.head == "neural" and self.decoder.cosine and sc.diffuse == "sh":
                 # Lambertian base in closed form (SH irradiance), Monte Carlo only for the MLP's residual
-                rgb = deferred_shade(self.decoder.residual, [maps], alpha, c2w, intr, samples, spp_grad,
-                                     sc.alpha_eps, chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
-                rgb = rgb.float() + lambert_sh(maps, alpha, envmap.sh_project(env.detach().float().cpu()).float(),
-                                               sc.alpha_eps)
+                rgb = deferred_shade(
+                    self.decoder.residual,
+                    [maps],
+                    alpha,
+                    c2w,
+                    intr,
+                    samples,
+                    spp_grad,
+                    sc.alpha_eps,
+                    chunk=sc.chunk_pixels,
+                    chunk_pairs=sc.chunk_pairs,
+                )
+                rgb = rgb.float() + lambert_sh(
+                    maps, alpha, envmap.sh_project(env.detach().float().cpu()).float(), sc.alpha_eps
+                )
                 if self.cfg.decoder_specular:  # closed-form highlights: the prefiltered map at the mirror direction
                     rgb = rgb + self.specular(maps, alpha, c2w, intr, env)
                 if self.decoder.attenuation:  # the attenuated share is a Monte-Carlo estimate: it can overshoot
                     rgb = rgb.clamp_min(0.0)
             elif self.cfg.head == "neural":
-                rgb = deferred_shade(self.decoder, [maps], alpha, c2w, intr, samples, spp_grad, sc.alpha_eps,
-                                     chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
+                rgb = deferred_shade(
+                    self.decoder,
+                    [maps],
+                    alpha,
+                    c2w,
+                    intr,
+                    samples,
+                    spp_grad,
+                    sc.alpha_eps,
+                    chunk=sc.chunk_pixels,
+                    chunk_pairs=sc.chunk_pairs,
+                )
             else:  # GGX (diffuse lobe in closed form with diffuse 'sh'; normals facing the camera, bounded params)
-                rgb = ggx_shade(maps, alpha, c2w, intr, env, samples, spp_grad, sc.alpha_eps, sc.diffuse,
-                                chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
+                rgb = ggx_shade(
+                    maps,
+                    alpha,
+                    c2w,
+                    intr,
+                    env,
+                    samples,
+                    spp_grad,
+                    sc.alpha_eps,
+                    sc.diffuse,
+                    chunk=sc.chunk_pixels,
+                    chunk_pairs=sc.chunk_pairs,
+                )
         return torch.cat([rgb.float(), alpha], -1)
 
-    def specular(self, maps: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor,
-                 env: torch.Tensor) -> torch.Tensor:
+    def specular(
+        self, maps: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, env: torch.Tensor
+    ) -> torch.Tensor:
         """The specular base (Vt, H, W, 3) of rasterized features under an env map (He, We, 3)
         (:func:`frng.render.prefilter.specular_base`)."""
         from frng.render.prefilter import prefilter, specular_base
@@ -534,18 +661,31 @@ class FRNG(nn.Module):
         _, d = camera.pixel_rays(c2w.float(), intr.float(), H, W)
         return specular_base(maps, alpha, prefilter(env.to(maps.device)), d, self.shading_cfg.alpha_eps)
 
-    def set_inference_shading(self, shading: ShadingConfig) -> "FRNG":
+    def set_inference_shading(self, shading: ShadingConfig) -> FRNG:
         """Take the inference-time settings (``chunk_pixels``, ``chunk_pairs``, ``bf16_infer``, ``sampling``) from
         the pipeline config's shading section instead of the ones saved with the model; architecture and training
         sample counts stay the model's. Returns self."""
-        self.shading_cfg = replace(self.shading_cfg, chunk_pixels=shading.chunk_pixels,
-                                   chunk_pairs=shading.chunk_pairs, bf16_infer=shading.bf16_infer,
-                                   sampling=shading.sampling)
+        self.shading_cfg = replace(
+            self.shading_cfg,
+            chunk_pixels=shading.chunk_pixels,
+            chunk_pairs=shading.chunk_pairs,
+            bf16_infer=shading.bf16_infer,
+            sampling=shading.sampling,
+        )
         return self
 
-    def render(self, rec: Reconstruction, env: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, height: int,
-               width: int, spp: int | None = None, generator: torch.Generator | None = None,
-               spp_grad: int | None = None) -> torch.Tensor:
+    def render(
+        self,
+        rec: Reconstruction,
+        env: torch.Tensor,
+        c2w: torch.Tensor,
+        intr: torch.Tensor,
+        height: int,
+        width: int,
+        spp: int | None = None,
+        generator: torch.Generator | None = None,
+        spp_grad: int | None = None,
+    ) -> torch.Tensor:
         """Render a Reconstruction under an env map (He, We, 3) at cameras c2w (Vt, 4, 4), intr (Vt, 4).
 
         Deferred shading: rasterize the per-Gaussian payload (:meth:`rasterize`), then per foreground pixel a
@@ -559,8 +699,10 @@ class FRNG(nn.Module):
 
 # -- variants from the pipeline config --------------------------------------------------------------------------
 
-def variant_config(config: Config | dict, name: str, backbone_cfg: dict | None = None
-                   ) -> tuple[FRNGConfig, LightIndependenceConfig]:
+
+def variant_config(
+    config: Config | dict, name: str, backbone_cfg: dict | None = None
+) -> tuple[FRNGConfig, LightIndependenceConfig]:
     """(architecture, L_ind weights) of a variant from a validated pipeline config.
 
     ``backbone_cfg``: the frozen backbone's architecture dict (its ``model.pt`` ``config``); the token width and
@@ -572,14 +714,28 @@ def variant_config(config: Config | dict, name: str, backbone_cfg: dict | None =
     f, sh = c.frng, c.shading
     bb = BackboneConfig.from_dict(backbone_cfg) if backbone_cfg else c.backbone
     cfg = FRNGConfig(
-        patch=c.model.patch_size, geo_dim=bb.width, prior_dim=f.prior_dim, fine=True,
-        top_k=f.top_k_percent / 100.0, upsample=f.upsample, hidden=f.hidden, depth=f.depth,
-        heads=f.heads, feature_dim=f.feature_dim, head="neural",
-        decoder_width=sh.decoder_width, decoder_depth=sh.decoder_depth,
-        dir_freqs=sh.dir_freqs, near=bb.near, far=bb.far,
-        max_radius_px=bb.max_radius_px, saliency=section_dict(f.saliency, "frng.saliency"),
-        pixel_head=f.pixel_head, decoder_cosine=sh.decoder_cosine,
-        decoder_attenuation=sh.decoder_cosine and sh.decoder_attenuation, back_completion=f.back_completion,
+        patch=c.model.patch_size,
+        geo_dim=bb.width,
+        prior_dim=f.prior_dim,
+        fine=True,
+        top_k=f.top_k_percent / 100.0,
+        upsample=f.upsample,
+        hidden=f.hidden,
+        depth=f.depth,
+        heads=f.heads,
+        feature_dim=f.feature_dim,
+        head="neural",
+        decoder_width=sh.decoder_width,
+        decoder_depth=sh.decoder_depth,
+        dir_freqs=sh.dir_freqs,
+        near=bb.near,
+        far=bb.far,
+        max_radius_px=bb.max_radius_px,
+        saliency=section_dict(f.saliency, "frng.saliency"),
+        pixel_head=f.pixel_head,
+        decoder_cosine=sh.decoder_cosine,
+        decoder_attenuation=sh.decoder_cosine and sh.decoder_attenuation,
+        back_completion=f.back_completion,
         decoder_specular=sh.decoder_cosine and sh.decoder_specular,
     )
     loss = c.train.loss
@@ -589,6 +745,13 @@ def variant_config(config: Config | dict, name: str, backbone_cfg: dict | None =
 
 
 __all__ = [
-    "BASE_VARIANTS", "FRNG", "FRNGConfig", "Reconstruction", "all_variants", "canonical_variant", "k_variant",
-    "trained_variants", "variant_config",
+    "BASE_VARIANTS",
+    "FRNG",
+    "FRNGConfig",
+    "Reconstruction",
+    "all_variants",
+    "canonical_variant",
+    "k_variant",
+    "trained_variants",
+    "variant_config",
 ]

@@ -46,7 +46,7 @@ class LightIndependenceConfig:
             raise ValueError("light-independence temperature must be > 0")
 
     @classmethod
-    def from_dict(cls, d: dict) -> "LightIndependenceConfig":
+    def from_dict(cls, d: dict) -> LightIndependenceConfig:
         """Strict (:func:`frng.config.section`): unknown keys are errors; a module setting, not a config section:
         missing keys take the field defaults."""
         return section(cls, d)

@@ -66,7 +66,7 @@ class MaterialFormerConfig:
         return self.feature_dim if self.head == "neural" else PBR_CHANNELS
 
     @classmethod
-    def from_dict(cls, d: dict) -> "MaterialFormerConfig":
+    def from_dict(cls, d: dict) -> MaterialFormerConfig:
         """Strict (:func:`frng.config.section`): unknown keys are errors; a module setting, not a config section:
         missing keys take the field defaults."""
         return section(cls, d)
@@ -195,6 +195,14 @@ def coarse_features_to_pixels(features: torch.Tensor, patch: int) -> torch.Tenso
 
 
 __all__ = [
-    "MIN_ROUGHNESS", "PBR_CHANNELS", "MatDetokenizer", "MaterialFormer", "MaterialFormerConfig", "MaterialHead",
-    "coarse_features_to_pixels", "decode_pbr", "split_sequence", "to_sequence",
+    "MIN_ROUGHNESS",
+    "PBR_CHANNELS",
+    "MatDetokenizer",
+    "MaterialFormer",
+    "MaterialFormerConfig",
+    "MaterialHead",
+    "coarse_features_to_pixels",
+    "decode_pbr",
+    "split_sequence",
+    "to_sequence",
 ]

@@ -72,7 +72,7 @@ class SaliencyConfig:
         return float(self.box_size // 2 + 1) if self.margin is None else float(self.margin)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "SaliencyConfig":
+    def from_dict(cls, d: dict) -> SaliencyConfig:
         """Strict (:func:`frng.config.section`): unknown keys are errors, missing ones take the schema's defaults
         (``{}``: the defaults)."""
         return section(cls, d, "frng.saliency")
@@ -147,7 +147,9 @@ def foreground_mask(images: torch.Tensor, mask: torch.Tensor | None = None) -> t
 
 
 @torch.no_grad()
-def saliency_map(images: torch.Tensor, mask: torch.Tensor | None = None, cfg: SaliencyConfig | None = None) -> torch.Tensor:
+def saliency_map(
+    images: torch.Tensor, mask: torch.Tensor | None = None, cfg: SaliencyConfig | None = None
+) -> torch.Tensor:
     """S_final for every view.
 
     images: (V, H, W, 3 or 4) linear (premultiplied) RGB or RGBA; mask: (V, H, W) foreground (bool or [0, 1]) or
@@ -201,6 +203,15 @@ def salient_patches(
 
 
 __all__ = [
-    "SaliencyConfig", "boundary_weight", "foreground_mask", "grayscale", "local_std", "num_selected",
-    "patch_rows_cols", "patch_scores", "saliency_map", "salient_patches", "select_top_k",
+    "SaliencyConfig",
+    "boundary_weight",
+    "foreground_mask",
+    "grayscale",
+    "local_std",
+    "num_selected",
+    "patch_rows_cols",
+    "patch_scores",
+    "saliency_map",
+    "salient_patches",
+    "select_top_k",
 ]

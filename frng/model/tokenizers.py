@@ -12,7 +12,7 @@ index ``(y * p + x) * C + c`` of the token's ``p*p*C`` vector.
 
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import torch
 from torch import nn

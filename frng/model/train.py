@@ -48,7 +48,7 @@ from frng import distributed, envmap, io
 from frng import training as tr
 from frng.config import Config, config_section, typed
 from frng.layout import Layout
-from frng.model.frng import FRNG, FRNGConfig, canonical_variant, variant_config
+from frng.model.frng import FRNG, canonical_variant, variant_config
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
 
 CACHE_KEYS = ("t_geo", "raw_prior", "means", "quats", "scales", "opacities", "keep", "c2w", "intr")  # + light{j}.t_app
@@ -96,7 +96,7 @@ class TrainConfig:
         object.__setattr__(self, "seeds", tuple(int(c) for c in self.seeds))
 
     @classmethod
-    def from_config(cls, config: Config | dict) -> "TrainConfig":
+    def from_config(cls, config: Config | dict) -> TrainConfig:
         return config_section(config, "train")
 
     def steps_for(self, variant: str) -> int:
@@ -116,8 +116,9 @@ class TrainObject:
     targets: list  # [(light name, env (He, We, 3), c2w (Vt, 4, 4), intr (Vt, 4), rgba (Vt, H, W, 4))]
 
 
-def load_objects(config: Config | dict, ids: list[str], backbone_path: Path, use_priors: bool, V: int
-                 ) -> list[TrainObject]:
+def load_objects(
+    config: Config | dict, ids: list[str], backbone_path: Path, use_priors: bool, V: int
+) -> list[TrainObject]:
     """Read caches + curated images of ``ids``. IDM priors are opened only when ``use_priors``."""
     from frng.data.dataset import open_object
     from frng.priors.cache import load_backbone_cache, load_idm_priors
@@ -165,8 +166,9 @@ L2_SPACES = ("display", "linear")
 L2_PIXELS = ("target", "union")
 
 
-def l2_loss(out: torch.Tensor, tgt: torch.Tensor, background, space: str = "display", pixels: str = "target"
-            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def l2_loss(
+    out: torch.Tensor, tgt: torch.Tensor, background, space: str = "display", pixels: str = "target"
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """L_2 of a render against its target (module docstring, step 4).
 
     out, tgt: (B, H, W, 4) linear premultiplied RGBA; background: 3 floats (``train.background``); space:
@@ -208,8 +210,9 @@ def alpha_loss(out: torch.Tensor, tgt: torch.Tensor) -> torch.Tensor:
 class StepLoss(nn.Module):
     """One training step's loss over a list of objects; a module so DDP can wrap it (its forward is the step)."""
 
-    def __init__(self, model: FRNG, ind: LightIndependenceConfig, tcfg: TrainConfig, perceptual: nn.Module | None,
-                 bf16: bool):
+    def __init__(
+        self, model: FRNG, ind: LightIndependenceConfig, tcfg: TrainConfig, perceptual: nn.Module | None, bf16: bool
+    ):
         super().__init__()
         self.model, self.ind, self.tcfg, self.bf16 = model, ind, tcfg, bf16
         self.perceptual = perceptual  # frozen (no parameters require grad)
@@ -237,8 +240,7 @@ class StepLoss(nn.Module):
             tgt = rgba[vi].to(dev)
             H, W = tgt.shape[1:3]
             gen = torch.Generator().manual_seed(seed)
-            out = m.render(recs[0], env, c2w[vi], K[vi], H, W, spp=sc.spp_train, generator=gen,
-                           spp_grad=sc.spp_grad)
+            out = m.render(recs[0], env, c2w[vi], K[vi], H, W, spp=sc.spp_train, generator=gen, spp_grad=sc.spp_grad)
             l2, rgb_out, rgb_tgt = l2_loss(out, tgt, self.tcfg.background, self.tcfg.l2_space, self.tcfg.l2_pixels)
             loss = self.lambda_1 * l2
             logs["l2"] += float(l2.detach())
@@ -270,7 +272,9 @@ def sample(obj: TrainObject, rng: random.Random, n_views: int) -> tuple[int, int
     return j, ti, vidx
 
 
-def build_model(config: Config | dict, variant: str, backbone_path: Path, device) -> tuple[FRNG, LightIndependenceConfig]:
+def build_model(
+    config: Config | dict, variant: str, backbone_path: Path, device
+) -> tuple[FRNG, LightIndependenceConfig]:
     """A fresh variant model, FineGeoDetokenizer initialised from the frozen backbone's GeoDetokenizer."""
     from frng.priors import load_backbone
 
@@ -281,8 +285,15 @@ def build_model(config: Config | dict, variant: str, backbone_path: Path, device
     return model.to(device), ind
 
 
-def train(config: Config | dict, variant: str, out: Path, backbone_path: Path | None = None, steps: int | None = None,
-          stop_after: int | None = None, objects: list[TrainObject] | None = None) -> Path:
+def train(
+    config: Config | dict,
+    variant: str,
+    out: Path,
+    backbone_path: Path | None = None,
+    steps: int | None = None,
+    stop_after: int | None = None,
+    objects: list[TrainObject] | None = None,
+) -> Path:
     """Train (or resume) one variant; returns ``out/model.pt`` (or the checkpoint when stopped by ``stop_after``,
     which tests use to simulate an interruption)."""
     config = typed(config)
@@ -305,17 +316,28 @@ def train(config: Config | dict, variant: str, out: Path, backbone_path: Path | 
     if tcfg.loss.lambda_per > 0:
         from frng.perceptual import PerceptualLoss
 
-        perceptual = PerceptualLoss("lpips", net=tcfg.perceptual_net, srgb=True,
-                                    autocast_bf16=tcfg.bf16 and device.type == "cpu" and tr.bf16_ok(device)).to(device)
+        perceptual = PerceptualLoss(
+            "lpips",
+            net=tcfg.perceptual_net,
+            srgb=True,
+            autocast_bf16=tcfg.bf16 and device.type == "cpu" and tr.bf16_ok(device),
+        ).to(device)
     step_loss = StepLoss(model, ind, tcfg, perceptual, tcfg.bf16)
     ddp = distributed.wrap(step_loss, info, find_unused_parameters=True)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=tcfg.lr, betas=(0.9, 0.99), weight_decay=tcfg.weight_decay)
     hooks = distributed.fit_hooks(info)
-    fingerprint = tr.fingerprint(model.cfg.to_dict(), tcfg, total, tr.train_seed(config), variant=variant,
-                                 shading=asdict(model.shading_cfg), world=info.world_size,
-                                 backbone_sha256=tr.file_sha256(backbone_path),
-                                 data=hooks.gather(tr.data_digest(objects)))
+    fingerprint = tr.fingerprint(
+        model.cfg.to_dict(),
+        tcfg,
+        total,
+        tr.train_seed(config),
+        variant=variant,
+        shading=asdict(model.shading_cfg),
+        world=info.world_size,
+        backbone_sha256=tr.file_sha256(backbone_path),
+        data=hooks.gather(tr.data_digest(objects)),
+    )
     rng = random.Random(distributed.rank_seed(tr.train_seed(config), info))
     local_batch = max(1, tcfg.batch // info.world_size)
 
@@ -335,12 +357,35 @@ def train(config: Config | dict, variant: str, out: Path, backbone_path: Path | 
         model.save(path, {"variant": variant, "steps": total, "backbone_sha256": fingerprint["backbone_sha256"]})
 
     def summary(run: tr.FitRun) -> dict:
-        return {"variant": variant, "steps": total, "wall_s": round(run.wall_s, 1), "device": str(device),
-                "world_size": info.world_size, "bf16": tcfg.bf16, "objects": len(objects) * info.world_size,
-                "step_s_mean_this_run": round(run.step_s_mean, 3),
-                "parameters": sum(p.numel() for p in model.parameters())}
+        return {
+            "variant": variant,
+            "steps": total,
+            "wall_s": round(run.wall_s, 1),
+            "device": str(device),
+            "world_size": info.world_size,
+            "bf16": tcfg.bf16,
+            "objects": len(objects) * info.world_size,
+            "step_s_mean_this_run": round(run.step_s_mean, 3),
+            "parameters": sum(p.numel() for p in model.parameters()),
+        }
 
-    return tr.fit(step_fn, tcfg, model=model, optimizer=opt, params=params, out=out, total=total,
-                  fingerprint=fingerprint, loss_names=LOSS_NAMES, save_model=save_model, summary=summary,
-                  title=f"F-RNG {variant} training loss", desc=f"train {variant}", postfix=("total", "l2"),
-                  rngs={"sample": rng}, device=device, stop_after=stop_after, hooks=hooks)
+    return tr.fit(
+        step_fn,
+        tcfg,
+        model=model,
+        optimizer=opt,
+        params=params,
+        out=out,
+        total=total,
+        fingerprint=fingerprint,
+        loss_names=LOSS_NAMES,
+        save_model=save_model,
+        summary=summary,
+        title=f"F-RNG {variant} training loss",
+        desc=f"train {variant}",
+        postfix=("total", "l2"),
+        rngs={"sample": rng},
+        device=device,
+        stop_after=stop_after,
+        hooks=hooks,
+    )

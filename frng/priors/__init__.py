@@ -15,8 +15,9 @@ before the stages run).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable, Protocol
+from typing import Protocol
 
 import torch
 from torch import nn
@@ -25,14 +26,14 @@ from frng.config import Config, typed
 from frng.io import CorruptFileError, load_torch
 
 BACKBONES: dict[str, Callable[..., nn.Module]] = {}
-IDMS: dict[str, Callable[..., "IDMPrior"]] = {}
+IDMS: dict[str, Callable[..., IDMPrior]] = {}
 
 
 def register_backbone(name: str, loader: Callable[..., nn.Module]) -> None:
     BACKBONES[name] = loader
 
 
-def register_idm(name: str, factory: Callable[..., "IDMPrior"]) -> None:
+def register_idm(name: str, factory: Callable[..., IDMPrior]) -> None:
     IDMS[name] = factory
 
 
@@ -122,8 +123,9 @@ class DiffusionRendererIDMPrior:
     def priors(self, oid, views, gbuffer=None):
         from frng.priors.diffusion_renderer import read_priors
 
-        return read_priors(self.folder / oid, views.c2w, views.alpha, self.near, self.far,
-                           self.normal_space, self.depth_invert)
+        return read_priors(
+            self.folder / oid, views.c2w, views.alpha, self.near, self.far, self.normal_space, self.depth_invert
+        )
 
 
 def _learned(config: Config, device="cpu") -> IDMPrior:
@@ -140,8 +142,9 @@ def _diffusion_renderer(config: Config, device="cpu") -> IDMPrior:
     c = config.idm
     if not c.diffusion_renderer_dir:
         raise ValueError("config key 'idm.diffusion_renderer_dir': required for idm.kind = diffusion-renderer")
-    return DiffusionRendererIDMPrior(c.diffusion_renderer_dir, config.backbone.near, config.backbone.far,
-                                     c.normal_space, c.depth_invert)
+    return DiffusionRendererIDMPrior(
+        c.diffusion_renderer_dir, config.backbone.near, config.backbone.far, c.normal_space, c.depth_invert
+    )
 
 
 def build_idm(config: Config | dict, device="cpu", kind: str | None = None) -> IDMPrior:

@@ -76,8 +76,8 @@ from frng.nn import PatchDetokenizer, PatchTokenizer, Transformer, timestep_embe
 from frng.priors.diffusion import NoiseSchedule, from_diffusion_space, to_diffusion_space
 from frng.priors.envenc import EnvTokenizer
 from frng.priors.multiview import CUE_CHANNELS, geometry_cues
-from frng.render.sh import C0, eval_sh
 from frng.render import rasterize
+from frng.render.sh import C0, eval_sh
 
 if TYPE_CHECKING:
     from frng.priors.backbone_train import BackboneTrainConfig
@@ -129,7 +129,7 @@ class BackboneConfig(BackboneArch):
     patch: int
 
     @classmethod
-    def from_dict(cls, d: dict) -> "BackboneConfig":
+    def from_dict(cls, d: dict) -> BackboneConfig:
         """Strict (:func:`frng.config.section`): unknown keys are errors, missing architecture keys take the
         schema's defaults; ``patch`` must be given."""
         return section(cls, d, "backbone")
@@ -179,8 +179,11 @@ class RelitLRMBackbone(nn.Module):
         if cfg.cues:
             F_ = cfg.pixel_features
             self.app_detokenizer = PatchDetokenizer(D, F_, p)
-            self.pixel_head = nn.Sequential(nn.Linear(F_ + 4 + (3 if cfg.light_cue else 0), 2 * F_), nn.GELU(),
-                                            nn.Linear(2 * F_, 3 * cfg.sh_coeffs + 3))
+            self.pixel_head = nn.Sequential(
+                nn.Linear(F_ + 4 + (3 if cfg.light_cue else 0), 2 * F_),
+                nn.GELU(),
+                nn.Linear(2 * F_, 3 * cfg.sh_coeffs + 3),
+            )
             nn.init.zeros_(self.pixel_head[-1].weight)
             nn.init.zeros_(self.pixel_head[-1].bias)
         else:
@@ -210,11 +213,15 @@ class RelitLRMBackbone(nn.Module):
         c = self.cfg
         feats, raws, normals = [], [], []
         for b in range(images.shape[0]):
-            cues = geometry_cues(images[b].float(), alpha[b].float(), c2w[b].float(), intr[b].float(), c.near, c.far,
-                                 bins=c.hull_bins)
+            cues = geometry_cues(
+                images[b].float(), alpha[b].float(), c2w[b].float(), intr[b].float(), c.near, c.far, bins=c.hull_bins
+            )
             feats.append(cues["features"])
-            raws.append(isotropic_raw(cues["distance"], alpha[b].float(), intr[b, :, 0].float(), c.footprint_px,
-                                      self.decode_config()))
+            raws.append(
+                isotropic_raw(
+                    cues["distance"], alpha[b].float(), intr[b, :, 0].float(), c.footprint_px, self.decode_config()
+                )
+            )
             rot = c2w[b, :, None, None, :3, :3].float()  # camera -> world
             normals.append((rot @ cues["normal"][..., None])[..., 0] * cues["hit"])
         return torch.stack(feats), torch.stack(raws), torch.stack(normals)
@@ -300,8 +307,9 @@ class RelitLRMBackbone(nn.Module):
             out.append((e.clamp_min(1e-8) / mean).log().clamp(-4.0, 2.0).float())
         return torch.stack(out)
 
-    def sh_coefficients(self, t_app: torch.Tensor, pixels: torch.Tensor | None = None,
-                        env: torch.Tensor | None = None) -> torch.Tensor:
+    def sh_coefficients(
+        self, t_app: torch.Tensor, pixels: torch.Tensor | None = None, env: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """T_app (B, V, h, w, D) -> SH coefficients per Gaussian (B, V*H*W, K, 3), K = (degree + 1)^2.
 
         pixels (B, V, H, W, 4 or 7) from :meth:`pixel_inputs`: required with ``cues`` (the per-pixel colour path);
@@ -325,7 +333,7 @@ class RelitLRMBackbone(nn.Module):
             head_in.append(log_r.to(feat.dtype))
         out = self.pixel_head(torch.cat(head_in, -1)).float()
         sh = out[..., : 3 * K].reshape(B, -1, K, 3)
-        gain = out[..., 3 * K:].reshape(B, -1, 3)
+        gain = out[..., 3 * K :].reshape(B, -1, 3)
         if log_r is not None:
             gain = gain + log_r.reshape(B, -1, 3) / 2.2
         base = (pixels[..., :3].float().reshape(B, -1, 3) * gain.exp() - 0.5) / C0
@@ -362,8 +370,16 @@ class RelitLRMBackbone(nn.Module):
         dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-8)
         colours = (eval_sh(self.cfg.sh_degree, sh.float()[None], dirs) + 0.5).clamp_min(0.0)  # (Vr, N, 3)
         return rasterize(
-            gauss.means, gauss.quats, gauss.scales, gauss.opacities, colours, c2w.float(), intr.float(),
-            height, width, max_radius_px=self.cfg.max_radius_px,
+            gauss.means,
+            gauss.quats,
+            gauss.scales,
+            gauss.opacities,
+            colours,
+            c2w.float(),
+            intr.float(),
+            height,
+            width,
+            max_radius_px=self.cfg.max_radius_px,
         )
 
     @torch.no_grad()
@@ -372,8 +388,17 @@ class RelitLRMBackbone(nn.Module):
         (:func:`frng.priors.multiview.back_gaussians`; alpha (V, H, W, 1), c2w (V, 4, 4), intr (V, 4))."""
         from frng.priors.multiview import back_gaussians
 
-        return back_gaussians(gauss.means, gauss.quats, gauss.scales, gauss.opacities, alpha.float(), c2w.float(),
-                              intr.float(), self.cfg.far, self.cfg.hull_bins)
+        return back_gaussians(
+            gauss.means,
+            gauss.quats,
+            gauss.scales,
+            gauss.opacities,
+            alpha.float(),
+            c2w.float(),
+            intr.float(),
+            self.cfg.far,
+            self.cfg.hull_bins,
+        )
 
     # -- denoising (DDIM with x0 prediction, classifier-free guidance) -------------------------------------
 
@@ -424,14 +449,21 @@ class RelitLRMBackbone(nn.Module):
         return sh[0].float(), t_app
 
     @torch.no_grad()
-    def reconstruct(self, images: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor,
-                    intr: torch.Tensor) -> "BackboneGeometry":
+    def reconstruct(
+        self, images: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor
+    ) -> BackboneGeometry:
         """Geometry of one object from V input views: images (V, H, W, 3) linear premultiplied, alpha
         (V, H, W, 1), c2w (V, 4, 4), intr (V, 4). See :class:`BackboneGeometry` for what comes back."""
         t_geo, raw, prior, normals = self.encode_geometry(images[None], alpha[None], c2w[None], intr[None])
         gauss = self.gaussians(raw[0], c2w, intr)
-        return BackboneGeometry(t_geo, raw[0], gauss, alpha.reshape(-1) >= 0.5, prior[0],
-                                self.pixel_inputs(images, alpha, normals[0] if self.cfg.light_cue else None))
+        return BackboneGeometry(
+            t_geo,
+            raw[0],
+            gauss,
+            alpha.reshape(-1) >= 0.5,
+            prior[0],
+            self.pixel_inputs(images, alpha, normals[0] if self.cfg.light_cue else None),
+        )
 
     @torch.no_grad()
     def relight(

@@ -36,9 +36,9 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 
-from frng.priors import backbone as bb
 from frng import training as tr
 from frng.config import Config, section, typed
+from frng.priors import backbone as bb
 from frng.priors.dataset import PriorObject, Views
 from frng.priors.diffusion import to_diffusion_space
 
@@ -63,7 +63,7 @@ class BackboneTrainConfig:
     checkpoint_every: int
 
     @classmethod
-    def from_dict(cls, d: dict) -> "BackboneTrainConfig":
+    def from_dict(cls, d: dict) -> BackboneTrainConfig:
         """Strict (:func:`frng.config.section`): unknown keys are errors, missing ones take the schema's defaults."""
         return section(cls, d, "backbone.train")
 
@@ -99,8 +99,15 @@ def sample_views(obj: PriorObject, rng: random.Random) -> tuple[str, list[int]]:
     return light, sorted(rng.sample(range(n), k))
 
 
-def step_loss(model: bb.RelitLRMBackbone, obj: PriorObject, tcfg: BackboneTrainConfig, step: int,
-              rng: random.Random, device: torch.device, perceptual=None) -> dict[str, torch.Tensor]:
+def step_loss(
+    model: bb.RelitLRMBackbone,
+    obj: PriorObject,
+    tcfg: BackboneTrainConfig,
+    step: int,
+    rng: random.Random,
+    device: torch.device,
+    perceptual=None,
+) -> dict[str, torch.Tensor]:
     """Losses of one training sample (see the module docstring)."""
     cfg = model.cfg
     light_a, idx = sample_views(obj, rng)
@@ -158,8 +165,13 @@ def step_loss(model: bb.RelitLRMBackbone, obj: PriorObject, tcfg: BackboneTrainC
 LOSS_NAMES = ["total", "l2", "alpha", "depth", "perceptual"]
 
 
-def train(config: Config | dict, objects: list[PriorObject], out: Path, steps: int | None = None,
-          stop_after: int | None = None) -> Path:
+def train(
+    config: Config | dict,
+    objects: list[PriorObject],
+    out: Path,
+    steps: int | None = None,
+    stop_after: int | None = None,
+) -> Path:
     """Train (or resume, :func:`frng.training.fit`) the backbone on ``objects`` (training split only); returns the
     model path.
 
@@ -174,15 +186,25 @@ def train(config: Config | dict, objects: list[PriorObject], out: Path, steps: i
     tr.seed_everything(tr.train_seed(config))
     model = bb.RelitLRMBackbone(cfg).to(device)
     opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, betas=(0.9, 0.95), weight_decay=tcfg.weight_decay)
-    fingerprint = tr.fingerprint(cfg.to_dict(), tcfg, total, tr.train_seed(config),
-                                 objects=sorted(o.id for o in objects), data=tr.data_digest(objects))
+    fingerprint = tr.fingerprint(
+        cfg.to_dict(),
+        tcfg,
+        total,
+        tr.train_seed(config),
+        objects=sorted(o.id for o in objects),
+        data=tr.data_digest(objects),
+    )
     rng = random.Random(tr.train_seed(config))
     perceptual = None
     if tcfg.lambda_per > 0 and tcfg.perceptual_after < total:
         from frng.perceptual import PerceptualLoss
 
-        perceptual = PerceptualLoss("lpips", net=tcfg.perceptual_net, srgb=False,
-                                    autocast_bf16=tcfg.bf16 and device.type == "cpu" and tr.bf16_ok(device)).to(device)
+        perceptual = PerceptualLoss(
+            "lpips",
+            net=tcfg.perceptual_net,
+            srgb=False,
+            autocast_bf16=tcfg.bf16 and device.type == "cpu" and tr.bf16_ok(device),
+        ).to(device)
 
     def step_fn(step: int) -> dict[str, float]:
         acc: dict[str, float] = {}
@@ -195,10 +217,26 @@ def train(config: Config | dict, objects: list[PriorObject], out: Path, steps: i
         return acc
 
     def save_model(path: Path) -> None:
-        tr.save_torch({"kind": config.backbone.kind, "config": cfg.to_dict(),
-                       "state_dict": model.state_dict(), "steps": total}, path)
+        tr.save_torch(
+            {"kind": config.backbone.kind, "config": cfg.to_dict(), "state_dict": model.state_dict(), "steps": total},
+            path,
+        )
 
-    return tr.fit(step_fn, tcfg, model=model, optimizer=opt, out=out, total=total, fingerprint=fingerprint,
-                  loss_names=LOSS_NAMES, save_model=save_model, title="backbone training loss", desc="backbone", postfix=("total", "l2"),
-                  summary=lambda run: tr.run_summary(run, device, objects, tcfg.bf16, model), rngs={"sample": rng},
-                  device=device, stop_after=stop_after)
+    return tr.fit(
+        step_fn,
+        tcfg,
+        model=model,
+        optimizer=opt,
+        out=out,
+        total=total,
+        fingerprint=fingerprint,
+        loss_names=LOSS_NAMES,
+        save_model=save_model,
+        title="backbone training loss",
+        desc="backbone",
+        postfix=("total", "l2"),
+        summary=lambda run: tr.run_summary(run, device, objects, tcfg.bf16, model),
+        rngs={"sample": rng},
+        device=device,
+        stop_after=stop_after,
+    )

@@ -54,11 +54,11 @@ from pathlib import Path
 import torch
 
 from frng import envmap, io
+from frng import training as tr
 from frng.config import Config, typed
 from frng.data import catalog
 from frng.layout import Layout
 from frng.priors import build_idm, load_backbone
-from frng import training as tr
 from frng.priors.intrinsics import IntrinsicPriors
 from frng.variants import SWEEP_VIEWS, view_counts  # noqa: F401
 
@@ -89,8 +89,10 @@ def _load(path: Path) -> tuple[dict[str, torch.Tensor], dict[str, str]]:
         with safe_open(str(path), framework="pt") as f:
             return {k: f.get_tensor(k) for k in f.keys()}, dict(f.metadata() or {})
     except Exception as e:  # noqa: BLE001 -- SafetensorError (incomplete metadata, ...) names no file
-        raise io.CorruptFileError(f"{path}: cannot read cache: truncated or corrupt ({type(e).__name__}: {e}); "
-                                  f"delete it and rerun the rule that makes it") from None
+        raise io.CorruptFileError(
+            f"{path}: cannot read cache: truncated or corrupt ({type(e).__name__}: {e}); "
+            f"delete it and rerun the rule that makes it"
+        ) from None
 
 
 def extra_training_lights(config: Config | dict, oid: str, exclude: str, count: int) -> list[str]:
@@ -103,6 +105,7 @@ def extra_training_lights(config: Config | dict, oid: str, exclude: str, count: 
 
 
 # -- backbone cache ------------------------------------------------------------------------------------
+
 
 def make_backbone_cache(config: Config | dict, oid: str, model_path: Path, out: Path, device="cpu") -> Path:
     from frng.priors.dataset import load_object
@@ -125,25 +128,46 @@ def make_backbone_cache(config: Config | dict, oid: str, model_path: Path, out: 
         rgb, a, c2w, intr = (x.to(device) for x in (v.rgb, v.alpha, v.c2w, v.intr))
         t_geo, raw, gauss, keep, raw_prior, pixels = model.reconstruct(rgb, a, c2w, intr)
         p = f"v{V}."
-        tensors.update({p + "t_geo": t_geo[0].float(), p + "raw": raw.float(), p + "raw_prior": raw_prior.float(),
-                        p + "means": gauss.means,
-                        p + "quats": gauss.quats, p + "scales": gauss.scales, p + "opacities": gauss.opacities,
-                        p + "keep": keep.to(torch.uint8), p + "c2w": v.c2w, p + "intr": v.intr})
+        tensors.update(
+            {
+                p + "t_geo": t_geo[0].float(),
+                p + "raw": raw.float(),
+                p + "raw_prior": raw_prior.float(),
+                p + "means": gauss.means,
+                p + "quats": gauss.quats,
+                p + "scales": gauss.scales,
+                p + "opacities": gauss.opacities,
+                p + "keep": keep.to(torch.uint8),
+                p + "c2w": v.c2w,
+                p + "intr": v.intr,
+            }
+        )
         tensors.update({p + "back_" + k: t for k, t in model.back_gaussians(gauss, a, c2w, intr).items()})
         nd = model.cfg.den_views
         for j, light in enumerate(lights):
             g = torch.Generator(device=device).manual_seed(catalog.derive_seed(config.seed, "cache", oid, light))
-            sh, t_app = model.denoise(t_geo, gauss, keep, envs[light].to(device)[None], c2w[:nd], intr[:nd], H, W,
-                                      generator=g, pixels=pixels)
+            sh, t_app = model.denoise(
+                t_geo, gauss, keep, envs[light].to(device)[None], c2w[:nd], intr[:nd], H, W, generator=g, pixels=pixels
+            )
             tensors[f"{p}light{j}.t_app"] = t_app[0].float()
             tensors[f"{p}light{j}.sh"] = sh.float()
     tensors = {k: t.detach().cpu() for k, t in tensors.items()}
     c = model.cfg
-    meta = {"version": BACKBONE_CACHE_VERSION, "backbone_sha256": sha, "object": oid, "input_light": light_in,
-            "lights": json.dumps(lights), "view_counts": json.dumps(vcounts),
-            "view_names": json.dumps({str(k): n for k, n in names.items()}), "sh_degree": str(c.sh_degree),
-            "patch": str(c.patch), "width": str(c.width), "near": str(c.near), "far": str(c.far),
-            "resolution": str(H)}
+    meta = {
+        "version": BACKBONE_CACHE_VERSION,
+        "backbone_sha256": sha,
+        "object": oid,
+        "input_light": light_in,
+        "lights": json.dumps(lights),
+        "view_counts": json.dumps(vcounts),
+        "view_names": json.dumps({str(k): n for k, n in names.items()}),
+        "sh_degree": str(c.sh_degree),
+        "patch": str(c.patch),
+        "width": str(c.width),
+        "near": str(c.near),
+        "far": str(c.far),
+        "resolution": str(H),
+    }
     _save(tensors, meta, out)
     return out
 
@@ -159,7 +183,7 @@ class BackboneCache:
     def views(self, V: int) -> dict[str, torch.Tensor]:
         """All tensors of the V-view entry with the ``v{V}.`` prefix stripped."""
         p = f"v{V}."
-        out = {k[len(p):]: t for k, t in self.tensors.items() if k.startswith(p)}
+        out = {k[len(p) :]: t for k, t in self.tensors.items() if k.startswith(p)}
         if not out:
             raise KeyError(f"cache of {self.meta['object']} has no {V}-view entry (has {self.meta['view_counts']})")
         return out
@@ -172,8 +196,10 @@ def load_backbone_cache(path: str | Path, model_path: str | Path) -> BackboneCac
         raise StaleCacheError(f"{path}: cache version {meta.get('version')!r}, expected {BACKBONE_CACHE_VERSION}")
     sha = tr.file_sha256(model_path)
     if meta.get("backbone_sha256") != sha:
-        raise StaleCacheError(f"{path}: made with backbone {meta.get('backbone_sha256', '?')[:12]}, but {model_path} "
-                              f"is {sha[:12]}; re-run `frng backbone-cache`")
+        raise StaleCacheError(
+            f"{path}: made with backbone {meta.get('backbone_sha256', '?')[:12]}, but {model_path} "
+            f"is {sha[:12]}; re-run `frng backbone-cache`"
+        )
     decoded = dict(meta)
     for k in ("lights", "view_counts", "view_names"):
         decoded[k] = json.loads(meta[k])
@@ -181,6 +207,7 @@ def load_backbone_cache(path: str | Path, model_path: str | Path) -> BackboneCac
 
 
 # -- IDM priors ------------------------------------------------------------------------------------------
+
 
 def make_idm_priors(config: Config | dict, oid: str, out: Path, device="cpu", kind: str | None = None) -> Path:
     from frng.priors.dataset import load_object
@@ -191,8 +218,14 @@ def make_idm_priors(config: Config | dict, oid: str, out: Path, device="cpu", ki
     views = obj.inputs[light]
     pri = idm.priors(oid, views, obj.gbuffer)
     sha = tr.file_sha256(idm.model_path) if idm.kind == "learned" else ""
-    meta = {"version": IDM_CACHE_VERSION, "idm_kind": idm.kind, "idm_sha256": sha, "object": oid, "light": light,
-            "view_names": json.dumps(views.names)}
+    meta = {
+        "version": IDM_CACHE_VERSION,
+        "idm_kind": idm.kind,
+        "idm_sha256": sha,
+        "object": oid,
+        "light": light,
+        "view_names": json.dumps(views.names),
+    }
     _save({k: v.float().cpu() for k, v in pri.as_dict().items()}, meta, out)
     return out
 

@@ -37,7 +37,7 @@ class Views:
     c2w: torch.Tensor
     intr: torch.Tensor
 
-    def select(self, idx) -> "Views":
+    def select(self, idx) -> Views:
         idx = list(idx)
         it = torch.as_tensor(idx, dtype=torch.long)
         return Views([self.names[i] for i in idx], self.rgb[it], self.alpha[it], self.c2w[it], self.intr[it])
@@ -50,11 +50,11 @@ class Views:
 class PriorObject:
     id: str
     split: str
-    inputs: dict[str, Views]                   # input light -> all input views (rig first, then extras)
-    targets: dict[str, Views]                  # target light -> target views
-    gbuffer: IntrinsicPriors | None            # G-buffers of all input views (same order), or None
+    inputs: dict[str, Views]  # input light -> all input views (rig first, then extras)
+    targets: dict[str, Views]  # target light -> target views
+    gbuffer: IntrinsicPriors | None  # G-buffers of all input views (same order), or None
     envs: dict[str, torch.Tensor] = field(default_factory=dict)  # light name -> (He, We, 3)
-    rig_views: int = 6                         # the first rig_views input views are the paper's rig
+    rig_views: int = 6  # the first rig_views input views are the paper's rig
 
     @property
     def input_lights(self) -> list[str]:
@@ -68,19 +68,29 @@ class PriorObject:
 def _views(obj: ObjectData, kind: str, light: str) -> Views:
     t = obj.images(kind, light, None, torch=True)
     c2w, K = obj.cameras(kind, None, torch=True)
-    return Views(names=obj.view_names(kind), rgb=t[..., :3].clamp_min(0.0).contiguous(),
-                 alpha=t[..., 3:4].clamp(0.0, 1.0).contiguous(), c2w=c2w.float(), intr=K.float())
+    return Views(
+        names=obj.view_names(kind),
+        rgb=t[..., :3].clamp_min(0.0).contiguous(),
+        alpha=t[..., 3:4].clamp(0.0, 1.0).contiguous(),
+        c2w=c2w.float(),
+        intr=K.float(),
+    )
 
 
 def read_gbuffer(obj: ObjectData) -> IntrinsicPriors:
     """G-buffers of all input views -> IntrinsicPriors (V, H, W, C); mask = coverage A."""
     g = obj.gbuffer("inputs", None, torch=True)
-    return IntrinsicPriors(normal=g["normal"], depth=g["depth"], albedo=g["albedo"].clamp(0, 1),
-                           roughness=g["roughness"], metallic=g["metallic"], mask=g["alpha"]).masked()
+    return IntrinsicPriors(
+        normal=g["normal"],
+        depth=g["depth"],
+        albedo=g["albedo"].clamp(0, 1),
+        roughness=g["roughness"],
+        metallic=g["metallic"],
+        mask=g["alpha"],
+    ).masked()
 
 
-def load_object(config: Config | dict, oid: str, with_targets: bool = True, with_gbuffer: bool = True
-                ) -> PriorObject:
+def load_object(config: Config | dict, oid: str, with_targets: bool = True, with_gbuffer: bool = True) -> PriorObject:
     results = Path(typed(config).results)
     obj = open_object(results, oid)
     inputs = {l: _views(obj, "inputs", l) for l in obj.input_lights}

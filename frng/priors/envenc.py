@@ -16,7 +16,6 @@ of E <= 1 and the HLG constants open; this module fixes them:
 
 from __future__ import annotations
 
-
 import torch
 import torch.nn.functional as F
 from torch import nn

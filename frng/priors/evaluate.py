@@ -49,7 +49,9 @@ def _score(pred: np.ndarray, gt: np.ndarray) -> dict:
     return {k: m[k] for k in ("psnr", "ssim", "lpips", "scale_r", "scale_g", "scale_b")}
 
 
-def oracle_colour_render(gauss, keep: torch.Tensor, out, max_radius_px: float | None) -> tuple[torch.Tensor, torch.Tensor]:
+def oracle_colour_render(
+    gauss, keep: torch.Tensor, out, max_radius_px: float | None
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Render Gaussians at the views of ``out`` (a :class:`frng.priors.dataset.Views`), each Gaussian coloured with that
     view's ground truth (unpremultiplied linear colour, bilinear) where its mean projects -- an oracle appearance
     that isolates the geometry. gauss: N Gaussians; keep (N,) bool. Returns linear premultiplied RGB (Vo, H, W, 3)
@@ -63,11 +65,12 @@ def oracle_colour_render(gauss, keep: torch.Tensor, out, max_radius_px: float | 
     col = out.rgb / out.alpha.clamp_min(1e-3) * (out.alpha > 1e-3)
     rgbs, alphas = [], []
     for k in range(len(out)):
-        c2w, intr = out.c2w[k:k + 1], out.intr[k:k + 1]
+        c2w, intr = out.c2w[k : k + 1], out.intr[k : k + 1]
         uv, _ = camera.project(g.means, c2w, intr)
-        colours = sample_image(col[k:k + 1], uv)[0]
-        rgb, a, _ = rasterize(g.means, g.quats, g.scales, g.opacities, colours, c2w, intr, H, W,
-                              max_radius_px=max_radius_px)
+        colours = sample_image(col[k : k + 1], uv)[0]
+        rgb, a, _ = rasterize(
+            g.means, g.quats, g.scales, g.opacities, colours, c2w, intr, H, W, max_radius_px=max_radius_px
+        )
         rgbs.append(rgb)
         alphas.append(a)
     return torch.cat(rgbs), torch.cat(alphas)
@@ -92,7 +95,9 @@ def mean_image(train_objects: list[PriorObject]) -> np.ndarray:
     return torch.cat(imgs).mean(0).numpy()
 
 
-def eval_backbone(config: Config | dict, model, test: list[PriorObject], mean_img: np.ndarray, device="cpu") -> list[dict]:
+def eval_backbone(
+    config: Config | dict, model, test: list[PriorObject], mean_img: np.ndarray, device="cpu"
+) -> list[dict]:
     rows = []
     nd = model.cfg.den_views
     for obj in test:
@@ -107,8 +112,12 @@ def eval_backbone(config: Config | dict, model, test: list[PriorObject], mean_im
         rgb, a, c2w, intr = (x.to(device) for x in (rig.rgb, rig.alpha, rig.c2w, rig.intr))
         H, W = rgb.shape[1:3]
         t_geo, _, gauss, keep, _, pixels = model.reconstruct(rgb, a, c2w, intr)
-        gt_gauss, gt_keep = gt_depth_gaussians(rig, obj.gbuffer.select(torch.arange(obj.rig_views)),
-                                               getattr(model.cfg, "footprint_px", 0.7), model.decode_config())
+        gt_gauss, gt_keep = gt_depth_gaussians(
+            rig,
+            obj.gbuffer.select(torch.arange(obj.rig_views)),
+            getattr(model.cfg, "footprint_px", 0.7),
+            model.decode_config(),
+        )
         mr = model.cfg.max_radius_px
         for i, (task, light, out) in enumerate(jobs):
             g = torch.Generator(device=device).manual_seed(typed(config).seed + i)
@@ -116,8 +125,10 @@ def eval_backbone(config: Config | dict, model, test: list[PriorObject], mean_im
             sh, _ = model.denoise(t_geo, gauss, keep, env, c2w[:nd], intr[:nd], H, W, generator=g, pixels=pixels)
             pred, pa, _ = model.render(gauss, sh, out.c2w.to(device), out.intr.to(device), H, W, keep)
             pred = pred.clamp(0, 1) ** 2.2
-            oracle = {"gt-depth+oracle-colour": oracle_colour_render(gt_gauss, gt_keep, out, mr),
-                      "backbone-geometry+oracle-colour": oracle_colour_render(gauss.to("cpu"), keep.cpu(), out, mr)}
+            oracle = {
+                "gt-depth+oracle-colour": oracle_colour_render(gt_gauss, gt_keep, out, mr),
+                "backbone-geometry+oracle-colour": oracle_colour_render(gauss.to("cpu"), keep.cpu(), out, mr),
+            }
             for k, name in enumerate(out.names):
                 gt = _rgba(out.rgb[k], out.alpha[k])
                 base = {"task": task, "object": obj.id, "light": light, "view": name}
@@ -155,10 +166,14 @@ def constant_priors(train_objects: list[PriorObject], views, gt: IntrinsicPriors
     mean = {k: torch.cat(v).mean(0) for k, v in sums.items()}
     V, H, W = gt.mask.shape[:3]
     facing = -views.c2w[:, None, None, :3, 2].expand(V, H, W, 3)
-    return IntrinsicPriors(normal=facing.clone(), depth=mean["depth"].expand(V, H, W, 1).clone(),
-                           albedo=mean["albedo"].expand(V, H, W, 3).clone(),
-                           roughness=mean["roughness"].expand(V, H, W, 1).clone(),
-                           metallic=mean["metallic"].expand(V, H, W, 1).clone(), mask=gt.mask)
+    return IntrinsicPriors(
+        normal=facing.clone(),
+        depth=mean["depth"].expand(V, H, W, 1).clone(),
+        albedo=mean["albedo"].expand(V, H, W, 3).clone(),
+        roughness=mean["roughness"].expand(V, H, W, 1).clone(),
+        metallic=mean["metallic"].expand(V, H, W, 1).clone(),
+        mask=gt.mask,
+    )
 
 
 def eval_idm(config: Config | dict, idm, test: list[PriorObject], train_objects: list[PriorObject]) -> list[dict]:
@@ -167,6 +182,8 @@ def eval_idm(config: Config | dict, idm, test: list[PriorObject], train_objects:
         views = obj.inputs[obj.input_lights[0]]
         pred = idm.priors(obj.id, views, obj.gbuffer)
         rows.append({"object": obj.id, "method": f"idm-{idm.kind}"} | idm_scores(pred, obj.gbuffer))
-        rows.append({"object": obj.id, "method": "constant"} |
-                    idm_scores(constant_priors(train_objects, views, obj.gbuffer), obj.gbuffer))
+        rows.append(
+            {"object": obj.id, "method": "constant"}
+            | idm_scores(constant_priors(train_objects, views, obj.gbuffer), obj.gbuffer)
+        )
     return rows

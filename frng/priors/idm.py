@@ -107,7 +107,7 @@ class IDMConfig(IDMArch):
     far: float
 
     @classmethod
-    def from_dict(cls, d: dict) -> "IDMConfig":
+    def from_dict(cls, d: dict) -> IDMConfig:
         """Strict (:func:`frng.config.section`): unknown keys are errors, missing architecture keys take the
         schema's defaults; ``patch``, ``near`` and ``far`` must be given."""
         return section(cls, d, "idm")
@@ -161,7 +161,7 @@ class RunningNorm(nn.Module):
                     m = max(1.0 / float(self.count), self.momentum)
                     delta = row - self.mean
                     self.mean += m * delta
-                    self.var.copy_((1 - m) * (self.var + m * delta ** 2) if self.count > 1 else 0.0 * self.var)
+                    self.var.copy_((1 - m) * (self.var + m * delta**2) if self.count > 1 else 0.0 * self.var)
         if self.count < 2:  # no spread measured yet (e.g. an untrained model): identity
             return x
         return (x - self.mean) * self.var.clamp_min(self.eps).rsqrt()
@@ -223,8 +223,9 @@ class LearnedIDM(nn.Module):
                 out["normal"].append(g["normal"])
         return {k: torch.stack(v) for k, v in out.items()}
 
-    def forward(self, images: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor,
-                cues: dict | None = None) -> torch.Tensor:
+    def forward(
+        self, images: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, cues: dict | None = None
+    ) -> torch.Tensor:
         """images (B, V, H, W, 3) linear premultiplied RGB; alpha (B, V, H, W, 1); c2w (B, V, 4, 4);
         intr (B, V, 4); cues: :meth:`cues` of these inputs when already computed (the trainer caches them),
         else computed here (``cues: true``). Returns raw predictions (B, V, H, W, 9), float32: [camera-frame
@@ -278,7 +279,9 @@ class LearnedIDM(nn.Module):
         }
 
     @torch.no_grad()
-    def predict(self, images: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor) -> IntrinsicPriors:
+    def predict(
+        self, images: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor
+    ) -> IntrinsicPriors:
         """One object's views: images (V, H, W, 3), alpha (V, H, W, 1), c2w (V, 4, 4), intr (V, 4)."""
         raw = self(images[None], alpha[None], c2w[None], intr[None])
         out = self.decode(raw, alpha[None], c2w[None])

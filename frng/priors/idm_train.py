@@ -25,9 +25,9 @@ from pathlib import Path
 import torch
 
 from frng import camera
-from frng.priors import idm as idm_mod
 from frng import training as tr
 from frng.config import Config, section, typed
+from frng.priors import idm as idm_mod
 from frng.priors import multiview
 from frng.priors.dataset import PriorObject, Views
 
@@ -49,7 +49,7 @@ class IDMTrainConfig:
     grad_clip: float = 1.0
 
     @classmethod
-    def from_dict(cls, d: dict) -> "IDMTrainConfig":
+    def from_dict(cls, d: dict) -> IDMTrainConfig:
         """Strict (:func:`frng.config.section`): unknown keys are errors, missing ones take the schema's defaults."""
         return section(cls, d, "idm.train")
 
@@ -102,8 +102,9 @@ class CueCache:
             o, d = camera.pixel_rays(views.c2w.float(), views.intr.float(), H, W)
             dist = cues["distance"][0, ..., 0]
             pts = o + d * dist[..., None]
-            agree = multiview.photo_agreement(views.rgb.float(), views.alpha.float(), pts, views.c2w.float(),
-                                              views.intr.float(), dist)
+            agree = multiview.photo_agreement(
+                views.rgb.float(), views.alpha.float(), pts, views.c2w.float(), views.intr.float(), dist
+            )
             cues["features"][0, ..., 4:5] = agree * cues["features"][0, ..., 5:6]  # [dist, normal, agree, hit]
         self.per_light[key] = cues
         return cues
@@ -117,15 +118,23 @@ def param_groups(model: idm_mod.LearnedIDM, tcfg: IDMTrainConfig) -> list[dict]:
     geo = list(model.pixel_head.out_geo.parameters())
     ids = {id(p) for p in head + geo}
     rest = [p for p in model.parameters() if id(p) not in ids]
-    return [{"params": rest, "lr_mult": 1.0}, {"params": head, "lr_mult": tcfg.head_lr},
-            {"params": geo, "lr_mult": tcfg.geo_lr}]
+    return [
+        {"params": rest, "lr_mult": 1.0},
+        {"params": head, "lr_mult": tcfg.head_lr},
+        {"params": geo, "lr_mult": tcfg.geo_lr},
+    ]
 
 
 LOSS_NAMES = ["total", "normal", "depth", "albedo", "roughness", "metallic"]
 
 
-def train(config: Config | dict, objects: list[PriorObject], out: Path, steps: int | None = None,
-          stop_after: int | None = None) -> Path:
+def train(
+    config: Config | dict,
+    objects: list[PriorObject],
+    out: Path,
+    steps: int | None = None,
+    stop_after: int | None = None,
+) -> Path:
     """Train (or resume, :func:`frng.training.fit`) the learned IDM; returns the model path (or the checkpoint
     when stopped early)."""
     tr.check_training_split(objects, "idm-train")
@@ -137,8 +146,14 @@ def train(config: Config | dict, objects: list[PriorObject], out: Path, steps: i
     tr.seed_everything(tr.train_seed(config) + 1)
     model = idm_mod.LearnedIDM(cfg).to(device)
     opt = torch.optim.AdamW(param_groups(model, tcfg), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
-    fingerprint = tr.fingerprint(cfg.to_dict(), tcfg, total, tr.train_seed(config),
-                                 objects=sorted(o.id for o in objects), data=tr.data_digest(objects))
+    fingerprint = tr.fingerprint(
+        cfg.to_dict(),
+        tcfg,
+        total,
+        tr.train_seed(config),
+        objects=sorted(o.id for o in objects),
+        data=tr.data_digest(objects),
+    )
     rng = random.Random(tr.train_seed(config) + 1)
     cue_cache = CueCache()  # data only: a resumed run recomputes the same cues (bit-identical, see the test)
 
@@ -159,10 +174,24 @@ def train(config: Config | dict, objects: list[PriorObject], out: Path, steps: i
         return {k: float(x.detach()) for k, x in losses.items()}
 
     def save_model(path: Path) -> None:
-        tr.save_torch({"kind": "learned", "config": cfg.to_dict(), "state_dict": model.state_dict(),
-                       "steps": total}, path)
+        tr.save_torch(
+            {"kind": "learned", "config": cfg.to_dict(), "state_dict": model.state_dict(), "steps": total}, path
+        )
 
-    return tr.fit(step_fn, tcfg, model=model, optimizer=opt, out=out, total=total, fingerprint=fingerprint,
-                  loss_names=LOSS_NAMES, save_model=save_model, title="IDM training loss", desc="idm",
-                  summary=lambda run: tr.run_summary(run, device, objects, tcfg.bf16, model), rngs={"sample": rng},
-                  device=device, stop_after=stop_after)
+    return tr.fit(
+        step_fn,
+        tcfg,
+        model=model,
+        optimizer=opt,
+        out=out,
+        total=total,
+        fingerprint=fingerprint,
+        loss_names=LOSS_NAMES,
+        save_model=save_model,
+        title="IDM training loss",
+        desc="idm",
+        summary=lambda run: tr.run_summary(run, device, objects, tcfg.bf16, model),
+        rngs={"sample": rng},
+        device=device,
+        stop_after=stop_after,
+    )

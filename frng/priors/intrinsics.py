@@ -49,7 +49,7 @@ class IntrinsicPriors:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
     @classmethod
-    def from_dict(cls, d: dict[str, torch.Tensor]) -> "IntrinsicPriors":
+    def from_dict(cls, d: dict[str, torch.Tensor]) -> IntrinsicPriors:
         missing = [k for k in PASS_ORDER if k not in d]
         if missing:
             raise KeyError(f"IDM priors lack pass(es) {missing}")
@@ -59,14 +59,14 @@ class IntrinsicPriors:
         """(V, H, W, sum of channels) in the given pass order."""
         return torch.cat([getattr(self, p) for p in passes], dim=-1)
 
-    def masked(self) -> "IntrinsicPriors":
+    def masked(self) -> IntrinsicPriors:
         """Zero every pass outside the mask (mask > 0.5) -- the documented background convention."""
         fg = (self.mask > 0.5).float()
         d = {k: v * fg if k != "mask" else v for k, v in self.as_dict().items()}
         return IntrinsicPriors(**d)
 
-    def select(self, views) -> "IntrinsicPriors":
+    def select(self, views) -> IntrinsicPriors:
         return IntrinsicPriors(**{k: v[views] for k, v in self.as_dict().items()})
 
-    def to(self, device) -> "IntrinsicPriors":
+    def to(self, device) -> IntrinsicPriors:
         return IntrinsicPriors(**{k: v.to(device) for k, v in self.as_dict().items()})

@@ -45,7 +45,9 @@ def ray_sphere(o: torch.Tensor, d: torch.Tensor, radius: float) -> tuple[torch.T
     return (-b - s).clamp_min(0), (-b + s).clamp_min(0), hit
 
 
-def sample_image(images: torch.Tensor, uv: torch.Tensor, padding: str = "zeros", mode: str = "bilinear") -> torch.Tensor:
+def sample_image(
+    images: torch.Tensor, uv: torch.Tensor, padding: str = "zeros", mode: str = "bilinear"
+) -> torch.Tensor:
     """Reads of per-view images at pixel coordinates (pixel centres at +0.5), bilinear or ``mode="nearest"``.
 
     images (V, H, W, C); uv (V, ..., 2) as (x, y) -> (V, ..., C). ``padding``: "zeros" (0 outside the image) or
@@ -53,8 +55,9 @@ def sample_image(images: torch.Tensor, uv: torch.Tensor, padding: str = "zeros",
     V, H, W, C = images.shape
     lead = uv.shape[1:-1]
     grid = torch.stack([2.0 * uv[..., 0] / W - 1.0, 2.0 * uv[..., 1] / H - 1.0], dim=-1).reshape(V, 1, -1, 2)
-    out = F.grid_sample(images.permute(0, 3, 1, 2), grid.to(images.dtype), mode=mode, padding_mode=padding,
-                        align_corners=False)
+    out = F.grid_sample(
+        images.permute(0, 3, 1, 2), grid.to(images.dtype), mode=mode, padding_mode=padding, align_corners=False
+    )
     return out[:, :, 0].permute(0, 2, 1).reshape(V, *lead, C)
 
 
@@ -66,8 +69,13 @@ def project_rays(o: torch.Tensor, d: torch.Tensor, t: torch.Tensor, c2w: torch.T
     z (V, R, K)."""
     w2c = torch.linalg.inv(c2w)[:, :3]  # (V, 3, 4)
     Kmat = torch.zeros(c2w.shape[0], 3, 3, device=c2w.device, dtype=c2w.dtype)
-    Kmat[:, 0, 0], Kmat[:, 1, 1], Kmat[:, 0, 2], Kmat[:, 1, 2], Kmat[:, 2, 2] = intr[:, 0], intr[:, 1], intr[:, 2], \
-        intr[:, 3], 1.0
+    Kmat[:, 0, 0], Kmat[:, 1, 1], Kmat[:, 0, 2], Kmat[:, 1, 2], Kmat[:, 2, 2] = (
+        intr[:, 0],
+        intr[:, 1],
+        intr[:, 2],
+        intr[:, 3],
+        1.0,
+    )
     P = Kmat @ w2c  # (V, 3, 4)
     A = torch.einsum("vij,rj->vri", P[:, :, :3], o) + P[:, None, :, 3]  # (V, R, 3)
     B = torch.einsum("vij,rj->vri", P[:, :, :3], d)
@@ -86,8 +94,9 @@ def sweep_samples(c2w: torch.Tensor, intr: torch.Tensor, height: int, width: int
     return t, o, d
 
 
-def occupancy(alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, bins: int = 48,
-              radius: float = 1.05) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+def occupancy(
+    alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, bins: int = 48, radius: float = 1.05
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Soft visual hull along every input pixel's ray.
 
     alpha (V, H, W, 1) masks; c2w (V, 4, 4); intr (V, 4). Returns occupancy (V, H, W, K) in [0, 1], the sample
@@ -106,7 +115,9 @@ def occupancy(alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, bins: 
     return occ, t, o, d
 
 
-def hull_distance(occ: torch.Tensor, t: torch.Tensor, far: float, level: float = 0.5) -> tuple[torch.Tensor, torch.Tensor]:
+def hull_distance(
+    occ: torch.Tensor, t: torch.Tensor, far: float, level: float = 0.5
+) -> tuple[torch.Tensor, torch.Tensor]:
     """First crossing of ``level`` along each ray, linearly interpolated between samples.
 
     occ, t (..., K). Returns distance (...) (``far`` where the ray never enters) and hit (...) bool."""
@@ -123,8 +134,15 @@ def hull_distance(occ: torch.Tensor, t: torch.Tensor, far: float, level: float =
     return torch.where(hit, dist, torch.full_like(dist, far)), hit
 
 
-def back_surface(alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, far: float, bins: int = 48,
-                 radius: float = 1.05, tol: float | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+def back_surface(
+    alpha: torch.Tensor,
+    c2w: torch.Tensor,
+    intr: torch.Tensor,
+    far: float,
+    bins: int = 48,
+    radius: float = 1.05,
+    tol: float | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Where the visual hull's far side lies behind each input pixel, and whether any input view sees it.
 
     alpha (V, H, W, 1), c2w (V, 4, 4), intr (V, 4). For every foreground pixel the ray's LAST crossing of the hull
@@ -160,9 +178,18 @@ def back_surface(alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, far
     return exit_, unseen
 
 
-def back_gaussians(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,
-                   alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, far: float, bins: int = 48,
-                   radius: float = 1.05) -> dict[str, torch.Tensor]:
+def back_gaussians(
+    means: torch.Tensor,
+    quats: torch.Tensor,
+    scales: torch.Tensor,
+    opacities: torch.Tensor,
+    alpha: torch.Tensor,
+    c2w: torch.Tensor,
+    intr: torch.Tensor,
+    far: float,
+    bins: int = 48,
+    radius: float = 1.05,
+) -> dict[str, torch.Tensor]:
     """Complete the surfaces no input view sees (few views) with copies of the pixels' Gaussians on the hull's
     far side (:func:`back_surface`).
 
@@ -181,8 +208,14 @@ def back_gaussians(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tenso
     o, d, t_exit = o.reshape(-1, 3)[src], d.reshape(-1, 3)[src], exit_.reshape(-1)[src]
     t_front = (means[src] - o).norm(dim=-1).clamp_min(1e-6)
     grow = (t_exit / t_front).clamp(0.5, 4.0)[:, None]
-    return {"means": o + d * t_exit[:, None], "quats": quats[src], "scales": scales[src] * grow,
-            "opacities": opacities[src], "src": src, "dirs": d}
+    return {
+        "means": o + d * t_exit[:, None],
+        "quats": quats[src],
+        "scales": scales[src] * grow,
+        "opacities": opacities[src],
+        "src": src,
+        "dirs": d,
+    }
 
 
 def mirror_normals(n: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
@@ -214,8 +247,14 @@ def depth_normals(points: torch.Tensor, c2w: torch.Tensor, valid: torch.Tensor) 
     return torch.where(norm > 1e-9, n_cam / norm.clamp_min(1e-9), default)
 
 
-def photo_agreement(rgb: torch.Tensor, alpha: torch.Tensor, points: torch.Tensor, c2w: torch.Tensor,
-                    intr: torch.Tensor, hull_dist_all: torch.Tensor) -> torch.Tensor:
+def photo_agreement(
+    rgb: torch.Tensor,
+    alpha: torch.Tensor,
+    points: torch.Tensor,
+    c2w: torch.Tensor,
+    intr: torch.Tensor,
+    hull_dist_all: torch.Tensor,
+) -> torch.Tensor:
     """How well the OTHER views that see each hull point agree with the pixel's own colour (V, H, W, 1) in [0, 1].
 
     A point is taken as seen by view u when it falls inside u's mask and its distance from u's centre is within a
@@ -238,8 +277,16 @@ def photo_agreement(rgb: torch.Tensor, alpha: torch.Tensor, points: torch.Tensor
 
 
 @torch.no_grad()
-def geometry_cues(rgb: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor,
-                  near: float, far: float, bins: int = 48, radius: float = 1.05) -> dict[str, torch.Tensor]:
+def geometry_cues(
+    rgb: torch.Tensor,
+    alpha: torch.Tensor,
+    c2w: torch.Tensor,
+    intr: torch.Tensor,
+    near: float,
+    far: float,
+    bins: int = 48,
+    radius: float = 1.05,
+) -> dict[str, torch.Tensor]:
     """Per-pixel geometry cues of one object's input views (no gradients; the inputs are data).
 
     rgb (V, H, W, 3) linear premultiplied; alpha (V, H, W, 1); c2w (V, 4, 4); intr (V, 4).
@@ -259,5 +306,18 @@ def geometry_cues(rgb: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, int
     return {"distance": dist[..., None], "normal": normal, "agreement": agree * hitf, "hit": hitf, "features": feats}
 
 
-__all__ = ["CUE_CHANNELS", "back_gaussians", "back_surface", "mirror_normals", "depth_normals", "geometry_cues", "hull_distance", "occupancy", "photo_agreement",
-           "project_rays", "ray_sphere", "sample_image", "sweep_samples"]
+__all__ = [
+    "CUE_CHANNELS",
+    "back_gaussians",
+    "back_surface",
+    "mirror_normals",
+    "depth_normals",
+    "geometry_cues",
+    "hull_distance",
+    "occupancy",
+    "photo_agreement",
+    "project_rays",
+    "ray_sphere",
+    "sample_image",
+    "sweep_samples",
+]

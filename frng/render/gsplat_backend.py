@@ -16,8 +16,22 @@ def available() -> bool:
     return True
 
 
-def rasterize_gsplat(means, quats, scales, opacities, features, c2w, intrinsics, height, width,
-                     near=0.01, far=1e10, eps2d=0.3, tile=16, **_ignored):
+def rasterize_gsplat(
+    means,
+    quats,
+    scales,
+    opacities,
+    features,
+    c2w,
+    intrinsics,
+    height,
+    width,
+    near=0.01,
+    far=1e10,
+    eps2d=0.3,
+    tile=16,
+    **_ignored,
+):
     """Shapes as in :func:`frng.render.rasterize`. ``max_radius_px`` is not applied (gsplat has no screen-space
     clamp; on a GPU large footprints cost little). Differences to the PyTorch backend: gsplat bins by a
     3-sigma-ish radius but does not cut at the 3-sigma ellipse inside a tile, so pixels just outside the
@@ -30,7 +44,20 @@ def rasterize_gsplat(means, quats, scales, opacities, features, c2w, intrinsics,
     Ks[:, 0, 0], Ks[:, 1, 1] = intrinsics[:, 0], intrinsics[:, 1]
     Ks[:, 0, 2], Ks[:, 1, 2], Ks[:, 2, 2] = intrinsics[:, 2], intrinsics[:, 3], 1.0
     colors, alphas, _meta = rasterization(
-        means, quats, scales.clamp(min=0.0), opacities.clamp(0.0, 1.0), features, viewmats, Ks, width, height,
-        near_plane=near, far_plane=far, eps2d=eps2d, tile_size=tile, render_mode="RGB+D", packed=False,
+        means,
+        quats,
+        scales.clamp(min=0.0),
+        opacities.clamp(0.0, 1.0),
+        features,
+        viewmats,
+        Ks,
+        width,
+        height,
+        near_plane=near,
+        far_plane=far,
+        eps2d=eps2d,
+        tile_size=tile,
+        render_mode="RGB+D",
+        packed=False,
     )
     return colors[..., :-1], alphas, colors[..., -1:]

@@ -32,8 +32,9 @@ def prefilter(env: torch.Tensor, kappas: tuple[float, ...] = KAPPAS, height: int
     """env (He, We, 3) -> (L, height, 2 height, 3): the map convolved with normalised vMF lobes of each kappa
     (dense over the texels; L = len(kappas)), sharpest first. No gradient (the light is data)."""
     with torch.no_grad():
-        e = F.adaptive_avg_pool2d(env.detach().float().permute(2, 0, 1)[None].clamp_min(0.0),
-                                  (height, 2 * height))[0].permute(1, 2, 0)  # (h, w, 3)
+        e = F.adaptive_avg_pool2d(env.detach().float().permute(2, 0, 1)[None].clamp_min(0.0), (height, 2 * height))[
+            0
+        ].permute(1, 2, 0)  # (h, w, 3)
         d = envmap.pixel_directions(height, 2 * height, device=e.device, dtype=torch.float32).reshape(-1, 3)
         omega = envmap.pixel_solid_angles(height, 2 * height, device=e.device, dtype=torch.float32).reshape(-1)
         cos = d @ d.T  # (T, T)
@@ -66,8 +67,9 @@ def lookup(pref: torch.Tensor, dirs: torch.Tensor, level: torch.Tensor) -> torch
     return a * (1.0 - t) + b * t
 
 
-def specular_base(maps: torch.Tensor, alpha: torch.Tensor, pref: torch.Tensor, view_dirs: torch.Tensor,
-                  alpha_eps: float = 1e-3) -> torch.Tensor:
+def specular_base(
+    maps: torch.Tensor, alpha: torch.Tensor, pref: torch.Tensor, view_dirs: torch.Tensor, alpha_eps: float = 1e-3
+) -> torch.Tensor:
     """The specular base S (V, H, W, 3), premultiplied by alpha, of the decoder's rasterized features.
 
     maps (V, H, W, C >= 10) alpha-premultiplied features (0:3 normal n, 6:9 specular colour logits, 9 level logit);

@@ -31,9 +31,15 @@ def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
     w, x, y, z = q.unbind(-1)
     return torch.stack(
         [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
         ],
         dim=-1,
     ).reshape(q.shape[:-1] + (3, 3))
@@ -93,9 +99,9 @@ def project_gaussians(
     tx = torch.maximum(torch.minimum(x / zs, lim_x), -lim_x) * zs
     ty = torch.maximum(torch.minimum(y / zs, lim_y), -lim_y) * zs
     zero = torch.zeros_like(zs)
-    J = torch.stack(
-        [fx / zs, zero, -fx * tx / (zs * zs), zero, fy / zs, -fy * ty / (zs * zs)], dim=-1
-    ).reshape(V, -1, 2, 3)
+    J = torch.stack([fx / zs, zero, -fx * tx / (zs * zs), zero, fy / zs, -fy * ty / (zs * zs)], dim=-1).reshape(
+        V, -1, 2, 3
+    )
     cov3 = covariance_3d(quats, scales)  # (N, 3, 3)
     cov_cam = torch.einsum("vij,njk,vlk->vnil", Rw, cov3, Rw)  # (V, N, 3, 3)
     cov2 = J @ cov_cam @ J.transpose(-1, -2)  # (V, N, 2, 2)
@@ -116,8 +122,10 @@ def project_gaussians(
         extent = k[..., None] * torch.sqrt(torch.stack([a, c], dim=-1))
         m = mean2d.detach()
         on_image = (
-            (m[..., 0] + extent[..., 0] > 0) & (m[..., 0] - extent[..., 0] < width)
-            & (m[..., 1] + extent[..., 1] > 0) & (m[..., 1] - extent[..., 1] < height)
+            (m[..., 0] + extent[..., 0] > 0)
+            & (m[..., 0] - extent[..., 0] < width)
+            & (m[..., 1] + extent[..., 1] > 0)
+            & (m[..., 1] - extent[..., 1] < height)
         )
         finite = torch.isfinite(m).all(-1) & torch.isfinite(conic.detach()).all(-1)
         valid = in_depth & on_image & finite & (k > 0)

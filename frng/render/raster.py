@@ -29,12 +29,12 @@ class RasterConfig:
     near: float
 
     @classmethod
-    def from_dict(cls, d: dict) -> "RasterConfig":
+    def from_dict(cls, d: dict) -> RasterConfig:
         """Strict (:func:`frng.config.section`; ``{}``: the schema's defaults; a model file's ``raster``)."""
         return section(cls, d, "raster")
 
     @classmethod
-    def from_config(cls, config: Config | dict) -> "RasterConfig":
+    def from_config(cls, config: Config | dict) -> RasterConfig:
         return config_section(config, "raster")
 
     def kwargs(self) -> dict:
@@ -108,12 +108,34 @@ def rasterize(
     name = resolve_backend(backend, means.device)
     common = dict(near=near, far=far, eps2d=eps2d)
     if name == "reference":
-        return rasterize_reference(means, quats, scales, opacities, features, c2w, intrinsics, height, width,
-                                   max_radius_px=max_radius_px, **common)
+        return rasterize_reference(
+            means,
+            quats,
+            scales,
+            opacities,
+            features,
+            c2w,
+            intrinsics,
+            height,
+            width,
+            max_radius_px=max_radius_px,
+            **common,
+        )
     if name == "gsplat":
-        return gsplat_backend.rasterize_gsplat(means, quats, scales, opacities, features, c2w, intrinsics,
-                                               height, width, **common)
-    proj = project_gaussians(means, quats, scales, c2w, intrinsics, height, width,
-                             max_radius_px=max_radius_px, opacities=opacities, **common)
-    return rasterize_tiles(proj, opacities, features, height, width, tile=tile_size, chunk=chunk,
-                           min_transmittance=min_transmittance, compile=compile)
+        return gsplat_backend.rasterize_gsplat(
+            means, quats, scales, opacities, features, c2w, intrinsics, height, width, **common
+        )
+    proj = project_gaussians(
+        means, quats, scales, c2w, intrinsics, height, width, max_radius_px=max_radius_px, opacities=opacities, **common
+    )
+    return rasterize_tiles(
+        proj,
+        opacities,
+        features,
+        height,
+        width,
+        tile=tile_size,
+        chunk=chunk,
+        min_transmittance=min_transmittance,
+        compile=compile,
+    )

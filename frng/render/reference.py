@@ -15,8 +15,21 @@ from frng import camera
 from frng.render.project import ALPHA_MAX, ALPHA_MIN, SIGMA_CUTOFF, covariance_3d
 
 
-def rasterize_reference(means, quats, scales, opacities, features, c2w, intrinsics, height, width,
-                        near=0.01, far=1e10, eps2d=0.3, max_radius_px=None):
+def rasterize_reference(
+    means,
+    quats,
+    scales,
+    opacities,
+    features,
+    c2w,
+    intrinsics,
+    height,
+    width,
+    near=0.01,
+    far=1e10,
+    eps2d=0.3,
+    max_radius_px=None,
+):
     """Same signature and outputs as :func:`frng.render.rasterize` (``features`` (N, C) or (V, N, C))."""
     V, N = c2w.shape[0], means.shape[0]
     cov3 = covariance_3d(quats, scales)

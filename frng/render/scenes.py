@@ -16,9 +16,17 @@ def paper_rig(views: int = 6, distance: float = 2.6) -> np.ndarray:
     return np.stack([camera.look_at(camera.spherical_to_cartesian(a, e, distance)) for a, e in poses[:views]])
 
 
-def pixel_aligned_scene(size: int, views: int = 6, channels: int = 32, fov_deg: float = 50.0,
-                        distance: float = 2.6, radius: float = 0.8, sigma_px: float = 1.0, seed: int = 0,
-                        dtype=torch.float32):
+def pixel_aligned_scene(
+    size: int,
+    views: int = 6,
+    channels: int = 32,
+    fov_deg: float = 50.0,
+    distance: float = 2.6,
+    radius: float = 0.8,
+    sigma_px: float = 1.0,
+    seed: int = 0,
+    dtype=torch.float32,
+):
     """One Gaussian per input pixel, as an LRM predicts them: on a sphere of ``radius`` where the pixel's ray
     hits it (opacity 0.6-1), else at the ray's closest approach to the origin (opacity 0-0.2); flattened
     (1 : 1 : 0.3) with random orientation, and a 1-sigma size of ``sigma_px`` pixels in their own view
@@ -44,5 +52,4 @@ def pixel_aligned_scene(size: int, views: int = 6, channels: int = 32, fov_deg: 
     u = torch.rand(n, generator=g, dtype=dtype)
     opacities = torch.where(hit, 0.6 + 0.4 * u, 0.2 * u)
     features = torch.randn(n, channels, generator=g, dtype=dtype)
-    return dict(means=means, quats=quats, scales=scales, opacities=opacities, features=features, c2w=c2w,
-                intrinsics=K)
+    return dict(means=means, quats=quats, scales=scales, opacities=opacities, features=features, c2w=c2w, intrinsics=K)

@@ -20,8 +20,8 @@ gradient at 24/64 of the backward cost). Inference uses spp_infer (paper 128).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Sequence
 
 import torch
 from torch import nn
@@ -29,7 +29,6 @@ from torch import nn
 from frng import camera, envmap
 from frng.config import Config, config_section, section
 from frng.envmap import EnvSamples
-
 
 DIFFUSE_MODES = ("sh", "mc")
 
@@ -68,12 +67,12 @@ class ShadingConfig:
             raise ValueError(f"shading.diffuse must be one of {DIFFUSE_MODES}, got {self.diffuse!r}")
 
     @classmethod
-    def from_dict(cls, d: dict) -> "ShadingConfig":
+    def from_dict(cls, d: dict) -> ShadingConfig:
         """Strict (:func:`frng.config.section`; ``{}``: the schema's defaults; a model file's ``shading``)."""
         return section(cls, d, "shading")
 
     @classmethod
-    def from_config(cls, config: Config | dict) -> "ShadingConfig":
+    def from_config(cls, config: Config | dict) -> ShadingConfig:
         return config_section(config, "shading")
 
 
@@ -103,17 +102,27 @@ class NeuralDecoder(nn.Module):
     at a fraction of the cost.
     """
 
-    def __init__(self, feature_dim: int, width: int = 256, depth: int = 4, dir_freqs: int = 0, cosine: bool = False,
-                 attenuation: bool = False):
+    def __init__(
+        self,
+        feature_dim: int,
+        width: int = 256,
+        depth: int = 4,
+        dir_freqs: int = 0,
+        cosine: bool = False,
+        attenuation: bool = False,
+    ):
         super().__init__()
         if depth < 1:
             raise ValueError("decoder depth must be >= 1")
         if attenuation and not cosine:
-            raise ValueError("decoder attenuation scales the cosine decoder's Lambertian base: it needs cosine=True "
-                             "(shading.decoder_cosine)")
+            raise ValueError(
+                "decoder attenuation scales the cosine decoder's Lambertian base: it needs cosine=True "
+                "(shading.decoder_cosine)"
+            )
         if cosine and feature_dim < 6:
-            raise ValueError("a cosine decoder reads the normal and diffuse BRDF from feature channels 0:6; "
-                             "feature_dim must be >= 6")
+            raise ValueError(
+                "a cosine decoder reads the normal and diffuse BRDF from feature channels 0:6; feature_dim must be >= 6"
+            )
         self.dir_freqs, self.cosine, self.attenuation = dir_freqs, cosine, attenuation
         d_enc = 3 * (1 + 2 * dir_freqs)
         self.inp_pixel = nn.Linear(feature_dim + d_enc, width)
@@ -154,8 +163,9 @@ class NeuralDecoder(nn.Module):
         return out
 
 
-def lambert_sh(maps: torch.Tensor, alpha: torch.Tensor, sh_coeffs: torch.Tensor, alpha_eps: float = 1e-3
-               ) -> torch.Tensor:
+def lambert_sh(
+    maps: torch.Tensor, alpha: torch.Tensor, sh_coeffs: torch.Tensor, alpha_eps: float = 1e-3
+) -> torch.Tensor:
     """The cosine decoder's Lambertian base in closed form: d E(n) per pixel, premultiplied by alpha.
 
     maps (V, H, W, C) alpha-premultiplied decoder features (channels 0:3 a normal n, 3:6 a diffuse BRDF d, as
@@ -170,8 +180,9 @@ def lambert_sh(maps: torch.Tensor, alpha: torch.Tensor, sh_coeffs: torch.Tensor,
     return sh_diffuse(f[..., 3:6], f[..., :3], alpha, sh_coeffs, alpha_eps)
 
 
-def sh_diffuse(brdf: torch.Tensor, normal: torch.Tensor, alpha: torch.Tensor, sh_coeffs: torch.Tensor,
-               alpha_eps: float = 1e-3) -> torch.Tensor:
+def sh_diffuse(
+    brdf: torch.Tensor, normal: torch.Tensor, alpha: torch.Tensor, sh_coeffs: torch.Tensor, alpha_eps: float = 1e-3
+) -> torch.Tensor:
     """Closed-form radiance of a w_i-independent BRDF: brdf (V, H, W, 3) (un-premultiplied, clamped >= 0) x
     E(normal) (normal (V, H, W, 3), normalised here) from degree-2 SH coefficients (9, 3), premultiplied by alpha
     (V, H, W, 1); 0 where alpha <= alpha_eps. Returns (V, H, W, 3)."""
@@ -240,8 +251,15 @@ def _estimate(reflectance, per_pixel, wo, samples: EnvSamples, chunk: int, chunk
     return torch.cat(outs) if outs else wo.new_zeros(0, 3)
 
 
-def shade_pixels(reflectance: Callable, per_pixel: Sequence[torch.Tensor], wo: torch.Tensor, samples: EnvSamples,
-                 spp_grad: int | None = None, chunk: int = 4096, chunk_pairs: int | None = None) -> torch.Tensor:
+def shade_pixels(
+    reflectance: Callable,
+    per_pixel: Sequence[torch.Tensor],
+    wo: torch.Tensor,
+    samples: EnvSamples,
+    spp_grad: int | None = None,
+    chunk: int = 4096,
+    chunk_pairs: int | None = None,
+) -> torch.Tensor:
     """Monte-Carlo outgoing radiance (P, 3) of P pixels under one shared light-sample set.
 
     reflectance(*per_pixel_chunk, wo_chunk, wi) -> (p, K, 3) (:class:`NeuralDecoder` with per_pixel =
@@ -264,10 +282,20 @@ def shade_pixels(reflectance: Callable, per_pixel: Sequence[torch.Tensor], wo: t
     return value + (est_g - est_g.detach())
 
 
-def deferred_shade(reflectance: Callable, maps: Sequence[torch.Tensor], alpha: torch.Tensor, c2w: torch.Tensor,
-                   intrinsics: torch.Tensor, samples: EnvSamples | Sequence[EnvSamples], spp_grad: int | None = None,
-                   alpha_eps: float = 1e-3, normalize: bool = True, background: torch.Tensor | None = None,
-                   chunk: int = 4096, chunk_pairs: int | None = None) -> torch.Tensor:
+def deferred_shade(
+    reflectance: Callable,
+    maps: Sequence[torch.Tensor],
+    alpha: torch.Tensor,
+    c2w: torch.Tensor,
+    intrinsics: torch.Tensor,
+    samples: EnvSamples | Sequence[EnvSamples],
+    spp_grad: int | None = None,
+    alpha_eps: float = 1e-3,
+    normalize: bool = True,
+    background: torch.Tensor | None = None,
+    chunk: int = 4096,
+    chunk_pairs: int | None = None,
+) -> torch.Tensor:
     """Shade rasterized per-pixel maps under an environment light.
 
     maps: per-pixel inputs of ``reflectance``, each (V, H, W, D) as returned by :func:`frng.render.rasterize`
@@ -289,8 +317,9 @@ def deferred_shade(reflectance: Callable, maps: Sequence[torch.Tensor], alpha: t
             continue
         av = a[v, ys, xs][:, None]
         inputs = [m[v, ys, xs] / av if normalize else m[v, ys, xs] for m in maps]
-        rgb = shade_pixels(reflectance, inputs, -d[v, ys, xs], samples[v] if per_view else samples, spp_grad, chunk,
-                           chunk_pairs)
+        rgb = shade_pixels(
+            reflectance, inputs, -d[v, ys, xs], samples[v] if per_view else samples, spp_grad, chunk, chunk_pairs
+        )
         if normalize:
             rgb = rgb * av
         vv = torch.full_like(ys, v)
@@ -317,17 +346,34 @@ def face_forward(normal: torch.Tensor, wo: torch.Tensor, min_cos: float = GGX_MI
 def _ggx_pixels(albedo, roughness, metallic, normal, wo, wi, diffuse: bool = True):
     """:func:`ggx_reflectance` on blended (un-premultiplied) maps: parameters clamped to the decode ranges, the
     normal through :func:`face_forward`."""
-    return ggx_reflectance(albedo.clamp(GGX_MIN_ALBEDO, 1), roughness.clamp(GGX_MIN_ROUGHNESS, 1),
-                           metallic.clamp(0, GGX_MAX_METALLIC), face_forward(normal, wo), wo, wi, diffuse)
+    return ggx_reflectance(
+        albedo.clamp(GGX_MIN_ALBEDO, 1),
+        roughness.clamp(GGX_MIN_ROUGHNESS, 1),
+        metallic.clamp(0, GGX_MAX_METALLIC),
+        face_forward(normal, wo),
+        wo,
+        wi,
+        diffuse,
+    )
 
 
 def _ggx_pixels_specular(albedo, roughness, metallic, normal, wo, wi):
     return _ggx_pixels(albedo, roughness, metallic, normal, wo, wi, diffuse=False)
 
 
-def ggx_shade(maps: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intrinsics: torch.Tensor, env: torch.Tensor,
-              samples: EnvSamples | Sequence[EnvSamples], spp_grad: int | None = None, alpha_eps: float = 1e-3,
-              diffuse: str = "sh", chunk: int = 4096, chunk_pairs: int | None = None) -> torch.Tensor:
+def ggx_shade(
+    maps: torch.Tensor,
+    alpha: torch.Tensor,
+    c2w: torch.Tensor,
+    intrinsics: torch.Tensor,
+    env: torch.Tensor,
+    samples: EnvSamples | Sequence[EnvSamples],
+    spp_grad: int | None = None,
+    alpha_eps: float = 1e-3,
+    diffuse: str = "sh",
+    chunk: int = 4096,
+    chunk_pairs: int | None = None,
+) -> torch.Tensor:
     """Cook-Torrance shading of rasterized pbr maps (the no-neural ablation): maps (V, H, W, 8) alpha-premultiplied
     (albedo 0:3, roughness 3, metallic 4, normal 5:8), alpha (V, H, W, 1), cameras c2w (V, 4, 4), intrinsics (V, 4),
     env (He, We, 3), samples as :func:`deferred_shade`. Blended parameters are clamped to the decode ranges
@@ -336,16 +382,40 @@ def ggx_shade(maps: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intrin
     ``'mc'``: both by Monte Carlo. Returns RGB (V, H, W, 3), premultiplied, 0 where alpha <= alpha_eps."""
     split = [maps[..., 0:3], maps[..., 3:4], maps[..., 4:5], maps[..., 5:8]]
     if diffuse != "sh":
-        return deferred_shade(_ggx_pixels, split, alpha, c2w, intrinsics, samples, spp_grad, alpha_eps,
-                              chunk=chunk, chunk_pairs=chunk_pairs)
-    rgb = deferred_shade(_ggx_pixels_specular, split, alpha, c2w, intrinsics, samples, spp_grad, alpha_eps,
-                         chunk=chunk, chunk_pairs=chunk_pairs).float()
+        return deferred_shade(
+            _ggx_pixels,
+            split,
+            alpha,
+            c2w,
+            intrinsics,
+            samples,
+            spp_grad,
+            alpha_eps,
+            chunk=chunk,
+            chunk_pairs=chunk_pairs,
+        )
+    rgb = deferred_shade(
+        _ggx_pixels_specular,
+        split,
+        alpha,
+        c2w,
+        intrinsics,
+        samples,
+        spp_grad,
+        alpha_eps,
+        chunk=chunk,
+        chunk_pairs=chunk_pairs,
+    ).float()
     V, H, W = alpha.shape[:3]
     f = maps.float() / alpha.float().clamp_min(alpha_eps)
     _, d = camera.pixel_rays(c2w.float(), intrinsics.float(), H, W)
     wo = -d.reshape(-1, 3)
     n = face_forward(f[..., 5:8].reshape(-1, 3), wo)
-    brdf = ggx_diffuse_brdf(f[..., 0:3].clamp(GGX_MIN_ALBEDO, 1).reshape(-1, 3),
-                            f[..., 4:5].clamp(0, GGX_MAX_METALLIC).reshape(-1, 1), n, wo).reshape(V, H, W, 3)
+    brdf = ggx_diffuse_brdf(
+        f[..., 0:3].clamp(GGX_MIN_ALBEDO, 1).reshape(-1, 3),
+        f[..., 4:5].clamp(0, GGX_MAX_METALLIC).reshape(-1, 1),
+        n,
+        wo,
+    ).reshape(V, H, W, 3)
     sh = envmap.sh_project(env.detach().float().cpu()).float()
     return rgb + sh_diffuse(brdf, n.reshape(V, H, W, 3), alpha, sh, alpha_eps)

@@ -174,7 +174,11 @@ class _CompositeTiles(torch.autograd.Function):
         d_f = torch.zeros_like(f_inst)
         for active, ids, T_in, T_out, alpha, T_rel in reversed(ctx.saved):
             g, f_ext = _gather(params, f_inst, origin, ids, active)
-            go = g_out_t.index_select(0, active) if g_out_t is not None else torch.zeros_like(f_ext[:, :1].expand(-1, pix.shape[0], -1))
+            go = (
+                g_out_t.index_select(0, active)
+                if g_out_t is not None
+                else torch.zeros_like(f_ext[:, :1].expand(-1, pix.shape[0], -1))
+            )
             gt = gT.index_select(0, active) if gT is not None else torch.zeros_like(T_in)
             d_g, d_fe, d_T_in = bwd(pix, g, f_ext, T_in, T_out, alpha, T_rel, go, gt)
             d_params.index_add_(0, ids.reshape(-1), d_g.reshape(-1, d_g.shape[-1]))
@@ -257,9 +261,7 @@ def rasterize_tiles(
     C = features.shape[-1]
     dev, dtype = features.device, features.dtype
     inst, table, counts, (TY, TX) = bin_pairs(proj, height, width, tile)
-    M = inst.numel()
     n_tiles = V * TY * TX
-    P = tile * tile
 
     # per-instance parameters packed into (M + 1, 6) and features with depth appended into (M + 1, C + 1);
     # row M is the padding sentinel (opacity 0, so alpha = 0)

@@ -20,8 +20,8 @@ from __future__ import annotations
 import math
 import os
 import textwrap
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -37,6 +37,7 @@ Image = np.ndarray
 
 
 # -- images -> display ----------------------------------------------------------------------------
+
 
 def to_display(
     image: Image,
@@ -88,7 +89,7 @@ def fit_to_cell(display: np.ndarray, cell: tuple[int, int], fill: float = BLANK)
         return out
     canvas = np.full((H, W, 3), fill, np.float32)
     y0, x0 = (H - nh) // 2, (W - nw) // 2
-    canvas[y0:y0 + nh, x0:x0 + nw] = out
+    canvas[y0 : y0 + nh, x0 : x0 + nw] = out
     return canvas
 
 
@@ -104,6 +105,7 @@ def default_cell(shapes: Sequence[tuple[int, ...]], min_px: int = 128) -> tuple[
 
 
 # -- the grid engine ------------------------------------------------------------------------------
+
 
 def _wrap(label: str | None, chars: int) -> list[str]:
     if not label:
@@ -144,8 +146,9 @@ def _grid(
     row_lines = [_wrap(l, 18) for l in (row_labels or [])]
     col_lines = [_wrap(l, int(cw // char_w)) for l in (col_labels or [])]
     title_lines = _wrap(title, 200)
-    left = PAD + (int(max((max(len(s) for s in ls) for ls in row_lines if ls), default=0) * char_w) + PAD
-                  if any(row_lines) else 0)
+    left = PAD + (
+        int(max((max(len(s) for s in ls) for ls in row_lines if ls), default=0) * char_w) + PAD if any(row_lines) else 0
+    )
     top = PAD + len(title_lines) * line_h + (PAD if title_lines else 0)
     top_cols = top
     top += max((len(ls) for ls in col_lines), default=0) * line_h + (PAD if any(col_lines) else 0)
@@ -164,7 +167,7 @@ def _grid(
                 continue
             if tile.shape != (ch, cw, 3):
                 raise ValueError(f"tile ({i}, {j}) has shape {tile.shape}, expected {(ch, cw, 3)}")
-            canvas[y0:y0 + ch, x0:x0 + cw] = tile
+            canvas[y0 : y0 + ch, x0 : x0 + cw] = tile
             boxes[-1].append((x0, y0, x0 + cw, y0 + ch))
 
     fig = Figure(figsize=(width / DPI, height / DPI), dpi=DPI, facecolor="white")
@@ -189,8 +192,16 @@ def _grid(
                 if cap is None or cap == "" or i >= nrows or j >= ncols or boxes[i][j] is None:
                     continue
                 x0, y0, x1, y1 = boxes[i][j]
-                text(x0 + 3, y1 - 3, str(cap), ha="left", va="bottom", color="white", size=0.8 * pt,
-                     bbox=dict(boxstyle="square,pad=0.15", facecolor="black", alpha=0.6, linewidth=0))
+                text(
+                    x0 + 3,
+                    y1 - 3,
+                    str(cap),
+                    ha="left",
+                    va="bottom",
+                    color="white",
+                    size=0.8 * pt,
+                    bbox=dict(boxstyle="square,pad=0.15", facecolor="black", alpha=0.6, linewidth=0),
+                )
     layout = {"path": str(out_png), "size": (width, height), "cells": boxes}
     if decorate is not None:
         decorate(fig, layout)
@@ -215,6 +226,7 @@ def _tiles(rows, exposure, background, encoded, cell, min_px):
 
 
 # -- public figures -------------------------------------------------------------------------------
+
 
 def comparison_grid(
     out_png: str | os.PathLike,
@@ -275,16 +287,22 @@ def object_comparison(
         row = [mosaic if i == 0 else None]
         if envmaps is not None:
             row.append(to_display(envmaps[i], exposure))
-        row += [to_display(ground_truth[i], exposure, background), to_display(backbone[i], exposure, background),
-                to_display(frng[i], exposure, background)]
+        row += [
+            to_display(ground_truth[i], exposure, background),
+            to_display(backbone[i], exposure, background),
+            to_display(frng[i], exposure, background),
+        ]
         rows.append(row)
         off = 2 if envmaps is not None else 1
         cap = [None] * (off + 3)
         cap[off + 1] = None if psnr_backbone is None else psnr_backbone[i]
         cap[off + 2] = None if psnr_frng is None else psnr_frng[i]
         caps.append(cap)
-    cols = [f"input views ({len(inputs)})"] + (["light"] if envmaps is not None else []) + \
-           ["ground truth", "backbone", "F-RNG"]
+    cols = (
+        [f"input views ({len(inputs)})"]
+        + (["light"] if envmaps is not None else [])
+        + ["ground truth", "backbone", "F-RNG"]
+    )
     if kwargs.get("cell") is None:  # size cells for the renders; the input mosaic is fitted into one cell
         kwargs["cell"] = default_cell([np.shape(g) for g in ground_truth], kwargs.pop("min_cell_px", 128))
     kwargs = {**kwargs, "encoded": True, "exposure": 1.0}
@@ -305,7 +323,7 @@ def mosaic_views(displays: Sequence[np.ndarray], ncols: int | None = None) -> np
         if d.shape[:2] != (h, w):
             d = fit_to_cell(d, (h, w))
         r, c = divmod(k, ncols)
-        out[r * (h + 1):r * (h + 1) + h, c * (w + 1):c * (w + 1) + w] = d
+        out[r * (h + 1) : r * (h + 1) + h, c * (w + 1) : c * (w + 1) + w] = d
     return out
 
 
@@ -357,8 +375,8 @@ def contact_sheet(
     if flat:
         n = len(images)
         ncols = ncols or max(1, math.ceil(math.sqrt(n)))
-        rows = [images[i:i + ncols] for i in range(0, n, ncols)]
-        caps = None if captions is None else [list(captions)[i:i + ncols] for i in range(0, n, ncols)]
+        rows = [images[i : i + ncols] for i in range(0, n, ncols)]
+        caps = None if captions is None else [list(captions)[i : i + ncols] for i in range(0, n, ncols)]
     else:
         rows, caps = images, captions
     return comparison_grid(out_png, rows, annotations=caps, title=title, **kwargs)
@@ -412,7 +430,7 @@ def saliency_panels(
     colour = np.asarray(rect_colour, np.float32)
     for i, j in zip(*np.nonzero(sel)):
         y0, x0 = i * ps, j * ps
-        box = rects[y0:y0 + ps, x0:x0 + ps]
+        box = rects[y0 : y0 + ps, x0 : x0 + ps]
         box[:t], box[-t:], box[:, :t], box[:, -t:] = colour, colour, colour, colour
     return disp, blend, rects
 
@@ -545,6 +563,15 @@ def loss_curves(
 
 
 __all__ = [
-    "ablation_grid", "comparison_grid", "contact_sheet", "default_cell", "fit_to_cell", "loss_curves",
-    "mosaic_views", "object_comparison", "saliency_overlay", "saliency_panels", "to_display",
+    "ablation_grid",
+    "comparison_grid",
+    "contact_sheet",
+    "default_cell",
+    "fit_to_cell",
+    "loss_curves",
+    "mosaic_views",
+    "object_comparison",
+    "saliency_overlay",
+    "saliency_panels",
+    "to_display",
 ]

@@ -46,10 +46,17 @@ def comparison(results: Path, oid: str, out_png: Path, psnr) -> None:
     fr = [io.read_rgba(L.relight_image("full", oid, l, view)) for l in lights]
     envs = [envmap.read(L.envmap(l)) for l in lights]
     figures.object_comparison(
-        out_png, inputs, gt, bb, fr, lights, envmaps=envs,
+        out_png,
+        inputs,
+        gt,
+        bb,
+        fr,
+        lights,
+        envmaps=envs,
         psnr_backbone=[psnr(oid, BACKBONE, l, view) for l in lights],
         psnr_frng=[psnr(oid, "full", l, view) for l in lights],
-        title=f"{oid} ({meta['material_class']}), view {view}")
+        title=f"{oid} ({meta['material_class']}), view {view}",
+    )
 
 
 def ablation(results: Path, objects: list[str], variants: list[str], out_png: Path, psnr) -> None:
@@ -74,8 +81,14 @@ def saliency(results: Path, oid: str, out_png: Path, patch: int) -> None:
     H, W = image.shape[:2]
     sel = np.zeros((H // patch) * (W // patch), bool)
     sel[idx] = True
-    figures.saliency_overlay(out_png, image, sal, sel.reshape(H // patch, W // patch), patch,
-                             title=f"{oid}: saliency and top-K patches (view 0)")
+    figures.saliency_overlay(
+        out_png,
+        image,
+        sal,
+        sel.reshape(H // patch, W // patch),
+        patch,
+        title=f"{oid}: saliency and top-K patches (view 0)",
+    )
 
 
 def loss_curves(results: Path, out_png: Path) -> None:

@@ -58,16 +58,20 @@ METHOD_LABELS = {"F-RNG": "F-RNG (ours)", BACKBONE: "backbone (RelitLRM-style)"}
 BASE_LABEL = "Lambertian base only"
 GROUND_TRUTH = "ground-truth"  # frng.stages.evaluate.GROUND_TRUTH (the stage imports this module's callers)
 IMAGE_KEYS = ("object", "light", "view")
-DIFF_NOTE = ("Δ = the row minus its reference row over the same images, with a 95% paired bootstrap interval over "
-             "test objects (2000 resamples); 'objects higher PSNR' counts objects whose mean PSNR is above the "
-             "reference's.")
+DIFF_NOTE = (
+    "Δ = the row minus its reference row over the same images, with a 95% paired bootstrap interval over "
+    "test objects (2000 resamples); 'objects higher PSNR' counts objects whose mean PSNR is above the "
+    "reference's."
+)
 
 
 def _caption(title: str, config: Config, df: pd.DataFrame) -> str:
     n_obj = df["object"].nunique()
-    return (f"{title} Tier {config.tier}: {n_obj} test object(s), {len(df)} images; "
-            f"{df['protocol'].iloc[0]} metric protocol (see frng/metrics.py), background "
-            f"{list(config.eval.background)}; mean over test objects, lights and views. {DIFF_NOTE}")
+    return (
+        f"{title} Tier {config.tier}: {n_obj} test object(s), {len(df)} images; "
+        f"{df['protocol'].iloc[0]} metric protocol (see frng/metrics.py), background "
+        f"{list(config.eval.background)}; mean over test objects, lights and views. {DIFF_NOTE}"
+    )
 
 
 def _metrics(df: pd.DataFrame, by: list[str]) -> pd.DataFrame:
@@ -75,6 +79,7 @@ def _metrics(df: pd.DataFrame, by: list[str]) -> pd.DataFrame:
 
 
 # -- runs, seeds -------------------------------------------------------------------------------------------
+
 
 def base_run(run: str) -> str:
     """The run a training-seed run repeats (``full@s1`` -> ``full``; others unchanged)."""
@@ -136,8 +141,11 @@ def seed_columns(df: pd.DataFrame, run: str, ref_run: str | None, select=lambda 
     if not parts:
         return {"seeds": np.nan, "seed_spread_psnr": np.nan, "seed_spread_dpsnr": np.nan}
     means = [d["psnr"].mean() for d in parts.values()]
-    out = {"seeds": len(parts), "seed_spread_psnr": float(np.ptp(means)) if len(parts) > 1 else np.nan,
-           "seed_spread_dpsnr": np.nan}
+    out = {
+        "seeds": len(parts),
+        "seed_spread_psnr": float(np.ptp(means)) if len(parts) > 1 else np.nan,
+        "seed_spread_dpsnr": np.nan,
+    }
     if ref_run is not None and len(parts) > 1:
         refs = {r: select(d) for r, d in seed_runs(df, ref_run).items()}
         diffs = []
@@ -152,6 +160,7 @@ def seed_columns(df: pd.DataFrame, run: str, ref_run: str | None, select=lambda 
 
 
 # -- row selections ----------------------------------------------------------------------------------------
+
 
 def ablation_rows(df: pd.DataFrame) -> pd.DataFrame:
     """Per-image rows of the ablation runs (6 views, one of :data:`BASE_VARIANTS`, the models' own seed)."""
@@ -174,6 +183,7 @@ def views_rows(df: pd.DataFrame) -> pd.DataFrame:
 
 # -- tables --------------------------------------------------------------------------------------------------
 
+
 def vs_backbone_table(df: pd.DataFrame, timings: list[dict]) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Per dataset (then ``all``): F-RNG (``full``, averaged over its training seeds) and the backbone, with F-RNG's
     paired difference to the backbone and the seed columns."""
@@ -185,14 +195,21 @@ def vs_backbone_table(df: pd.DataFrame, timings: list[dict]) -> tuple[pd.DataFra
         for method, sub in (("F-RNG", pick(frng)), (BACKBONE, pick(bb))):
             if not len(sub):
                 continue
-            row = {"dataset": ds, "method": METHOD_LABELS[method], "n": len(sub), "psnr": sub["psnr"].mean(),
-                   "ssim": sub["ssim"].mean(), "lpips": sub["lpips"].mean()}
+            row = {
+                "dataset": ds,
+                "method": METHOD_LABELS[method],
+                "n": len(sub),
+                "psnr": sub["psnr"].mean(),
+                "ssim": sub["ssim"].mean(),
+                "lpips": sub["lpips"].mean(),
+            }
             if method == "F-RNG":
                 row |= diff_to(sub, pick(bb)) | seed_columns(df, "full", BACKBONE, pick)
             rows.append(row)
     out = pd.DataFrame(rows)
-    ms = {METHOD_LABELS[m]: float(np.mean([t[m]["relight_ms_per_image"] for t in timings]))
-          for m in ("F-RNG", BACKBONE)}
+    ms = {
+        METHOD_LABELS[m]: float(np.mean([t[m]["relight_ms_per_image"] for t in timings])) for m in ("F-RNG", BACKBONE)
+    }
     main, footer = T.vs_backbone(out, ms)
     extra = [c for c in ["n", *T.diff_columns(), *T.SEED_COLUMNS] if c in out.columns]
     return pd.concat([main, out[extra]], axis=1), footer
@@ -200,14 +217,19 @@ def vs_backbone_table(df: pd.DataFrame, timings: list[dict]) -> tuple[pd.DataFra
 
 def ablation_table(df: pd.DataFrame) -> pd.DataFrame:
     """Each variant of :data:`BASE_VARIANTS` averaged over its training seeds; differences to the full model."""
-    present = [v for v in BASE_VARIANTS if len(ablation_rows(df)[lambda d: d["variant"] == v])]
+    present = [v for v in BASE_VARIANTS if len(ablation_rows(df)[lambda d, v=v: d["variant"] == v])]
     full = seed_mean(df, "full")
     rows = []
     for v in present:
         sub = seed_mean(df, v)
         sub = sub[sub["views"] == RIG_VIEWS]
-        row = {"variant": VARIANT_LABELS[v], "n": len(sub), "psnr": sub["psnr"].mean(), "ssim": sub["ssim"].mean(),
-               "lpips": sub["lpips"].mean()}
+        row = {
+            "variant": VARIANT_LABELS[v],
+            "n": len(sub),
+            "psnr": sub["psnr"].mean(),
+            "ssim": sub["ssim"].mean(),
+            "lpips": sub["lpips"].mean(),
+        }
         if v != "full":
             row |= diff_to(sub, full)
         row |= seed_columns(df, v, None if v == "full" else "full")
@@ -226,8 +248,13 @@ def _sweep_table(rows: pd.DataFrame, key: str, ref_value, table: str, rename: st
     ref = rows[rows[key] == ref_value]
     out = []
     for value, sub in sorted(rows.groupby(key), key=lambda kv: kv[0]):
-        row = {rename or key: value, "n": len(sub), "psnr": sub["psnr"].mean(), "ssim": sub["ssim"].mean(),
-               "lpips": sub["lpips"].mean()}
+        row = {
+            rename or key: value,
+            "n": len(sub),
+            "psnr": sub["psnr"].mean(),
+            "ssim": sub["ssim"].mean(),
+            "lpips": sub["lpips"].mean(),
+        }
         if value != ref_value and len(ref):
             row |= diff_to(sub, ref)
         out.append(row)
@@ -248,14 +275,27 @@ def k_table(df: pd.DataFrame) -> pd.DataFrame:
 
 
 LADDER_STEPS = (  # (step, what, source, task/run, method, reference step); source "prior" = backbone.csv
-    ("a", "ground-truth depth + oracle colour (representation ceiling)", "prior", "relight", "gt-depth+oracle-colour",
-     None),
+    (
+        "a",
+        "ground-truth depth + oracle colour (representation ceiling)",
+        "prior",
+        "relight",
+        "gt-depth+oracle-colour",
+        None,
+    ),
     ("b", "backbone geometry + oracle colour", "prior", "relight", "backbone-geometry+oracle-colour", None),
     ("c", "backbone novel views (input light, held-out views)", "prior", "nvs", "backbone", None),
     ("d", "backbone relighting", "relight", BACKBONE, None, None),
     ("e", "F-RNG relighting", "relight", "full", None, "d"),
     ("f", "F-RNG relighting with oracle (G-buffer) IDM priors", "relight", ORACLE_RUN, None, "e"),
-    ("g", "F-RNG's Lambertian base alone (decoder residual, attenuation, specular base dropped)", "relight", BASE_RUN, None, "e"),
+    (
+        "g",
+        "F-RNG's Lambertian base alone (decoder residual, attenuation, specular base dropped)",
+        "relight",
+        BASE_RUN,
+        None,
+        "e",
+    ),
     ("-", "trivial baseline: mean training image", "prior", "relight", "mean-image", None),
 )
 SENSITIVITY_STEPS = (  # (step, method label, run in the per-image / cross-light CSVs)
@@ -280,9 +320,18 @@ def sensitivity_rows(df: pd.DataFrame, cross: pd.DataFrame | None) -> list[dict]
         right = c[c["scored_against"] == c["light"]] if run == GROUND_TRUTH else df[df["run"] == run]
         if not len(wrong) or not len(right):
             continue
-        rows.append({"step": step, "what": f"light sensitivity: {label} (scored against another test light)",
-                     "n": len(wrong), "psnr": wrong["psnr"].mean(), "ssim": wrong["ssim"].mean(),
-                     "lpips": wrong["lpips"].mean(), "vs": "right light"} | diff_to(right, wrong))
+        rows.append(
+            {
+                "step": step,
+                "what": f"light sensitivity: {label} (scored against another test light)",
+                "n": len(wrong),
+                "psnr": wrong["psnr"].mean(),
+                "ssim": wrong["ssim"].mean(),
+                "lpips": wrong["lpips"].mean(),
+                "vs": "right light",
+            }
+            | diff_to(right, wrong)
+        )
     return rows
 
 
@@ -303,9 +352,16 @@ def ladder_table(df: pd.DataFrame, prior: pd.DataFrame, cross: pd.DataFrame | No
         if not len(sub):
             continue
         subs[step] = sub
-        row = {"step": step, "what": what, "n": len(sub), "psnr": sub["psnr"].mean(),
-               "ssim": sub["ssim"].mean(), "lpips": sub["lpips"].mean() if "lpips" in sub else np.nan,
-               "scale_log2": M.scale_log2(sub), "brightness_log2": M.brightness_log2(sub)}
+        row = {
+            "step": step,
+            "what": what,
+            "n": len(sub),
+            "psnr": sub["psnr"].mean(),
+            "ssim": sub["ssim"].mean(),
+            "lpips": sub["lpips"].mean() if "lpips" in sub else np.nan,
+            "scale_log2": M.scale_log2(sub),
+            "brightness_log2": M.brightness_log2(sub),
+        }
         if ref is not None and ref in subs:
             row |= {"vs": ref} | diff_to(sub, subs[ref])
         rows.append(row)
@@ -333,9 +389,16 @@ def lambertian_table(df: pd.DataFrame) -> pd.DataFrame:
         f = full if ds == "all" else full[full["dataset"] == ds]
         b = base if ds == "all" else base[base["dataset"] == ds]
         for label, sub in ((METHOD_LABELS["F-RNG"], f), (BASE_LABEL, b)):
-            row = {"dataset": ds, "method": label, "n": len(sub), "psnr": sub["psnr"].mean(),
-                   "ssim": sub["ssim"].mean(), "lpips": sub["lpips"].mean(), "scale_log2": M.scale_log2(sub),
-                   "brightness_log2": M.brightness_log2(sub)}
+            row = {
+                "dataset": ds,
+                "method": label,
+                "n": len(sub),
+                "psnr": sub["psnr"].mean(),
+                "ssim": sub["ssim"].mean(),
+                "lpips": sub["lpips"].mean(),
+                "scale_log2": M.scale_log2(sub),
+                "brightness_log2": M.brightness_log2(sub),
+            }
             if label == BASE_LABEL:
                 row |= diff_to(sub, f)
             rows.append(row)
@@ -345,21 +408,34 @@ def lambertian_table(df: pd.DataFrame) -> pd.DataFrame:
 def timing_table(timings: list[dict]) -> pd.DataFrame:
     rows = []
     for m in ("F-RNG", BACKBONE):
-        rows.append({"method": METHOD_LABELS[m],
-                     "reconstruction_s": float(np.mean([t[m]["reconstruction_s"] for t in timings])),
-                     "relight_ms_per_image": float(np.mean([t[m]["relight_ms_per_image"] for t in timings])),
-                     "resolution": int(timings[0]["resolution"]),
-                     "spp": timings[0]["spp"] if m == "F-RNG" else np.nan})
+        rows.append(
+            {
+                "method": METHOD_LABELS[m],
+                "reconstruction_s": float(np.mean([t[m]["reconstruction_s"] for t in timings])),
+                "relight_ms_per_image": float(np.mean([t[m]["relight_ms_per_image"] for t in timings])),
+                "resolution": int(timings[0]["resolution"]),
+                "spp": timings[0]["spp"] if m == "F-RNG" else np.nan,
+            }
+        )
     return T.timing(pd.DataFrame(rows), reference=METHOD_LABELS[BACKBONE])
 
 
-def write_tables(config: Config | dict, per_image_csv: Path, timing_files: list[Path], out_dir: Path,
-                 prior_csv: Path, cross_csv: Path | None = None) -> dict[str, dict]:
+def write_tables(
+    config: Config | dict,
+    per_image_csv: Path,
+    timing_files: list[Path],
+    out_dir: Path,
+    prior_csv: Path,
+    cross_csv: Path | None = None,
+) -> dict[str, dict]:
     """Write the tables (see the module docstring). Returns {table: {"csv"|"md"|"tex": path}}."""
     config = typed(config)
     df = M.read_csv(per_image_csv)
-    missing = [c for c in ("dataset", "object", "run", "method", "variant", "views", "k", "psnr", "ssim", "lpips",
-                           "protocol") if c not in df.columns]
+    missing = [
+        c
+        for c in ("dataset", "object", "run", "method", "variant", "views", "k", "psnr", "ssim", "lpips", "protocol")
+        if c not in df.columns
+    ]
     if missing:
         raise KeyError(f"{per_image_csv}: missing columns {missing}")
     cross = M.read_csv(cross_csv) if cross_csv is not None else None
@@ -368,49 +444,91 @@ def write_tables(config: Config | dict, per_image_csv: Path, timing_files: list[
         raise ValueError("frng tables: no relighting timing files given")
     device = sorted({t["device"] for t in timings})
     seeds = sorted({r for r in df["run"].astype(str) if base_run(r) == "full"})
-    seed_note = (f" F-RNG rows: mean over {len(seeds)} training seeds ({', '.join(seeds)}); seed spread = max - min "
-                 f"over seeds." if len(seeds) > 1 else "")
+    seed_note = (
+        f" F-RNG rows: mean over {len(seeds)} training seeds ({', '.join(seeds)}); seed spread = max - min over seeds."
+        if len(seeds) > 1
+        else ""
+    )
     out = {}
     rows, footer = vs_backbone_table(df, timings)
     out["vs_backbone"] = T.write_table(
-        rows, out_dir / "vs_backbone", footer=footer, best_within=["dataset"],
-        caption=_caption("Relighting quality: F-RNG vs the backbone it builds on (datasets = material classes)."
-                         + seed_note, config, df[df["run"].isin(["full", BACKBONE])]), label="tab:vs_backbone")
+        rows,
+        out_dir / "vs_backbone",
+        footer=footer,
+        best_within=["dataset"],
+        caption=_caption(
+            "Relighting quality: F-RNG vs the backbone it builds on (datasets = material classes)." + seed_note,
+            config,
+            df[df["run"].isin(["full", BACKBONE])],
+        ),
+        label="tab:vs_backbone",
+    )
     out["ablation"] = T.write_table(
-        ablation_table(df), out_dir / "ablation",
-        caption=_caption("Ablation of F-RNG's components (differences: variant minus the full model)." +
-                         seed_note.replace("F-RNG rows", "Every row"), config, ablation_rows(df)),
-        label="tab:ablation")
+        ablation_table(df),
+        out_dir / "ablation",
+        caption=_caption(
+            "Ablation of F-RNG's components (differences: variant minus the full model)."
+            + seed_note.replace("F-RNG rows", "Every row"),
+            config,
+            ablation_rows(df),
+        ),
+        label="tab:ablation",
+    )
     out["views"] = T.write_table(
-        views_table(df), out_dir / "views",
-        caption=_caption("Number of input views (the same trained full model; differences to 6 views).", config,
-                         views_rows(df)), label="tab:views")
+        views_table(df),
+        out_dir / "views",
+        caption=_caption(
+            "Number of input views (the same trained full model; differences to 6 views).", config, views_rows(df)
+        ),
+        label="tab:views",
+    )
     out["k"] = T.write_table(
-        k_table(df), out_dir / "k",
-        caption=_caption("Top-K salient patches (K in % of a view's patches; differences to the full model's K).",
-                         config, k_rows(df)), label="tab:k")
+        k_table(df),
+        out_dir / "k",
+        caption=_caption(
+            "Top-K salient patches (K in % of a view's patches; differences to the full model's K).", config, k_rows(df)
+        ),
+        label="tab:k",
+    )
     prior = pd.read_csv(prior_csv)
     steps, sensitivity = split_ladder(ladder_table(df, prior, cross))
     out["ladder"] = T.write_table(
-        steps, out_dir / "ladder", footer=sensitivity, footer_best=False,
-        caption=(f"Quality ladder: where the dB go. Aligned protocol on the held-out relighting images (row c: the "
-                 f"held-out input-light views); scale_log2 = median over images and channels of |log2| of the "
-                 f"per-channel least-squares scale the protocol applied; brightness_log2 = the same of the ratio of "
-                 f"means (ground truth over prediction). Row g: F-RNG rendered with its decoder's closed-form Lambertian "
-                 f"base alone. Rows s: each method's render for one test light scored against the ground truth of another "
-                 f"test light (same object and view); their Δ = right light minus that wrong light (ground truth: "
-                 f"itself vs the other light's). {DIFF_NOTE} The models' own training seed. Tier {config.tier}."),
-        label="tab:ladder")
+        steps,
+        out_dir / "ladder",
+        footer=sensitivity,
+        footer_best=False,
+        caption=(
+            f"Quality ladder: where the dB go. Aligned protocol on the held-out relighting images (row c: the "
+            f"held-out input-light views); scale_log2 = median over images and channels of |log2| of the "
+            f"per-channel least-squares scale the protocol applied; brightness_log2 = the same of the ratio of "
+            f"means (ground truth over prediction). Row g: F-RNG rendered with its decoder's closed-form Lambertian "
+            f"base alone. Rows s: each method's render for one test light scored against the ground truth of another "
+            f"test light (same object and view); their Δ = right light minus that wrong light (ground truth: "
+            f"itself vs the other light's). {DIFF_NOTE} The models' own training seed. Tier {config.tier}."
+        ),
+        label="tab:ladder",
+    )
     out["lambertian"] = T.write_table(
-        lambertian_table(df), out_dir / "lambertian",
-        caption=_caption("F-RNG and its decoder's closed-form Lambertian base alone (residual, attenuation and "
-                         "specular base dropped), per material class; differences: base minus F-RNG.", config,
-                         df[df["run"].isin(["full", BASE_RUN])]), label="tab:lambertian")
+        lambertian_table(df),
+        out_dir / "lambertian",
+        caption=_caption(
+            "F-RNG and its decoder's closed-form Lambertian base alone (residual, attenuation and "
+            "specular base dropped), per material class; differences: base minus F-RNG.",
+            config,
+            df[df["run"].isin(["full", BASE_RUN])],
+        ),
+        label="tab:lambertian",
+    )
     t = timing_table(timings)
     out["timing"] = T.write_table(
-        t, out_dir / "timing",
-        caption=(f"Reconstruction and relighting time per image, measured side by side in the same job on "
-                 f"{', '.join(device)} at {int(t['resolution'].iloc[0])} px, mean over {len(timings)} test "
-                 f"object(s); F-RNG renders with {t['spp'].iloc[0]:.0f} light samples per pixel, the backbone "
-                 f"runs one full denoising pass per light. Tier {config.tier}."), label="tab:timing")
+        t,
+        out_dir / "timing",
+        caption=(
+            f"Reconstruction and relighting time per image, measured side by side in the same job on "
+            f"{', '.join(device)} at {int(t['resolution'].iloc[0])} px, mean over {len(timings)} test "
+            f"object(s); F-RNG renders with {t['spp'].iloc[0]:.0f} light samples per pixel, the backbone "
+            f"runs one full denoising pass per light. Tier {config.tier}."
+        ),
+        label="tab:timing",
+    )
     return out

@@ -33,8 +33,8 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -63,23 +63,56 @@ SEED_COLUMNS = ("seeds", "seed_spread_psnr", "seed_spread_dpsnr")
 
 # Displayed decimals per column (others: 3 for floats, none for integers).
 DECIMALS: dict[str, int] = {
-    "psnr": 2, "ssim": 3, "lpips": 3, "reconstruction_s": 2, "relight_ms_per_image": 1, "speedup": 1,
-    "k_percent": 0, "dpsnr": 2, "dssim": 3, "dlpips": 4, "seed_spread_psnr": 2, "seed_spread_dpsnr": 2,
-    "scale_log2": 2, "brightness_log2": 2,
+    "psnr": 2,
+    "ssim": 3,
+    "lpips": 3,
+    "reconstruction_s": 2,
+    "relight_ms_per_image": 1,
+    "speedup": 1,
+    "k_percent": 0,
+    "dpsnr": 2,
+    "dssim": 3,
+    "dlpips": 4,
+    "seed_spread_psnr": 2,
+    "seed_spread_dpsnr": 2,
+    "scale_log2": 2,
+    "brightness_log2": 2,
 }
 
 HEADERS: dict[str, str] = {
-    "psnr": "PSNR", "ssim": "SSIM", "lpips": "LPIPS", "dataset": "Dataset", "method": "Method",
-    "variant": "Variant", "views": "Input views", "k_percent": "K (%)", "reconstruction_s": "Reconstruction (s)",
-    "relight_ms_per_image": "Relighting (ms/image)", "resolution": "Resolution", "spp": "spp",
-    "speedup": "Speed-up", "n": "n", "step": "Step", "what": "What", "scale_log2": "median |log2 scale|",
-    "brightness_log2": "median |log2 mean ratio|", "dpsnr": "ΔPSNR [95% CI]", "dssim": "ΔSSIM [95% CI]",
-    "dlpips": "ΔLPIPS [95% CI]", "better": "objects higher PSNR", "seeds": "seeds",
-    "seed_spread_psnr": "seed spread PSNR", "seed_spread_dpsnr": "seed spread ΔPSNR", "vs": "Δ vs",
+    "psnr": "PSNR",
+    "ssim": "SSIM",
+    "lpips": "LPIPS",
+    "dataset": "Dataset",
+    "method": "Method",
+    "variant": "Variant",
+    "views": "Input views",
+    "k_percent": "K (%)",
+    "reconstruction_s": "Reconstruction (s)",
+    "relight_ms_per_image": "Relighting (ms/image)",
+    "resolution": "Resolution",
+    "spp": "spp",
+    "speedup": "Speed-up",
+    "n": "n",
+    "step": "Step",
+    "what": "What",
+    "scale_log2": "median |log2 scale|",
+    "brightness_log2": "median |log2 mean ratio|",
+    "dpsnr": "ΔPSNR [95% CI]",
+    "dssim": "ΔSSIM [95% CI]",
+    "dlpips": "ΔLPIPS [95% CI]",
+    "better": "objects higher PSNR",
+    "seeds": "seeds",
+    "seed_spread_psnr": "seed spread PSNR",
+    "seed_spread_dpsnr": "seed spread ΔPSNR",
+    "vs": "Δ vs",
 }
 TEX_HEADERS: dict[str, str] = {  # LaTeX source, not escaped
-    "dpsnr": "$\\Delta$PSNR [95\\% CI]", "dssim": "$\\Delta$SSIM [95\\% CI]", "dlpips": "$\\Delta$LPIPS [95\\% CI]",
-    "seed_spread_dpsnr": "seed spread $\\Delta$PSNR", "vs": "$\\Delta$ vs",
+    "dpsnr": "$\\Delta$PSNR [95\\% CI]",
+    "dssim": "$\\Delta$SSIM [95\\% CI]",
+    "dlpips": "$\\Delta$LPIPS [95\\% CI]",
+    "seed_spread_dpsnr": "seed spread $\\Delta$PSNR",
+    "vs": "$\\Delta$ vs",
 }
 
 LATEX_PREAMBLE_NOTE = (
@@ -89,7 +122,7 @@ LATEX_PREAMBLE_NOTE = (
 
 
 def direction(column: str) -> str | None:
-    """"max", "min" or None (not a metric column) for a column name."""
+    """ "max", "min" or None (not a metric column) for a column name."""
     c = column.lower()
     if c in ("psnr", "ssim") or c.startswith(("psnr_", "ssim_")) or "speedup" in c:
         return "max"
@@ -131,7 +164,9 @@ def _present(value) -> bool:
 def _ranks(df: pd.DataFrame, formatted: pd.DataFrame, best_within: Sequence[str], second: bool) -> pd.DataFrame:
     """(rows, cols) frame of 0 (unmarked), 1 (best) or 2 (second best), from the displayed values."""
     rank = pd.DataFrame(0, index=df.index, columns=df.columns)
-    groups = [df.index] if not best_within else [idx for _, idx in df.groupby(list(best_within), sort=False).groups.items()]
+    groups = (
+        [df.index] if not best_within else [idx for _, idx in df.groupby(list(best_within), sort=False).groups.items()]
+    )
     for col in df.columns:
         d = direction(col)
         if d is None or not pd.api.types.is_numeric_dtype(df[col]):
@@ -148,8 +183,18 @@ def _ranks(df: pd.DataFrame, formatted: pd.DataFrame, best_within: Sequence[str]
     return rank
 
 
-_TEX_ESCAPES = {"\\": "\\textbackslash{}", "&": "\\&", "%": "\\%", "_": "\\_", "#": "\\#", "$": "\\$",
-                "{": "\\{", "}": "\\}", "~": "\\textasciitilde{}", "^": "\\textasciicircum{}"}
+_TEX_ESCAPES = {
+    "\\": "\\textbackslash{}",
+    "&": "\\&",
+    "%": "\\%",
+    "_": "\\_",
+    "#": "\\#",
+    "$": "\\$",
+    "{": "\\{",
+    "}": "\\}",
+    "~": "\\textasciitilde{}",
+    "^": "\\textasciicircum{}",
+}
 
 
 def _escape_tex(s: str) -> str:
@@ -222,15 +267,22 @@ def render(
                 m = s.replace("|", "\\|")
                 md_cells.append(f"**{m}**" if r == 1 and m else f"*{m}*" if r == 2 and m else m)
                 t = _escape_tex(s)
-                tex_cells.append(f"\\cellcolor{{tabfirst}}{{{t}}}" if r == 1 and s
-                                 else f"\\cellcolor{{tabsecond}}{{{t}}}" if r == 2 and s else t)
+                tex_cells.append(
+                    f"\\cellcolor{{tabfirst}}{{{t}}}"
+                    if r == 1 and s
+                    else f"\\cellcolor{{tabsecond}}{{{t}}}"
+                    if r == 2 and s
+                    else t
+                )
             md_block.append(md_cells)
             tex_block.append(tex_cells)
         md_rows += md_block
         tex_rows.append(tex_block)
 
-    md = ["| " + " | ".join(_header(c, "md") for c in cols) + " |",
-          "|" + "|".join(":--" if not pd.api.types.is_numeric_dtype(whole[c]) else "--:" for c in cols) + "|"]
+    md = [
+        "| " + " | ".join(_header(c, "md") for c in cols) + " |",
+        "|" + "|".join(":--" if not pd.api.types.is_numeric_dtype(whole[c]) else "--:" for c in cols) + "|",
+    ]
     md += ["| " + " | ".join(r) + " |" for r in md_rows]
     markdown = "\n".join(md) + "\n"
     if caption:
@@ -244,8 +296,12 @@ def render(
             tex.append(f"\\caption{{{_escape_tex(caption)}}}")
         if label:
             tex.append(f"\\label{{{label}}}")
-    tex += [f"\\begin{{tabular}}{{{align}}}", "\\toprule", " & ".join(_header(c, "tex") for c in cols) + " \\\\",
-            "\\midrule"]
+    tex += [
+        f"\\begin{{tabular}}{{{align}}}",
+        "\\toprule",
+        " & ".join(_header(c, "tex") for c in cols) + " \\\\",
+        "\\midrule",
+    ]
     for bi, block in enumerate(tex_rows):
         if bi > 0:
             tex.append("\\midrule")
@@ -298,6 +354,7 @@ def write_table(
 
 # -- per-table helpers ----------------------------------------------------------------------------------
 
+
 def vs_backbone(metrics: pd.DataFrame, relight_ms: Mapping[str, float]) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Table 1 as (rows, footer) for :func:`write_table` (use ``best_within=["dataset"]``).
 
@@ -306,8 +363,13 @@ def vs_backbone(metrics: pd.DataFrame, relight_ms: Mapping[str, float]) -> tuple
     in ms. The footer has one "relighting time" row per method with only ``relight_ms_per_image`` filled.
     """
     rows = metrics.loc[:, list(TABLE_COLUMNS["vs_backbone"])].reset_index(drop=True)
-    footer = pd.DataFrame({"dataset": ["relighting time"] * len(relight_ms), "method": list(relight_ms),
-                           "relight_ms_per_image": [float(v) for v in relight_ms.values()]})
+    footer = pd.DataFrame(
+        {
+            "dataset": ["relighting time"] * len(relight_ms),
+            "method": list(relight_ms),
+            "relight_ms_per_image": [float(v) for v in relight_ms.values()],
+        }
+    )
     return rows, footer
 
 

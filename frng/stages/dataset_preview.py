@@ -19,8 +19,11 @@ from frng.layout import Layout
 
 def configure(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="action", required=True)
-    p = sub.add_parser("preview", help="PNG contact sheet per object (views x lights + G-buffers)",
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p = sub.add_parser(
+        "preview",
+        help="PNG contact sheet per object (views x lights + G-buffers)",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
     frng_config.add_config_argument(p)
     p.add_argument("--objects", nargs="*", help="object ids (default: every object of the plan)")
     p.add_argument("--out", help="output folder (default: {results}/previews)")
@@ -34,8 +37,9 @@ def run(args: argparse.Namespace) -> int:
     objects = args.objects or catalog.plan(config).object_ids
     out = Path(args.out) if args.out else Path(Layout(config.results).previews_dir())
     try:
-        write_previews(config, objects, out, args.cell, args.max_views, args.max_lights,
-                       log=lambda m: print(m, flush=True))
+        write_previews(
+            config, objects, out, args.cell, args.max_views, args.max_lights, log=lambda m: print(m, flush=True)
+        )
     except (DatasetError, io.ImageError) as e:
         print(f"frng dataset preview: error: {e}", file=sys.stderr)
         return 1

@@ -39,6 +39,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"frng envmaps: error: {e}", file=sys.stderr)
         return 1
     n_test = sum(r["split"] == "test" for r in records)
-    print(f"[envmaps] wrote {len(records)} maps ({len(records) - n_test} train, {n_test} test) to {out} "
-          f"in {time.perf_counter() - t0:.1f} s", flush=True)
+    print(
+        f"[envmaps] wrote {len(records)} maps ({len(records) - n_test} train, {n_test} test) to {out} "
+        f"in {time.perf_counter() - t0:.1f} s",
+        flush=True,
+    )
     return 0

@@ -42,6 +42,10 @@ def run(args: argparse.Namespace) -> int:
         with io.atomic_path(path) as tmp:
             df.to_csv(tmp, index=False, float_format="%.5g")
     print(bb.groupby(["task", "method"])[["psnr", "ssim"]].mean().round(3).to_string())
-    print(idm.groupby("method")[["normal_deg", "albedo_psnr", "roughness_mae", "metallic_mae", "depth_mae"]]
-          .mean().round(3).to_string())
+    print(
+        idm.groupby("method")[["normal_deg", "albedo_psnr", "roughness_mae", "metallic_mae", "depth_mae"]]
+        .mean()
+        .round(3)
+        .to_string()
+    )
     return 0

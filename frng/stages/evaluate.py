@@ -30,18 +30,44 @@ import argparse
 from pathlib import Path
 
 from frng import config as frng_config
-from frng.config import Config
 from frng import io
 from frng import metrics as M
+from frng.config import Config
 from frng.layout import Layout, RelightFolder
 
 PER_IMAGE = "relight_per_image.csv"
 SUMMARY = "relight_summary.csv"
 CROSS_LIGHT = "relight_cross_light.csv"
-COLUMNS = ("dataset", "object", "run", "method", "variant", "views", "k", "seed", "decoder", "light", "view", "psnr",
-           "ssim", "lpips", "protocol")
-CROSS_COLUMNS = ("dataset", "object", "run", "method", "light", "scored_against", "view", "psnr", "ssim", "lpips",
-                 "protocol")
+COLUMNS = (
+    "dataset",
+    "object",
+    "run",
+    "method",
+    "variant",
+    "views",
+    "k",
+    "seed",
+    "decoder",
+    "light",
+    "view",
+    "psnr",
+    "ssim",
+    "lpips",
+    "protocol",
+)
+CROSS_COLUMNS = (
+    "dataset",
+    "object",
+    "run",
+    "method",
+    "light",
+    "scored_against",
+    "view",
+    "psnr",
+    "ssim",
+    "lpips",
+    "protocol",
+)
 SENSITIVITY_RUNS = ("backbone", "full")  # + the ground truth (GROUND_TRUTH)
 GROUND_TRUTH = "ground-truth"
 
@@ -59,10 +85,22 @@ def evaluate_run(results: Path, run_dir: Path, protocol: str, background, device
             pred = run_files.image(light, view)
             gt = L.object_image(oid, "targets", light, view)
             m = M.evaluate_files(pred, gt, protocol=protocol, background=background, device=device)
-            rows.append({"dataset": meta["material_class"], "object": oid, "run": info["name"],
-                         "method": info["method"], "variant": info["variant"], "views": int(info["views"]),
-                         "k": info["k_percent"], "seed": info.get("seed"), "decoder": info.get("decoder", "full"),
-                         "light": light, "view": view} | m)
+            rows.append(
+                {
+                    "dataset": meta["material_class"],
+                    "object": oid,
+                    "run": info["name"],
+                    "method": info["method"],
+                    "variant": info["variant"],
+                    "views": int(info["views"]),
+                    "k": info["k_percent"],
+                    "seed": info.get("seed"),
+                    "decoder": info.get("decoder", "full"),
+                    "light": light,
+                    "view": view,
+                }
+                | m
+            )
     return rows
 
 
@@ -72,8 +110,9 @@ def other_light(lights: list[str], light: str) -> str:
     return lights[(lights.index(light) + 1) % len(lights)]
 
 
-def cross_light_run(results: Path, run_dir: Path, protocol: str, background, device: str = "cpu",
-                    ground_truth: bool = False) -> list[dict]:
+def cross_light_run(
+    results: Path, run_dir: Path, protocol: str, background, device: str = "cpu", ground_truth: bool = False
+) -> list[dict]:
     """Light-sensitivity rows of one run folder (see the module docstring): each image scored against the ground
     truth of :func:`other_light`. ``ground_truth``: score the ground truth of the run's images instead of the
     run's renders (run ``ground-truth``), against the other light and against its own."""
@@ -88,15 +127,31 @@ def cross_light_run(results: Path, run_dir: Path, protocol: str, background, dev
     for light in lights:
         wrong = other_light(lights, light)
         for view in info["target_views"]:
-            pred = L.object_image(oid, "targets", light, view) if ground_truth else RelightFolder(run_dir).image(
-                light, view)
-            for against in ([wrong, light] if ground_truth else [wrong]):
-                m = M.evaluate_files(pred, L.object_image(oid, "targets", against, view), protocol=protocol,
-                                     background=background, device=device)
-                rows.append({"dataset": meta["material_class"], "object": oid,
-                             "run": GROUND_TRUTH if ground_truth else info["name"],
-                             "method": GROUND_TRUTH if ground_truth else info["method"], "light": light,
-                             "scored_against": against, "view": view} | m)
+            pred = (
+                L.object_image(oid, "targets", light, view)
+                if ground_truth
+                else RelightFolder(run_dir).image(light, view)
+            )
+            for against in [wrong, light] if ground_truth else [wrong]:
+                m = M.evaluate_files(
+                    pred,
+                    L.object_image(oid, "targets", against, view),
+                    protocol=protocol,
+                    background=background,
+                    device=device,
+                )
+                rows.append(
+                    {
+                        "dataset": meta["material_class"],
+                        "object": oid,
+                        "run": GROUND_TRUTH if ground_truth else info["name"],
+                        "method": GROUND_TRUTH if ground_truth else info["method"],
+                        "light": light,
+                        "scored_against": against,
+                        "view": view,
+                    }
+                    | m
+                )
     return rows
 
 

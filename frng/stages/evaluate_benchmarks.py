@@ -49,8 +49,18 @@ def score_object(results: Path, oid: str, runs: list[str], lpips: bool = True) -
             gt = io.read_rgba(L.object_image(oid, "targets", light, view))
             exposure = bench.get("exposures", {}).get(f"{light}/{view}", 0.0)
             m = score(bench["protocol"], pred, gt, exposure=exposure, lpips=lpips)
-            rows.append({"benchmark": bench["layout"], "protocol": bench["protocol"], "object": oid, "run": run,
-                         "method": info.get("method", run), "light": light, "view": view} | m)
+            rows.append(
+                {
+                    "benchmark": bench["layout"],
+                    "protocol": bench["protocol"],
+                    "object": oid,
+                    "run": run,
+                    "method": info.get("method", run),
+                    "light": light,
+                    "view": view,
+                }
+                | m
+            )
     return rows
 
 
@@ -66,8 +76,9 @@ def table(df):
     return pd.DataFrame(out[list(TABLE_COLUMNS)])
 
 
-def evaluate(config, objects: list[str], runs: list[str], metrics_dir: Path, tables_dir: Path,
-             lpips: bool = True) -> tuple[Path, dict]:
+def evaluate(
+    config, objects: list[str], runs: list[str], metrics_dir: Path, tables_dir: Path, lpips: bool = True
+) -> tuple[Path, dict]:
     from frng import metrics as M
     from frng.report.tables import write_table
 
@@ -81,10 +92,13 @@ def evaluate(config, objects: list[str], runs: list[str], metrics_dir: Path, tab
     per_image = M.write_csv(df, Path(metrics_dir) / "benchmarks_per_image.csv")
     t = table(df)
     used = ", ".join(f"{p} ({PROTOCOL_NAMES.get(p, p)})" for p in dict.fromkeys(t["protocol"]))
-    caption = (f"F-RNG vs the backbone on the public benchmarks ({config.tier} tier); each row scored with its "
-               f"benchmark's published protocol: {used}")
-    out = write_table(t, Path(tables_dir) / "benchmarks", best_within=["benchmark"], caption=caption,
-                      label="tab:benchmarks")
+    caption = (
+        f"F-RNG vs the backbone on the public benchmarks ({config.tier} tier); each row scored with its "
+        f"benchmark's published protocol: {used}"
+    )
+    out = write_table(
+        t, Path(tables_dir) / "benchmarks", best_within=["benchmark"], caption=caption, label="tab:benchmarks"
+    )
     return per_image, out
 
 
@@ -103,8 +117,14 @@ def run(args: argparse.Namespace) -> int:
     config = frng_config.typed(frng_config.load(args.config))
     L = Layout(config.results)
     objects = args.objects or [e["id"] for e in entries(config)]
-    per_image, out = evaluate(config, objects, args.runs, Path(args.metrics or L.metrics_dir()),
-                              Path(args.tables or L.tables_dir()), lpips=not args.no_lpips)
+    per_image, out = evaluate(
+        config,
+        objects,
+        args.runs,
+        Path(args.metrics or L.metrics_dir()),
+        Path(args.tables or L.tables_dir()),
+        lpips=not args.no_lpips,
+    )
     print(f"evaluate-benchmarks: wrote {per_image} and {', '.join(str(p) for p in out.values())}")
     print(Path(out["md"]).read_text() if "md" in out else "")
     return 0

@@ -13,17 +13,19 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from frng.layout import Layout
-
 from frng import config as frng_config
+from frng.layout import Layout
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     from frng.benchmarks import LAYOUTS
 
     parser.add_argument("layout", choices=list(LAYOUTS), help="the benchmark's published layout")
-    parser.add_argument("path", help="tensoir: the scene folder (train_*/, test_*/); orb: blender_HDR/{scene}; "
-                                     "owl: dataset/{object}/test; nerf-synthetic: the scene folder")
+    parser.add_argument(
+        "path",
+        help="tensoir: the scene folder (train_*/, test_*/); orb: blender_HDR/{scene}; "
+        "owl: dataset/{object}/test; nerf-synthetic: the scene folder",
+    )
     frng_config.add_config_argument(parser)
     parser.add_argument("--id", help="object id (default {layout}-{scene}; must contain a hyphen)")
     parser.add_argument("--results", help="results folder to import into (default: the config's)")
@@ -32,12 +34,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--input-light", help="tensoir: the training light (default: the one found, else sunset)")
     parser.add_argument("--lights", nargs="*", help="tensoir: the target lights (default: all found)")
     parser.add_argument("--ground-truth", help="orb: the ground_truth/ folder (default ../../ground_truth)")
-    parser.add_argument("--envmap", dest="envmap_file", help="nerf-synthetic: the light (default ../envmaps/"
-                                                             "{scene}.exr, else constant white)")
+    parser.add_argument(
+        "--envmap",
+        dest="envmap_file",
+        help="nerf-synthetic: the light (default ../envmaps/{scene}.exr, else constant white)",
+    )
 
 
-OPTIONS = {"tensoir": ("envmaps", "input_light", "lights"), "orb": ("ground_truth",), "owl": (),
-           "nerf-synthetic": ("envmap_file",)}
+OPTIONS = {
+    "tensoir": ("envmaps", "input_light", "lights"),
+    "orb": ("ground_truth",),
+    "owl": (),
+    "nerf-synthetic": ("envmap_file",),
+}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -46,13 +55,23 @@ def run(args: argparse.Namespace) -> int:
     config = frng_config.typed(frng_config.load(args.config))
     opts = {k: getattr(args, k) for k in OPTIONS[args.layout]}
     if args.id and "-" not in args.id:
-        print(f"frng import: error: --id {args.id!r} must contain a hyphen (imported ids are kept apart from "
-              f"curated ones)")
+        print(
+            f"frng import: error: --id {args.id!r} must contain a hyphen (imported ids are kept apart from "
+            f"curated ones)"
+        )
         return 2
     try:
-        folder = import_scene(args.layout, args.path, args.results or config.results, config.render.resolution,
-                              config.envmaps.width, config.render.extra_input_views, args.max_targets, args.id,
-                              **opts)
+        folder = import_scene(
+            args.layout,
+            args.path,
+            args.results or config.results,
+            config.render.resolution,
+            config.envmaps.width,
+            config.render.extra_input_views,
+            args.max_targets,
+            args.id,
+            **opts,
+        )
     except BenchmarkError as e:
         print(f"frng import: error: {e}")
         return 2

@@ -24,21 +24,36 @@ def configure(parser: argparse.ArgumentParser) -> None:
     cams.add_argument("--cameras", help="transforms.json (NeRF) or an OpenCV camera file (JSON/YAML)")
     cams.add_argument("--rig", choices=["paper"], help="the paper's 6-view rig (default when no --cameras)")
     parser.add_argument("--light", help="the photos' light as an equirect map (EXR/HDR, 2:1); default: estimated")
-    parser.add_argument("--light-colour", choices=["neutral", "fit"], default="neutral",
-                        help="estimated light: grey on average (grey world) or its fitted colour")
+    parser.add_argument(
+        "--light-colour",
+        choices=["neutral", "fit"],
+        default="neutral",
+        help="estimated light: grey on average (grey world) or its fitted colour",
+    )
     parser.add_argument("--grid", help="split one image holding a ROWSxCOLS grid of views, e.g. 2x3")
-    parser.add_argument("--framing", choices=["auto", "keep", "object"], default="auto",
-                        help="rig photos: keep the framing (square crop) or crop around the object (frng.capture)")
+    parser.add_argument(
+        "--framing",
+        choices=["auto", "keep", "object"],
+        default="auto",
+        help="rig photos: keep the framing (square crop) or crop around the object (frng.capture)",
+    )
     parser.add_argument("--name", help="object id recorded in the asset (default: the images folder's name)")
     parser.add_argument("--model", help="F-RNG model file (default {results}/models/full/model.pt)")
     parser.add_argument("--config", help="pipeline config (default: config.yaml of the model's results folder)")
     parser.add_argument("--device", help="override the config's device (cpu, cuda, auto)")
-    parser.add_argument("--export-object", metavar="OBJ",
-                        help="instead: write curated object OBJ's input views as PNGs (+ cameras.json, light.exr)")
+    parser.add_argument(
+        "--export-object",
+        metavar="OBJ",
+        help="instead: write curated object OBJ's input views as PNGs (+ cameras.json, light.exr)",
+    )
     parser.add_argument("--views", type=int, default=6, help="with --export-object: how many input views")
-    parser.add_argument("--measure", metavar="OBJ", nargs="+",
-                        help="instead: score reconstruct + render-asset on curated test objects against `frng "
-                             "relight` (frng.capture.measure); writes {out}/measure.csv and prints the means")
+    parser.add_argument(
+        "--measure",
+        metavar="OBJ",
+        nargs="+",
+        help="instead: score reconstruct + render-asset on curated test objects against `frng "
+        "relight` (frng.capture.measure); writes {out}/measure.csv and prints the means",
+    )
 
 
 def resolve_config(config: str | None, model: str | None):
@@ -48,8 +63,10 @@ def resolve_config(config: str | None, model: str | None):
 
     if config is None:
         if model is None:
-            raise CaptureError("give --config (a trained pipeline's config) or --model (its config.yaml is read "
-                               "from the model's results folder)")
+            raise CaptureError(
+                "give --config (a trained pipeline's config) or --model (its config.yaml is read "
+                "from the model's results folder)"
+            )
         from frng.layout import Layout
 
         config = Layout(results_of_model(Path(model))).config()
@@ -102,8 +119,10 @@ def measure_table(config, oids: list[str], out: Path) -> str:
     mean = df.groupby("setting")[["psnr", "ssim", "lpips", "psnr_plain"]].mean().reindex(order)
     mean.insert(1, "dpsnr", mean["psnr"] - mean.loc["relight", "psnr"])
     mean["dpsnr_plain"] = mean["psnr_plain"] - mean.loc["relight", "psnr_plain"]
-    return (f"{len(oids)} object(s), {len(df) // len(order)} images per setting, {df['protocol'].iloc[0]} protocol\n"
-            + mean.round(3).to_markdown())
+    return (
+        f"{len(oids)} object(s), {len(df) // len(order)} images per setting, {df['protocol'].iloc[0]} protocol\n"
+        + mean.round(3).to_markdown()
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -120,17 +139,33 @@ def run(args: argparse.Namespace) -> int:
             return 0
         if not args.images:
             raise CaptureError("--images is required")
-        record = reconstruct(args.images, args.out, config, model=args.model, masks=args.masks,
-                             cameras=args.cameras, rig=args.rig, light=args.light, grid=parse_grid(args.grid),
-                             framing=args.framing, name=args.name, device=args.device,
-                             light_colour=args.light_colour)
+        record = reconstruct(
+            args.images,
+            args.out,
+            config,
+            model=args.model,
+            masks=args.masks,
+            cameras=args.cameras,
+            rig=args.rig,
+            light=args.light,
+            grid=parse_grid(args.grid),
+            framing=args.framing,
+            name=args.name,
+            device=args.device,
+            light_colour=args.light_colour,
+        )
     except (CaptureError, AssetError) as e:
         print(f"frng reconstruct: error: {e}")
         return 2
     light = record["light"]
-    what = light["source"] if light["source"] != "estimated" else \
-        f"estimated (SH fit, relative rms {light['relative_rms']:.2f})"
-    print(f"reconstruct {record['object_id']}: {len(record['views'])} views ({', '.join(sorted(set(record['masks'])))}"
-          f" masks, cameras {record['cameras']}), light {what} -> {args.out}")
+    what = (
+        light["source"]
+        if light["source"] != "estimated"
+        else f"estimated (SH fit, relative rms {light['relative_rms']:.2f})"
+    )
+    print(
+        f"reconstruct {record['object_id']}: {len(record['views'])} views ({', '.join(sorted(set(record['masks'])))}"
+        f" masks, cameras {record['cameras']}), light {what} -> {args.out}"
+    )
     print(json.dumps(record["timing_s"]))
     return 0

@@ -28,8 +28,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"frng relight: error: {e}")
         return 2
     f, b = timing["F-RNG"], timing[BACKBONE]
-    print(f"relight {args.object}: F-RNG {f['relight_ms_per_image']:.1f} ms/image, backbone "
-          f"{b['relight_ms_per_image']:.1f} ms/image ({timing['speedup']:.1f}x) at {timing['resolution']} px, "
-          f"F-RNG reconstruction {f['reconstruction_s']:.2f} s")
+    print(
+        f"relight {args.object}: F-RNG {f['relight_ms_per_image']:.1f} ms/image, backbone "
+        f"{b['relight_ms_per_image']:.1f} ms/image ({timing['speedup']:.1f}x) at {timing['resolution']} px, "
+        f"F-RNG reconstruction {f['reconstruction_s']:.2f} s"
+    )
     print(json.dumps(timing, indent=1))
     return 0

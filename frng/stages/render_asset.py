@@ -15,7 +15,6 @@ FFmpeg/PyAV plugin for imageio, which is not among this project's pinned package
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
 import numpy as np
@@ -47,8 +46,15 @@ def turntable(n: int, elevation: float, distance: float, fov: float, res: int) -
     out = []
     for i in range(n):
         eye = camera.spherical_to_cartesian(360.0 * i / n, elevation, distance)
-        out.append({"name": f"turn_{i:03d}", "c2w": camera.look_at(eye).tolist(),
-                    "intrinsics": camera.intrinsics_from_fov(fov, res, res).tolist(), "width": res, "height": res})
+        out.append(
+            {
+                "name": f"turn_{i:03d}",
+                "c2w": camera.look_at(eye).tolist(),
+                "intrinsics": camera.intrinsics_from_fov(fov, res, res).tolist(),
+                "width": res,
+                "height": res,
+            }
+        )
     return out
 
 
@@ -105,16 +111,28 @@ def render(args: argparse.Namespace) -> dict:
             if args.resolution and c.size:
                 s = args.resolution / c.size[0]
                 intr, size = intr * s, (args.resolution, round(c.size[1] * s))
-            cams.append({"name": name, "c2w": c.c2w.tolist(), "intrinsics": list(map(float, intr)),
-                         "width": int(size[0]), "height": int(size[1])})
+            cams.append(
+                {
+                    "name": name,
+                    "c2w": c.c2w.tolist(),
+                    "intrinsics": list(map(float, intr)),
+                    "width": int(size[0]),
+                    "height": int(size[1]),
+                }
+            )
         if len({(c["width"], c["height"]) for c in cams}) != 1:
             raise CaptureError(f"{args.cameras}: cameras of different image sizes; render them separately")
     else:
         n = args.turntable or 24
         if n < 1:
             raise CaptureError("--turntable N: N must be >= 1")
-        cams = turntable(n, args.elevation, args.distance or float(rig.get("camera_distance", 4.0)),
-                         args.fov or float(rig.get("fov_deg", 40.0)), res)
+        cams = turntable(
+            n,
+            args.elevation,
+            args.distance or float(rig.get("camera_distance", 4.0)),
+            args.fov or float(rig.get("fov_deg", 40.0)),
+            res,
+        )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     W, H = cams[0]["width"], cams[0]["height"]
@@ -124,8 +142,8 @@ def render(args: argparse.Namespace) -> dict:
     frames = []
     for i0 in range(0, len(cams), 8):  # a few views at a time: bounded memory at large sizes
         g = torch.Generator().manual_seed(int(args.seed))
-        rgba = r.render(env_t, c2w[i0:i0 + 8], intr[i0:i0 + 8], H, W, args.spp, g).cpu().numpy()
-        for c, img in zip(cams[i0:i0 + 8], rgba):
+        rgba = r.render(env_t, c2w[i0 : i0 + 8], intr[i0 : i0 + 8], H, W, args.spp, g).cpu().numpy()
+        for c, img in zip(cams[i0 : i0 + 8], rgba):
             io.write_exr(out / f"{c['name']}.exr", img, channels=["R", "G", "B", "A"])
             a = np.clip(img[..., 3:4], 0, 1)
             straight = np.where(a > 1e-6, img[..., :3] / np.maximum(a, 1e-6), 0.0)
@@ -147,6 +165,8 @@ def run(args: argparse.Namespace) -> int:
     except (CaptureError, AssetError) as e:
         print(f"frng render-asset: error: {e}")
         return 2
-    print(f"render-asset {args.asset}: {info['views']} views at {info['size'][0]}x{info['size'][1]} on "
-          f"{info['device']} -> {args.out}" + (f" ({info['video']})" if info["video"] else ""))
+    print(
+        f"render-asset {args.asset}: {info['views']} views at {info['size'][0]}x{info['size'][1]} on "
+        f"{info['device']} -> {args.out}" + (f" ({info['video']})" if info["video"] else "")
+    )
     return 0

@@ -18,13 +18,17 @@ from frng.report.paper_tables import write_tables
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)
     parser.add_argument("--metrics", help="per-image CSV (default {results}/metrics/relight_per_image.csv)")
-    parser.add_argument("--timing", nargs="*", help="timing JSONs (default {results}/relight/timing/*.json of "
-                                                    "the test objects)")
+    parser.add_argument(
+        "--timing", nargs="*", help="timing JSONs (default {results}/relight/timing/*.json of the test objects)"
+    )
     parser.add_argument("--out", help="tables folder (default {results}/tables)")
-    parser.add_argument("--cross-light", help="the light-sensitivity CSV (default "
-                                              "{results}/metrics/relight_cross_light.csv)")
-    parser.add_argument("--prior-metrics", help="the priors' evaluation CSV for the quality ladder "
-                                                "(default {results}/metrics/backbone.csv)")
+    parser.add_argument(
+        "--cross-light", help="the light-sensitivity CSV (default {results}/metrics/relight_cross_light.csv)"
+    )
+    parser.add_argument(
+        "--prior-metrics",
+        help="the priors' evaluation CSV for the quality ladder (default {results}/metrics/backbone.csv)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -33,10 +37,14 @@ def run(args: argparse.Namespace) -> int:
     config = frng_config.typed(frng_config.load(args.config))
     L = Layout(config.results)
     timing = args.timing or [L.relight_timing(o) for o in catalog.plan(config).split("test")]
-    out = write_tables(config, Path(args.metrics or L.metrics("relight_per_image")),
-                       [Path(p) for p in timing], Path(args.out or L.tables_dir()),
-                       Path(args.prior_metrics or L.metrics("backbone")),
-                       Path(args.cross_light or L.metrics("relight_cross_light")))
+    out = write_tables(
+        config,
+        Path(args.metrics or L.metrics("relight_per_image")),
+        [Path(p) for p in timing],
+        Path(args.out or L.tables_dir()),
+        Path(args.prior_metrics or L.metrics("backbone")),
+        Path(args.cross_light or L.metrics("relight_cross_light")),
+    )
     for name, paths in out.items():
         print(f"== {name} ({paths['md']})\n{paths['md'].read_text()}")
     return 0

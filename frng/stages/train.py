@@ -13,12 +13,11 @@ from pathlib import Path
 
 from frng import config as frng_config
 from frng import distributed
-from frng.model.frng import all_variants, canonical_variant, trained_variants, variant_config
 from frng.io import check_file_index
 from frng.layout import Layout
-from frng.variants import split_seed
-from frng.variants import reads_priors
+from frng.model.frng import all_variants, canonical_variant, trained_variants, variant_config
 from frng.model.train import train
+from frng.variants import reads_priors, split_seed
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -37,7 +36,9 @@ def run(args: argparse.Namespace) -> int:
             c = canonical_variant(config, v)
             print(v if c == v else f"{v} (= {c})")
         return 0
-    if args.variant not in all_variants(config) and canonical_variant(config, args.variant) not in trained_variants(config):
+    if args.variant not in all_variants(config) and canonical_variant(config, args.variant) not in trained_variants(
+        config
+    ):
         variant_config(config, args.variant)  # raises for unknown names; other k<percent> values are allowed
     layout = Layout(config.results)
     out = Path(args.out or layout.model_dir(args.variant))
