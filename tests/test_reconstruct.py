@@ -146,3 +146,20 @@ def test_folder_of_pngs_to_a_relit_turntable(smoke, tmp_path):
         img = io.read_rgba(tmp_path / "turn" / f"turn_{i:03d}.exr", require_alpha=True)
         assert img[..., 3].max() > 0.5 and np.isfinite(img).all()
         assert (tmp_path / "turn" / f"turn_{i:03d}.png").exists()
+
+
+def test_turntable_video_writes_gif_and_mp4(tmp_path):
+    """The turntable writer: a GIF (Pillow) and an MP4 (imageio-ffmpeg, pinned) that read back with the frame
+    count and the upscaled size; a frame of 40 px is upscaled by an integer factor to >= VIDEO_MIN_SIZE."""
+    import imageio.v3 as iio
+
+    from frng.stages.render_asset import VIDEO_MIN_SIZE, check_video, write_video
+
+    check_video("mp4")  # the plugin is installed: no error
+    rng = np.random.default_rng(0)
+    frames = [rng.integers(0, 255, (40, 40, 3), dtype=np.uint8) for _ in range(6)]
+    k = -(-VIDEO_MIN_SIZE // 40)
+    for ext in ("gif", "mp4"):
+        path = write_video(tmp_path / f"turntable.{ext}", frames, fps=12.0)
+        back = iio.imread(path, index=None)
+        assert back.shape[0] == 6 and back.shape[1:3] == (40 * k, 40 * k), (ext, back.shape)

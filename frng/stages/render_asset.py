@@ -8,8 +8,9 @@ world), or ``--turntable N`` (default 24 when no file): N views around world Z a
 training rig's distance and field of view recorded in the asset (``--distance``, ``--fov`` override), looking at the
 origin. Writes per view ``{view}.exr`` (linear premultiplied RGBA) and ``{view}.png`` (sRGB, straight alpha),
 ``cameras.json``, and for a turntable ``turntable.gif`` (imageio, Pillow writer; frames composited over white and
-upscaled by an integer nearest-neighbour factor to at least :data:`VIDEO_MIN_SIZE` px; ``--video mp4`` needs an
-FFmpeg/PyAV plugin for imageio, which is not among this project's pinned packages: a clear error without one).
+upscaled by an integer nearest-neighbour factor to at least :data:`VIDEO_MIN_SIZE` px; ``--video mp4`` uses the
+imageio-ffmpeg plugin, pinned in requirements.lock (its own static FFmpeg binary, H.264); a clear error where neither
+it nor PyAV is installed).
 """
 
 from __future__ import annotations
