@@ -56,7 +56,7 @@ import numpy as np
 import torch
 
 from frng.gaussians import Gaussians
-from frng.io import atomic_path, current_umask, read_json, srgb_decode, srgb_encode, temp_dir, write_json
+from frng.io import atomic_path, read_json, save_safetensors, srgb_decode, srgb_encode, temp_dir, write_json
 
 FORMAT = "frng-asset"
 FORMAT_VERSION = 1
@@ -408,7 +408,6 @@ def save_asset(
     extra_files: file name -> writer(path), called with the path inside the staged folder, e.g. the input light
     and contact sheet ``frng reconstruct`` keeps beside the three asset files (readers ignore other files).
     """
-    from safetensors.torch import save_file
 
     folder = Path(folder)
     if features is None:
@@ -464,8 +463,7 @@ def save_asset(
                 "3DGS layout: opacity=logit, scale=log, rot=(w,x,y,z); feat_* = F-RNG features",
             ],
         )
-        save_file(state, str(tmp / DECODER_FILE), metadata={"format": FORMAT, "version": str(FORMAT_VERSION)})
-        os.chmod(tmp / DECODER_FILE, 0o666 & ~current_umask())  # safetensors writes 0600 whatever the umask
+        save_safetensors(state, tmp / DECODER_FILE, {"format": FORMAT, "version": str(FORMAT_VERSION)})
         write_json(tmp / META_FILE, info)
         for name, writer in (extra_files or {}).items():
             if name in (PLY_FILE, DECODER_FILE, META_FILE) or Path(name).name != name:

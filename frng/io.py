@@ -143,6 +143,35 @@ def save_torch(obj, path: str | os.PathLike) -> None:
             raise write_failure(path, e) from e
 
 
+def safetensors_bytes(tensors: Mapping, metadata: Mapping[str, str] | None = None) -> bytes:
+    """A safetensors file's bytes with a canonical header: ``safetensors.torch.save`` writes the metadata dict in
+    a random order per process (a Rust hash map), so the same tensors gave files with different sha256; here the
+    header's keys are sorted (same JSON, same length, so the data offsets and padding stay valid)."""
+    import struct
+
+    from safetensors.torch import save
+
+    raw = save({k: v.contiguous() for k, v in tensors.items()}, metadata=dict(metadata) if metadata else None)
+    (n,) = struct.unpack("<Q", raw[:8])
+    header = json.loads(raw[8 : 8 + n])
+    if "__metadata__" in header:
+        header["__metadata__"] = dict(sorted(header["__metadata__"].items()))
+    canon = json.dumps(header, separators=(",", ":"), ensure_ascii=False).encode()
+    if len(canon) > n:  # an escape spelled differently from the library's: keep its bytes (valid, unsorted)
+        return raw
+    return raw[:8] + canon + b" " * (n - len(canon)) + raw[8 + n :]
+
+
+def save_safetensors(tensors: Mapping, path: str | os.PathLike, metadata: Mapping[str, str] | None = None) -> None:
+    """Write :func:`safetensors_bytes` atomically (a killed job leaves no partial file); permissions follow the
+    umask (safetensors' own writer makes 0600 files)."""
+    with atomic_path(path) as tmp:
+        try:
+            tmp.write_bytes(safetensors_bytes(tensors, metadata))
+        except Exception as e:  # noqa: BLE001 -- safetensors' errors name no file (a full disk: os error 28)
+            raise write_failure(path, e) from e
+
+
 def write_json(path: str | os.PathLike, obj) -> None:
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(obj, indent=2, sort_keys=False) + "\n")

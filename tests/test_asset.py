@@ -168,7 +168,7 @@ def test_atomic_write(tmp_path, monkeypatch):
     def boom(*a, **k):
         raise OSError("disk full")
 
-    monkeypatch.setattr(safetensors.torch, "save_file", boom)
+    monkeypatch.setattr(safetensors.torch, "save", boom)
     with pytest.raises(OSError, match="disk full"):
         save_asset(tmp_path / "asset", gauss, feats, dec, META)
     assert list(tmp_path.iterdir()) == []

@@ -71,13 +71,7 @@ class StaleCacheError(RuntimeError):
 
 
 def _save(tensors: dict[str, torch.Tensor], meta: dict[str, str], path: Path) -> None:
-    from safetensors.torch import save_file
-
-    with io.atomic_path(path) as tmp:
-        try:
-            save_file({k: v.contiguous() for k, v in tensors.items()}, str(tmp), metadata=meta)
-        except Exception as e:  # noqa: BLE001 -- safetensors' errors name no file (a full disk: os error 28)
-            raise io.write_failure(path, e) from e
+    io.save_safetensors(tensors, path, meta)  # canonical header: the same cache gives the same bytes
 
 
 def _load(path: Path) -> tuple[dict[str, torch.Tensor], dict[str, str]]:
