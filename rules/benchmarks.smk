@@ -36,9 +36,7 @@ rule import_benchmark:
         mem_mb=4000,
         runtime=30,
     params:
-        config_digest=frng_config.rule_digest(config, "import_benchmark"),
-        py=PY,
-        config=CONFIG_FILE,
+        **stage_params("import_benchmark"),
         layout=lambda wildcards: BENCHMARKS[wildcards.bench]["layout"],
         flags=lambda wildcards: _BENCH_FLAGS[wildcards.bench],
     message:
@@ -68,9 +66,7 @@ rule relight_benchmark:
         runtime=60,
         gpu=TORCH_GPUS,
     params:
-        config_digest=frng_config.rule_digest(config, "relight_benchmark"),
-        py=PY,
-        config=CONFIG_FILE,
+        **stage_params("relight_benchmark"),
         models=lambda wildcards, input: os.path.dirname(os.path.dirname(input.models[0])),
     message:
         "Relighting benchmark object {wildcards.bench}: F-RNG runs and the backbone"
@@ -95,9 +91,7 @@ rule evaluate_benchmarks:
         mem_mb=3000,
         runtime=30,
     params:
-        config_digest=frng_config.rule_digest(config, "evaluate_benchmarks"),
-        py=PY,
-        config=CONFIG_FILE,
+        **stage_params("evaluate_benchmarks"),
         objects=BENCH_IDS,
         metrics=lambda wildcards, output: os.path.dirname(output.per_image),
         tables=lambda wildcards, output: os.path.dirname(output.tables[0]),

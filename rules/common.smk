@@ -118,6 +118,20 @@ def add_digest_inputs(rules):
 PY = sys.executable
 
 
+def digest_params(rule):
+    """The `params:` entry every rule declares, `config_digest` (the digest of the config keys its stage reads,
+    frng/config.py), so that Snakemake's params trigger reruns its jobs when one of them changes (rules/digests.smk
+    writes the same digest beside the results). Used as `**digest_params(name)`."""
+    return {"config_digest": frng_config.rule_digest(config, rule)}
+
+
+def stage_params(rule, *, py=True):
+    """The `params:` entries of every stage-running rule (`exec {params.py} -m frng <stage> --config {params.config}`),
+    used as `**stage_params(name)` before the rule's own: `config_digest`, `py` (the Python running the stages;
+    py=False where the rule has its own launcher) and `config` (the effective config file)."""
+    return {**digest_params(rule), **({"py": PY} if py else {}), "config": CONFIG_FILE}
+
+
 # Shared state of the rule files (defined here so that include order does not matter).
 try:
     CATALOG = frng_catalog.plan(config)  # the dataset plan: env maps, objects, splits, lights (no bpy, fast)

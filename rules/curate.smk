@@ -20,12 +20,10 @@ rule curate:
         mem_mb=2500,
         runtime=lambda wildcards: frng_catalog.curate_minutes(config, CATALOG.object(wildcards.obj)),
     params:
-        config_digest=frng_config.rule_digest(config, "curate"),
+        **stage_params("curate"),
         spec=lambda wildcards: json.dumps(CATALOG.object(wildcards.obj).to_dict(), sort_keys=True),
         envmaps=lambda wildcards, input: os.path.dirname(input.index),
         objects=lambda wildcards, output: os.path.dirname(os.path.dirname(output.meta)),  # {objects}/{obj}/meta.json
-        py=PY,
-        config=CONFIG_FILE,
     shell:
         "exec {params.py:q} -m frng curate --config {params.config:q} --object {wildcards.obj:q} "
         "--envmaps {params.envmaps:q} --out {params.objects:q} > {log:q} 2>&1"
@@ -45,10 +43,8 @@ rule dataset_preview:
         mem_mb=2000,
         runtime=5 + len(OBJECT_IDS) // 20,
     params:
-        config_digest=frng_config.rule_digest(config, "dataset_preview"),
+        **stage_params("dataset_preview"),
         out=lambda wildcards, output: os.path.dirname(output[0]),
-        py=PY,
-        config=CONFIG_FILE,
     message:
         "Contact sheets of {n} objects".format(n=len(OBJECT_IDS))
     shell:

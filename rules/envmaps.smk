@@ -19,10 +19,8 @@ rule envmaps:
         mem_mb=3000,
         runtime=10 + len(ENVMAP_NAMES) // 20,
     params:
-        config_digest=frng_config.rule_digest(config, "envmaps"),
+        **stage_params("envmaps"),
         out=lambda wildcards, output: os.path.dirname(output.index),
-        py=PY,
-        config=CONFIG_FILE,
     message:
         "Preparing {n} environment maps".format(n=len(ENVMAP_NAMES))
     shell:

@@ -33,9 +33,7 @@ rule evaluate:
         mem_mb=3000,
         runtime=30,
     params:
-        config_digest=frng_config.rule_digest(config, "evaluate"),
-        py=PY,
-        config=CONFIG_FILE,
+        **stage_params("evaluate"),
         out=lambda wildcards, output: os.path.dirname(output.per_image),
         objects=TEST_IDS,
     message:
@@ -72,9 +70,7 @@ rule tables:
         mem_mb=2000,
         runtime=10,
     params:
-        config_digest=frng_config.rule_digest(config, "tables"),
-        py=PY,
-        config=CONFIG_FILE,
+        **stage_params("tables"),
         out=lambda wildcards, output: os.path.dirname(output[0]),
     message:
         "The paper's tables: {names}".format(names=", ".join(TABLE_NAMES))
@@ -128,9 +124,7 @@ rule figures:
         mem_mb=2000,
         runtime=10,
     params:
-        config_digest=frng_config.rule_digest(config, "figures"),
-        py=PY,
-        config=CONFIG_FILE,
+        **stage_params("figures"),
         out=lambda wildcards, output: os.path.dirname(output.ablation),
         objects=TEST_IDS,
     message:

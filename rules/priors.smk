@@ -17,12 +17,10 @@ rule backbone_train:
     resources:
         mem_mb=6000,
         runtime=60,
-        gpu=1,
+        gpu=TORCH_GPUS,
     params:
-        config_digest=frng_config.rule_digest(config, "backbone_train"),
+        **stage_params("backbone_train"),
         out=lambda wildcards, output: os.path.dirname(output.model),
-        py=PY,
-        config=CONFIG_FILE,
     message:
         "Training the backbone on {n} training objects".format(n=len(TRAIN_IDS))
     shell:
@@ -44,12 +42,10 @@ rule idm_train:
     resources:
         mem_mb=4000,
         runtime=30,
-        gpu=1,
+        gpu=TORCH_GPUS,
     params:
-        config_digest=frng_config.rule_digest(config, "idm_train"),
+        **stage_params("idm_train"),
         out=lambda wildcards, output: os.path.dirname(output.model),
-        py=PY,
-        config=CONFIG_FILE,
     message:
         "Training the learned IDM on {n} training objects".format(n=len(TRAIN_IDS))
     shell:
@@ -72,11 +68,9 @@ rule backbone_cache:
     resources:
         mem_mb=3000,
         runtime=15,
-        gpu=1,
+        gpu=TORCH_GPUS,
     params:
-        config_digest=frng_config.rule_digest(config, "backbone_cache"),
-        py=PY,
-        config=CONFIG_FILE,
+        **stage_params("backbone_cache"),
     message:
         "Caching backbone tokens of {wildcards.obj}"
     shell:
@@ -100,11 +94,9 @@ rule idm_priors:
     resources:
         mem_mb=2000,
         runtime=10,
-        gpu=1,
+        gpu=TORCH_GPUS,
     params:
-        config_digest=frng_config.rule_digest(config, "idm_priors"),
-        py=PY,
-        config=CONFIG_FILE,
+        **stage_params("idm_priors"),
     message:
         "IDM priors ({kind}) of {{wildcards.obj}}".format(kind=config["idm"]["kind"])
     shell:
@@ -128,9 +120,7 @@ rule eval_backbone:
         mem_mb=4000,
         runtime=30,
     params:
-        config_digest=frng_config.rule_digest(config, "eval_backbone"),
-        py=PY,
-        config=CONFIG_FILE,
+        **stage_params("eval_backbone"),
     message:
         "Evaluating the frozen priors on the test objects"
     shell:

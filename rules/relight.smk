@@ -27,9 +27,7 @@ rule relight:
         runtime=60,
         gpu=TORCH_GPUS,
     params:
-        config_digest=frng_config.rule_digest(config, "relight"),
-        py=PY,
-        config=CONFIG_FILE,
+        **stage_params("relight"),
         models=lambda wildcards, input: os.path.dirname(os.path.dirname(input.models[0])),
     message:
         "Relighting {wildcards.obj}: F-RNG runs and the backbone under every target light"

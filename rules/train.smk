@@ -24,7 +24,7 @@ rule training_set_caches:
         L.log("training_set_caches"),
     localrule: True
     params:
-        config_digest=frng_config.rule_digest(config, "training_set_caches"),
+        **digest_params("training_set_caches"),
     message:
         "Index of the training split's backbone caches and curated objects ({n} objects)".format(n=len(TRAIN_IDS))
     run:
@@ -42,7 +42,7 @@ rule training_set_priors:
         L.log("training_set_priors"),
     localrule: True
     params:
-        config_digest=frng_config.rule_digest(config, "training_set_priors"),
+        **digest_params("training_set_priors"),
     message:
         "Index of the training split's IDM priors ({n} objects)".format(n=len(TRAIN_IDS))
     run:
@@ -74,10 +74,9 @@ rule train:
         runtime=60,
         gpu=TORCH_GPUS,
     params:
-        config_digest=frng_config.rule_digest(config, "train"),
+        **stage_params("train", py=False),
         out=lambda wildcards, output: os.path.dirname(output.model),
         launcher=lambda wildcards, resources: torchrun_command(resources.gpu, python=PY),
-        config=CONFIG_FILE,
     message:
         "Training F-RNG variant {wildcards.variant}"
     shell:
@@ -106,7 +105,7 @@ rule model_alias:
         mem_mb=500,
         runtime=5,
     params:
-        config_digest=frng_config.rule_digest(config, "model_alias"),
+        **digest_params("model_alias"),
     message:
         "F-RNG variant {wildcards.alias} is the full model (same K): copying it"
     shell:
