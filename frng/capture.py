@@ -750,11 +750,10 @@ def reconstruct(
 
     from frng import training as tr
     from frng.asset import RIG_KEY, render_settings, save_asset
-    from frng.config import typed
     from frng.layout import Layout, TrainingFolder
     from frng.relight import Timer, backbone_views
 
-    cfg = typed(config)
+    cfg = config
     rc = cfg.render
     cap = prepare(
         images,
@@ -873,6 +872,30 @@ def _rot_z(deg: float) -> np.ndarray:
     return R
 
 
+def export_object(config, oid: str, out: Path, views: int = 6) -> Path:
+    """A curated object's first ``views`` input views (input light) as straight-alpha sRGB PNGs
+    (``{out}/images/{view}.png``), their cameras (``{out}/cameras.json``, frng entries) and the input light
+    (``{out}/light.exr``). Returns ``out``."""
+    from frng.layout import Layout
+
+    L = Layout(config.results)
+    try:
+        meta = io.read_json(L.object_meta(oid))
+    except (FileNotFoundError, ValueError) as e:
+        raise CaptureError(f"{L.object_meta(oid)}: cannot read object metadata ({e})") from e
+    light = meta["input_lights"][0]
+    (out / "images").mkdir(parents=True, exist_ok=True)
+    cams = meta["views"]["inputs"][:views]
+    for cam in cams:
+        rgba = io.read_rgba(L.object_image(oid, "inputs", light, cam["name"]), require_alpha=True)
+        a = np.clip(rgba[..., 3:4], 0, 1)
+        rgb = np.where(a > 1e-6, rgba[..., :3] / np.maximum(a, 1e-6), 0.0)
+        io.write_png(out / "images" / f"{cam['name']}.png", np.concatenate([io.srgb_encode(rgb), a], -1))
+    io.write_json(out / "cameras.json", {"cameras": cams})
+    envmap.write(out / "light.exr", envmap.read(L.envmap(light)))
+    return out
+
+
 def measure(config, oid: str, work: str | Path, views: int = 6, settings=None) -> list[dict]:
     """Score ``frng reconstruct`` + ``frng render-asset`` on a curated test object against ``frng relight``'s ``full``
     run: the same target lights, target views, light-sample seeds and metrics (``eval`` protocol).
@@ -888,12 +911,10 @@ def measure(config, oid: str, work: str | Path, views: int = 6, settings=None) -
 
     from frng import metrics
     from frng.asset import AssetRenderer
-    from frng.config import typed
     from frng.data import catalog
     from frng.layout import Layout
-    from frng.stages.reconstruct import export_object
 
-    cfg = typed(config)
+    cfg = config
     L = Layout(cfg.results)
     work = Path(work)
     meta = io.read_json(L.object_meta(oid))

@@ -1,7 +1,7 @@
 """The ``frng`` command line: one subcommand per pipeline stage.
 
 Each stage lives in its own module, ``frng/stages/<rule>.py`` named after the Snakemake rule that runs it
-(:mod:`frng.stages`; ``frng config`` is :mod:`frng.config` itself), which provides two functions::
+(:mod:`frng.stages`; ``frng config`` is :mod:`frng.stages.config`), which provides two functions::
 
     def configure(parser: argparse.ArgumentParser) -> None   # add arguments (or sub-subcommands)
     def run(args: argparse.Namespace) -> int | None           # do the work
@@ -20,7 +20,7 @@ import sys
 
 # name -> (module, one-line help). Order is the pipeline order.
 STAGES: dict[str, tuple[str, str]] = {
-    "config": ("frng.config", "validate a config file and print it with defaults filled in"),
+    "config": ("frng.stages.config", "validate a config file and print it with defaults filled in"),
     "envmaps": ("frng.stages.envmaps", "collect, bake and rotate the environment maps (train/test split)"),
     "curate": ("frng.stages.curate", "render one object's views x lights + G-buffers with Blender Cycles"),
     "dataset": ("frng.stages.dataset_preview", "inspect the curated dataset (contact sheets)"),

@@ -22,12 +22,12 @@ them; the fine-grained Gaussians use a larger scale offset (see :mod:`frng.model
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 
 import torch
 
 from frng import camera
-from frng.config import section
+from frng.sections import Settings
 
 RAW_CHANNELS = 9  # distance 1, scale 3, rotation 4, opacity 1
 RAW_SPLIT = (1, 3, 4, 1)
@@ -39,7 +39,7 @@ FAR = 4.5
 
 
 @dataclass
-class GaussianDecodeConfig:
+class GaussianDecodeConfig(Settings):
     """Constants of the raw -> Gaussian decoding (RelitLRM's values by default)."""
 
     near: float = NEAR
@@ -47,15 +47,6 @@ class GaussianDecodeConfig:
     scale_offset: float = SCALE_OFFSET
     scale_max: float = SCALE_MAX
     opacity_offset: float = OPACITY_OFFSET
-
-    @classmethod
-    def from_dict(cls, d: dict) -> GaussianDecodeConfig:
-        """Strict (:func:`frng.config.section`): unknown keys are errors; a module setting, not a config section:
-        missing keys take the field defaults."""
-        return section(cls, d)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 def decode_raw(

@@ -119,7 +119,7 @@ class Layout(_Folder):
 
     def rule_digest(self, rule: str = "{rule}", digest: str = "{digest}") -> str:
         """``.digests/{rule}-{digest}.txt``: the record that ``rule``'s jobs run with config digest ``digest``
-        (:func:`frng.config.rule_digest`); every job of the rule reads it, so the digest travels with the folder."""
+        (:func:`frng.digests.rule_digest`); every job of the rule reads it, so the digest travels with the folder."""
         return self._p(".digests", f"{rule}-{digest}.txt")
 
     def lock(self) -> str:

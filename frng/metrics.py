@@ -61,6 +61,7 @@ from pathlib import Path
 import numpy as np
 
 from frng.io import atomic_path, composite, read_rgba, srgb_encode
+from frng.sections import register
 
 PROTOCOLS = ("aligned", "plain")
 DEFAULT_PROTOCOL = "aligned"
@@ -69,9 +70,10 @@ METRICS = ("psnr", "ssim", "lpips")
 HIGHER_IS_BETTER = {"psnr": True, "ssim": True, "lpips": False}
 
 
+@register("eval")
 @dataclass(frozen=True)
 class EvalConfig:
-    """The config's ``eval`` section: the protocol and background of the relighting metrics (frng.config.section;
+    """The config's ``eval`` section: the protocol and background of the relighting metrics (frng.sections.section;
     defaults: config/schema.yaml)."""
 
     protocol: str

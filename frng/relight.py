@@ -53,8 +53,8 @@ import numpy as np
 import torch
 
 from frng import envmap, io
-from frng.config import Config, typed
 from frng.layout import Layout, RelightFolder, TrainingFolder
+from frng.sections import TypedConfig
 from frng.variants import BACKBONE, RIG_VIEWS, Run, model_variants, runs  # noqa: F401
 
 
@@ -65,14 +65,13 @@ class RelightError(ValueError):
 # -- validation --------------------------------------------------------------------------------------
 
 
-def validate_inputs(config: Config | dict, oid: str) -> dict:
+def validate_inputs(config: TypedConfig, oid: str) -> dict:
     """Check everything ``relight`` reads, before anything is written. Returns the object's meta.json.
 
     Raises :class:`RelightError` naming the file: missing/unreadable meta.json, an object of the training split
     (relighting evaluates held-out objects), a missing, corrupt or non-RGBA input view (no alpha channel: the
     masks are part of the input), an input view that is not ``render.resolution`` square, a missing or non-2:1
     env map."""
-    config = typed(config)
     L = Layout(config.results)
     meta_path = Path(L.object_meta(oid))
     try:
@@ -105,7 +104,7 @@ def validate_inputs(config: Config | dict, oid: str) -> dict:
     return meta
 
 
-def check_test_split(config: Config | dict, oid: str, meta: dict, meta_path: Path) -> None:
+def check_test_split(config: TypedConfig, oid: str, meta: dict, meta_path: Path) -> None:
     """Refuse an object of the training split: its split as curated (``meta.json``'s ``split``) and as the config
     plans it must both be ``test``. Raises :class:`RelightError` naming the object and the file."""
     from frng.data import catalog
@@ -151,7 +150,7 @@ class Timer:
         self.s = time.perf_counter() - self.t0
 
 
-def backbone_views(config: Config, backbone, oid: str, views, env_in: torch.Tensor, light_in: str, device) -> dict:
+def backbone_views(config: TypedConfig, backbone, oid: str, views, env_in: torch.Tensor, light_in: str, device) -> dict:
     """The backbone's tokens for V input views, live, keyed as a cache entry (:class:`frng.priors.cache.
     BackboneCache.views`): t_geo (V, h, w, D), raw (V, H, W, 9), means/quats/scales/opacities, keep (N,) uint8,
     c2w, intr, light0.t_app (V, h, w, D), light0.sh (N, K, 3), the far-side copies back_*; light 0 = the input
@@ -191,7 +190,7 @@ def _write_images(folder: Path, light: str, names: list[str], rgba: torch.Tensor
 
 
 def relight_object(
-    config: Config | dict, oid: str, models: dict[str, Path], backbone_path: Path, out_root: Path, device: torch.device
+    config: TypedConfig, oid: str, models: dict[str, Path], backbone_path: Path, out_root: Path, device: torch.device
 ) -> dict:
     """Do the whole job for one object (see the module docstring). ``models``: variant -> model.pt.
 
@@ -201,7 +200,6 @@ def relight_object(
     from frng.priors import build_idm, load_backbone
     from frng.priors.dataset import load_object
 
-    config = typed(config)
     idm = build_idm(config, device)
     meta = io.read_json(Layout(config.results).object_meta(oid))
     the_runs = runs(config, len(meta["views"]["inputs"]))
@@ -395,11 +393,10 @@ def publish(staging: Path, results: Path, oid: str) -> None:
     os.replace(staged_timing(staging), timing)
 
 
-def relight(config: Config | dict, oid: str, models_dir: Path | None = None, device: str | None = None) -> dict:
+def relight(config: TypedConfig, oid: str, models_dir: Path | None = None, device: str | None = None) -> dict:
     """Validate, relight into a staging folder, publish. Returns the timing dict."""
     from frng import training as tr
 
-    config = typed(config)
     results = Path(config.results)
     L = Layout(results)
     validate_inputs(config, oid)

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from frng.config import Config
+from frng.typedconfig import Config, typed
 
 DEFAULT_CONFIGS = ["config/config.yaml", "config/paper.yaml"]
 
@@ -140,14 +140,18 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
     from frng.priors.dataset import Views
     from frng.priors.idm_train import idm_config
 
-    config = frng_config.typed(frng_config.load(path))
+    config = typed(frng_config.load(path))
     res = args.resolution
     patch = int(config.model.patch_size)
     if res % patch:
         raise SystemExit(f"--resolution {res} is not a multiple of the patch size {patch} ({path})")
     torch.manual_seed(args.seed)
-    backbone = freeze(backbone_mod.build(backbone_config(config)).to(dev))
-    idm = freeze(idm_mod.build(idm_config(config)).to(dev))
+    backbone = freeze(backbone_mod.build(backbone_config(config.backbone, config.model.patch_size)).to(dev))
+    idm = freeze(
+        idm_mod.build(idm_config(config.idm, config.model.patch_size, config.backbone.near, config.backbone.far)).to(
+            dev
+        )
+    )
     fcfg, _ = variant_config(config, "full", backbone.cfg.to_dict())
     shading = config.shading
     if args.bf16:

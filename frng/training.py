@@ -47,7 +47,6 @@ import torch
 from tqdm import tqdm
 
 from frng import io
-from frng.config import Config, typed
 from frng.layout import TrainingFolder
 
 
@@ -85,12 +84,6 @@ def autocast(device: torch.device, bf16: bool):
     if not (bf16 and bf16_ok(device)):
         return contextlib.nullcontext()
     return torch.autocast(device_type=device.type, dtype=torch.bfloat16)
-
-
-def train_seed(config: Config | dict) -> int:
-    """The learned models' seed: ``train_seed``, or the data's ``seed`` when it is null
-    (:attr:`frng.config.Config.model_seed`)."""
-    return typed(config).model_seed
 
 
 THREADS_ENV = "FRNG_TORCH_THREADS"

@@ -22,9 +22,10 @@ base dropped; only with ``shading.decoder_cosine``) and the ``backbone`` baselin
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from frng.config import Config, as_dict
+from frng.sections import TypedConfig, as_dict
 
 
 @dataclass(frozen=True)
@@ -76,19 +77,19 @@ def split_seed(name: str) -> tuple[str, int | None]:
     return base, int(seed)
 
 
-def model_seed(config: Config | dict) -> int:
-    """The models' seed (``train_seed``, else ``seed``), as :attr:`frng.config.Config.model_seed`, from the dict."""
+def model_seed(config: TypedConfig | Mapping) -> int:
+    """The models' seed (``train_seed``, else ``seed``), as :attr:`frng.typedconfig.Config.model_seed`, from the dict."""
     c = as_dict(config)
     return int(c["seed"] if c.get("train_seed") is None else c["train_seed"])
 
 
-def extra_seeds(config: Config | dict) -> list[int]:
+def extra_seeds(config: TypedConfig | Mapping) -> list[int]:
     """The seeds of ``train.seeds`` other than the models' seed (each adds ``{variant}@s{seed}`` models)."""
     own = model_seed(config)
     return [int(s) for s in dict.fromkeys(as_dict(config)["train"].get("seeds", [])) if int(s) != own]
 
 
-def seeded_variants(config: Config | dict) -> list[str]:
+def seeded_variants(config: TypedConfig | Mapping) -> list[str]:
     """``{variant}@s{seed}`` for ``full`` and every ablation of ``frng.variants``, per :func:`extra_seeds`."""
     f = as_dict(config)["frng"]
     return [seed_variant(v, s) for s in extra_seeds(config) for v in dict.fromkeys(["full", *f["variants"]])]
@@ -99,7 +100,7 @@ def k_variant(percent: float) -> str:
     return f"k{percent:g}"
 
 
-def all_variants(config: Config | dict) -> list[str]:
+def all_variants(config: TypedConfig | Mapping) -> list[str]:
     """Every variant the config asks for: ``frng.variants``, the K sweep (``frng.k_sweep``, percent), then the other
     training seeds (:func:`seeded_variants`)."""
     f = as_dict(config)["frng"]
@@ -141,7 +142,7 @@ def reads_priors(name: str) -> bool:
     return variant(name).reads_priors
 
 
-def canonical_variant(config: Config | dict, name: str) -> str:
+def canonical_variant(config: TypedConfig | Mapping, name: str) -> str:
     """The variant whose training produces ``name``'s model: the K-sweep entry equal to the full model's K is the
     full model itself (``k2`` -> ``full`` with the paper's K = 2%), so it is not trained twice. A training-seed
     suffix is kept (``k2@s1`` -> ``full@s1``)."""
@@ -152,7 +153,7 @@ def canonical_variant(config: Config | dict, name: str) -> str:
     return name
 
 
-def trained_variants(config: Config | dict) -> list[str]:
+def trained_variants(config: TypedConfig | Mapping) -> list[str]:
     """The variants that get a ``train`` job (aliases resolved, order kept, duplicates dropped)."""
     return list(dict.fromkeys(canonical_variant(config, v) for v in all_variants(config)))
 
@@ -178,7 +179,7 @@ class Run:
     decoder: str = "full"  # "full", or "base": the cosine decoder's Lambertian base alone (residual dropped)
 
 
-def runs(config: Config | dict, n_input_views: int | None = None) -> list[Run]:
+def runs(config: TypedConfig | Mapping, n_input_views: int | None = None) -> list[Run]:
     """All runs of one test object (``n_input_views`` None: the views the config gives every test object).
 
     ``frng.variants`` at 6 views, the K sweep ``frng.k_sweep`` (the entry equal to ``frng.top_k_percent`` is the
@@ -205,7 +206,7 @@ def runs(config: Config | dict, n_input_views: int | None = None) -> list[Run]:
     return out
 
 
-def model_variants(config: Config | dict) -> list[str]:
+def model_variants(config: TypedConfig | Mapping) -> list[str]:
     """The trained variants (``{results}/models/{variant}/model.pt``) the runs read."""
     return list(dict.fromkeys(r.variant for r in runs(config) if r.method != BACKBONE))
 

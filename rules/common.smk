@@ -11,6 +11,7 @@ from snakemake.logging import logger
 from snakemake_interface_executor_plugins.settings import ExecMode
 
 from frng import config as frng_config
+from frng import digests as frng_digests
 from frng.data import catalog as frng_catalog
 from frng.layout import Layout
 from frng.variants import all_variants
@@ -89,7 +90,7 @@ onstart:
         outcome = frng_config.record(config, CONFIG_FILE, overwrite=OVERWRITE_CONFIG)
     except frng_config.ConfigError as e:
         raise WorkflowError(str(e))
-    frng_config.remove_stale_digests(config, L.digests_dir())  # other configs' digest files (rule config_digest)
+    frng_digests.remove_stale_digests(config, L.digests_dir())  # other configs' digest files (rule config_digest)
     if outcome != "unchanged":
         logger.info(f"effective config {outcome}: {CONFIG_FILE}")
 
@@ -98,7 +99,7 @@ onstart:
 # {results}/.digests/{rule}-{digest}.txt; the default target asks for each of them.
 def digest_rules(rules):
     return [
-        r for r in rules if r.name not in frng_config.RULES_WITHOUT_DIGEST and r.name in frng_config.RULE_CONFIG_KEYS
+        r for r in rules if r.name not in frng_digests.RULES_WITHOUT_DIGEST and r.name in frng_digests.RULE_CONFIG_KEYS
     ]
 
 
@@ -108,7 +109,7 @@ def add_digest_inputs(rules):
     anyway: the target makes it run, and then every job reading it)."""
     files = []
     for r in digest_rules(rules):
-        path = L.rule_digest(r.name, frng_config.rule_digest(config, r.name))
+        path = L.rule_digest(r.name, frng_digests.rule_digest(config, r.name))
         r.set_input(config_digest=path)
         files.append(path)
     return files
@@ -120,9 +121,9 @@ PY = sys.executable
 
 def digest_params(rule):
     """The `params:` entry every rule declares, `config_digest` (the digest of the config keys its stage reads,
-    frng/config.py), so that Snakemake's params trigger reruns its jobs when one of them changes (rules/digests.smk
+    frng/digests.py), so that Snakemake's params trigger reruns its jobs when one of them changes (rules/digests.smk
     writes the same digest beside the results). Used as `**digest_params(name)`."""
-    return {"config_digest": frng_config.rule_digest(config, rule)}
+    return {"config_digest": frng_digests.rule_digest(config, rule)}
 
 
 def stage_params(rule, *, py=True):

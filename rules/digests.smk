@@ -16,4 +16,4 @@ rule config_digest:
     message:
         "Config digest of rule {wildcards.rule}: {wildcards.digest}"
     run:
-        frng_config.write_rule_digest(config, wildcards.rule, output[0], log=log[0])
+        frng_digests.write_rule_digest(config, wildcards.rule, output[0], log=log[0])

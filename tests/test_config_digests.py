@@ -21,6 +21,7 @@ import yaml
 from conftest import ROOT, venv_bin
 
 from frng import config as frng_config
+from frng import digests as frng_digests
 from frng.variants import trained_variants
 
 # -- the digest --------------------------------------------------------------------------------------------------
@@ -28,63 +29,63 @@ from frng.variants import trained_variants
 
 def test_digest_is_short_stable_and_ignores_key_order():
     cfg = frng_config.load(ROOT / "config" / "smoke.yaml")
-    d = frng_config.config_digest(cfg, ["train", "frng.hidden", "seed"])
+    d = frng_digests.config_digest(cfg, ["train", "frng.hidden", "seed"])
     assert re.fullmatch(r"[0-9a-f]{16}", d)
-    assert frng_config.config_digest(copy.deepcopy(cfg), ["seed", "train", "frng.hidden"]) == d
+    assert frng_digests.config_digest(copy.deepcopy(cfg), ["seed", "train", "frng.hidden"]) == d
     shuffled = {k: cfg[k] for k in reversed(list(cfg))}  # mapping order does not matter either
-    assert frng_config.config_digest(shuffled, ["frng.hidden", "seed", "train"]) == d
+    assert frng_digests.config_digest(shuffled, ["frng.hidden", "seed", "train"]) == d
     cfg["train"]["steps"] += 1
-    assert frng_config.config_digest(cfg, ["train", "frng.hidden", "seed"]) != d
+    assert frng_digests.config_digest(cfg, ["train", "frng.hidden", "seed"]) != d
 
 
 def test_digest_of_a_missing_key_is_null():
     keys = ["a.b"]
-    assert frng_config.config_digest({}, keys) == frng_config.config_digest({"a": {}}, keys)
-    assert frng_config.config_digest({"a": {"b": None}}, keys) == frng_config.config_digest({}, keys)
-    assert frng_config.config_digest({"a": {"b": 0}}, keys) != frng_config.config_digest({}, keys)
+    assert frng_digests.config_digest({}, keys) == frng_digests.config_digest({"a": {}}, keys)
+    assert frng_digests.config_digest({"a": {"b": None}}, keys) == frng_digests.config_digest({}, keys)
+    assert frng_digests.config_digest({"a": {"b": 0}}, keys) != frng_digests.config_digest({}, keys)
 
 
 def test_digest_exclusions():
     keys = ["shading", "!shading.spp_infer"]
     base = {"shading": {"spp_infer": 32, "spp_train": 16}, "seed": 0}
-    d = frng_config.config_digest(base, keys)
-    assert frng_config.config_digest({**base, "shading": {"spp_infer": 64, "spp_train": 16}}, keys) == d
-    assert frng_config.config_digest({**base, "shading": {"spp_infer": 32, "spp_train": 8}}, keys) != d
-    assert frng_config.config_digest({**base, "seed": 1}, keys) == d
+    d = frng_digests.config_digest(base, keys)
+    assert frng_digests.config_digest({**base, "shading": {"spp_infer": 64, "spp_train": 16}}, keys) == d
+    assert frng_digests.config_digest({**base, "shading": {"spp_infer": 32, "spp_train": 8}}, keys) != d
+    assert frng_digests.config_digest({**base, "seed": 1}, keys) == d
     assert base["shading"]["spp_infer"] == 32  # the config is not modified
     with pytest.raises(ValueError, match="train.steps"):
-        frng_config.config_digest(base, ["shading", "!train.steps"])
+        frng_digests.config_digest(base, ["shading", "!train.steps"])
 
 
 def test_map_names_schema_keys_only():
     """A misspelt key would digest as null for ever; results and the overwrite switch are never digested."""
-    assert frng_config.unknown_digest_keys() == []
-    assert frng_config.unknown_digest_keys({"properties": {"results": {"type": "string"}}}) != []
+    assert frng_digests.unknown_digest_keys() == []
+    assert frng_digests.unknown_digest_keys({"properties": {"results": {"type": "string"}}}) != []
 
 
 def test_every_schema_key_is_read_by_some_rule():
     """A key added to the schema must be added to the digests of the rules whose stages read it."""
-    assert frng_config.undigested_keys() == []
+    assert frng_digests.undigested_keys() == []
     schema = frng_config.load_schema()
     schema["properties"]["new_key"] = {"type": "integer"}
     schema["properties"]["train"]["properties"]["new_leaf"] = {"type": "integer"}
-    assert frng_config.undigested_keys(schema) == ["new_key"]  # train.* is digested whole (rule train)
+    assert frng_digests.undigested_keys(schema) == ["new_key"]  # train.* is digested whole (rule train)
     cfg = frng_config.load(ROOT / "config" / "smoke.yaml")
     moved = {**copy.deepcopy(cfg), "results": "elsewhere"}
-    for rule in frng_config.RULE_CONFIG_KEYS:
-        assert frng_config.rule_digest(moved, rule) == frng_config.rule_digest(cfg, rule), rule
+    for rule in frng_digests.RULE_CONFIG_KEYS:
+        assert frng_digests.rule_digest(moved, rule) == frng_digests.rule_digest(cfg, rule), rule
 
 
 def test_check_rule_digests_names_each_problem():
     cfg = frng_config.load(ROOT / "config" / "smoke.yaml")
-    good = {rule: frng_config.rule_digest(cfg, rule) for rule in frng_config.RULE_CONFIG_KEYS} | {"all": None}
-    frng_config.check_rule_digests(cfg, good)
+    good = {rule: frng_digests.rule_digest(cfg, rule) for rule in frng_digests.RULE_CONFIG_KEYS} | {"all": None}
+    frng_digests.check_rule_digests(cfg, good)
     with pytest.raises(frng_config.ConfigError, match=r"rule train: needs .*rule_digest\(config, \"train\"\)"):
-        frng_config.check_rule_digests(cfg, good | {"train": None})
+        frng_digests.check_rule_digests(cfg, good | {"train": None})
     with pytest.raises(frng_config.ConfigError, match="rule new_stage: not in RULE_CONFIG_KEYS"):
-        frng_config.check_rule_digests(cfg, good | {"new_stage": "x"})
+        frng_digests.check_rule_digests(cfg, good | {"new_stage": "x"})
     with pytest.raises(frng_config.ConfigError, match=r"RULE_CONFIG_KEYS\['figures'\]: no such rule"):
-        frng_config.check_rule_digests(cfg, {k: v for k, v in good.items() if k != "figures"})
+        frng_digests.check_rule_digests(cfg, {k: v for k, v in good.items() if k != "figures"})
 
 
 # -- the workflow: one edit per stage, the dry run's job list ----------------------------------------------------
@@ -242,18 +243,18 @@ def test_digest_files_are_recorded_and_replaced(tmp_path):
 
     cfg = frng_config.validate(yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text()))
     L = Layout(tmp_path)
-    first = Path(L.rule_digest("train", frng_config.rule_digest(cfg, "train")))
-    frng_config.write_rule_digest(cfg, "train", first)
+    first = Path(L.rule_digest("train", frng_digests.rule_digest(cfg, "train")))
+    frng_digests.write_rule_digest(cfg, "train", first)
     other_rule = tmp_path / ".digests" / "training_set_caches-0123abcd.txt"
     other_rule.write_text("{}")
     edited = set_key(cfg, "train.steps", 3)
-    second = Path(L.rule_digest("train", frng_config.rule_digest(edited, "train")))
-    frng_config.write_rule_digest(edited, "train", second)
+    second = Path(L.rule_digest("train", frng_digests.rule_digest(edited, "train")))
+    frng_digests.write_rule_digest(edited, "train", second)
     assert second != first and second.exists() and not first.exists() and other_rule.exists()
     assert yaml.safe_load(second.read_text())["values"]["train"]["steps"] == 3
     with pytest.raises(frng_config.ConfigError, match="not the digest file"):
-        frng_config.write_rule_digest(cfg, "train", second)
+        frng_digests.write_rule_digest(cfg, "train", second)
     # when jobs start, the digest files of other configs go (a --touch run leaves them)
     (tmp_path / ".digests" / "notes.txt").write_text("")
-    assert frng_config.remove_stale_digests(edited, L.digests_dir()) == [other_rule]
+    assert frng_digests.remove_stale_digests(edited, L.digests_dir()) == [other_rule]
     assert second.exists() and (tmp_path / ".digests" / "notes.txt").exists()

@@ -1,5 +1,7 @@
-"""The typed config (frng/config.py ``Config``, ``typed``, ``section``): one frozen dataclass per schema section,
-strict (unknown keys are errors), with config/schema.yaml as the one place defaults are written."""
+"""The typed config (frng/typedconfig.py ``Config``, ``typed``; frng/sections.py ``section``): one frozen dataclass per
+schema section, strict (unknown keys are errors), with config/schema.yaml as the one place defaults are written: every
+object section of the schema has a registered class whose fields are its keys (a key added to the schema and not to
+its class, or the other way round, fails here)."""
 
 import dataclasses
 import subprocess
@@ -9,7 +11,9 @@ from pathlib import Path
 import pytest
 
 from frng import config as fc
-from frng.config import SECTION_CLASSES, Config, ConfigError, schema_defaults, schema_keys, section, section_class
+from frng import digests
+from frng.sections import SECTIONS, ConfigError, as_dict, schema_defaults, schema_keys, section, section_keys
+from frng.typedconfig import SECTION_CLASSES, Config, typed
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ("config/config.yaml", "config/smoke.yaml", "config/paper.yaml")
@@ -38,25 +42,27 @@ def _records():
     ]
 
 
-@pytest.mark.parametrize("where", sorted(SECTION_CLASSES))
+def test_every_schema_section_has_its_class():
+    """frng.typedconfig assembles a class for every object section of the schema, and registers no other."""
+    assert set(SECTIONS) == set(section_keys()), (sorted(set(section_keys()) - set(SECTIONS)), sorted(set(SECTIONS)))
+    assert {SECTIONS[k] for k in SECTIONS} == set(SECTION_CLASSES)
+
+
+@pytest.mark.parametrize("where", section_keys())
 def test_section_fields_are_the_schema_keys(where):
-    cls = section_class(where)
+    cls = SECTIONS[where]
     fields = {f.name for f in dataclasses.fields(cls)}
     keys = set(schema_keys(where))
     assert fields - INTERNAL.get(where, set()) == keys, f"{cls.__name__} vs schema section {where or '<root>'}"
     assert dataclasses.is_dataclass(cls) and cls.__dataclass_params__.frozen
-    for f in dataclasses.fields(cls):
-        key = f"{where}.{f.name}" if where else f.name
-        if key in SECTION_CLASSES:  # a nested section is built as its own class
-            assert section_class(key) is not None
 
 
-@pytest.mark.parametrize("where", sorted(SECTION_CLASSES))
+@pytest.mark.parametrize("where", section_keys())
 def test_no_python_default_for_a_schema_key(where):
     """The schema's defaults are the only defaults: a field that is a schema key has none of its own; internal
     fields (no schema key) have one."""
     keys = set(schema_keys(where))
-    for f in dataclasses.fields(section_class(where)):
+    for f in dataclasses.fields(SECTIONS[where]):
         if f.name in keys:
             assert not _has_default(f), f"{where}.{f.name}: default written twice (schema and Python)"
         else:
@@ -71,22 +77,22 @@ def test_model_records_have_no_defaults_and_their_keys():
             assert {f.name for f in fields} - extra <= set(schema_keys(where)), cls.__name__
 
 
-@pytest.mark.parametrize("where", sorted(SECTION_CLASSES))
+@pytest.mark.parametrize("where", section_keys())
 def test_unknown_key_is_an_error_naming_it(where):
     dotted = f"{where}.stepz" if where else "stepz"
     with pytest.raises(ConfigError, match=rf"^{dotted.replace('.', '[.]')}: unknown key; known: "):
-        section(section_class(where), {"stepz": 1}, where)
+        section(SECTIONS[where], {"stepz": 1}, where)
 
 
 def test_unknown_nested_key_and_model_records():
     d = fc.load(ROOT / "config/smoke.yaml")
     bad = fc.merge(d, {"train": {"loss": {"lambda_x": 1.0}}})
     with pytest.raises(ConfigError, match=r"^train[.]loss[.]lambda_x: unknown key"):
-        fc.typed(bad)
+        typed(bad)
     from frng.model.frng import FRNGConfig, variant_config
     from frng.priors.backbone import BackboneConfig
 
-    cfg, _ = variant_config(d, "full")
+    cfg, _ = variant_config(typed(d), "full")
     assert FRNGConfig.from_dict(cfg.to_dict()) == cfg  # a model file's config loads back
     with pytest.raises(ConfigError, match=r"^FRNGConfig[.]bogus: unknown key"):
         FRNGConfig.from_dict({**cfg.to_dict(), "bogus": 1})
@@ -109,24 +115,24 @@ def test_missing_keys_take_the_schema_defaults():
 @pytest.mark.parametrize("path", SHIPPED)
 def test_shipped_configs_round_trip(path):
     d = fc.load(ROOT / path)
-    c = fc.typed(d)
-    assert isinstance(c, Config) and fc.typed(c) is c
+    c = typed(d)
+    assert isinstance(c, Config) and typed(c) is c
     assert c.to_dict() == d
     assert c.train.steps == d["train"]["steps"] and c.render.resolution == d["render"]["resolution"]
     assert (
         c.backbone.train.lr == d["backbone"]["train"]["lr"]
         and c.frng.saliency.box_size == d["frng"]["saliency"]["box_size"]
     )
-    assert fc.as_dict(c) == d and fc.as_dict(d) is d
-    assert fc.rule_digest(c.to_dict(), "train") == fc.rule_digest(d, "train")
+    assert as_dict(c) == d and as_dict(d) is d
+    assert digests.rule_digest(c.to_dict(), "train") == digests.rule_digest(d, "train")
     with pytest.raises(dataclasses.FrozenInstanceError):
         c.train.steps = 1  # type: ignore[misc]
 
 
 def test_config_module_stays_torch_free():
-    """frng.config (and the planning helpers the rule files call with the dict) import no torch."""
+    """frng.config, frng.digests (and the planning helpers the rule files call with the dict) import no torch."""
     code = (
-        "import sys, frng.config as fc, frng.data.catalog as cat, frng.variants as v; "
+        "import sys, frng.config as fc, frng.digests, frng.data.catalog as cat, frng.variants as v; "
         "d = fc.load('config/smoke.yaml'); cat.plan(d); v.runs(d); print('torch' in sys.modules)"
     )
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
@@ -134,7 +140,7 @@ def test_config_module_stays_torch_free():
 
 
 def test_every_config_from_dict_is_strict():
-    """No lenient copy is left: every ``from_dict`` of a config dataclass builds through frng.config.section (the
+    """No lenient copy is left: every ``from_dict`` of a config dataclass builds through frng.sections.section (or inherits frng.sections.Settings's) (the
     one exception, IntrinsicPriors.from_dict, reads tensors, not a config), and nothing filters keys by the
     dataclass's fields."""
     import re

@@ -28,6 +28,7 @@ sys.path.insert(0, {here!r})
 from test_idm_generalise import sphere_object
 from frng import config as frng_config
 from frng.priors import backbone_train
+from frng.typedconfig import typed
 from frng.priors.dataset import Views
 
 config = frng_config.validate({config!r})
@@ -40,7 +41,7 @@ obj.targets["t0"] = Views([f"tgt_{{i:03d}}" for i in range(4)], v.rgb * torch.te
                           v.c2w, v.intr)
 h = config["backbone"]["env_height"]
 obj.envs.update({{l: torch.rand(h, 2 * h, 3, generator=g) * 2 for l in ("l0", "l1", "t0")}})
-path = backbone_train.train(config, [obj], Path({out!r}), steps={steps})
+path = backbone_train.train(typed(config), [obj], Path({out!r}), steps={steps})
 sd = torch.load(path, weights_only=False)["state_dict"]
 digest = hashlib.sha256()
 for k in sorted(sd):

@@ -10,6 +10,7 @@ from data_helpers import frng, write_config
 from frng import config as frng_config
 from frng import envmap, io
 from frng.data import catalog, envmaps
+from frng.sections import schema_defaults
 
 
 def _cfg(count=3, seed=0):
@@ -32,7 +33,7 @@ def test_studio_plan_is_seeded_and_off_by_default():
     assert [e.to_dict() for e in a] == [e.to_dict() for e in b]
     assert [e.studio for e in studios] != [e.studio for e in catalog.envmap_plan(_cfg(seed=1)) if e.source == "studio"]
     d = catalog.StudioConfig(
-        **{k: tuple(v) if isinstance(v, list) else v for k, v in frng_config.schema_defaults("envmaps.studio").items()}
+        **{k: tuple(v) if isinstance(v, list) else v for k, v in schema_defaults("envmaps.studio").items()}
     )
     for e in studios:
         lights = e.studio["lights"]

@@ -15,6 +15,7 @@ from frng.priors.dataset import PriorObject, Views
 from frng.priors.idm import IDMConfig, LearnedIDM, idm_loss
 from frng.priors.intrinsics import IntrinsicPriors
 from frng.priors.multiview import geometry_cues
+from frng.typedconfig import typed
 
 NEAR, FAR, RADIUS = 1.0, 4.5, 0.6
 TINY = dict(width=32, heads=2, depth=1, patch=8, pixel_features=8, near=NEAR, far=FAR, head_hidden=16, cue_bins=24)
@@ -105,7 +106,7 @@ def test_cue_cache_reuses_the_hull_under_another_light():
 def test_overfits_one_object(tmp_path):
     config = trainer_config({"steps": 60, "lr": 3e-3, "warmup": 2, "bf16": False, "checkpoint_every": 60})
     torch.manual_seed(0)
-    path = idm_train.train(config, [sphere_object()], tmp_path / "idm")
+    path = idm_train.train(typed(config), [sphere_object()], tmp_path / "idm")
     with open(tmp_path / "idm" / "loss.csv") as f:
         loss = [float(r["total"]) for r in csv.DictReader(f)]
     assert len(loss) == 60

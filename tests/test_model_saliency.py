@@ -5,7 +5,6 @@ import math
 import pytest
 import torch
 
-from frng.config import ConfigError
 from frng.model.saliency import (
     SaliencyConfig,
     boundary_weight,
@@ -16,6 +15,7 @@ from frng.model.saliency import (
     salient_patches,
     select_top_k,
 )
+from frng.sections import ConfigError
 
 
 def textured_square(size=64, lo=16, hi=48, seed=0):

@@ -12,6 +12,8 @@ from pathlib import Path
 import pytest
 import torch
 
+from frng.typedconfig import typed
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -55,15 +57,15 @@ def test_backbone_resume_cache_and_stale(smoke):
 
     _, config = smoke
     res = Path(config["results"])
-    objs = load_split(config, "train")
+    objs = load_split(typed(config), "train")
     out = res / "backbone"
-    backbone_train.train(config, objs, out, stop_after=5)
+    backbone_train.train(typed(config), objs, out, stop_after=5)
     assert torch.load(out / "checkpoint.pt", weights_only=False)["step"] == 5
-    model = backbone_train.train(config, objs, out)  # resumes at 5
+    model = backbone_train.train(typed(config), objs, out)  # resumes at 5
     rows = _rows(out / "loss.csv")
     assert [int(r["step"]) for r in rows] == list(range(1, config["backbone"]["train"]["steps"] + 1))
     test_id = cache.catalog.plan(config).split("test")[0]
-    p = cache.make_backbone_cache(config, test_id, model, res / "backbone" / "cache" / f"{test_id}.safetensors")
+    p = cache.make_backbone_cache(typed(config), test_id, model, res / "backbone" / "cache" / f"{test_id}.safetensors")
     c = cache.load_backbone_cache(p, model)
     assert len(c.lights) == 2 and c.lights[0] == c.meta["input_light"]
     train_lights = {e.name for e in cache.catalog.plan(config).envmaps if e.split == "train"}
@@ -88,9 +90,9 @@ def test_priors_beat_trivial_baselines(smoke):
     _, config = smoke
     res = Path(config["results"])
     assert (res / "backbone" / "model.pt").exists() and (res / "idm" / "model.pt").exists()
-    train_objs, test = load_split(config, "train"), load_split(config, "test")
+    train_objs, test = load_split(typed(config), "train"), load_split(typed(config), "test")
     rows = evaluate.eval_backbone(
-        config, load_backbone(res / "backbone" / "model.pt"), test, evaluate.mean_image(train_objs)
+        typed(config), load_backbone(res / "backbone" / "model.pt"), test, evaluate.mean_image(train_objs)
     )
 
     def mean(method, key):
@@ -99,7 +101,7 @@ def test_priors_beat_trivial_baselines(smoke):
 
     assert mean("backbone", "psnr") > mean("mean-image", "psnr") + 1.0
     assert 0 <= mean("backbone", "lpips") < mean("mean-image", "lpips")  # recorded for the ladder's rows a-c
-    idm_rows = evaluate.eval_idm(config, build_idm(config), test, train_objs)
+    idm_rows = evaluate.eval_idm(typed(config), build_idm(typed(config)), test, train_objs)
     learned = [r for r in idm_rows if r["method"] == "idm-learned"]
     const = [r for r in idm_rows if r["method"] == "constant"]
     assert sum(r["albedo_psnr"] for r in learned) > sum(r["albedo_psnr"] for r in const) + 0.2 * len(learned)
@@ -116,9 +118,9 @@ def test_backbone_overfits_one_object(smoke):
     from frng.priors.dataset import load_split
 
     _, config = smoke
-    obj = load_split(config, "train")[0]
+    obj = load_split(typed(config), "train")[0]
     torch.manual_seed(0)
-    model = bb.RelitLRMBackbone(bt.backbone_config(config))
+    model = bb.RelitLRMBackbone(bt.backbone_config(typed(config).backbone, config["model"]["patch_size"]))
     tcfg = bt.BackboneTrainConfig.from_dict({**config["backbone"]["train"], "bf16": False})
     opt = torch.optim.Adam(model.parameters(), lr=3e-3)
     l2 = []

@@ -20,6 +20,8 @@ import pytest
 import yaml
 from conftest import ROOT, venv_bin
 
+from frng.typedconfig import typed
+
 TOLERANCE_DB = 0.5
 
 
@@ -30,17 +32,18 @@ def smoke(tmp_path_factory):
     from frng import config as frng_config
     from frng.data import catalog
     from frng.layout import Layout
+    from frng.typedconfig import typed
 
     given = os.environ.get("FRNG_SMOKE_RESULTS")
     if given:
-        config = frng_config.typed(frng_config.load(Path(given) / "config.yaml"))
+        config = typed(frng_config.load(Path(given) / "config.yaml"))
     else:
         pytest.importorskip("bpy")
         d = tmp_path_factory.mktemp("recon_smoke")
         cfg = yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text())
         cfg["results"] = str(d / "results")
         (d / "smoke.yaml").write_text(yaml.safe_dump(cfg))
-        config = frng_config.typed(frng_config.load(d / "smoke.yaml"))
+        config = typed(frng_config.load(d / "smoke.yaml"))
         L = Layout(config.results)
         targets = [L.model("full")] + [L.relight_timing(o) for o in catalog.plan(config).split("test")]
         r = subprocess.run(
@@ -62,7 +65,7 @@ def smoke(tmp_path_factory):
             timeout=1800,
         )
         assert r.returncode == 0, (r.stdout + r.stderr)[-3000:]
-        config = frng_config.typed(frng_config.load(Path(config.results) / "config.yaml"))
+        config = typed(frng_config.load(Path(config.results) / "config.yaml"))
     oid = catalog.plan(config).split("test")[0]
     return config, oid
 
@@ -73,7 +76,7 @@ def test_capture_of_a_test_object_reproduces_relight(smoke, tmp_path):
     from frng.capture import measure
 
     config, oid = smoke
-    df = pd.DataFrame(measure(config, oid, tmp_path))
+    df = pd.DataFrame(measure(typed(config), oid, tmp_path))
     mean = df.groupby("setting")["psnr"].mean()
     print("\n" + df.groupby("setting")[["psnr", "ssim", "lpips"]].mean().to_string())
     assert np.isfinite(df[["psnr", "ssim", "lpips"]].to_numpy()).all()

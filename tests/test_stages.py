@@ -43,7 +43,7 @@ NO_STAGE = {
     "(frng.io.write_file_index)",
     "training_set_priors": "Snakemake bookkeeping: likewise, the index of the training split's IDM priors",
     "config_digest": "Snakemake bookkeeping: a `run:` block recording a rule's config digest in the results folder "
-    "(frng.config.write_rule_digest)",
+    "(frng.digests.write_rule_digest)",
 }
 # stage modules without a rule, and why
 STAGES_WITHOUT_RULE = {
@@ -52,12 +52,10 @@ STAGES_WITHOUT_RULE = {
     "tests/test_benchmarks.py (nothing downstream in the workflow reads it)",
     "frng.stages.reconstruct": "your own photos -> an asset, run by hand (tests/test_reconstruct.py)",
     "frng.stages.render_asset": "renders an asset folder, run by hand (tests/test_reconstruct.py)",
+    "frng.stages.config": "`frng config` validates a config file and prints it, run by make before snakemake",
 }
 # ``frng`` subcommands whose module is not in frng/stages/, and why
-OUTSIDE_STAGES = {
-    "config": "frng.config validates configs for every stage and the workflow; `frng config` is its own CLI, run "
-    "by make before snakemake (no rule)",
-}
+OUTSIDE_STAGES: dict[str, str] = {}
 # ``frng <subcommand> <action>`` of the rules' commands (a stage with sub-subcommands)
 SUB_ACTIONS = {"dataset": ["preview"], "bench": ["render", "relight"]}
 

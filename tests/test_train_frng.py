@@ -14,6 +14,8 @@ import pytest
 import torch
 from conftest import smoke_results
 
+from frng.typedconfig import typed
+
 
 @pytest.fixture(scope="module")
 def frng_smoke(smoke_dataset, tmp_path_factory):
@@ -24,7 +26,7 @@ def frng_smoke(smoke_dataset, tmp_path_factory):
     d = tmp_path_factory.mktemp("train_smoke")
     path, config = smoke_results(smoke_dataset, d, idm={"kind": "oracle"})
     res = Path(config["results"])
-    model = backbone_train.train(config, load_split(config, "train"), res / "backbone")
+    model = backbone_train.train(typed(config), load_split(config, "train"), res / "backbone")
     for oid in catalog.plan(config).split("train"):
         cache.make_backbone_cache(config, oid, model, res / "backbone" / "cache" / f"{oid}.safetensors")
         cache.make_idm_priors(config, oid, res / "priors" / "idm" / f"{oid}.safetensors")
@@ -36,7 +38,9 @@ def _objects(config, use_priors=True):
     from frng.model.train import load_objects
 
     res = Path(config["results"])
-    return load_objects(config, catalog.plan(config).split("train"), res / "backbone" / "model.pt", use_priors, 6)
+    return load_objects(
+        typed(config), catalog.plan(config).split("train"), res / "backbone" / "model.pt", use_priors, 6
+    )
 
 
 def _fixed_loss(model, objects, config) -> float:
@@ -70,7 +74,7 @@ def test_frozen_backbone_gets_no_gradient(frng_smoke):
     _, config = frng_smoke
     res = Path(config["results"])
     backbone = load_backbone(res / "backbone" / "model.pt")
-    model, ind = build_model(config, "full", res / "backbone" / "model.pt", "cpu")
+    model, ind = build_model(typed(config), "full", res / "backbone" / "model.pt", "cpu")
     from frng.model.frng import FRNG
 
     model = FRNG.from_backbone(model.cfg, backbone, model.raster_cfg, model.shading_cfg)
@@ -111,7 +115,7 @@ def test_no_idm_never_reads_priors(frng_smoke, tmp_path, monkeypatch):
         raise AssertionError("no-idm read IDM priors")
 
     monkeypatch.setattr(cache_mod, "load_idm_priors", boom)
-    out = train_mod.train(cfg, "no-idm", tmp_path / "no-idm", steps=2)
+    out = train_mod.train(typed(cfg), "no-idm", tmp_path / "no-idm", steps=2)
     assert out.exists()
     from frng.model.frng import FRNG
 
@@ -134,10 +138,10 @@ def test_training_overfits_one_object(frng_smoke, tmp_path):
     # under the default target-foreground L_2 the untrained Lambertian relighting already leaves little to fit
     config = {**config, "train": {**config["train"], "l2_pixels": "union"}}
     objs = _objects(config)[:1]
-    fresh, _ = train_mod.build_model(config, "full", Path(config["results"]) / "backbone" / "model.pt", "cpu")
+    fresh, _ = train_mod.build_model(typed(config), "full", Path(config["results"]) / "backbone" / "model.pt", "cpu")
     before = _fixed_loss(fresh, objs, config)
     t0 = time.time()
-    path = train_mod.train(config, "full", tmp_path / "full", steps=STEPS, objects=objs)
+    path = train_mod.train(typed(config), "full", tmp_path / "full", steps=STEPS, objects=objs)
     wall = time.time() - t0
     after = _fixed_loss(FRNG.load(path, "cpu"), objs, config)
     print(f"smoke full: fixed-sample L2 {before:.4f} -> {after:.4f} in {wall:.1f}s")
@@ -157,8 +161,8 @@ def test_no_neural_ablation_starts_at_the_same_lambertian_relighting(frng_smoke)
     objs = _objects(config)[:2]
     bb = Path(config["results"]) / "backbone" / "model.pt"
     torch.manual_seed(0)
-    full = _fixed_loss(train_mod.build_model(config, "full", bb, "cpu")[0], objs, config)
-    pbr = _fixed_loss(train_mod.build_model(config, "no-neural", bb, "cpu")[0], objs, config)
+    full = _fixed_loss(train_mod.build_model(typed(config), "full", bb, "cpu")[0], objs, config)
+    pbr = _fixed_loss(train_mod.build_model(typed(config), "no-neural", bb, "cpu")[0], objs, config)
     print(f"untrained fixed-sample L2: full {full:.4f}, no-neural {pbr:.4f}")
     assert pbr < 2.0 * full  # measured 0.047 vs 0.039 (GGX adds its rough specular lobe); the old start ~black
 
@@ -195,7 +199,7 @@ def test_no_neural_renders_no_black_holes(frng_smoke):
     objs = _objects(config)[:2]
     torch.manual_seed(0)
     path = train_mod.train(
-        config, "no-neural", Path(config["results"]) / "models" / "no-neural-holes", steps=8, objects=objs
+        typed(config), "no-neural", Path(config["results"]) / "models" / "no-neural-holes", steps=8, objects=objs
     )
     holes, lit = _black_holes(FRNG.load(path, "cpu"), objs)
     print(f"no-neural black holes: {holes} of {lit} lit pixels")

@@ -26,14 +26,15 @@ from test_idm_generalise import TINY, sphere_object, trainer_config
 
 from frng import training as tr
 from frng.priors import idm_train
+from frng.typedconfig import typed
 
 HERE = Path(__file__).resolve().parent
 STEPS = 10
 
 
-def _config(**train) -> dict:
+def _config(**train):
     t = {"steps": STEPS, "lr": 3e-3, "warmup": 2, "bf16": False, "checkpoint_every": 3} | train
-    return trainer_config(t)
+    return typed(trainer_config(t))
 
 
 def _objects():

@@ -7,6 +7,7 @@ import yaml
 
 from frng import config as frng_config
 from frng import variants as V
+from frng.typedconfig import typed
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -22,19 +23,22 @@ def test_variant_config_applies_the_table():
     from frng.model.frng import variant_config
 
     config = frng_config.load(ROOT / "config" / "smoke.yaml")
-    full, ind_full = variant_config(config, "full")
+    full, ind_full = variant_config(typed(config), "full")
     assert full.fine and full.prior_dim > 0 and full.head == "neural" and ind_full.lambda_c > 0
-    assert not variant_config(config, "no-fine")[0].fine
-    assert variant_config(config, "no-idm")[0].prior_dim == 0 and not variant_config(config, "no-idm")[0].uses_priors
-    ind = variant_config(config, "no-ind")[1]
+    assert not variant_config(typed(config), "no-fine")[0].fine
+    assert (
+        variant_config(typed(config), "no-idm")[0].prior_dim == 0
+        and not variant_config(typed(config), "no-idm")[0].uses_priors
+    )
+    ind = variant_config(typed(config), "no-ind")[1]
     assert ind.lambda_c == 0 and ind.lambda_kld == 0
-    assert variant_config(config, "no-neural")[0].head == "pbr"
-    assert variant_config(config, "k8")[0].top_k == pytest.approx(0.08)
+    assert variant_config(typed(config), "no-neural")[0].head == "pbr"
+    assert variant_config(typed(config), "k8")[0].top_k == pytest.approx(0.08)
     k_full = V.k_variant(config["frng"]["top_k_percent"])
-    assert variant_config(config, k_full) == (full, ind_full)  # the K-sweep entry equal to K is the full model
+    assert variant_config(typed(config), k_full) == (full, ind_full)  # the K-sweep entry equal to K is the full model
     for bad in ("no-such", "kx", "k0", "k200"):
         with pytest.raises(ValueError, match=bad):
-            variant_config(config, bad)
+            variant_config(typed(config), bad)
 
 
 def test_labels_and_priors_come_from_the_table():

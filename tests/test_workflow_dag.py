@@ -21,6 +21,7 @@ from pathlib import Path
 import pytest
 
 from frng import config as frng_config
+from frng import digests as frng_digests
 
 ROOT = Path(__file__).resolve().parent.parent
 SNAKEMAKE = str(Path(sys.executable).parent / "snakemake")
@@ -59,7 +60,7 @@ EXPECTED = {
     "tables": lambda c: 1,
     "figures": lambda c: 1,
     # one digest file per rule with a config digest ({results}/.digests, rules/digests.smk), asked for by rule all
-    "config_digest": lambda c: len(frng_config.RULE_CONFIG_KEYS),
+    "config_digest": lambda c: len(frng_digests.RULE_CONFIG_KEYS),
 }
 
 

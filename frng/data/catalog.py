@@ -19,13 +19,14 @@ import json
 import os
 import re
 import zlib
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from frng.config import Config, as_dict, config_section
 from frng.layout import Layout
+from frng.sections import TypedConfig, as_dict, config_section, register
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".gltf", ".glb")
 ENVMAP_SUFFIXES = (".exr", ".hdr")
@@ -66,15 +67,17 @@ OWN_SPECULAR_ROUGHNESS = 0.5  # mean roughness below this -> specular
 OWN_SPECULAR_METALLIC = 0.5  # mean metallic at or above this -> specular
 
 
+@register("envmaps.skies")
 @dataclass(frozen=True)
 class SkiesConfig:
-    """The config's ``envmaps.skies`` section (frng.config.section; defaults: config/schema.yaml)."""
+    """The config's ``envmaps.skies`` section (frng.sections.section; defaults: config/schema.yaml)."""
 
     models: tuple[str, ...]
     sun_elevations_deg: tuple[float, ...]
     turbidity: float
 
 
+@register("envmaps.studio")
 @dataclass(frozen=True)
 class StudioConfig:
     """The config's ``envmaps.studio`` section: procedural studio maps (area lights over a dim background)."""
@@ -87,9 +90,10 @@ class StudioConfig:
     background: float
 
 
+@register("envmaps")
 @dataclass(frozen=True)
 class EnvmapsConfig:
-    """The config's ``envmaps`` section (frng.config.section; defaults: config/schema.yaml). ``extra`` holds the
+    """The config's ``envmaps`` section (frng.sections.section; defaults: config/schema.yaml). ``extra`` holds the
     user's entries as mappings (path, split, licence)."""
 
     width: int
@@ -102,10 +106,11 @@ class EnvmapsConfig:
     studio: StudioConfig
 
 
+@register("render")
 @dataclass(frozen=True)
 class RenderConfig:
     """The config's ``render`` section: Cycles settings, the camera rig (:mod:`frng.data.rig`) and the lights per
-    object (frng.config.section; defaults: config/schema.yaml)."""
+    object (frng.sections.section; defaults: config/schema.yaml)."""
 
     resolution: int
     spp: int
@@ -120,9 +125,10 @@ class RenderConfig:
     fur_strands: int
 
 
+@register("objects")
 @dataclass(frozen=True)
 class ObjectsConfig:
-    """The config's ``objects`` section (frng.config.section; defaults: config/schema.yaml). ``material_mix`` maps a
+    """The config's ``objects`` section (frng.sections.section; defaults: config/schema.yaml). ``material_mix`` maps a
     material class to its fraction; ``extra`` holds the user's entries as mappings (path, split, up, material,
     licence)."""
 
@@ -136,6 +142,7 @@ class ObjectsConfig:
     libero: LiberoConfig
 
 
+@register("objects.libero")
 @dataclass(frozen=True)
 class LiberoConfig:
     """The config's ``objects.libero`` section: modelled textured objects of the LIBERO asset packages."""
@@ -146,6 +153,7 @@ class LiberoConfig:
     material: str
 
 
+@register("objects.objaverse")
 @dataclass(frozen=True)
 class ObjaverseConfig:
     """The config's ``objects.objaverse`` section: Objaverse 1.0 objects by uid and/or by an annotation filter,
@@ -314,7 +322,7 @@ def _cached_glb(root: Path, uid: str) -> Path | None:
     return hits[0] if hits else None
 
 
-def objaverse_file(config: Config | dict, uid: str) -> Path:
+def objaverse_file(config: TypedConfig | Mapping, uid: str) -> Path:
     """The cached GLB of Objaverse ``uid``. Nothing is fetched when it is there; otherwise, with
     ``objects.objaverse.download`` and the ``objaverse`` package installed, the package downloads the missing
     uids of the plan into the cache; else (or if that fails) a one-line :class:`CatalogError` names every
@@ -348,7 +356,7 @@ def objaverse_file(config: Config | dict, uid: str) -> Path:
     )
 
 
-def objaverse_annotation(config: Config | dict, uid: str, path: Path | None = None) -> dict | None:
+def objaverse_annotation(config: TypedConfig | Mapping, uid: str, path: Path | None = None) -> dict | None:
     """The cached annotation of ``uid`` (from ``metadata/{group}.json.gz``, group = the GLB's folder), or None."""
     root = objaverse_dir(config_section(config, "objects").objaverse)
     path = path or _cached_glb(root, uid)
@@ -470,7 +478,7 @@ def _split_bases(bases: list[str], fraction: float, seed: int) -> dict[str, str]
     return {b: ("test" if b in test else "train") for b in bases}
 
 
-def envmap_plan(config: Config | dict) -> list[EnvMapSpec]:
+def envmap_plan(config: TypedConfig | Mapping) -> list[EnvMapSpec]:
     """Every environment map the ``envmaps`` stage writes, in a fixed order."""
     env, seed = config_section(config, "envmaps"), config_section(config, "seed")
     bases: list[tuple[str, str, str, str, dict | None]] = []  # base, source, licence, origin, sky
@@ -647,7 +655,7 @@ def _assign_lights(rng: np.random.Generator, pool: list[str], n_in: int, n_tgt: 
     return tuple(inputs), tuple(targets)
 
 
-def object_plan(config: Config | dict, envmaps: list[EnvMapSpec] | None = None) -> list[ObjectSpec]:
+def object_plan(config: TypedConfig | Mapping, envmaps: list[EnvMapSpec] | None = None) -> list[ObjectSpec]:
     """Every object of the dataset, built-ins first (``obj_0000 ..``), then users' meshes (``user_<stem>``)."""
     seed, objects = config_section(config, "seed"), config_section(config, "objects")
     render = config_section(config, "render")
@@ -825,9 +833,9 @@ def _plan_cached(config_json: str) -> Catalog:
     return Catalog(tuple(envmaps), tuple(object_plan(config, envmaps)))
 
 
-def plan(config: Config | dict) -> Catalog:
+def plan(config: TypedConfig | Mapping) -> Catalog:
     """The whole dataset plan of a validated config (cached per config content). Reads the config mapping (the
-    Snakemake rule files plan with it, torch-free); a :class:`frng.config.Config` is turned back into it."""
+    Snakemake rule files plan with it, torch-free); a :class:`frng.typedconfig.Config` is turned back into it."""
     return _plan_cached(json.dumps(as_dict(config), sort_keys=True, default=str))
 
 
@@ -843,13 +851,13 @@ def pybullet_data_dir() -> Path:
 # -- workflow helpers (rules/curate.smk) ---------------------------------------------------------------------
 
 
-def images_per_object(config: Config | dict, spec: ObjectSpec) -> int:
+def images_per_object(config: TypedConfig | Mapping, spec: ObjectSpec) -> int:
     """Number of RGBA images one curation job renders."""
     r = config_section(config, "render")
     return (r.input_views + r.extra_input_views) * len(spec.input_lights) + r.target_views * len(spec.target_lights)
 
 
-def curate_minutes(config: Config | dict, spec: ObjectSpec) -> int:
+def curate_minutes(config: TypedConfig | Mapping, spec: ObjectSpec) -> int:
     """Runtime estimate of one curation job in minutes: ~0.1 s per 64 px / 32 spp image on 2 threads
     (measured), scaled by pixels x samples / threads, times 3 for margin, plus 5 min start-up slack."""
     r = config_section(config, "render")
@@ -857,7 +865,7 @@ def curate_minutes(config: Config | dict, spec: ObjectSpec) -> int:
     return max(5, int(3 * images_per_object(config, spec) * per_image / 60) + 5)
 
 
-def curate_inputs(config: Config | dict, spec: ObjectSpec) -> dict:
+def curate_inputs(config: TypedConfig | Mapping, spec: ObjectSpec) -> dict:
     """Input files of one curation job: the env-map index (it changes whenever any map changes; listing every
     light map instead would give the paper-scale DAG 100k inputs and minutes of planning) and a user's mesh."""
     inputs = {"index": Layout(config_section(config, "results")).envmap_index()}

@@ -29,22 +29,19 @@ curation starts.
 
 from __future__ import annotations
 
-import contextlib
-import os
 import re
 import shutil
-import signal
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
 
 from frng import envmap, io
-from frng.config import Config, typed
 from frng.data import catalog, rig
 from frng.data.envmaps import read_index
+from frng.data.stopguard import NoGuard, StopGuard
 from frng.layout import EnvmapFolder, Layout, ObjectFolder
+from frng.sections import TypedConfig
 
 GBUFFER_CHANNELS = (
     "A",
@@ -63,59 +60,6 @@ META_VERSION = 1
 
 class CurationError(RuntimeError):
     """Curation of one object failed; the message names the object and file."""
-
-
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-
-
-class StopGuard:
-    """SIGINT (Ctrl-C) and SIGTERM (scancel, a job killed by its scheduler) end the process at once -- also in the
-    middle of a Cycles render -- after removing the paths registered in :attr:`paths`; exit status 128 + signal.
-
-    Why not Python's ordinary handlers: ``import bpy`` installs Blender's own SIGINT handler (in background mode it
-    only cancels the image being rendered, so a curation ran on and exited 0), and re-installing Python's does not
-    help either: Cycles renders through Python (``cycles.engine.render``), so the KeyboardInterrupt is raised
-    inside Blender's callback, which prints it and carries on. Here the C-level handler only writes the signal
-    number to a pipe (``signal.set_wakeup_fd``); a thread waiting on it (Blender releases the GIL while it renders)
-    takes :attr:`lock`, removes the paths and calls ``os._exit``. The main thread holds :attr:`lock` while it
-    writes into a registered path, so the removal never races a write.
-
-    Installed by the CLI only (``run``): a library caller of :func:`curate` keeps its own handlers.
-    """
-
-    def __init__(self, name: str):
-        self.name = name
-        self.lock = threading.RLock()
-        self.paths: list[Path] = []
-
-    def install(self) -> StopGuard:
-        r, w = os.pipe()
-        os.set_blocking(w, False)
-        for sig in STOP_SIGNALS:
-            signal.signal(sig, lambda signum, frame: None)  # Python's C handler (replacing Blender's) + wakeup fd
-        signal.set_wakeup_fd(w, warn_on_full_buffer=False)
-        threading.Thread(target=self._watch, args=(r,), name="frng-stop-guard", daemon=True).start()
-        return self
-
-    def _watch(self, fd: int) -> None:
-        while True:
-            stops = [b for b in os.read(fd, 64) if b in STOP_SIGNALS]
-            if stops:
-                break
-        signum = stops[0]
-        self.lock.acquire()  # never released: nothing is written after this
-        for path in self.paths:
-            shutil.rmtree(path, ignore_errors=True)
-        os.write(2, f"{self.name}: stopped by {signal.Signals(signum).name}; removed the partial output\n".encode())
-        os._exit(128 + signum)
-
-
-class _NoGuard:
-    """:class:`StopGuard`'s interface without signal handling (library use of :func:`curate`)."""
-
-    def __init__(self):
-        self.lock = contextlib.nullcontext()
-        self.paths: list[Path] = []
 
 
 def stale_temp_dirs(out_root: Path, oid: str) -> list[Path]:
@@ -195,7 +139,7 @@ def check_envmaps(spec: catalog.ObjectSpec, env_dir: Path) -> dict[str, dict]:
 
 
 def curate(
-    config: Config | dict, oid: str, env_dir: Path, out_root: Path, log=print, guard: StopGuard | None = None
+    config: TypedConfig, oid: str, env_dir: Path, out_root: Path, log=print, guard: StopGuard | None = None
 ) -> Path:
     """Render object ``oid`` into ``out_root/oid`` (atomically). Returns the final folder.
 
@@ -203,11 +147,10 @@ def curate(
     SIGTERM; every write into them happens under its lock."""
     import bpy  # noqa: F401  (fail early, clearly, if bpy is missing)
 
-    guard = guard or _NoGuard()
+    guard = guard or NoGuard()
     from frng.blender import materials, objects, world
     from frng.blender import scene as bscene
 
-    config = typed(config)
     cat = catalog.plan(config)
     spec = cat.object(oid)
     render = config.render

@@ -30,9 +30,10 @@ from pathlib import Path
 import numpy as np
 
 from frng import envmap, io
-from frng.config import Config, typed
 from frng.data import catalog
+from frng.data.stopguard import NoGuard
 from frng.layout import EnvmapFolder
+from frng.sections import TypedConfig
 
 SKY_BAKE_WIDTH = 512  # skies are smooth; baked at this width then resized
 GROUND_ALBEDO = 0.3
@@ -123,19 +124,16 @@ def load_base(spec: catalog.EnvMapSpec, work: Path, threads: int) -> np.ndarray:
     raise ValueError(f"unknown env-map source {spec.source!r}")
 
 
-def prepare(config: Config | dict, out: Path, log=print, guard=None) -> list[dict]:
+def prepare(config: TypedConfig, out: Path, log=print, guard=None) -> list[dict]:
     """Write every planned map into ``out`` (see the module docstring). Returns the index records.
 
     All-or-nothing: the maps and records are written into a staging folder ``out/.tmp-envmaps-*`` and moved into
     place only once every map succeeded, each EXR before its record, the index last -- so a failed or killed run
     never leaves a record without its map (nor a half-written map). Records whose map is missing (left by older
     runs, or by Snakemake deleting a failed job's maps) and staging folders of killed runs are removed first.
-    ``guard``: a :class:`frng.data.curate.StopGuard` that removes the staging folder on SIGINT/SIGTERM.
+    ``guard``: a :class:`frng.data.stopguard.StopGuard` that removes the staging folder on SIGINT/SIGTERM.
     """
-    from frng.data.curate import _NoGuard  # (curate imports this module)
-
-    guard = guard or _NoGuard()
-    config = typed(config)
+    guard = guard or NoGuard()
     env = config.envmaps
     specs = catalog.envmap_plan(config)
     out.mkdir(parents=True, exist_ok=True)

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from frng import io
-from frng.config import Config, typed
 from frng.data.dataset import ObjectData
 from frng.layout import Layout
+from frng.sections import TypedConfig
 
 BACKGROUND = (0.18, 0.18, 0.18)  # linear grey behind the renders
 LABEL_W = 150
@@ -107,9 +107,9 @@ def _draw_labels(sheet: np.ndarray, names: list[str], cell: int, title: str) -> 
 
 
 def write_previews(
-    config: Config | dict, objects: list[str], out: Path, cell: int, max_views: int, max_lights: int, log=print
+    config: TypedConfig, objects: list[str], out: Path, cell: int, max_views: int, max_lights: int, log=print
 ) -> list[Path]:
-    L = Layout(typed(config).results)
+    L = Layout(config.results)
     paths = []
     for oid in objects:
         obj = ObjectData.open(L.object_dir(oid))

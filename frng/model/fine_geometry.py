@@ -39,18 +39,18 @@ Exact choices (the paper leaves them open):
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import torch
 from torch import nn
 
 from frng import camera
-from frng.config import section
 from frng.gaussians import RAW_CHANNELS, GaussianDecodeConfig, Gaussians, decode_raw
+from frng.sections import Settings
 
 
 @dataclass
-class FineGeometryConfig:
+class FineGeometryConfig(Settings):
     """Fine-geometry parameters (proposed config section ``model.fine``)."""
 
     upsample: int = 2  # s: fine tokens per patch = s*s; must divide the patch size
@@ -62,15 +62,6 @@ class FineGeometryConfig:
     def __post_init__(self):
         if self.upsample < 1 or self.patch % self.upsample:
             raise ValueError(f"fine.upsample ({self.upsample}) must be >= 1 and divide the patch size ({self.patch})")
-
-    @classmethod
-    def from_dict(cls, d: dict) -> FineGeometryConfig:
-        """Strict (:func:`frng.config.section`): unknown keys are errors; a module setting, not a config section:
-        missing keys take the field defaults."""
-        return section(cls, d)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 def fine_positions(patch_idx: torch.Tensor, w: int, s: int, dtype=torch.float32) -> torch.Tensor:

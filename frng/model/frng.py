@@ -34,7 +34,6 @@ import torch
 from torch import nn
 
 from frng import camera, envmap
-from frng.config import Config, section, section_dict, typed
 from frng.gaussians import GaussianDecodeConfig, Gaussians
 from frng.model.fine_geometry import FineGeometry, FineGeometryConfig, fine_keep_mask, sample_pixels
 from frng.model.light_independence import LightIndependenceConfig
@@ -50,12 +49,14 @@ from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, sele
 from frng.model.tokenizers import PriorTokenizer, stack_priors
 from frng.render import RasterConfig, rasterize
 from frng.render.shading import GGX_MIN_ALBEDO, NeuralDecoder, ShadingConfig, deferred_shade, ggx_shade, lambert_sh
+from frng.sections import TypedConfig, register, section, section_dict
 from frng.training import bf16_ok
 from frng.variants import BASE_VARIANTS, all_variants, canonical_variant, k_variant, trained_variants, variant
 
 MODEL_KIND = "frng"
 
 
+@register("frng")
 @dataclass(frozen=True)
 class FRNGSection:
     """The config's ``frng`` section: the variants to train and the architecture (see config/README.md; defaults:
@@ -106,7 +107,7 @@ class FRNGConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> FRNGConfig:
-        """Strict (:func:`frng.config.section`): a model file's ``config`` with a key this code does not know, or
+        """Strict (:func:`frng.sections.section`): a model file's ``config`` with a key this code does not know, or
         without one it needs, is an error naming it."""
         return section(cls, d)
 
@@ -701,7 +702,7 @@ class FRNG(nn.Module):
 
 
 def variant_config(
-    config: Config | dict, name: str, backbone_cfg: dict | None = None
+    config: TypedConfig, name: str, backbone_cfg: dict | None = None
 ) -> tuple[FRNGConfig, LightIndependenceConfig]:
     """(architecture, L_ind weights) of a variant from a validated pipeline config.
 
@@ -710,7 +711,7 @@ def variant_config(
     """
     from frng.priors.backbone import BackboneConfig
 
-    c = typed(config)
+    c = config
     f, sh = c.frng, c.shading
     bb = BackboneConfig.from_dict(backbone_cfg) if backbone_cfg else c.backbone
     cfg = FRNGConfig(

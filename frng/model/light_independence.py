@@ -25,16 +25,16 @@ lambda_1, lambda_per) = (0.2, 0.2, 1.0, 0.5); lambda_1/lambda_per weight the ren
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 
-from frng.config import section
+from frng.sections import Settings
 
 
 @dataclass
-class LightIndependenceConfig:
+class LightIndependenceConfig(Settings):
     """Weights and temperature of L_ind (proposed config section ``model.loss`` / ``train.loss``)."""
 
     lambda_c: float = 0.2
@@ -44,15 +44,6 @@ class LightIndependenceConfig:
     def __post_init__(self):
         if self.temperature <= 0:
             raise ValueError("light-independence temperature must be > 0")
-
-    @classmethod
-    def from_dict(cls, d: dict) -> LightIndependenceConfig:
-        """Strict (:func:`frng.config.section`): unknown keys are errors; a module setting, not a config section:
-        missing keys take the field defaults."""
-        return section(cls, d)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 def _check(a: torch.Tensor, b: torch.Tensor) -> None:

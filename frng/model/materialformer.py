@@ -29,21 +29,21 @@ Attention uses :func:`torch.nn.functional.scaled_dot_product_attention` (via :mo
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import torch
 from torch import nn
 
-from frng.config import section
 from frng.nn import Transformer, unpatchify
 from frng.render.shading import GGX_MAX_METALLIC, GGX_MIN_ALBEDO, GGX_MIN_ROUGHNESS
+from frng.sections import Settings
 
 PBR_CHANNELS = 8  # albedo 3, roughness 1, metallic 1, normal 3
 MIN_ROUGHNESS = GGX_MIN_ROUGHNESS
 
 
 @dataclass
-class MaterialFormerConfig:
+class MaterialFormerConfig(Settings):
     """MaterialFormer / MatDetokenizer sizes (proposed config section ``model.materialformer``)."""
 
     geo_dim: int = 256  # width of T_geo (the backbone's)
@@ -64,15 +64,6 @@ class MaterialFormerConfig:
     @property
     def out_channels(self) -> int:
         return self.feature_dim if self.head == "neural" else PBR_CHANNELS
-
-    @classmethod
-    def from_dict(cls, d: dict) -> MaterialFormerConfig:
-        """Strict (:func:`frng.config.section`): unknown keys are errors; a module setting, not a config section:
-        missing keys take the field defaults."""
-        return section(cls, d)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 class MaterialFormer(nn.Module):

@@ -41,11 +41,12 @@ import torch
 import torch.nn.functional as F
 from scipy import ndimage
 
-from frng.config import section
+from frng.sections import register, section
 
 LUMA = (0.2126, 0.7152, 0.0722)  # Rec. 709 on linear RGB
 
 
+@register("frng.saliency")
 @dataclass(frozen=True)
 class SaliencyConfig:
     """Saliency / patch-selection parameters: the config's ``frng.saliency`` section (defaults:
@@ -73,7 +74,7 @@ class SaliencyConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> SaliencyConfig:
-        """Strict (:func:`frng.config.section`): unknown keys are errors, missing ones take the schema's defaults
+        """Strict (:func:`frng.sections.section`): unknown keys are errors, missing ones take the schema's defaults
         (``{}``: the defaults)."""
         return section(cls, d, "frng.saliency")
 

@@ -46,16 +46,17 @@ from torch import nn
 
 from frng import distributed, envmap, io
 from frng import training as tr
-from frng.config import Config, config_section, typed
 from frng.layout import Layout
 from frng.model.frng import FRNG, canonical_variant, variant_config
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
+from frng.sections import TypedConfig, config_section, register
 
 CACHE_KEYS = ("t_geo", "raw_prior", "means", "quats", "scales", "opacities", "keep", "c2w", "intr")  # + light{j}.t_app
 BACK_KEYS = tuple("back_" + k for k in ("means", "quats", "scales", "opacities", "src", "dirs"))  # when cached
 LOSS_NAMES = ["total", "l2", "alpha", "perceptual", "ind", "ind_cos", "ind_kld"]
 
 
+@register("train.loss")
 @dataclass(frozen=True)
 class LossConfig:
     """The config's ``train.loss`` section: the loss weights (see config/README.md; defaults: config/schema.yaml)."""
@@ -68,6 +69,7 @@ class LossConfig:
     temperature: float
 
 
+@register("train")
 @dataclass(frozen=True)
 class TrainConfig:
     """The config's ``train`` section (see config/README.md; defaults: config/schema.yaml)."""
@@ -96,7 +98,7 @@ class TrainConfig:
         object.__setattr__(self, "seeds", tuple(int(c) for c in self.seeds))
 
     @classmethod
-    def from_config(cls, config: Config | dict) -> TrainConfig:
+    def from_config(cls, config: TypedConfig) -> TrainConfig:
         return config_section(config, "train")
 
     def steps_for(self, variant: str) -> int:
@@ -117,13 +119,12 @@ class TrainObject:
 
 
 def load_objects(
-    config: Config | dict, ids: list[str], backbone_path: Path, use_priors: bool, V: int
+    config: TypedConfig, ids: list[str], backbone_path: Path, use_priors: bool, V: int
 ) -> list[TrainObject]:
     """Read caches + curated images of ``ids``. IDM priors are opened only when ``use_priors``."""
     from frng.data.dataset import open_object
     from frng.priors.cache import load_backbone_cache, load_idm_priors
 
-    config = typed(config)
     L = Layout(config.results)
     idm_model = L.idm_model() if config.idm.kind == "learned" else None
     envs: dict[str, torch.Tensor] = {}
@@ -272,13 +273,10 @@ def sample(obj: TrainObject, rng: random.Random, n_views: int) -> tuple[int, int
     return j, ti, vidx
 
 
-def build_model(
-    config: Config | dict, variant: str, backbone_path: Path, device
-) -> tuple[FRNG, LightIndependenceConfig]:
+def build_model(config: TypedConfig, variant: str, backbone_path: Path, device) -> tuple[FRNG, LightIndependenceConfig]:
     """A fresh variant model, FineGeoDetokenizer initialised from the frozen backbone's GeoDetokenizer."""
     from frng.priors import load_backbone
 
-    config = typed(config)
     backbone = load_backbone(backbone_path, "cpu")
     cfg, ind = variant_config(config, variant, backbone.cfg.to_dict())
     model = FRNG.from_backbone(cfg, backbone, config.raster, config.shading)
@@ -286,7 +284,7 @@ def build_model(
 
 
 def train(
-    config: Config | dict,
+    config: TypedConfig,
     variant: str,
     out: Path,
     backbone_path: Path | None = None,
@@ -296,14 +294,13 @@ def train(
 ) -> Path:
     """Train (or resume) one variant; returns ``out/model.pt`` (or the checkpoint when stopped by ``stop_after``,
     which tests use to simulate an interruption)."""
-    config = typed(config)
     variant = canonical_variant(config, variant)
     backbone_path = Path(backbone_path or Layout(config.results).backbone_model())
     tcfg = config.train
     total = steps or tcfg.steps_for(variant)
     info = distributed.init(config.device)
     device = info.device
-    distributed.seed_everything(tr.train_seed(config), info, per_rank=False)  # identical init on every rank
+    distributed.seed_everything(config.model_seed, info, per_rank=False)  # identical init on every rank
     model, ind = build_model(config, variant, backbone_path, device)
     if objects is None:
         from frng.data import catalog
@@ -331,14 +328,14 @@ def train(
         model.cfg.to_dict(),
         tcfg,
         total,
-        tr.train_seed(config),
+        config.model_seed,
         variant=variant,
         shading=asdict(model.shading_cfg),
         world=info.world_size,
         backbone_sha256=tr.file_sha256(backbone_path),
         data=hooks.gather(tr.data_digest(objects)),
     )
-    rng = random.Random(distributed.rank_seed(tr.train_seed(config), info))
+    rng = random.Random(distributed.rank_seed(config.model_seed, info))
     local_batch = max(1, tcfg.batch // info.world_size)
 
     def step_fn(step: int) -> dict[str, float]:
@@ -346,7 +343,7 @@ def train(
         for b in range(local_batch):
             obj = objects[rng.randrange(len(objects))]
             j, ti, vidx = sample(obj, rng, tcfg.target_views)
-            seed = (tr.train_seed(config) * 1_000_003 + step * 1009 + info.rank * 31 + b) % (2**31 - 1)
+            seed = (config.model_seed * 1_000_003 + step * 1009 + info.rank * 31 + b) % (2**31 - 1)
             samples.append((obj, j, ti, vidx, seed))
         step_loss.step = step
         loss, logs = ddp(samples)

@@ -22,8 +22,8 @@ from typing import Protocol
 import torch
 from torch import nn
 
-from frng.config import Config, typed
 from frng.io import CorruptFileError, load_torch
+from frng.sections import TypedConfig
 
 BACKBONES: dict[str, Callable[..., nn.Module]] = {}
 IDMS: dict[str, Callable[..., IDMPrior]] = {}
@@ -128,17 +128,17 @@ class DiffusionRendererIDMPrior:
         )
 
 
-def _learned(config: Config, device="cpu") -> IDMPrior:
+def _learned(config: TypedConfig, device="cpu") -> IDMPrior:
     from frng.layout import Layout
 
     return LearnedIDMPrior(Path(Layout(config.results).idm_model()), device)
 
 
-def _oracle(config: Config, device="cpu") -> IDMPrior:
+def _oracle(config: TypedConfig, device="cpu") -> IDMPrior:
     return OracleIDMPrior()
 
 
-def _diffusion_renderer(config: Config, device="cpu") -> IDMPrior:
+def _diffusion_renderer(config: TypedConfig, device="cpu") -> IDMPrior:
     c = config.idm
     if not c.diffusion_renderer_dir:
         raise ValueError("config key 'idm.diffusion_renderer_dir': required for idm.kind = diffusion-renderer")
@@ -147,11 +147,11 @@ def _diffusion_renderer(config: Config, device="cpu") -> IDMPrior:
     )
 
 
-def build_idm(config: Config | dict, device="cpu", kind: str | None = None) -> IDMPrior:
-    kind = kind or typed(config).idm.kind
+def build_idm(config: TypedConfig, device="cpu", kind: str | None = None) -> IDMPrior:
+    kind = kind or config.idm.kind
     if kind not in IDMS:
         raise KeyError(f"unknown IDM kind {kind!r}; registered: {sorted(IDMS)}")
-    return IDMS[kind](typed(config), device)
+    return IDMS[kind](config, device)
 
 
 register_backbone("relitlrm", _load_relitlrm)

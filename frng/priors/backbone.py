@@ -64,13 +64,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import torch
 from torch import nn
 
 from frng import camera
-from frng.config import section
 from frng.gaussians import GaussianDecodeConfig, Gaussians, isotropic_raw, pixel_gaussians
 from frng.nn import PatchDetokenizer, PatchTokenizer, Transformer, timestep_embedding
 from frng.priors.diffusion import NoiseSchedule, from_diffusion_space, to_diffusion_space
@@ -78,9 +77,7 @@ from frng.priors.envenc import EnvTokenizer
 from frng.priors.multiview import CUE_CHANNELS, geometry_cues
 from frng.render import rasterize
 from frng.render.sh import C0, eval_sh
-
-if TYPE_CHECKING:
-    from frng.priors.backbone_train import BackboneTrainConfig
+from frng.sections import section
 
 GEO_CHANNELS = 9  # distance 1, scale 3, rotation 4, opacity 1 (RelitLRM's split)
 
@@ -88,7 +85,7 @@ GEO_CHANNELS = 9  # distance 1, scale 3, rotation 4, opacity 1 (RelitLRM's split
 @dataclass(frozen=True)
 class BackboneArch:
     """The architecture keys of the config's ``backbone`` section (defaults: config/schema.yaml), shared by the
-    section (:class:`BackboneSection`) and a model's architecture record (:class:`BackboneConfig`)."""
+    section (:class:`frng.priors.backbone_train.BackboneSection`) and a model's architecture record (:class:`BackboneConfig`)."""
 
     width: int
     heads: int
@@ -112,16 +109,6 @@ class BackboneArch:
 
 
 @dataclass(frozen=True)
-class BackboneSection(BackboneArch):
-    """The config's ``backbone`` section: the architecture, the registry name, the extra lights of the token cache and
-    the training (``backbone.train``; :class:`frng.priors.backbone_train.BackboneTrainConfig`)."""
-
-    kind: str
-    cache_extra_lights: int
-    train: BackboneTrainConfig
-
-
-@dataclass(frozen=True)
 class BackboneConfig(BackboneArch):
     """Architecture of a backbone model (``model.pt``'s ``config``): the section's architecture keys plus ``patch``
     (``model.patch_size``)."""
@@ -130,7 +117,7 @@ class BackboneConfig(BackboneArch):
 
     @classmethod
     def from_dict(cls, d: dict) -> BackboneConfig:
-        """Strict (:func:`frng.config.section`): unknown keys are errors, missing architecture keys take the
+        """Strict (:func:`frng.sections.section`): unknown keys are errors, missing architecture keys take the
         schema's defaults; ``patch`` must be given."""
         return section(cls, d, "backbone")
 

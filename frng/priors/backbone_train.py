@@ -37,12 +37,13 @@ import torch
 import torch.nn.functional as F
 
 from frng import training as tr
-from frng.config import Config, section, typed
 from frng.priors import backbone as bb
 from frng.priors.dataset import PriorObject, Views
 from frng.priors.diffusion import to_diffusion_space
+from frng.sections import TypedConfig, register, section
 
 
+@register("backbone.train")
 @dataclass(frozen=True)
 class BackboneTrainConfig:
     """The config's ``backbone.train`` section (defaults: config/schema.yaml)."""
@@ -64,15 +65,25 @@ class BackboneTrainConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> BackboneTrainConfig:
-        """Strict (:func:`frng.config.section`): unknown keys are errors, missing ones take the schema's defaults."""
+        """Strict (:func:`frng.sections.section`): unknown keys are errors, missing ones take the schema's defaults."""
         return section(cls, d, "backbone.train")
 
 
-def backbone_config(config: Config | dict) -> bb.BackboneConfig:
-    """The backbone architecture from a validated pipeline config (patch size from ``model.patch_size``)."""
-    c = typed(config)
-    arch = {f.name: getattr(c.backbone, f.name) for f in fields(bb.BackboneArch)}
-    return bb.BackboneConfig(**arch, patch=c.model.patch_size)
+@register("backbone")
+@dataclass(frozen=True)
+class BackboneSection(bb.BackboneArch):
+    """The config's ``backbone`` section: the architecture, the registry name, the extra lights of the token cache and
+    the training (``backbone.train``; :class:`BackboneTrainConfig`)."""
+
+    kind: str
+    cache_extra_lights: int
+    train: BackboneTrainConfig
+
+
+def backbone_config(backbone: BackboneSection, patch_size: int) -> bb.BackboneConfig:
+    """The backbone architecture of the config's ``backbone`` section with the patch size (``model.patch_size``)."""
+    arch = {f.name: getattr(backbone, f.name) for f in fields(bb.BackboneArch)}
+    return bb.BackboneConfig(**arch, patch=patch_size)
 
 
 def _gamma(rgb: torch.Tensor) -> torch.Tensor:
@@ -166,7 +177,7 @@ LOSS_NAMES = ["total", "l2", "alpha", "depth", "perceptual"]
 
 
 def train(
-    config: Config | dict,
+    config: TypedConfig,
     objects: list[PriorObject],
     out: Path,
     steps: int | None = None,
@@ -178,23 +189,22 @@ def train(
     ``stop_after``: stop (after checkpointing) once this many steps have run in this call -- for tests of
     resumption. ``steps`` overrides ``backbone.train.steps``."""
     tr.check_training_split(objects, "backbone-train")
-    config = typed(config)
     tcfg = config.backbone.train
     total = steps or tcfg.steps
-    cfg = backbone_config(config)
+    cfg = backbone_config(config.backbone, config.model.patch_size)
     device = tr.resolve_device(config.device)
-    tr.seed_everything(tr.train_seed(config))
+    tr.seed_everything(config.model_seed)
     model = bb.RelitLRMBackbone(cfg).to(device)
     opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, betas=(0.9, 0.95), weight_decay=tcfg.weight_decay)
     fingerprint = tr.fingerprint(
         cfg.to_dict(),
         tcfg,
         total,
-        tr.train_seed(config),
+        config.model_seed,
         objects=sorted(o.id for o in objects),
         data=tr.data_digest(objects),
     )
-    rng = random.Random(tr.train_seed(config))
+    rng = random.Random(config.model_seed)
     perceptual = None
     if tcfg.lambda_per > 0 and tcfg.perceptual_after < total:
         from frng.perceptual import PerceptualLoss

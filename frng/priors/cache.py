@@ -55,11 +55,11 @@ import torch
 
 from frng import envmap, io
 from frng import training as tr
-from frng.config import Config, typed
 from frng.data import catalog
 from frng.layout import Layout
 from frng.priors import build_idm, load_backbone
 from frng.priors.intrinsics import IntrinsicPriors
+from frng.sections import TypedConfig
 from frng.variants import SWEEP_VIEWS, view_counts  # noqa: F401
 
 BACKBONE_CACHE_VERSION = "3"
@@ -89,22 +89,21 @@ def _load(path: Path) -> tuple[dict[str, torch.Tensor], dict[str, str]]:
         ) from None
 
 
-def extra_training_lights(config: Config | dict, oid: str, exclude: str, count: int) -> list[str]:
+def extra_training_lights(config: TypedConfig, oid: str, exclude: str, count: int) -> list[str]:
     """``count`` random training env maps (not ``exclude``), seeded by the config seed and the object id."""
     pool = sorted(e.name for e in catalog.plan(config).envmaps if e.split == "train" and e.name != exclude)
     if len(pool) < count:
         raise ValueError(f"only {len(pool)} training env maps besides {exclude}; need {count} extra lights")
-    rng = catalog.rng_for(typed(config).seed, "cache-lights", oid)
+    rng = catalog.rng_for(config.seed, "cache-lights", oid)
     return [pool[i] for i in rng.choice(len(pool), count, replace=False)]
 
 
 # -- backbone cache ------------------------------------------------------------------------------------
 
 
-def make_backbone_cache(config: Config | dict, oid: str, model_path: Path, out: Path, device="cpu") -> Path:
+def make_backbone_cache(config: TypedConfig, oid: str, model_path: Path, out: Path, device="cpu") -> Path:
     from frng.priors.dataset import load_object
 
-    config = typed(config)
     model = load_backbone(model_path, device)
     sha = tr.file_sha256(model_path)
     obj = load_object(config, oid, with_targets=False, with_gbuffer=False)
@@ -203,7 +202,7 @@ def load_backbone_cache(path: str | Path, model_path: str | Path) -> BackboneCac
 # -- IDM priors ------------------------------------------------------------------------------------------
 
 
-def make_idm_priors(config: Config | dict, oid: str, out: Path, device="cpu", kind: str | None = None) -> Path:
+def make_idm_priors(config: TypedConfig, oid: str, out: Path, device="cpu", kind: str | None = None) -> Path:
     from frng.priors.dataset import load_object
 
     idm = build_idm(config, device, kind)

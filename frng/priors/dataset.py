@@ -21,10 +21,10 @@ from pathlib import Path
 import torch
 
 from frng import envmap
-from frng.config import Config, typed
 from frng.data import catalog
 from frng.data.dataset import ObjectData, open_object
 from frng.priors.intrinsics import IntrinsicPriors
+from frng.sections import TypedConfig
 
 RIG_VIEWS = 6
 
@@ -90,8 +90,8 @@ def read_gbuffer(obj: ObjectData) -> IntrinsicPriors:
     ).masked()
 
 
-def load_object(config: Config | dict, oid: str, with_targets: bool = True, with_gbuffer: bool = True) -> PriorObject:
-    results = Path(typed(config).results)
+def load_object(config: TypedConfig, oid: str, with_targets: bool = True, with_gbuffer: bool = True) -> PriorObject:
+    results = Path(config.results)
     obj = open_object(results, oid)
     inputs = {l: _views(obj, "inputs", l) for l in obj.input_lights}
     targets = {l: _views(obj, "targets", l) for l in obj.target_lights} if with_targets else {}
@@ -103,11 +103,10 @@ def load_object(config: Config | dict, oid: str, with_targets: bool = True, with
     return PriorObject(oid, obj.split, inputs, targets, gb, envs, rig_views=min(RIG_VIEWS, n_in))
 
 
-def split_ids(config: Config | dict, split: str) -> list[str]:
+def split_ids(config: TypedConfig, split: str) -> list[str]:
     """Object ids of a split, from the dataset plan (no file scanning)."""
     return catalog.plan(config).split(split)
 
 
-def load_split(config: Config | dict, split: str, **kw) -> list[PriorObject]:
-    config = typed(config)
+def load_split(config: TypedConfig, split: str, **kw) -> list[PriorObject]:
     return [load_object(config, oid, **kw) for oid in split_ids(config, split)]

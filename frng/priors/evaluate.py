@@ -33,9 +33,9 @@ import math
 import numpy as np
 import torch
 
-from frng.config import Config, typed
 from frng.priors.dataset import PriorObject
 from frng.priors.intrinsics import IntrinsicPriors
+from frng.sections import TypedConfig
 
 
 def _rgba(rgb: torch.Tensor, alpha: torch.Tensor) -> np.ndarray:
@@ -96,7 +96,7 @@ def mean_image(train_objects: list[PriorObject]) -> np.ndarray:
 
 
 def eval_backbone(
-    config: Config | dict, model, test: list[PriorObject], mean_img: np.ndarray, device="cpu"
+    config: TypedConfig, model, test: list[PriorObject], mean_img: np.ndarray, device="cpu"
 ) -> list[dict]:
     rows = []
     nd = model.cfg.den_views
@@ -120,7 +120,7 @@ def eval_backbone(
         )
         mr = model.cfg.max_radius_px
         for i, (task, light, out) in enumerate(jobs):
-            g = torch.Generator(device=device).manual_seed(typed(config).seed + i)
+            g = torch.Generator(device=device).manual_seed(config.seed + i)
             env = obj.envs[light].to(device)[None]
             sh, _ = model.denoise(t_geo, gauss, keep, env, c2w[:nd], intr[:nd], H, W, generator=g, pixels=pixels)
             pred, pa, _ = model.render(gauss, sh, out.c2w.to(device), out.intr.to(device), H, W, keep)
@@ -176,7 +176,7 @@ def constant_priors(train_objects: list[PriorObject], views, gt: IntrinsicPriors
     )
 
 
-def eval_idm(config: Config | dict, idm, test: list[PriorObject], train_objects: list[PriorObject]) -> list[dict]:
+def eval_idm(config: TypedConfig, idm, test: list[PriorObject], train_objects: list[PriorObject]) -> list[dict]:
     rows = []
     for obj in test:
         views = obj.inputs[obj.input_lights[0]]

@@ -48,21 +48,17 @@ Every kind returns :class:`frng.priors.intrinsics.IntrinsicPriors` (shapes and c
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from frng import camera
-from frng.config import section
 from frng.nn import PatchDetokenizer, PatchTokenizer, Transformer
 from frng.priors.diffusion import to_diffusion_space
 from frng.priors.intrinsics import IntrinsicPriors
 from frng.priors.multiview import CUE_CHANNELS, geometry_cues
-
-if TYPE_CHECKING:
-    from frng.priors.idm_train import IDMTrainConfig
+from frng.sections import section
 
 RAW_CHANNELS = 9
 
@@ -70,7 +66,7 @@ RAW_CHANNELS = 9
 @dataclass(frozen=True)
 class IDMArch:
     """The learned IDM's architecture keys of the config's ``idm`` section (defaults: config/schema.yaml), shared by
-    the section (:class:`IDMSection`) and a model's architecture record (:class:`IDMConfig`)."""
+    the section (:class:`frng.priors.idm_train.IDMSection`) and a model's architecture record (:class:`IDMConfig`)."""
 
     width: int
     heads: int
@@ -86,18 +82,6 @@ class IDMArch:
 
 
 @dataclass(frozen=True)
-class IDMSection(IDMArch):
-    """The config's ``idm`` section: which IDM (``kind``), the learned one's architecture, the DiffusionRenderer
-    adapter's settings and the training (``idm.train``; :class:`frng.priors.idm_train.IDMTrainConfig`)."""
-
-    kind: str
-    diffusion_renderer_dir: str | None
-    normal_space: str
-    depth_invert: bool
-    train: IDMTrainConfig
-
-
-@dataclass(frozen=True)
 class IDMConfig(IDMArch):
     """Architecture of a learned IDM model (``model.pt``'s ``config``): the section's architecture keys plus
     ``patch`` (``model.patch_size``) and ``near``/``far`` (``backbone.near``/``far``)."""
@@ -108,7 +92,7 @@ class IDMConfig(IDMArch):
 
     @classmethod
     def from_dict(cls, d: dict) -> IDMConfig:
-        """Strict (:func:`frng.config.section`): unknown keys are errors, missing architecture keys take the
+        """Strict (:func:`frng.sections.section`): unknown keys are errors, missing architecture keys take the
         schema's defaults; ``patch``, ``near`` and ``far`` must be given."""
         return section(cls, d, "idm")
 

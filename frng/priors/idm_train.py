@@ -26,12 +26,13 @@ import torch
 
 from frng import camera
 from frng import training as tr
-from frng.config import Config, section, typed
 from frng.priors import idm as idm_mod
 from frng.priors import multiview
 from frng.priors.dataset import PriorObject, Views
+from frng.sections import TypedConfig, register, section
 
 
+@register("idm.train")
 @dataclass(frozen=True)
 class IDMTrainConfig:
     """The config's ``idm.train`` section (defaults: config/schema.yaml) plus two internal fields."""
@@ -50,16 +51,28 @@ class IDMTrainConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> IDMTrainConfig:
-        """Strict (:func:`frng.config.section`): unknown keys are errors, missing ones take the schema's defaults."""
+        """Strict (:func:`frng.sections.section`): unknown keys are errors, missing ones take the schema's defaults."""
         return section(cls, d, "idm.train")
 
 
-def idm_config(config: Config | dict) -> idm_mod.IDMConfig:
-    """The learned IDM's architecture from a validated pipeline config (patch size from ``model.patch_size``,
-    near/far from the backbone's)."""
-    c = typed(config)
-    arch = {f.name: getattr(c.idm, f.name) for f in fields(idm_mod.IDMArch)}
-    return idm_mod.IDMConfig(**arch, patch=c.model.patch_size, near=c.backbone.near, far=c.backbone.far)
+@register("idm")
+@dataclass(frozen=True)
+class IDMSection(idm_mod.IDMArch):
+    """The config's ``idm`` section: which IDM (``kind``), the learned one's architecture, the DiffusionRenderer
+    adapter's settings and the training (``idm.train``; :class:`IDMTrainConfig`)."""
+
+    kind: str
+    diffusion_renderer_dir: str | None
+    normal_space: str
+    depth_invert: bool
+    train: IDMTrainConfig
+
+
+def idm_config(idm: IDMSection, patch_size: int, near: float, far: float) -> idm_mod.IDMConfig:
+    """The learned IDM's architecture of the config's ``idm`` section with the patch size (``model.patch_size``) and
+    near/far (the backbone's)."""
+    arch = {f.name: getattr(idm, f.name) for f in fields(idm_mod.IDMArch)}
+    return idm_mod.IDMConfig(**arch, patch=patch_size, near=near, far=far)
 
 
 def sample_views(obj: PriorObject, rng: random.Random, all_views: float) -> tuple[str, list[int]]:
@@ -129,7 +142,7 @@ LOSS_NAMES = ["total", "normal", "depth", "albedo", "roughness", "metallic"]
 
 
 def train(
-    config: Config | dict,
+    config: TypedConfig,
     objects: list[PriorObject],
     out: Path,
     steps: int | None = None,
@@ -138,23 +151,22 @@ def train(
     """Train (or resume, :func:`frng.training.fit`) the learned IDM; returns the model path (or the checkpoint
     when stopped early)."""
     tr.check_training_split(objects, "idm-train")
-    config = typed(config)
     tcfg = config.idm.train
     total = steps or tcfg.steps
-    cfg = idm_config(config)
+    cfg = idm_config(config.idm, config.model.patch_size, config.backbone.near, config.backbone.far)
     device = tr.resolve_device(config.device)
-    tr.seed_everything(tr.train_seed(config) + 1)
+    tr.seed_everything(config.model_seed + 1)
     model = idm_mod.LearnedIDM(cfg).to(device)
     opt = torch.optim.AdamW(param_groups(model, tcfg), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
     fingerprint = tr.fingerprint(
         cfg.to_dict(),
         tcfg,
         total,
-        tr.train_seed(config),
+        config.model_seed,
         objects=sorted(o.id for o in objects),
         data=tr.data_digest(objects),
     )
-    rng = random.Random(tr.train_seed(config) + 1)
+    rng = random.Random(config.model_seed + 1)
     cue_cache = CueCache()  # data only: a resumed run recomputes the same cues (bit-identical, see the test)
 
     def step_fn(step: int) -> dict[str, float]:

@@ -6,15 +6,16 @@ from dataclasses import dataclass, fields
 
 import torch
 
-from frng.config import Config, config_section, section
 from frng.render import gsplat_backend
 from frng.render.project import project_gaussians
 from frng.render.reference import rasterize_reference
 from frng.render.tiles import rasterize_tiles
+from frng.sections import TypedConfig, config_section, register, section
 
 BACKENDS = ("auto", "torch", "gsplat", "reference")
 
 
+@register("raster")
 @dataclass(frozen=True)
 class RasterConfig:
     """The config's ``raster`` section (see config/README.md; defaults: config/schema.yaml)."""
@@ -30,11 +31,11 @@ class RasterConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> RasterConfig:
-        """Strict (:func:`frng.config.section`; ``{}``: the schema's defaults; a model file's ``raster``)."""
+        """Strict (:func:`frng.sections.section`; ``{}``: the schema's defaults; a model file's ``raster``)."""
         return section(cls, d, "raster")
 
     @classmethod
-    def from_config(cls, config: Config | dict) -> RasterConfig:
+    def from_config(cls, config: TypedConfig) -> RasterConfig:
         return config_section(config, "raster")
 
     def kwargs(self) -> dict:

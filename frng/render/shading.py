@@ -27,8 +27,8 @@ import torch
 from torch import nn
 
 from frng import camera, envmap
-from frng.config import Config, config_section, section
 from frng.envmap import EnvSamples
+from frng.sections import TypedConfig, config_section, register, section
 
 DIFFUSE_MODES = ("sh", "mc")
 
@@ -40,6 +40,7 @@ GGX_MIN_ALBEDO, GGX_MIN_ROUGHNESS, GGX_MAX_METALLIC = 0.03, 0.08, 0.9
 GGX_MIN_COS_VIEW = 0.1  # :func:`face_forward` bends shading normals to n . w_o >= ~this
 
 
+@register("shading")
 @dataclass(frozen=True)
 class ShadingConfig:
     """The config's ``shading`` section (see config/README.md; defaults: config/schema.yaml)."""
@@ -68,11 +69,11 @@ class ShadingConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> ShadingConfig:
-        """Strict (:func:`frng.config.section`; ``{}``: the schema's defaults; a model file's ``shading``)."""
+        """Strict (:func:`frng.sections.section`; ``{}``: the schema's defaults; a model file's ``shading``)."""
         return section(cls, d, "shading")
 
     @classmethod
-    def from_config(cls, config: Config | dict) -> ShadingConfig:
+    def from_config(cls, config: TypedConfig) -> ShadingConfig:
         return config_section(config, "shading")
 
 

@@ -21,9 +21,9 @@ import numpy as np
 import pandas as pd
 
 from frng import envmap, io
-from frng.config import Config, typed
 from frng.layout import Layout
 from frng.report import figures
+from frng.sections import TypedConfig
 from frng.variants import BACKBONE
 
 
@@ -105,10 +105,9 @@ def loss_curves(results: Path, out_png: Path) -> None:
     figures.loss_curves(runs, out_png, title="Training losses (all runs)")
 
 
-def make_figures(config: Config | dict, objects: list[str], out_dir: Path) -> list[Path]:
+def make_figures(config: TypedConfig, objects: list[str], out_dir: Path) -> list[Path]:
     from frng.metrics import read_csv
 
-    config = typed(config)
     results = Path(config.results)
     psnr = _psnr_lookup(read_csv(Layout(results).metrics("relight_per_image")))
     written = []

@@ -47,9 +47,9 @@ import pandas as pd
 
 from frng import io
 from frng import metrics as M
-from frng.config import Config, typed
 from frng.report import stats as S
 from frng.report import tables as T
+from frng.sections import TypedConfig
 from frng.variants import BACKBONE, BASE_RUN, BASE_VARIANTS, ORACLE_RUN, RIG_VIEWS, SEED_SEP, VARIANTS, split_seed
 
 TABLES = tuple(T.TABLE_COLUMNS)
@@ -65,7 +65,7 @@ DIFF_NOTE = (
 )
 
 
-def _caption(title: str, config: Config, df: pd.DataFrame) -> str:
+def _caption(title: str, config: TypedConfig, df: pd.DataFrame) -> str:
     n_obj = df["object"].nunique()
     return (
         f"{title} Tier {config.tier}: {n_obj} test object(s), {len(df)} images; "
@@ -421,7 +421,7 @@ def timing_table(timings: list[dict]) -> pd.DataFrame:
 
 
 def write_tables(
-    config: Config | dict,
+    config: TypedConfig,
     per_image_csv: Path,
     timing_files: list[Path],
     out_dir: Path,
@@ -429,7 +429,6 @@ def write_tables(
     cross_csv: Path | None = None,
 ) -> dict[str, dict]:
     """Write the tables (see the module docstring). Returns {table: {"csv"|"md"|"tex": path}}."""
-    config = typed(config)
     df = M.read_csv(per_image_csv)
     missing = [
         c

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from frng import config as frng_config
 from frng.layout import Layout
+from frng.typedconfig import typed
 
 
 def configure_training(parser: argparse.ArgumentParser, folder: str, steps_key: str) -> None:
@@ -23,7 +24,7 @@ def run_training(args: argparse.Namespace, stage: str, folder: str, train: Calla
     with ``train(config, objects, out, steps=...)`` and say where the model went."""
     from frng.priors.dataset import load_split
 
-    config = frng_config.typed(frng_config.load(args.config))
+    config = typed(frng_config.load(args.config))
     out = Path(args.out or getattr(Layout(config.results), f"{folder}_dir")())
     t0 = time.time()
     objects = load_split(config, "train", **load_kw)

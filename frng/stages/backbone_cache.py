@@ -10,6 +10,7 @@ from frng import config as frng_config
 from frng import training as tr
 from frng.layout import Layout
 from frng.priors.cache import make_backbone_cache
+from frng.typedconfig import typed
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -20,7 +21,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    config = frng_config.typed(frng_config.load(args.config))
+    config = typed(frng_config.load(args.config))
     L = Layout(config.results)
     model = Path(args.model or L.backbone_model())
     out = Path(args.out or L.backbone_cache(args.object))

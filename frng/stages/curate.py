@@ -14,8 +14,10 @@ from pathlib import Path
 from frng import config as frng_config
 from frng import envmap, io
 from frng.data import catalog
-from frng.data.curate import CurationError, StopGuard, curate
+from frng.data.curate import CurationError, curate
+from frng.data.stopguard import StopGuard
 from frng.layout import Layout
+from frng.typedconfig import typed
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -26,7 +28,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    config = frng_config.typed(frng_config.load(args.config))
+    config = typed(frng_config.load(args.config))
     L = Layout(config.results)
     env_dir = Path(args.envmaps or L.envmaps_dir())
     out = Path(args.out or L.objects_dir())

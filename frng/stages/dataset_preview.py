@@ -15,6 +15,7 @@ from frng.data import catalog
 from frng.data.dataset import DatasetError
 from frng.data.preview import write_previews
 from frng.layout import Layout
+from frng.typedconfig import typed
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -33,7 +34,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    config = frng_config.typed(frng_config.load(args.config))
+    config = typed(frng_config.load(args.config))
     objects = args.objects or catalog.plan(config).object_ids
     out = Path(args.out) if args.out else Path(Layout(config.results).previews_dir())
     try:

@@ -15,6 +15,7 @@ from frng import envmap, io
 from frng.data import catalog
 from frng.data.envmaps import prepare
 from frng.layout import Layout
+from frng.typedconfig import typed
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -23,9 +24,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    config = frng_config.typed(frng_config.load(args.config))
+    config = typed(frng_config.load(args.config))
     out = Path(args.out) if args.out else Path(Layout(config.results).envmaps_dir())
-    from frng.data.curate import StopGuard
+    from frng.data.stopguard import StopGuard
 
     try:
         import bpy  # noqa: F401  (before the guard: the import installs Blender's SIGINT handler)

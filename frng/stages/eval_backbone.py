@@ -15,6 +15,7 @@ from frng import training as tr
 from frng.layout import Layout
 from frng.priors import build_idm, load_backbone
 from frng.priors.evaluate import eval_backbone, eval_idm, mean_image
+from frng.typedconfig import typed
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -30,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
     from frng import io
     from frng.priors.dataset import load_split
 
-    config = frng_config.typed(frng_config.load(args.config))
+    config = typed(frng_config.load(args.config))
     L = Layout(config.results)
     device = tr.resolve_device(config.device)
     train_objs = load_split(config, "train")

@@ -32,8 +32,8 @@ from pathlib import Path
 from frng import config as frng_config
 from frng import io
 from frng import metrics as M
-from frng.config import Config
 from frng.layout import Layout, RelightFolder
+from frng.typedconfig import Config, typed
 
 PER_IMAGE = "relight_per_image.csv"
 SUMMARY = "relight_summary.csv"
@@ -158,7 +158,7 @@ def cross_light_run(
 def evaluate(config: Config | dict, run_dirs: list[Path], out_dir: Path) -> tuple[Path, Path]:
     """Score every run folder; write the per-image CSV, the per-run summary (returned) and the light-sensitivity
     CSV into ``out_dir``."""
-    config = frng_config.typed(config)
+    config = typed(config)
     results = Path(config.results)
     protocol = config.eval.protocol
     background = tuple(config.eval.background)
@@ -191,7 +191,7 @@ def run_dirs_of(config: Config | dict, objects: list[str]) -> list[Path]:
     """Every ``{results}/relight/{run}/{obj}`` folder the config plans for these test objects."""
     from frng.variants import runs
 
-    L = Layout(frng_config.typed(config).results)
+    L = Layout(typed(config).results)
     return [Path(L.relight_run(r.name, oid)) for oid in objects for r in runs(config)]
 
 
@@ -204,7 +204,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from frng.data import catalog
 
-    config = frng_config.typed(frng_config.load(args.config))
+    config = typed(frng_config.load(args.config))
     objects = args.objects or catalog.plan(config).split("test")
     out = Path(args.out or Layout(config.results).metrics_dir())
     per_image, summary = evaluate(config, run_dirs_of(config, objects), out)

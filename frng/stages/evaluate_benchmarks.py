@@ -22,6 +22,7 @@ from pathlib import Path
 from frng import config as frng_config
 from frng import io
 from frng.layout import Layout, RelightFolder
+from frng.typedconfig import typed
 
 TABLE_COLUMNS = ("benchmark", "protocol", "method", "psnr", "psnr_l", "ssim", "lpips", "images")
 PROTOCOL_NAMES = {
@@ -82,7 +83,7 @@ def evaluate(
     from frng import metrics as M
     from frng.report.tables import write_table
 
-    config = frng_config.typed(config)
+    config = typed(config)
     rows = []
     for oid in objects:
         rows += score_object(Path(config.results), oid, runs, lpips)
@@ -114,7 +115,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from frng.benchmarks import entries
 
-    config = frng_config.typed(frng_config.load(args.config))
+    config = typed(frng_config.load(args.config))
     L = Layout(config.results)
     objects = args.objects or [e["id"] for e in entries(config)]
     per_image, out = evaluate(

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 
 from frng import config as frng_config
+from frng.typedconfig import typed
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -24,7 +25,7 @@ def run(args: argparse.Namespace) -> int:
     from frng.benchmarks import BenchmarkError, export_object
     from frng.data.dataset import DatasetError
 
-    config = frng_config.typed(frng_config.load(args.config))
+    config = typed(frng_config.load(args.config))
     try:
         path = export_object(args.layout, config.results, args.object, args.out, args.scene)
     except (BenchmarkError, DatasetError) as e:

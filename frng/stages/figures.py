@@ -12,6 +12,7 @@ from pathlib import Path
 from frng import config as frng_config
 from frng.layout import Layout
 from frng.report.paper_figures import make_figures
+from frng.typedconfig import typed
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -23,7 +24,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from frng.data import catalog
 
-    config = frng_config.typed(frng_config.load(args.config))
+    config = typed(frng_config.load(args.config))
     objects = args.objects or catalog.plan(config).split("test")
     out = Path(args.out or Layout(config.results).figures_dir())
     for p in make_figures(config, objects, out):

@@ -10,6 +10,7 @@ from frng import config as frng_config
 from frng import training as tr
 from frng.layout import Layout
 from frng.priors.cache import make_idm_priors
+from frng.typedconfig import typed
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -20,7 +21,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    config = frng_config.typed(frng_config.load(args.config))
+    config = typed(frng_config.load(args.config))
     out = Path(args.out or Layout(config.results).idm_priors(args.object))
     device = tr.resolve_device(config.device)
     print(f"idm-priors: wrote {make_idm_priors(config, args.object, out, device, args.kind)}")

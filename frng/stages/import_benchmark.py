@@ -15,6 +15,7 @@ from pathlib import Path
 
 from frng import config as frng_config
 from frng.layout import Layout
+from frng.typedconfig import typed
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -52,7 +53,7 @@ OPTIONS = {
 def run(args: argparse.Namespace) -> int:
     from frng.benchmarks import BenchmarkError, import_scene
 
-    config = frng_config.typed(frng_config.load(args.config))
+    config = typed(frng_config.load(args.config))
     opts = {k: getattr(args, k) for k in OPTIONS[args.layout]}
     if args.id and "-" not in args.id:
         print(

@@ -60,6 +60,7 @@ def resolve_config(config: str | None, model: str | None):
     """The config to use: ``--config``, else the one recorded beside the model (``{results}/config.yaml``)."""
     from frng import config as frng_config
     from frng.capture import CaptureError, results_of_model
+    from frng.typedconfig import typed
 
     if config is None:
         if model is None:
@@ -72,35 +73,7 @@ def resolve_config(config: str | None, model: str | None):
         config = Layout(results_of_model(Path(model))).config()
         if not Path(config).exists():
             raise CaptureError(f"{config}: no recorded config beside the model {model}; pass --config")
-    return frng_config.typed(frng_config.load(config))
-
-
-def export_object(config, oid: str, out: Path, views: int = 6) -> Path:
-    """A curated object's first ``views`` input views (input light) as straight-alpha sRGB PNGs
-    (``{out}/images/{view}.png``), their cameras (``{out}/cameras.json``, frng entries) and the input light
-    (``{out}/light.exr``). Returns ``out``."""
-    import numpy as np
-
-    from frng import envmap, io
-    from frng.capture import CaptureError
-    from frng.layout import Layout
-
-    L = Layout(config.results)
-    try:
-        meta = io.read_json(L.object_meta(oid))
-    except (FileNotFoundError, ValueError) as e:
-        raise CaptureError(f"{L.object_meta(oid)}: cannot read object metadata ({e})") from e
-    light = meta["input_lights"][0]
-    (out / "images").mkdir(parents=True, exist_ok=True)
-    cams = meta["views"]["inputs"][:views]
-    for cam in cams:
-        rgba = io.read_rgba(L.object_image(oid, "inputs", light, cam["name"]), require_alpha=True)
-        a = np.clip(rgba[..., 3:4], 0, 1)
-        rgb = np.where(a > 1e-6, rgba[..., :3] / np.maximum(a, 1e-6), 0.0)
-        io.write_png(out / "images" / f"{cam['name']}.png", np.concatenate([io.srgb_encode(rgb), a], -1))
-    io.write_json(out / "cameras.json", {"cameras": cams})
-    envmap.write(out / "light.exr", envmap.read(L.envmap(light)))
-    return out
+    return typed(frng_config.load(config))
 
 
 def measure_table(config, oids: list[str], out: Path) -> str:
@@ -127,7 +100,7 @@ def measure_table(config, oids: list[str], out: Path) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from frng.asset import AssetError
-    from frng.capture import CaptureError, parse_grid, reconstruct
+    from frng.capture import CaptureError, export_object, parse_grid, reconstruct
 
     try:
         config = resolve_config(args.config, args.model)

@@ -11,6 +11,7 @@ import json
 
 from frng import config as frng_config
 from frng.relight import BACKBONE, RelightError, relight
+from frng.typedconfig import typed
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -21,7 +22,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    config = frng_config.typed(frng_config.load(args.config))
+    config = typed(frng_config.load(args.config))
     try:
         timing = relight(config, args.object, args.models, args.device)
     except RelightError as e:

@@ -13,6 +13,7 @@ from pathlib import Path
 from frng import config as frng_config
 from frng.layout import Layout
 from frng.report.paper_tables import write_tables
+from frng.typedconfig import typed
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -34,7 +35,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from frng.data import catalog
 
-    config = frng_config.typed(frng_config.load(args.config))
+    config = typed(frng_config.load(args.config))
     L = Layout(config.results)
     timing = args.timing or [L.relight_timing(o) for o in catalog.plan(config).split("test")]
     out = write_tables(

@@ -17,6 +17,7 @@ from frng.io import check_file_index
 from frng.layout import Layout
 from frng.model.frng import all_variants, canonical_variant, trained_variants, variant_config
 from frng.model.train import train
+from frng.typedconfig import typed
 from frng.variants import reads_priors, split_seed
 
 
@@ -30,7 +31,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    config = frng_config.typed(frng_config.load(args.config))
+    config = typed(frng_config.load(args.config))
     if args.list_variants:
         for v in all_variants(config):
             c = canonical_variant(config, v)

@@ -1,0 +1,228 @@
+"""Typed config sections: the frozen dataclass of a config section, built strictly from its mapping.
+
+A leaf module (it imports no frng module): every component declares the dataclass of the section it reads beside its
+own code and registers it here by its dotted schema key (:func:`register`), so nothing here names a component.
+Building a section is strict (:func:`section`): an unknown key is a :class:`ConfigError` naming it, a missing key
+takes the schema's default -- ``config/schema.yaml`` is the one place defaults are written; a section class's fields
+have no defaults of their own (tests/test_config_typed.py checks both). A class may hold fields the schema does not
+have ("internal" fields: values the code sets, e.g. SaliencyConfig.top_k from frng.top_k_percent, the IDM trainer's
+fixed weight decay); those keep a Python default or are always passed, and are not part of the config
+(:func:`section_dict` leaves them out).
+
+The architecture records stored in model files (BackboneConfig, IDMConfig, FRNGConfig) and the module settings
+derived from them (:class:`Settings`: MaterialFormerConfig, FineGeometryConfig, GaussianDecodeConfig,
+LightIndependenceConfig) map to no section; they are built with the same helper, so a model file's ``config`` with a
+key the code does not know (or without one it needs) fails, naming it.
+
+The whole typed config (``frng.typedconfig.Config``, one section per top-level key) is assembled where every
+section's class is imported: the stages build it once and hand each library its section(s).
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import functools
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+SCHEMA_PATH = Path(__file__).resolve().parent.parent / "config" / "schema.yaml"
+
+
+class ConfigError(ValueError):
+    """A config value is invalid. The message starts with the dotted key path."""
+
+
+def load_schema(path: Path | str = SCHEMA_PATH) -> dict:
+    with open(path) as f:
+        return yaml.safe_load(f)
+
+
+@functools.lru_cache(maxsize=1)
+def _schema() -> dict:
+    return load_schema()
+
+
+def schema_node(where: str | None) -> dict:
+    """The schema of the section at dotted key ``where`` ("" or None = the whole config)."""
+    node = _schema()
+    for part in where.split(".") if where else ():
+        node = node["properties"][part]
+    return node
+
+
+def schema_keys(where: str) -> list[str]:
+    """The keys of the schema's section at dotted key ``where`` ("" = the top level)."""
+    return list(schema_node(where).get("properties", {}))
+
+
+def schema_defaults(where: str) -> dict[str, Any]:
+    """The schema's defaults of the section at dotted key ``where`` (deep copies)."""
+    props = schema_node(where).get("properties", {})
+    return {k: copy.deepcopy(v["default"]) for k, v in props.items() if "default" in v}
+
+
+# -- the registry: dotted schema key -> the dataclass that holds that section ---------------------------------------
+
+SECTIONS: dict[str, type] = {}
+"""Dotted schema key of every object-valued config section ("" = the whole config) -> the frozen dataclass that holds
+it, filled in by :func:`register` as the components' modules are imported (``frng.typedconfig`` imports them all).
+Sections not registered (objects.material_mix) and list items (objects.extra, envmaps.extra) stay plain values."""
+
+
+def register(where: str):
+    """Class decorator: ``cls`` holds the config section at dotted key ``where``."""
+
+    def deco(cls: type) -> type:
+        known = SECTIONS.get(where)
+        if known is not None and known.__qualname__ != cls.__qualname__:
+            raise ValueError(f"config section '{where}': registered twice ({known.__name__}, {cls.__name__})")
+        SECTIONS[where] = cls
+        return cls
+
+    return deco
+
+
+def _dotted(where: str | None, key: str) -> str:
+    return f"{where}.{key}" if where else key
+
+
+def _frozen_value(value: Any) -> Any:
+    """Lists become tuples (a frozen section holds no list); dicts and scalars stay."""
+    return tuple(_frozen_value(v) for v in value) if isinstance(value, list) else value
+
+
+def _nested_class(key: str) -> type | None:
+    """The registered class of the section at ``key``; None for a mapping that is a plain value. A schema section
+    with keys of its own (``properties``) and no class registered is an error (its module was not imported)."""
+    cls = SECTIONS.get(key)
+    if cls is None and key in section_keys():
+        raise ConfigError(f"{key}: no section class registered (import the module that declares it)")
+    return cls
+
+
+PLAIN_MAPPINGS = frozenset({"objects.material_mix", "objects.objaverse.filter"})
+"""Object-valued schema keys that stay plain mappings (a table of fractions, a filter's free-form fields): every other
+object with keys of its own is a section with a registered class (tests/test_config_typed.py)."""
+
+
+@functools.lru_cache(maxsize=1)
+def section_keys() -> tuple[str, ...]:
+    """Dotted keys of every object section of the schema (an object with keys of its own, but
+    :data:`PLAIN_MAPPINGS`), in the schema's order, "" (the whole config) first: each has a registered class."""
+    out = [""]
+
+    def walk(node: dict, prefix: str) -> None:
+        for name, sub in (node.get("properties") or {}).items():
+            key = _dotted(prefix, name)
+            if isinstance(sub, dict) and sub.get("properties") and key not in PLAIN_MAPPINGS:
+                out.append(key)
+                walk(sub, key)
+
+    walk(_schema(), "")
+    return tuple(out)
+
+
+def section(cls: type, d: Mapping | None, where: str | None = None):
+    """Build the dataclass ``cls`` from the mapping ``d`` strictly.
+
+    ``where``: the dotted schema key the mapping is (``"train"``, ``"backbone.train"``; None for a class that maps
+    to no section, e.g. a model file's architecture record). A key of ``d`` that is no field of ``cls`` raises
+    :class:`ConfigError` naming it (``train.stepz: unknown key; known: ...``); a missing field takes the schema's
+    default at ``where``, else its dataclass default (internal fields only), else raises naming it. A field whose
+    dotted key is a registered section (:data:`SECTIONS`) is built from its mapping the same way; lists become
+    tuples.
+    """
+    d = dict(d or {})
+    names = [f.name for f in dataclasses.fields(cls)]
+    unknown = sorted(set(d) - set(names), key=str)
+    label = where if where is not None else cls.__name__
+    if unknown:
+        raise ConfigError(f"{_dotted(label, str(unknown[0]))}: unknown key; known: {', '.join(sorted(names))}")
+    defaults = schema_defaults(where) if where is not None else {}
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        if f.name in d:
+            value = d[f.name]
+        elif f.name in defaults:
+            value = defaults[f.name]
+        elif f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING:
+            continue
+        else:
+            raise ConfigError(f"{_dotted(label, f.name)}: missing key")
+        if where is not None and isinstance(value, Mapping):
+            nested = _nested_class(_dotted(where, f.name))
+            if nested is not None:
+                value = section(nested, value, _dotted(where, f.name))
+        kwargs[f.name] = _frozen_value(value)
+    return cls(**kwargs)
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, (tuple, list)):
+        return [_plain(v) for v in value]
+    if isinstance(value, Mapping):
+        return {k: _plain(v) for k, v in value.items()}
+    return copy.deepcopy(value)
+
+
+def section_dict(obj, where: str) -> dict:
+    """The config mapping of a section dataclass ``obj`` at dotted key ``where``: its schema keys only (internal
+    fields left out), in the schema's order, nested sections as mappings, tuples as lists."""
+    out = {}
+    for key in schema_keys(where):
+        value = getattr(obj, key)
+        if dataclasses.is_dataclass(value):
+            value = section_dict(value, _dotted(where, key))
+        out[key] = _plain(value)
+    return out
+
+
+class Settings:
+    """Mixin of a module's settings dataclass that maps to no config section (the pipeline sets every field; their
+    defaults serve direct use: tests, notebooks): strict :meth:`from_dict` (unknown keys are errors, missing keys take
+    the field defaults) and :meth:`to_dict`."""
+
+    @classmethod
+    def from_dict(cls, d: Mapping):
+        return section(cls, d)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+# -- the config as the torch-free planning helpers receive it ---------------------------------------------------------
+#
+# The Snakemake rule files keep the validated dict, and the helpers they call while planning (frng.data.catalog,
+# frng.variants), which must not import torch, take it as well as the typed config that the stages hand them.
+
+
+def is_typed(config: Any) -> bool:
+    """Whether ``config`` is the typed config (a dataclass), not the validated mapping."""
+    return dataclasses.is_dataclass(config) and not isinstance(config, type)
+
+
+def config_section(config: Any, key: str):
+    """The top-level entry ``key`` of the typed config, or of a config mapping: a section is built from it
+    (:func:`section`; the mapping may be partial: missing keys take the schema's defaults), a scalar (``seed``,
+    ``results``, ...) is returned as it is. Only that section's class is needed (registered by the caller's own
+    module): the planning helpers stay torch-free."""
+    if is_typed(config):
+        return getattr(config, key)
+    if key not in SECTIONS:
+        return config[key]
+    return section(SECTIONS[key], config.get(key, {}), key)
+
+
+def as_dict(config: Any) -> Mapping:
+    """The config mapping of the typed config (or the mapping itself)."""
+    return config.to_dict() if is_typed(config) else config
+
+
+TypedConfig = Any
+"""How a library annotates the whole typed config (``frng.typedconfig.Config``) that a stage hands it: libraries do
+not import ``frng.typedconfig`` (it imports every component that declares a section); a library that reads one
+section takes that section's class instead."""
