@@ -106,6 +106,7 @@ class BackboneArch:
     footprint_px: float
     pixel_features: int
     light_cue: bool
+    light_cue_input: str  # "uniform" | "fit": how the light cue treats the (unknown) input light
 
 
 @dataclass(frozen=True)
@@ -294,6 +295,34 @@ class RelitLRMBackbone(nn.Module):
             out.append((e.clamp_min(1e-8) / mean).log().clamp(-4.0, 2.0).float())
         return torch.stack(out)
 
+    @staticmethod
+    def input_light_ratio(pixels: torch.Tensor) -> torch.Tensor:
+        """The input light's log shading ratio, estimated from the input pixels alone (the backbone is not told
+        the input light, as RelitLRM is not): per object, a degree-2 SH irradiance fitted by least squares to the
+        linear colours of the foreground pixels that have a hull normal, as if the object had one constant albedo
+        (its scale cancels in the ratio). pixels (B, V, H, W, 7) from :meth:`pixel_inputs` -> log r_in
+        (B, V, H, W, 3) in :meth:`light_ratio`'s units (ratio 1 where there is no normal, or too few pixels to fit)."""
+        from frng.envmap import SH_IRRADIANCE_BANDS
+        from frng.render.sh import sh_basis
+
+        assert pixels.shape[-1] == 7, pixels.shape
+        px = pixels.detach().double().cpu()
+        col, a, n = px[..., :3] ** 2.2, px[..., 3], px[..., 4:7]
+        has_n = n.norm(dim=-1) > 0.5
+        band = px.new_tensor([SH_IRRADIANCE_BANDS[0]] + [SH_IRRADIANCE_BANDS[1]] * 3 + [SH_IRRADIANCE_BANDS[2]] * 5)
+        A = sh_basis(2, n) * band / math.pi  # (B, V, H, W, 9): a white Lambertian surface's radiance per SH coeff
+        out = torch.zeros(*px.shape[:-1], 3, dtype=torch.float64)
+        for b in range(px.shape[0]):
+            fg = has_n[b] & (a[b] > 0.5)
+            if int(fg.sum()) < 27:
+                continue
+            sol = torch.linalg.lstsq(A[b][fg], col[b][fg]).solution  # (9, 3): albedo x the light's SH coeffs
+            mean = (sol[0] / (4.0 * math.pi * C0)).clamp_min(1e-6)  # the fitted light's mean radiance x albedo
+            e = A[b] @ sol
+            e = torch.where(has_n[b][..., None], e, mean.expand_as(e))
+            out[b] = (e.clamp_min(1e-3 * mean) / mean).log().clamp(-4.0, 2.0)
+        return out.to(device=pixels.device, dtype=torch.float32)
+
     def sh_coefficients(
         self, t_app: torch.Tensor, pixels: torch.Tensor | None = None, env: torch.Tensor | None = None
     ) -> torch.Tensor:
@@ -303,7 +332,8 @@ class RelitLRMBackbone(nn.Module):
         with ``light_cue`` it carries the normals and env (B, He, We, 3) (None: unconditional) gives the light cue
         (:meth:`light_ratio`): the head sees log r, and the base colour is the input colour relit by it,
         ``c_in * exp(g + log r / 2.2)`` (gamma space), so an untrained head already relights as a Lambertian
-        surface under an input light it assumes uniform."""
+        surface: under an input light it assumes uniform (``light_cue_input: uniform``), or relative to the input
+        light estimated from the pixels (``fit``: log r = log r_target - :meth:`input_light_ratio`)."""
         B = t_app.shape[0]
         K = self.cfg.sh_coeffs
         if self.pixel_head is None:
@@ -317,6 +347,8 @@ class RelitLRMBackbone(nn.Module):
         log_r = None
         if self.cfg.light_cue:
             log_r = self.light_ratio(env, pixels[..., 4:7])
+            if env is not None and self.cfg.light_cue_input == "fit":  # relight relative to the estimated input light
+                log_r = log_r - self.input_light_ratio(pixels)
             head_in.append(log_r.to(feat.dtype))
         out = self.pixel_head(torch.cat(head_in, -1)).float()
         sh = out[..., : 3 * K].reshape(B, -1, K, 3)
