@@ -748,8 +748,8 @@ def reconstruct(
     Everything is checked (images, masks, cameras, light map, model files) before anything is loaded or written."""
     import torch
 
-    from frng import training as tr
     from frng.asset import RIG_KEY, render_settings, save_asset
+    from frng.device import resolve_device
     from frng.layout import Layout, TrainingFolder
     from frng.relight import Timer, backbone_views
 
@@ -774,7 +774,7 @@ def reconstruct(
         if not f.exists():
             raise CaptureError(f"{f}: {what} missing (train the pipeline, or pass --model / --config)")
     oid = name or (Path(images).resolve().stem if Path(images).is_file() else Path(images).resolve().name)
-    dev = tr.resolve_device(device or cfg.device)
+    dev = resolve_device(device or cfg.device)
 
     from frng.model.frng import FRNG
     from frng.priors import build_idm, load_backbone

@@ -395,7 +395,7 @@ def publish(staging: Path, results: Path, oid: str) -> None:
 
 def relight(config: TypedConfig, oid: str, models_dir: Path | None = None, device: str | None = None) -> dict:
     """Validate, relight into a staging folder, publish. Returns the timing dict."""
-    from frng import training as tr
+    from frng.device import resolve_device
 
     results = Path(config.results)
     L = Layout(results)
@@ -408,7 +408,7 @@ def relight(config: TypedConfig, oid: str, models_dir: Path | None = None, devic
     backbone = Path(L.backbone_model())
     if not backbone.exists():
         raise RelightError(f"{backbone}: backbone model missing")
-    dev = tr.resolve_device(device or config.device)
+    dev = resolve_device(device or config.device)
     Path(L.relight_dir()).mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".staging-{oid}-", dir=L.relight_dir()))
     try:

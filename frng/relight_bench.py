@@ -249,11 +249,11 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
 
 
 def run(args: argparse.Namespace) -> int:
-    from frng import training as tr
+    from frng.device import resolve_device
 
     if args.threads:
         torch.set_num_threads(args.threads)
-    dev = tr.resolve_device(args.device)
+    dev = resolve_device(args.device)
     for path in args.configs:
         if not Path(path).exists():
             raise SystemExit(f"frng bench relight: config {path} does not exist")

@@ -8,7 +8,6 @@ import pytest
 import torch
 
 from frng import camera, io
-from frng import training as tr
 from frng.priors import BACKBONES, IDMS, build_idm, load_backbone
 from frng.priors import backbone as bb
 from frng.priors.diffusion_renderer import DiffusionRendererError, read_priors
@@ -43,7 +42,7 @@ def tiny_backbone_file(tmp_path_factory):
     torch.manual_seed(0)
     m = bb.build(TINY)
     path = tmp_path_factory.mktemp("bb") / "model.pt"
-    tr.save_torch({"kind": "relitlrm", "config": m.cfg.to_dict(), "state_dict": m.state_dict(), "steps": 0}, path)
+    io.save_torch({"kind": "relitlrm", "config": m.cfg.to_dict(), "state_dict": m.state_dict(), "steps": 0}, path)
     return path
 
 

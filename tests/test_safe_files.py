@@ -52,10 +52,10 @@ def _crafted(tmp_path: Path, name: str, zipped: bool) -> tuple[Path, Path]:
 @pytest.mark.filterwarnings("ignore:Detected pickle protocol")
 @pytest.mark.parametrize("zipped", [True, False])
 def test_crafted_pickles_run_nothing(tmp_path, zipped):
+    from frng.checkpoint import load_resumable
     from frng.model.frng import FRNG
     from frng.priors import LearnedIDMPrior, load_backbone
     from frng.priors.cache import load_backbone_cache, load_idm_priors
-    from frng.training import load_resumable
 
     # a model.pt (F-RNG), the priors' model files (backbone, IDM)
     for name, load in [("model.pt", FRNG.load), ("backbone.pt", load_backbone), ("idm.pt", LearnedIDMPrior)]:
@@ -102,7 +102,8 @@ def test_crafted_lpips_weights_run_nothing(tmp_path, monkeypatch):
 def test_real_checkpoint_state_loads_safely(tmp_path):
     """What a checkpoint holds (model, optimiser, every kind of random state, history) survives the safe load
     and restores the generators exactly."""
-    from frng.training import rng_state, save_torch, set_rng_state
+    from frng.io import save_torch
+    from frng.seeding import rng_state, set_rng_state
 
     model = torch.nn.Linear(3, 2)
     opt = torch.optim.AdamW(model.parameters(), lr=1e-3)
@@ -263,7 +264,7 @@ def test_safetensors_outputs_follow_the_umask(tmp_path):
 
 
 def test_same_object_same_bytes(tmp_path):
-    from frng.training import save_torch
+    from frng.io import save_torch
 
     obj = {"kind": "frng", "state_dict": {"w": torch.arange(10.0)}, "config": {"a": 1}}
     save_torch(obj, tmp_path / "a" / "model.pt")
@@ -276,8 +277,8 @@ def test_identical_retrain_same_model_bytes(tmp_path):
     """Two identical trainings (the IDM's, a few steps) write byte-identical model.pt files."""
     from test_training_loop import _config, _objects
 
+    from frng.hashing import file_sha256
     from frng.priors import idm_train
-    from frng.training import file_sha256
 
     for d in "ab":
         idm_train.train(_config(), _objects(), tmp_path / d)

@@ -24,6 +24,7 @@ import torch
 import torch.multiprocessing as mp
 from test_idm_generalise import TINY, sphere_object, trainer_config
 
+from frng import io
 from frng import training as tr
 from frng.priors import idm_train
 from frng.typedconfig import typed
@@ -68,16 +69,16 @@ import os, signal, sys
 import torch
 sys.path.insert(0, {here!r})
 torch.set_num_threads({threads})
-from frng import training as tr
+from frng import io
 from frng.priors import idm_train
 import test_training_loop as t
 
-save = tr.save_torch
+save = io.save_torch
 def save_then_die(obj, path):
     save(obj, path)
     if isinstance(obj, dict) and obj.get("step") == {kill_at}:
         os.kill(os.getpid(), signal.SIGKILL)  # no cleanup, no finally: as a killed job
-tr.save_torch = save_then_die
+io.save_torch = save_then_die
 idm_train.train(t._config(), t._objects(), __import__("pathlib").Path({out!r}))
 """
 
@@ -172,24 +173,20 @@ def _toy_fit(out: Path, total: int, stop_after=None, info=None, nan_at=None) -> 
         return {"total": float(loss.detach())}
 
     tcfg = SimpleNamespace(lr=1e-2, warmup=2, grad_clip=1.0, checkpoint_every=100)
-    return tr.fit(
-        step_fn,
-        tcfg,
+    trainer = tr.Trainer(
         model=model,
         optimizer=opt,
-        out=out,
-        total=total,
-        fingerprint={"toy": 1},
-        loss_names=["total"],
-        save_model=lambda p: tr.save_torch({"state_dict": model.state_dict()}, p),
+        step=step_fn,
+        save_model=lambda p: io.save_torch({"state_dict": model.state_dict()}, p),
         summary=lambda run: {"steps": run.steps, "skipped": run.skipped},
+        loss_names=["total"],
         title="toy",
         desc="toy",
         rngs={"sample": rng},
         device="cpu",
-        stop_after=stop_after,
-        hooks=distributed.fit_hooks(info) if info else None,
+        hooks=distributed.fit_hooks(info) if info else tr.FitHooks(),
     )
+    return tr.fit(trainer, tcfg, out=out, total=total, fingerprint={"toy": 1}, stop_after=stop_after)
 
 
 def test_nonfinite_step_makes_no_update(tmp_path, monkeypatch):
@@ -200,7 +197,7 @@ def test_nonfinite_step_makes_no_update(tmp_path, monkeypatch):
     assert len(steps) == 3  # 4 steps, one skipped
     assert all(torch.isfinite(v).all() for v in _weights(tmp_path / "nan").values())
     assert [r["total"] for r in _rows(tmp_path / "nan")][2] == "nan"  # the step is still logged
-    assert tr.io.read_json(tmp_path / "nan" / "train.json")["skipped"] == 1
+    assert io.read_json(tmp_path / "nan" / "train.json")["skipped"] == 1
 
 
 def _ddp_worker(rank: int, world: int, port: int, out: str, stop_after) -> None:

@@ -33,7 +33,8 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from frng import camera, envmap
+from frng import camera, envmap, io
+from frng.device import bf16_ok
 from frng.gaussians import GaussianDecodeConfig, Gaussians
 from frng.model.fine_geometry import FineGeometry, FineGeometryConfig, fine_keep_mask, sample_pixels
 from frng.model.light_independence import LightIndependenceConfig
@@ -50,7 +51,6 @@ from frng.model.tokenizers import PriorTokenizer, stack_priors
 from frng.render import RasterConfig, rasterize
 from frng.render.shading import GGX_MIN_ALBEDO, NeuralDecoder, ShadingConfig, deferred_shade, ggx_shade, lambert_sh
 from frng.sections import TypedConfig, register, section, section_dict
-from frng.training import bf16_ok
 from frng.variants import BASE_VARIANTS, all_variants, canonical_variant, k_variant, trained_variants, variant
 
 MODEL_KIND = "frng"
@@ -350,8 +350,6 @@ class FRNG(nn.Module):
 
     def save(self, path: str | Path, extra: dict | None = None) -> None:
         """``model.pt``: {"kind": "frng", "config", "raster", "shading", "state_dict", **extra} (atomic write)."""
-        from frng.training import save_torch
-
         state = {
             "kind": MODEL_KIND,
             "config": self.cfg.to_dict(),
@@ -360,7 +358,7 @@ class FRNG(nn.Module):
             "state_dict": self.state_dict(),
         }
         state.update(extra or {})
-        save_torch(state, path)
+        io.save_torch(state, path)
 
     @classmethod
     def load(cls, path: str | Path, device: torch.device | str = "cpu") -> FRNG:

@@ -44,8 +44,10 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from frng import distributed, envmap, io
+from frng import checkpoint, distributed, envmap, io
 from frng import training as tr
+from frng.device import autocast, bf16_ok
+from frng.hashing import data_digest, file_sha256
 from frng.layout import Layout
 from frng.model.frng import FRNG, canonical_variant, variant_config
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
@@ -234,7 +236,7 @@ class StepLoss(nn.Module):
         logs = {k: 0.0 for k in LOSS_NAMES}
         for obj, j, ti, vidx, seed in samples:
             lights = [0, j] if self.ind_on and obj.lights > 1 else [0]
-            with tr.autocast(dev, self.bf16):
+            with autocast(dev, self.bf16):
                 recs = m.reconstruct(obj.views, lights, obj.priors, obj.images, keep_tokens=True, input_env=obj.env_in)
             _, env, c2w, K, rgba = obj.targets[ti]
             vi = torch.as_tensor(vidx)
@@ -317,14 +319,14 @@ def train(
             "lpips",
             net=tcfg.perceptual_net,
             srgb=True,
-            autocast_bf16=tcfg.bf16 and device.type == "cpu" and tr.bf16_ok(device),
+            autocast_bf16=tcfg.bf16 and device.type == "cpu" and bf16_ok(device),
         ).to(device)
     step_loss = StepLoss(model, ind, tcfg, perceptual, tcfg.bf16)
     ddp = distributed.wrap(step_loss, info, find_unused_parameters=True)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=tcfg.lr, betas=(0.9, 0.99), weight_decay=tcfg.weight_decay)
     hooks = distributed.fit_hooks(info)
-    fingerprint = tr.fingerprint(
+    fingerprint = checkpoint.fingerprint(
         model.cfg.to_dict(),
         tcfg,
         total,
@@ -332,8 +334,8 @@ def train(
         variant=variant,
         shading=asdict(model.shading_cfg),
         world=info.world_size,
-        backbone_sha256=tr.file_sha256(backbone_path),
-        data=hooks.gather(tr.data_digest(objects)),
+        backbone_sha256=file_sha256(backbone_path),
+        data=hooks.gather(data_digest(objects)),
     )
     rng = random.Random(distributed.rank_seed(config.model_seed, info))
     local_batch = max(1, tcfg.batch // info.world_size)
@@ -366,23 +368,19 @@ def train(
             "parameters": sum(p.numel() for p in model.parameters()),
         }
 
-    return tr.fit(
-        step_fn,
-        tcfg,
+    trainer = tr.Trainer(
         model=model,
         optimizer=opt,
-        params=params,
-        out=out,
-        total=total,
-        fingerprint=fingerprint,
-        loss_names=LOSS_NAMES,
+        step=step_fn,
         save_model=save_model,
         summary=summary,
+        loss_names=LOSS_NAMES,
         title=f"F-RNG {variant} training loss",
         desc=f"train {variant}",
+        params=params,
         postfix=("total", "l2"),
         rngs={"sample": rng},
         device=device,
-        stop_after=stop_after,
         hooks=hooks,
     )
+    return tr.fit(trainer, tcfg, out=out, total=total, fingerprint=fingerprint, stop_after=stop_after)

@@ -36,11 +36,15 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 
+from frng import checkpoint, io
 from frng import training as tr
+from frng.device import autocast, bf16_ok, resolve_device
+from frng.hashing import data_digest
 from frng.priors import backbone as bb
 from frng.priors.dataset import PriorObject, Views
 from frng.priors.diffusion import to_diffusion_space
 from frng.sections import TypedConfig, register, section
+from frng.seeding import seed_everything
 
 
 @register("backbone.train")
@@ -135,7 +139,7 @@ def step_loss(
     rgb_in, a_in = inp.rgb.to(device), inp.alpha.to(device)
     c2w_in, intr_in = inp.c2w.to(device), inp.intr.to(device)
     H, W = rgb_in.shape[1:3]
-    with tr.autocast(device, tcfg.bf16):
+    with autocast(device, tcfg.bf16):
         t_geo, raw, _, normals = model.encode_geometry(rgb_in[None], a_in[None], c2w_in[None], intr_in[None])
     raw = raw[0].float()
     pixels = model.pixel_inputs(rgb_in, a_in, normals[0] if cfg.light_cue else None)
@@ -146,7 +150,7 @@ def step_loss(
     x0 = to_diffusion_space(den.rgb.to(device))[None]
     x_t = model.schedule.q_sample(x0, t, torch.randn_like(x0))
     env = None if rng.random() < cfg.cond_drop else obj.envs[light_b].to(device)[None]
-    with tr.autocast(device, tcfg.bf16):
+    with autocast(device, tcfg.bf16):
         t_app = model.appearance_tokens(t_geo, env, x_t, den.c2w.to(device)[None], den.intr.to(device)[None], t)
         sh = model.sh_coefficients(t_app, pixels, env)[0].float()
     rgb, alpha, _ = model.render(gauss, sh, sup.c2w.to(device), sup.intr.to(device), H, W, keep)
@@ -192,17 +196,17 @@ def train(
     tcfg = config.backbone.train
     total = steps or tcfg.steps
     cfg = backbone_config(config.backbone, config.model.patch_size)
-    device = tr.resolve_device(config.device)
-    tr.seed_everything(config.model_seed)
+    device = resolve_device(config.device)
+    seed_everything(config.model_seed)
     model = bb.RelitLRMBackbone(cfg).to(device)
     opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, betas=(0.9, 0.95), weight_decay=tcfg.weight_decay)
-    fingerprint = tr.fingerprint(
+    fingerprint = checkpoint.fingerprint(
         cfg.to_dict(),
         tcfg,
         total,
         config.model_seed,
         objects=sorted(o.id for o in objects),
-        data=tr.data_digest(objects),
+        data=data_digest(objects),
     )
     rng = random.Random(config.model_seed)
     perceptual = None
@@ -213,7 +217,7 @@ def train(
             "lpips",
             net=tcfg.perceptual_net,
             srgb=False,
-            autocast_bf16=tcfg.bf16 and device.type == "cpu" and tr.bf16_ok(device),
+            autocast_bf16=tcfg.bf16 and device.type == "cpu" and bf16_ok(device),
         ).to(device)
 
     def step_fn(step: int) -> dict[str, float]:
@@ -227,26 +231,22 @@ def train(
         return acc
 
     def save_model(path: Path) -> None:
-        tr.save_torch(
+        io.save_torch(
             {"kind": config.backbone.kind, "config": cfg.to_dict(), "state_dict": model.state_dict(), "steps": total},
             path,
         )
 
-    return tr.fit(
-        step_fn,
-        tcfg,
+    trainer = tr.Trainer(
         model=model,
         optimizer=opt,
-        out=out,
-        total=total,
-        fingerprint=fingerprint,
-        loss_names=LOSS_NAMES,
+        step=step_fn,
         save_model=save_model,
+        summary=lambda run: tr.run_summary(run, device, objects, tcfg.bf16, model),
+        loss_names=LOSS_NAMES,
         title="backbone training loss",
         desc="backbone",
         postfix=("total", "l2"),
-        summary=lambda run: tr.run_summary(run, device, objects, tcfg.bf16, model),
         rngs={"sample": rng},
         device=device,
-        stop_after=stop_after,
     )
+    return tr.fit(trainer, tcfg, out=out, total=total, fingerprint=fingerprint, stop_after=stop_after)

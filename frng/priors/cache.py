@@ -54,8 +54,8 @@ from pathlib import Path
 import torch
 
 from frng import envmap, io
-from frng import training as tr
 from frng.data import catalog
+from frng.hashing import file_sha256
 from frng.layout import Layout
 from frng.priors import build_idm, load_backbone
 from frng.priors.intrinsics import IntrinsicPriors
@@ -105,7 +105,7 @@ def make_backbone_cache(config: TypedConfig, oid: str, model_path: Path, out: Pa
     from frng.priors.dataset import load_object
 
     model = load_backbone(model_path, device)
-    sha = tr.file_sha256(model_path)
+    sha = file_sha256(model_path)
     obj = load_object(config, oid, with_targets=False, with_gbuffer=False)
     light_in = obj.input_lights[0]
     lights = [light_in] + extra_training_lights(config, oid, light_in, config.backbone.cache_extra_lights)
@@ -187,7 +187,7 @@ def load_backbone_cache(path: str | Path, model_path: str | Path) -> BackboneCac
     tensors, meta = _load(Path(path))
     if meta.get("version") != BACKBONE_CACHE_VERSION:
         raise StaleCacheError(f"{path}: cache version {meta.get('version')!r}, expected {BACKBONE_CACHE_VERSION}")
-    sha = tr.file_sha256(model_path)
+    sha = file_sha256(model_path)
     if meta.get("backbone_sha256") != sha:
         raise StaleCacheError(
             f"{path}: made with backbone {meta.get('backbone_sha256', '?')[:12]}, but {model_path} "
@@ -210,7 +210,7 @@ def make_idm_priors(config: TypedConfig, oid: str, out: Path, device="cpu", kind
     light = obj.input_lights[0]
     views = obj.inputs[light]
     pri = idm.priors(oid, views, obj.gbuffer)
-    sha = tr.file_sha256(idm.model_path) if idm.kind == "learned" else ""
+    sha = file_sha256(idm.model_path) if idm.kind == "learned" else ""
     meta = {
         "version": IDM_CACHE_VERSION,
         "idm_kind": idm.kind,
@@ -229,7 +229,7 @@ def load_idm_priors(path: str | Path, model_path: str | Path | None = None) -> t
     if meta.get("version") != IDM_CACHE_VERSION:
         raise StaleCacheError(f"{path}: IDM cache version {meta.get('version')!r}, expected {IDM_CACHE_VERSION}")
     if meta.get("idm_kind") == "learned" and model_path is not None:
-        sha = tr.file_sha256(model_path)
+        sha = file_sha256(model_path)
         if meta.get("idm_sha256") != sha:
             raise StaleCacheError(f"{path}: made with another IDM model than {model_path}; re-run `frng idm-priors`")
     meta = dict(meta)

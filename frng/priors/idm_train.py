@@ -24,12 +24,15 @@ from pathlib import Path
 
 import torch
 
-from frng import camera
+from frng import camera, checkpoint, io
 from frng import training as tr
+from frng.device import autocast, resolve_device
+from frng.hashing import data_digest
 from frng.priors import idm as idm_mod
 from frng.priors import multiview
 from frng.priors.dataset import PriorObject, Views
 from frng.sections import TypedConfig, register, section
+from frng.seeding import seed_everything
 
 
 @register("idm.train")
@@ -154,17 +157,17 @@ def train(
     tcfg = config.idm.train
     total = steps or tcfg.steps
     cfg = idm_config(config.idm, config.model.patch_size, config.backbone.near, config.backbone.far)
-    device = tr.resolve_device(config.device)
-    tr.seed_everything(config.model_seed + 1)
+    device = resolve_device(config.device)
+    seed_everything(config.model_seed + 1)
     model = idm_mod.LearnedIDM(cfg).to(device)
     opt = torch.optim.AdamW(param_groups(model, tcfg), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
-    fingerprint = tr.fingerprint(
+    fingerprint = checkpoint.fingerprint(
         cfg.to_dict(),
         tcfg,
         total,
         config.model_seed,
         objects=sorted(o.id for o in objects),
-        data=tr.data_digest(objects),
+        data=data_digest(objects),
     )
     rng = random.Random(config.model_seed + 1)
     cue_cache = CueCache()  # data only: a resumed run recomputes the same cues (bit-identical, see the test)
@@ -178,7 +181,7 @@ def train(
         alpha = v.alpha.to(device)[None]
         vd = Views(v.names, v.rgb.to(device), v.alpha.to(device), v.c2w.to(device), v.intr.to(device))
         cues = cue_cache.get(model, obj, light, idx, vd) if cfg.cues else None
-        with tr.autocast(device, tcfg.bf16):
+        with autocast(device, tcfg.bf16):
             raw = model(vd.rgb[None], alpha, c2w, intr, cues=cues)
         target = {k: t[None] for k, t in gb.as_dict().items()}
         losses = idm_mod.idm_loss(model, raw.float(), alpha, c2w, target)
@@ -186,24 +189,20 @@ def train(
         return {k: float(x.detach()) for k, x in losses.items()}
 
     def save_model(path: Path) -> None:
-        tr.save_torch(
+        io.save_torch(
             {"kind": "learned", "config": cfg.to_dict(), "state_dict": model.state_dict(), "steps": total}, path
         )
 
-    return tr.fit(
-        step_fn,
-        tcfg,
+    trainer = tr.Trainer(
         model=model,
         optimizer=opt,
-        out=out,
-        total=total,
-        fingerprint=fingerprint,
-        loss_names=LOSS_NAMES,
+        step=step_fn,
         save_model=save_model,
+        summary=lambda run: tr.run_summary(run, device, objects, tcfg.bf16, model),
+        loss_names=LOSS_NAMES,
         title="IDM training loss",
         desc="idm",
-        summary=lambda run: tr.run_summary(run, device, objects, tcfg.bf16, model),
         rngs={"sample": rng},
         device=device,
-        stop_after=stop_after,
     )
+    return tr.fit(trainer, tcfg, out=out, total=total, fingerprint=fingerprint, stop_after=stop_after)

@@ -17,7 +17,7 @@ import time
 
 import torch
 
-from frng.training import bf16_ok
+from frng.device import bf16_ok
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 
 from frng import config as frng_config
-from frng import training as tr
+from frng.device import resolve_device
 from frng.layout import Layout
 from frng.priors.cache import make_backbone_cache
 from frng.typedconfig import typed
@@ -25,6 +25,6 @@ def run(args: argparse.Namespace) -> int:
     L = Layout(config.results)
     model = Path(args.model or L.backbone_model())
     out = Path(args.out or L.backbone_cache(args.object))
-    device = tr.resolve_device(config.device)
+    device = resolve_device(config.device)
     print(f"backbone-cache: wrote {make_backbone_cache(config, args.object, model, out, device)}")
     return 0

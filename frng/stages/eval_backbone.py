@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 
 from frng import config as frng_config
-from frng import training as tr
+from frng.device import resolve_device
 from frng.layout import Layout
 from frng.priors import build_idm, load_backbone
 from frng.priors.evaluate import eval_backbone, eval_idm, mean_image
@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
 
     config = typed(frng_config.load(args.config))
     L = Layout(config.results)
-    device = tr.resolve_device(config.device)
+    device = resolve_device(config.device)
     train_objs = load_split(config, "train")
     test = load_split(config, "test")
     model = load_backbone(Path(args.model or L.backbone_model()), device)

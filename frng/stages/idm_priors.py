@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 
 from frng import config as frng_config
-from frng import training as tr
+from frng.device import resolve_device
 from frng.layout import Layout
 from frng.priors.cache import make_idm_priors
 from frng.typedconfig import typed
@@ -23,6 +23,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     config = typed(frng_config.load(args.config))
     out = Path(args.out or Layout(config.results).idm_priors(args.object))
-    device = tr.resolve_device(config.device)
+    device = resolve_device(config.device)
     print(f"idm-priors: wrote {make_idm_priors(config, args.object, out, device, args.kind)}")
     return 0

@@ -1,0 +1,63 @@
+"""Where torch runs and how: the device (:func:`resolve_device`), bf16 where the hardware has it (:func:`bf16_ok`,
+:func:`autocast`) and the intra-op thread count a training runs with (:func:`training_threads`)."""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import os
+from pathlib import Path
+
+import torch
+
+
+def resolve_device(name: str = "auto") -> torch.device:
+    """``auto`` -> ``cuda`` when available, else ``cpu``; ``cuda`` without a GPU is an error."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise RuntimeError("config device is 'cuda' but no CUDA device is available")
+    return torch.device(name)
+
+
+@functools.cache
+def _cpu_has_bf16() -> bool:
+    """Whether this CPU computes bf16 natively (AMX or AVX512-BF16). Without it, torch emulates bf16 matmuls and
+    autocast is several times SLOWER than float32 (measured 8x on an AVX2-only AMD EPYC)."""
+    try:
+        flags = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return False
+    return any(f in flags for f in ("amx_bf16", "avx512_bf16"))
+
+
+def bf16_ok(device: torch.device | str) -> bool:
+    """Whether bf16 autocast pays on ``device``: CUDA with bf16 support, or a CPU with native bf16 (AMX/AVX512-BF16).
+    Every ``bf16`` config switch means "bf16 where the hardware has it" and goes through this test."""
+    device = torch.device(device)
+    if device.type == "cuda":
+        return torch.cuda.is_available() and torch.cuda.is_bf16_supported()
+    return device.type == "cpu" and _cpu_has_bf16()
+
+
+def autocast(device: torch.device, bf16: bool):
+    """bf16 autocast on ``device`` when ``bf16`` is set and :func:`bf16_ok`, else a no-op context."""
+    if not (bf16 and bf16_ok(device)):
+        return contextlib.nullcontext()
+    return torch.autocast(device_type=device.type, dtype=torch.bfloat16)
+
+
+THREADS_ENV = "FRNG_TORCH_THREADS"
+
+
+def training_threads() -> int:
+    """The intra-op thread count a training runs with (``train.json``'s ``threads``), fixed before any op runs.
+
+    The weights are bit-identical between runs of the same config on the same machine for the same count (1 and
+    2 threads measured, also two 2-thread runs side by side; ``tests/test_determinism.py``), but differ between
+    counts: reductions and GEMMs split their sums per thread. The count is ``FRNG_TORCH_THREADS`` when set, else
+    torch's (``OMP_NUM_THREADS``, which Snakemake sets to the job's threads: min(rule ``threads``, ``--cores``))."""
+    n = os.environ.get(THREADS_ENV, "").strip()
+    if n:
+        torch.set_num_threads(int(n))
+    return torch.get_num_threads()

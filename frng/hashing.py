@@ -1,0 +1,62 @@
+"""Digests: of a file's bytes (:func:`file_sha256`, what caches record of the models they were made with), of
+training data held in memory (:func:`data_digest`) and of a training fingerprint (:func:`config_digest`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+
+import numpy as np
+import torch
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def config_digest(fingerprint: dict) -> str:
+    """sha256 of a training fingerprint (JSON with sorted keys; tuples as lists, other values by ``str``)."""
+    text = json.dumps(fingerprint, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def data_digest(obj) -> str:
+    """sha256 of training data held in memory: tensors and arrays (dtype, shape, bytes), dataclasses, dicts (in
+    their order), lists/tuples, strings and numbers, walked recursively. What the fingerprints record of the
+    objects a run trains on, so that a resume never continues on other data under the same object ids."""
+    h = hashlib.sha256()
+
+    def walk(x) -> None:
+        if isinstance(x, torch.Tensor):
+            t = x.detach().cpu().contiguous()
+            h.update(f"T{t.dtype}{tuple(t.shape)}".encode())
+            h.update(t.view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+        elif isinstance(x, np.ndarray):
+            a = np.ascontiguousarray(x)
+            h.update(f"A{a.dtype}{a.shape}".encode())
+            h.update(a.tobytes())
+        elif dataclasses.is_dataclass(x) and not isinstance(x, type):
+            h.update(f"D{type(x).__name__}".encode())
+            for f in dataclasses.fields(x):
+                h.update(f.name.encode())
+                walk(getattr(x, f.name))
+        elif isinstance(x, dict):
+            h.update(f"M{len(x)}".encode())
+            for k, v in x.items():
+                walk(k)
+                walk(v)
+        elif isinstance(x, (list, tuple)):
+            h.update(f"L{len(x)}".encode())
+            for v in x:
+                walk(v)
+        else:
+            h.update(f"S{type(x).__name__}:{x!r};".encode())
+
+    walk(obj)
+    return h.hexdigest()
