@@ -23,7 +23,10 @@ STAGES: dict[str, tuple[str, str]] = {
     "config": ("frng.stages.config", "validate a config file and print it with defaults filled in"),
     "envmaps": ("frng.stages.envmaps", "collect, bake and rotate the environment maps (train/test split)"),
     "curate": ("frng.stages.curate", "render one object's views x lights + G-buffers with Blender Cycles"),
-    "dataset": ("frng.stages.dataset_preview", "inspect the curated dataset (contact sheets)"),
+    "dataset-preview": (
+        "frng.stages.dataset_preview",
+        "PNG contact sheet per curated object (views x lights + G-buffers)",
+    ),
     "bench": ("frng.stages.bench", "benchmarks: rasterizer, shading, relighting"),
     "backbone-train": ("frng.stages.backbone_train", "train the RelitLRM-style backbone (training split), then freeze"),
     "idm-train": ("frng.stages.idm_train", "train the learned IDM on the training split's G-buffers"),
@@ -48,6 +51,17 @@ STAGES: dict[str, tuple[str, str]] = {
         "relit benchmark objects scored with each benchmark's published protocol; the benchmarks table",
     ),
 }
+
+# older spellings still accepted -> the stage they name (rules/curate.smk runs `frng dataset preview`)
+ALIASES: dict[tuple[str, ...], str] = {("dataset", "preview"): "dataset-preview"}
+
+
+def canonical(argv: list[str]) -> list[str]:
+    """``argv`` with an older spelling of a stage (:data:`ALIASES`) replaced by the stage's name."""
+    for old, name in ALIASES.items():
+        if tuple(argv[: len(old)]) == old:
+            return [name, *argv[len(old) :]]
+    return argv
 
 
 class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
@@ -76,7 +90,7 @@ def stage_parser(name: str) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> None:
-    argv = list(sys.argv[1:] if argv is None else argv)
+    argv = canonical(list(sys.argv[1:] if argv is None else argv))
     if not argv or argv[0] in ("-h", "--help") or argv[0] not in STAGES:
         parser = _top_parser()
         parser.add_argument("stage", choices=list(STAGES), help="pipeline stage")

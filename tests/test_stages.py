@@ -48,6 +48,8 @@ NO_STAGE = {
 # stage modules without a rule, and why
 STAGES_WITHOUT_RULE = {
     "frng.stages.bench": "benchmarks are run by hand (`make bench`), never by the workflow",
+    "frng.stages.bench_render": "`frng bench render` (frng.stages.bench.BENCHES), run by hand",
+    "frng.stages.bench_relight": "`frng bench relight` (frng.stages.bench.BENCHES), run by hand",
     "frng.stages.export_benchmark": "writes curated objects in the public benchmarks' layouts, run by hand and by "
     "tests/test_benchmarks.py (nothing downstream in the workflow reads it)",
     "frng.stages.reconstruct": "your own photos -> an asset, run by hand (tests/test_reconstruct.py)",
@@ -57,7 +59,9 @@ STAGES_WITHOUT_RULE = {
 # ``frng`` subcommands whose module is not in frng/stages/, and why
 OUTSIDE_STAGES: dict[str, str] = {}
 # ``frng <subcommand> <action>`` of the rules' commands (a stage with sub-subcommands)
-SUB_ACTIONS = {"dataset": ["preview"], "bench": ["render", "relight"]}
+SUB_ACTIONS = {"bench": ["render", "relight"]}
+# rules whose ``frng`` subcommand is not the rule's name with dashes
+CLI_NAMES_DIFFER = {"import_benchmark": "import"}
 
 
 def rule_blocks() -> dict[str, str]:
@@ -78,9 +82,13 @@ def shell_of(block: str) -> str:
 
 def frng_subcommand(block: str) -> str | None:
     """The ``frng`` subcommand a rule's shell command runs: ``{params.py} -m frng SUB`` or, for the training rule,
-    ``{params.launcher} SUB`` (the launcher ends in ``-m frng``, checked below)."""
-    m = re.search(r"-m frng ([\w-]+)|\{params\.launcher\} ([\w-]+)", shell_of(block))
-    return (m.group(1) or m.group(2)) if m else None
+    ``{params.launcher} SUB`` (the launcher ends in ``-m frng``, checked below); an older spelling
+    (:data:`frng.cli.ALIASES`) as the stage it names."""
+    m = re.search(r"-m frng ([\w-]+)( [\w-]+)?|\{params\.launcher\} ([\w-]+)", shell_of(block))
+    if not m:
+        return None
+    words = [m.group(1), (m.group(2) or "").strip()] if m.group(1) else [m.group(3)]
+    return cli.canonical([w for w in words if w])[0]
 
 
 def stage_modules() -> list[str]:
@@ -103,6 +111,7 @@ def test_rule_runs_the_stage_named_after_it(rule):
     sub = frng_subcommand(rule_blocks()[rule])
     assert sub in cli.STAGES, f"rule {rule} runs `frng {sub}`, which is no stage"
     assert cli.STAGES[sub][0] == module, f"`frng {sub}` (rule {rule}) dispatches to {cli.STAGES[sub][0]}"
+    assert sub == CLI_NAMES_DIFFER.get(rule, rule.replace("_", "-")), f"rule {rule} runs `frng {sub}`"
 
 
 @pytest.mark.parametrize("rule", sorted(NO_STAGE))
@@ -124,7 +133,9 @@ def test_every_stage_has_a_rule_and_a_subcommand():
         f"stages without a rule: {sorted(set(modules) - ruled - exempt)}; "
         f"missing stage modules: {sorted(ruled | exempt - set(modules))}"
     )
-    dispatched = {m for m, _ in cli.STAGES.values()}
+    from frng.stages.bench import BENCHES
+
+    dispatched = {m for m, _ in cli.STAGES.values()} | {m for m, _ in BENCHES.values()}
     assert set(modules) <= dispatched, f"stages no subcommand runs: {sorted(set(modules) - dispatched)}"
 
 
@@ -154,6 +165,17 @@ def test_stage_help(argv, capsys):
     assert e.value.code == 0
     out = capsys.readouterr().out
     assert out.startswith(f"usage: frng {' '.join(argv)}"), out[:200]
+
+
+def test_older_spelling_runs_the_same_stage(capsys):
+    """``frng dataset preview`` (what rules/curate.smk runs) is ``frng dataset-preview``."""
+    assert cli.canonical(["dataset", "preview", "--cell", "64"]) == ["dataset-preview", "--cell", "64"]
+    for old, name in cli.ALIASES.items():
+        assert name in cli.STAGES and old[0] not in cli.STAGES
+        with pytest.raises(SystemExit) as e:
+            cli.main([*old, "--help"])
+        assert e.value.code == 0
+        assert capsys.readouterr().out.startswith(f"usage: frng {name}")
 
 
 def test_top_level_help_lists_every_stage():

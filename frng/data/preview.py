@@ -1,5 +1,5 @@
 """One PNG contact sheet per curated object, for people to look at (stage :mod:`frng.stages.dataset_preview`,
-``frng dataset preview``).
+``frng dataset-preview``).
 
 Sheet layout (cells of ``--cell`` px; at most ``--max-views`` columns and ``--max-lights`` rows per block):
 

@@ -51,7 +51,7 @@ from frng.model.tokenizers import PriorTokenizer, stack_priors
 from frng.render import RasterConfig, rasterize
 from frng.render.shading import GGX_MIN_ALBEDO, NeuralDecoder, ShadingConfig, deferred_shade, ggx_shade, lambert_sh
 from frng.sections import TypedConfig, register, section, section_dict
-from frng.variants import BASE_VARIANTS, all_variants, canonical_variant, k_variant, trained_variants, variant
+from frng.variants import canonical_variant, variant
 
 MODEL_KIND = "frng"
 
@@ -743,14 +743,4 @@ def variant_config(
     return replace(cfg, **v.arch), replace(ind, **v.loss)
 
 
-__all__ = [
-    "BASE_VARIANTS",
-    "FRNG",
-    "FRNGConfig",
-    "Reconstruction",
-    "all_variants",
-    "canonical_variant",
-    "k_variant",
-    "trained_variants",
-    "variant_config",
-]
+__all__ = ["FRNG", "FRNGConfig", "Reconstruction", "variant_config"]

@@ -49,9 +49,10 @@ from frng import training as tr
 from frng.device import autocast, bf16_ok
 from frng.hashing import data_digest, file_sha256
 from frng.layout import Layout
-from frng.model.frng import FRNG, canonical_variant, variant_config
+from frng.model.frng import FRNG, variant_config
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
 from frng.sections import TypedConfig, config_section, register
+from frng.variants import canonical_variant
 
 CACHE_KEYS = ("t_geo", "raw_prior", "means", "quats", "scales", "opacities", "keep", "c2w", "intr")  # + light{j}.t_app
 BACK_KEYS = tuple("back_" + k for k in ("means", "quats", "scales", "opacities", "src", "dirs"))  # when cached

@@ -1,160 +1,34 @@
 """The two frozen priors F-RNG builds on: an LRM backbone and an intrinsic decomposition model (IDM).
 
-Registries map config names to implementations so a user can plug in a bigger backbone or another IDM
-without touching F-RNG (``backbone.kind`` / ``idm.kind`` in the config):
-
-- ``BACKBONES[name](path, device) -> nn.Module`` loads a trained backbone file; the module must offer the
-  :class:`frng.priors.backbone.RelitLRMBackbone` methods ``reconstruct``, ``denoise``, ``render``, ``relight``.
-  :func:`load_backbone` freezes it (:func:`freeze`).
-- ``IDMS[name](config, device) -> IDMPrior``; an :class:`IDMPrior` turns one object's input views into
-  :class:`frng.priors.intrinsics.IntrinsicPriors`.
-
-Register another one with :func:`register_backbone` / :func:`register_idm` (e.g. from a plugin module imported
-before the stages run).
+This package only re-exports: the registries (``backbone.kind`` / ``idm.kind`` in the config -> an implementation;
+plug in another with :func:`register_backbone` / :func:`register_idm`) and the IDM adapters live in
+:mod:`frng.priors.registry`; the models, trainers and caches in the submodules.
 """
 
-from __future__ import annotations
+from frng.priors.registry import (
+    BACKBONES,
+    IDMS,
+    DiffusionRendererIDMPrior,
+    IDMPrior,
+    LearnedIDMPrior,
+    OracleIDMPrior,
+    build_idm,
+    freeze,
+    load_backbone,
+    register_backbone,
+    register_idm,
+)
 
-from collections.abc import Callable
-from pathlib import Path
-from typing import Protocol
-
-import torch
-from torch import nn
-
-from frng.io import CorruptFileError, load_torch
-from frng.sections import TypedConfig
-
-BACKBONES: dict[str, Callable[..., nn.Module]] = {}
-IDMS: dict[str, Callable[..., IDMPrior]] = {}
-
-
-def register_backbone(name: str, loader: Callable[..., nn.Module]) -> None:
-    BACKBONES[name] = loader
-
-
-def register_idm(name: str, factory: Callable[..., IDMPrior]) -> None:
-    IDMS[name] = factory
-
-
-def freeze(module: nn.Module) -> nn.Module:
-    """Eval mode, ``requires_grad=False`` on every parameter, and ``train()`` pinned to eval (so F-RNG code calling
-    ``model.train()`` on a parent module cannot switch the prior back to training behaviour)."""
-    module.eval()
-    for p in module.parameters():
-        p.requires_grad_(False)
-
-    def _stay_eval(mode: bool = True):
-        return nn.Module.train(module, False)
-
-    module.train = _stay_eval  # type: ignore[method-assign]
-    return module
-
-
-def _load_relitlrm(path: str | Path, device: torch.device | str = "cpu") -> nn.Module:
-    from frng.priors.backbone import BackboneConfig, RelitLRMBackbone
-
-    state = load_torch(path, "backbone model file")
-    model = RelitLRMBackbone(BackboneConfig.from_dict(state["config"]))
-    model.load_state_dict(state["state_dict"])
-    return model.to(device)
-
-
-def load_backbone(path: str | Path, device: torch.device | str = "cpu", kind: str | None = None) -> nn.Module:
-    """Load a trained backbone file (``kind`` from the file unless given) and freeze it."""
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: backbone model file does not exist; run `frng backbone-train` first")
-    if kind is None:
-        state = load_torch(path, "backbone model file")  # weights_only: a crafted model.pt runs nothing
-        if not isinstance(state, dict):
-            raise CorruptFileError(f"{path}: not a backbone model file (a {type(state).__name__})")
-        kind = state.get("kind", "relitlrm")
-    if kind not in BACKBONES:
-        raise KeyError(f"unknown backbone kind {kind!r}; registered: {sorted(BACKBONES)}")
-    return freeze(BACKBONES[kind](path, device))
-
-
-class IDMPrior(Protocol):
-    kind: str
-
-    def priors(self, oid: str, views, gbuffer=None):  # -> IntrinsicPriors
-        """views: :class:`frng.priors.dataset.Views` (the object's input views, in order); gbuffer: the object's
-        G-buffers of the same views (IntrinsicPriors) where available."""
-
-
-class LearnedIDMPrior:
-    kind = "learned"
-
-    def __init__(self, model_path: str | Path, device: torch.device | str = "cpu"):
-        from frng.priors.idm import IDMConfig, LearnedIDM
-
-        model_path = Path(model_path)
-        if not model_path.exists():
-            raise FileNotFoundError(f"{model_path}: IDM model file does not exist; run `frng idm-train` first")
-        state = load_torch(model_path, "IDM model file")
-        self.model = LearnedIDM(IDMConfig.from_dict(state["config"]))
-        self.model.load_state_dict(state["state_dict"])
-        self.model = freeze(self.model.to(device))
-        self.device = device
-        self.model_path = model_path
-
-    def priors(self, oid, views, gbuffer=None):
-        d = self.device
-        return self.model.predict(views.rgb.to(d), views.alpha.to(d), views.c2w.to(d), views.intr.to(d)).to("cpu")
-
-
-class OracleIDMPrior:
-    kind = "oracle"
-
-    def priors(self, oid, views, gbuffer=None):
-        if gbuffer is None:
-            raise ValueError(f"object {oid}: the oracle IDM needs the object's G-buffers")
-        return gbuffer
-
-
-class DiffusionRendererIDMPrior:
-    kind = "diffusion-renderer"
-
-    def __init__(self, folder: str | Path, near: float, far: float, normal_space: str, depth_invert: bool):
-        self.folder, self.near, self.far = Path(folder), near, far
-        self.normal_space, self.depth_invert = normal_space, depth_invert
-
-    def priors(self, oid, views, gbuffer=None):
-        from frng.priors.diffusion_renderer import read_priors
-
-        return read_priors(
-            self.folder / oid, views.c2w, views.alpha, self.near, self.far, self.normal_space, self.depth_invert
-        )
-
-
-def _learned(config: TypedConfig, device="cpu") -> IDMPrior:
-    from frng.layout import Layout
-
-    return LearnedIDMPrior(Path(Layout(config.results).idm_model()), device)
-
-
-def _oracle(config: TypedConfig, device="cpu") -> IDMPrior:
-    return OracleIDMPrior()
-
-
-def _diffusion_renderer(config: TypedConfig, device="cpu") -> IDMPrior:
-    c = config.idm
-    if not c.diffusion_renderer_dir:
-        raise ValueError("config key 'idm.diffusion_renderer_dir': required for idm.kind = diffusion-renderer")
-    return DiffusionRendererIDMPrior(
-        c.diffusion_renderer_dir, config.backbone.near, config.backbone.far, c.normal_space, c.depth_invert
-    )
-
-
-def build_idm(config: TypedConfig, device="cpu", kind: str | None = None) -> IDMPrior:
-    kind = kind or config.idm.kind
-    if kind not in IDMS:
-        raise KeyError(f"unknown IDM kind {kind!r}; registered: {sorted(IDMS)}")
-    return IDMS[kind](config, device)
-
-
-register_backbone("relitlrm", _load_relitlrm)
-register_idm("learned", _learned)
-register_idm("oracle", _oracle)
-register_idm("diffusion-renderer", _diffusion_renderer)
+__all__ = [
+    "BACKBONES",
+    "IDMS",
+    "DiffusionRendererIDMPrior",
+    "IDMPrior",
+    "LearnedIDMPrior",
+    "OracleIDMPrior",
+    "build_idm",
+    "freeze",
+    "load_backbone",
+    "register_backbone",
+    "register_idm",
+]

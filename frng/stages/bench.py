@@ -1,7 +1,8 @@
 """``frng bench <name>``: benchmarks (not timed tests). Each benchmark is a module with ``configure(parser)`` and
 ``run(args)``, registered in :data:`BENCHES` (add yours with one line).
 
-The one stage without a rule: benchmarks are run by hand (``make bench``), never by the workflow."""
+The one stage without a rule: benchmarks are run by hand (``make bench``), never by the workflow. The benchmarks
+are stage modules beside it, ``frng/stages/bench_<name>.py``."""
 
 from __future__ import annotations
 
@@ -10,8 +11,11 @@ import importlib
 
 # name -> (module, one-line help)
 BENCHES: dict[str, tuple[str, str]] = {
-    "render": ("frng.render.bench", "rasterizer fwd/fwd+bwd and deferred-shading cost at 32/64/128 px"),
-    "relight": ("frng.relight_bench", "F-RNG vs backbone relighting/reconstruction time at each config's model sizes"),
+    "render": ("frng.stages.bench_render", "rasterizer fwd/fwd+bwd and deferred-shading cost at 32/64/128 px"),
+    "relight": (
+        "frng.stages.bench_relight",
+        "F-RNG vs backbone relighting/reconstruction time at each config's model sizes",
+    ),
 }
 
 

@@ -1,4 +1,5 @@
-"""Stage ``frng dataset preview`` (rule ``dataset_preview``): one PNG contact sheet per curated object.
+"""Stage ``frng dataset-preview`` (rule ``dataset_preview``): one PNG contact sheet per curated object. The older
+spelling ``frng dataset preview`` runs it too (:data:`frng.cli.ALIASES`).
 
 Sheet layout: :mod:`frng.data.preview`. Output: ``{results}/previews/{obj}.png``.
 """
@@ -19,12 +20,7 @@ from frng.typedconfig import typed
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    sub = parser.add_subparsers(dest="action", required=True)
-    p = sub.add_parser(
-        "preview",
-        help="PNG contact sheet per object (views x lights + G-buffers)",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
+    p = parser
     frng_config.add_config_argument(p)
     p.add_argument("--objects", nargs="*", help="object ids (default: every object of the plan)")
     p.add_argument("--out", help="output folder (default: {results}/previews)")
@@ -42,6 +38,6 @@ def run(args: argparse.Namespace) -> int:
             config, objects, out, args.cell, args.max_views, args.max_lights, log=lambda m: print(m, flush=True)
         )
     except (DatasetError, io.ImageError) as e:
-        print(f"frng dataset preview: error: {e}", file=sys.stderr)
+        print(f"frng dataset-preview: error: {e}", file=sys.stderr)
         return 1
     return 0

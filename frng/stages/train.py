@@ -15,10 +15,10 @@ from frng import config as frng_config
 from frng import distributed
 from frng.io import check_file_index
 from frng.layout import Layout
-from frng.model.frng import all_variants, canonical_variant, trained_variants, variant_config
+from frng.model.frng import variant_config
 from frng.model.train import train
 from frng.typedconfig import typed
-from frng.variants import reads_priors, split_seed
+from frng.variants import all_variants, canonical_variant, reads_priors, split_seed, trained_variants
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
