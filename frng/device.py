@@ -1,11 +1,14 @@
 """Where torch runs and how: the device (:func:`resolve_device`), bf16 where the hardware has it (:func:`bf16_ok`,
-:func:`autocast`) and the intra-op thread count a training runs with (:func:`training_threads`)."""
+:func:`autocast`), the intra-op thread count a training runs with (:func:`training_threads`), and timing on it
+(:func:`synchronize`, :func:`median_time`)."""
 
 from __future__ import annotations
 
 import contextlib
 import functools
 import os
+import statistics
+import time
 from pathlib import Path
 
 import torch
@@ -61,3 +64,23 @@ def training_threads() -> int:
     if n:
         torch.set_num_threads(int(n))
     return torch.get_num_threads()
+
+
+def synchronize(device: torch.device) -> None:
+    """Wait for ``device``'s queued work (CUDA); a no-op on a CPU. What a wall-clock timing brackets its block with."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def median_time(fn, device: torch.device, repeats: int):
+    """(median seconds of ``fn()`` over ``repeats`` runs after one warm-up, synchronised on ``device``; the last
+    run's result)."""
+    out = fn()
+    ts = []
+    for _ in range(repeats):
+        synchronize(device)
+        t = time.perf_counter()
+        out = fn()
+        synchronize(device)
+        ts.append(time.perf_counter() - t)
+    return statistics.median(ts), out

@@ -53,6 +53,7 @@ import numpy as np
 import torch
 
 from frng import envmap, io
+from frng.device import resolve_device, synchronize
 from frng.layout import Layout, RelightFolder, TrainingFolder
 from frng.sections import TypedConfig
 from frng.variants import BACKBONE, RIG_VIEWS, Run, model_variants, runs  # noqa: F401
@@ -129,11 +130,6 @@ def check_test_split(config: TypedConfig, oid: str, meta: dict, meta_path: Path)
 # -- the work ------------------------------------------------------------------------------------------
 
 
-def _sync(device: torch.device) -> None:
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
-
-
 class Timer:
     """Wall-clock seconds of a block, synchronising CUDA at both ends: ``with Timer(dev) as t: ...; t.s``."""
 
@@ -141,12 +137,12 @@ class Timer:
         self.device, self.s = device, 0.0
 
     def __enter__(self):
-        _sync(self.device)
+        synchronize(self.device)
         self.t0 = time.perf_counter()
         return self
 
     def __exit__(self, *exc):
-        _sync(self.device)
+        synchronize(self.device)
         self.s = time.perf_counter() - self.t0
 
 
@@ -395,8 +391,6 @@ def publish(staging: Path, results: Path, oid: str) -> None:
 
 def relight(config: TypedConfig, oid: str, models_dir: Path | None = None, device: str | None = None) -> dict:
     """Validate, relight into a staging folder, publish. Returns the timing dict."""
-    from frng.device import resolve_device
-
     results = Path(config.results)
     L = Layout(results)
     validate_inputs(config, oid)

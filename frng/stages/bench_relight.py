@@ -24,8 +24,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
-import time
 from contextlib import nullcontext
 from dataclasses import replace
 from pathlib import Path
@@ -33,6 +31,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from frng.device import median_time
 from frng.typedconfig import Config, typed
 
 DEFAULT_CONFIGS = ["config/config.yaml", "config/paper.yaml"]
@@ -55,24 +54,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--bf16", action="store_true", help="bf16 autocast for the transformers")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", action="store_true", help="one JSON object per config")
-
-
-def _sync(dev: torch.device) -> None:
-    if dev.type == "cuda":
-        torch.cuda.synchronize(dev)
-
-
-def _timed(fn, dev: torch.device, repeats: int):
-    """(median seconds over ``repeats`` runs after one warm-up, last result)."""
-    out = fn()
-    ts = []
-    for _ in range(repeats):
-        _sync(dev)
-        t = time.perf_counter()
-        out = fn()
-        _sync(dev)
-        ts.append(time.perf_counter() - t)
-    return statistics.median(ts), out
 
 
 def synthetic_object(config: Config, res: int, n_targets: int, seed: int, dev: torch.device) -> dict:
@@ -172,10 +153,10 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
         return torch.Generator(device=dev).manual_seed(seed)
 
     with torch.no_grad(), amp:
-        t_geo_s, (t_geo, raw, gauss, keep, raw_prior, pixels) = _timed(
+        t_geo_s, (t_geo, raw, gauss, keep, raw_prior, pixels) = median_time(
             lambda: backbone.reconstruct(rgb, alpha, c2w, intr), dev, R
         )
-        t_app_s, (sh_in, t_app) = _timed(
+        t_app_s, (sh_in, t_app) = median_time(
             lambda: backbone.denoise(
                 t_geo, gauss, keep, env_in[None], c2w[:nd], intr[:nd], res, res, generator=gen(0), pixels=pixels
             ),
@@ -183,7 +164,7 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
             R,
         )
         views = Views([f"in_{i:02d}" for i in range(6)], rgb, alpha, c2w, intr)
-        t_idm_s, priors = _timed(lambda: idm.predict(views.rgb, views.alpha, views.c2w, views.intr), dev, R)
+        t_idm_s, priors = median_time(lambda: idm.predict(views.rgb, views.alpha, views.c2w, views.intr), dev, R)
         bv = {
             "t_geo": t_geo[0].float(),
             "raw": raw.float(),
@@ -198,10 +179,10 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
             "light0.t_app": t_app[0].float(),
         }
         images = torch.cat([rgb, alpha], -1)
-        t_frng_s, rec = _timed(lambda: model.reconstruct(bv, 0, priors, images, input_env=env_in), dev, R)
+        t_frng_s, rec = median_time(lambda: model.reconstruct(bv, 0, priors, images, input_env=env_in), dev, R)
     with torch.no_grad():
-        t_ras_s, raster = _timed(lambda: model.rasterize(rec, t_c2w, t_intr, res, res), dev, R)
-        t_shade_s, _ = _timed(
+        t_ras_s, raster = median_time(lambda: model.rasterize(rec, t_c2w, t_intr, res, res), dev, R)
+        t_shade_s, _ = median_time(
             lambda: [model.shade(raster, e, spp, generator=gen(i)) for i, e in enumerate(envs)], dev, R
         )
 
@@ -213,7 +194,7 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
                 )
                 backbone.render(gauss, sh, t_c2w, t_intr, res, res, keep)
 
-    t_bb_s, _ = _timed(backbone_relight, dev, R)
+    t_bb_s, _ = median_time(backbone_relight, dev, R)
     L = len(envs)
     raster_ms, shade_ms = 1000 * t_ras_s / Vt, 1000 * t_shade_s / (L * Vt)
     frng_ms, frng_amort_ms = raster_ms + shade_ms, shade_ms + raster_ms / L

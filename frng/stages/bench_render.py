@@ -12,12 +12,10 @@ from __future__ import annotations
 import argparse
 import json
 import resource
-import statistics
-import time
 
 import torch
 
-from frng.device import bf16_ok
+from frng.device import bf16_ok, median_time
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -35,25 +33,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="one JSON object per line")
 
 
-def _sync(dev):
-    if dev.type == "cuda":
-        torch.cuda.synchronize()
-
-
 def _rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def _timed(fn, dev, repeats):
-    fn()  # warm-up (and compile)
-    _sync(dev)
-    ts = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        _sync(dev)
-        ts.append(time.perf_counter() - t)
-    return statistics.median(ts) * 1000.0
+def _timed(fn, dev, repeats) -> float:
+    """Median milliseconds of ``fn()`` after a warm-up (and compile), :func:`frng.device.median_time`."""
+    return median_time(fn, dev, repeats)[0] * 1000.0
 
 
 def run(args: argparse.Namespace) -> int:
