@@ -4,6 +4,17 @@ import torch
 
 from frng.priors import backbone as bb
 
+TINY = {
+    "width": 32,
+    "heads": 2,
+    "geo_depth": 1,
+    "app_depth": 1,
+    "env_height": 8,
+    "sh_degree": 1,
+    "den_views": 2,
+    "patch": 8,
+}
+
 
 def _sphere_pixels(env: torch.Tensor, albedo=(0.6, 0.4, 0.3), size: int = 48) -> tuple[torch.Tensor, torch.Tensor]:
     """A Lambertian sphere seen from +z under ``env``: pixel inputs (1, 1, H, W, 7) as pixel_inputs makes them
@@ -46,3 +57,18 @@ def test_fit_cue_is_target_over_input():
     cue = r_t - bb.RelitLRMBackbone.input_light_ratio(px)
     m = px[..., 3] > 0.5
     assert cue[m].abs().mean() < 0.05 < r_t[m].abs().mean()
+
+
+def test_models_saved_before_the_key_keep_their_behaviour(tmp_path):
+    """A backbone model.pt saved before ``light_cue_input`` existed was trained with the uniform assumption: it
+    loads as ``uniform`` (not today's default ``fit``); a new model records its own value."""
+    from frng.priors import load_backbone
+
+    m = bb.build(dict(TINY))
+    assert m.cfg.light_cue_input == "fit"
+    cfg = m.cfg.to_dict()
+    old = {k: v for k, v in cfg.items() if k != "light_cue_input"}
+    torch.save({"kind": "relitlrm", "config": old, "state_dict": m.state_dict()}, tmp_path / "old.pt")
+    torch.save({"kind": "relitlrm", "config": cfg, "state_dict": m.state_dict()}, tmp_path / "new.pt")
+    assert load_backbone(tmp_path / "old.pt").cfg.light_cue_input == "uniform"
+    assert load_backbone(tmp_path / "new.pt").cfg.light_cue_input == "fit"

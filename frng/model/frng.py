@@ -711,7 +711,7 @@ def variant_config(
 
     c = config
     f, sh = c.frng, c.shading
-    bb = BackboneConfig.from_dict(backbone_cfg) if backbone_cfg else c.backbone
+    bb = BackboneConfig.from_saved(backbone_cfg) if backbone_cfg else c.backbone
     cfg = FRNGConfig(
         patch=c.model.patch_size,
         geo_dim=bb.width,

@@ -109,6 +109,10 @@ class BackboneArch:
     light_cue_input: str  # "uniform" | "fit": how the light cue treats the (unknown) input light
 
 
+# Architecture keys that came after models were already saved -> the behaviour those models were trained with.
+SAVED_DEFAULTS = {"light_cue_input": "uniform"}
+
+
 @dataclass(frozen=True)
 class BackboneConfig(BackboneArch):
     """Architecture of a backbone model (``model.pt``'s ``config``): the section's architecture keys plus ``patch``
@@ -121,6 +125,12 @@ class BackboneConfig(BackboneArch):
         """Strict (:func:`frng.sections.section`): unknown keys are errors, missing architecture keys take the
         schema's defaults; ``patch`` must be given."""
         return section(cls, d, "backbone")
+
+    @classmethod
+    def from_saved(cls, d: dict) -> BackboneConfig:
+        """The architecture a saved ``model.pt`` records: keys added after it was trained take
+        :data:`SAVED_DEFAULTS` (what the model did before the key existed), not today's schema defaults."""
+        return cls.from_dict({**SAVED_DEFAULTS, **dict(d)})
 
     def to_dict(self) -> dict:
         return asdict(self)

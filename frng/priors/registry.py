@@ -56,7 +56,7 @@ def _load_relitlrm(path: str | Path, device: torch.device | str = "cpu") -> nn.M
     from frng.priors.backbone import BackboneConfig, RelitLRMBackbone
 
     state = load_torch(path, "backbone model file")
-    model = RelitLRMBackbone(BackboneConfig.from_dict(state["config"]))
+    model = RelitLRMBackbone(BackboneConfig.from_saved(state["config"]))
     model.load_state_dict(state["state_dict"])
     return model.to(device)
 
