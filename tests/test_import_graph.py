@@ -115,5 +115,5 @@ def test_sections_is_a_leaf_and_only_stages_assemble_the_config():
     graph = import_graph()
     assert graph["frng.sections"] == set()
     importers = sorted(m for m, deps in graph.items() if "frng.typedconfig" in deps)
-    outside = [m for m in importers if not m.startswith("frng.stages") and m not in {"frng.relight_bench"}]
+    outside = [m for m in importers if not m.startswith("frng.stages")]
     assert not outside, f"libraries importing frng.typedconfig: {outside}"
