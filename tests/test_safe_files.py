@@ -329,7 +329,7 @@ def test_full_disk_names_the_cache(tmp_path, monkeypatch):
     def full(*a, **k):
         raise OSError(28, "No space left on device (os error 28)")
 
-    monkeypatch.setattr(safetensors.torch, "save_file", full)
+    monkeypatch.setattr(safetensors.torch, "save", full)
     path = tmp_path / "cache" / "obj.safetensors"
     with pytest.raises(OSError, match="no space left on device") as e:
         _save({"a": torch.zeros(2)}, {}, path)

@@ -26,10 +26,11 @@ def frng_smoke(smoke_dataset, tmp_path_factory):
     d = tmp_path_factory.mktemp("train_smoke")
     path, config = smoke_results(smoke_dataset, d, idm={"kind": "oracle"})
     res = Path(config["results"])
-    model = backbone_train.train(typed(config), load_split(config, "train"), res / "backbone")
-    for oid in catalog.plan(config).split("train"):
-        cache.make_backbone_cache(config, oid, model, res / "backbone" / "cache" / f"{oid}.safetensors")
-        cache.make_idm_priors(config, oid, res / "priors" / "idm" / f"{oid}.safetensors")
+    tc = typed(config)
+    model = backbone_train.train(tc, load_split(tc, "train"), res / "backbone")
+    for oid in catalog.plan(tc).split("train"):
+        cache.make_backbone_cache(tc, oid, model, res / "backbone" / "cache" / f"{oid}.safetensors")
+        cache.make_idm_priors(tc, oid, res / "priors" / "idm" / f"{oid}.safetensors")
     return path, config
 
 
