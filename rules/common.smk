@@ -10,6 +10,7 @@ sys.path.insert(0, str(Path(workflow.basedir).parent))  # import frng without in
 from snakemake.logging import logger
 from snakemake_interface_executor_plugins.settings import ExecMode
 
+from frng import batches as frng_batches
 from frng import config as frng_config
 from frng import digests as frng_digests
 from frng.data import catalog as frng_catalog
@@ -22,6 +23,11 @@ try:
     frng_config.validate(config)
 except frng_config.ConfigError as e:
     raise WorkflowError(f"invalid config: {e}")
+try:
+    # `--config priors_batch=N`: objects per job of the batched prior rules (frng/batches.py; not part of the config)
+    PRIORS_BATCH = frng_batches.batch_size(config)
+except ValueError as e:
+    raise WorkflowError(str(e))
 
 RESULTS = config["results"]
 L = Layout(RESULTS)  # every artefact's path (frng/layout.py); rules pass their wildcards through
@@ -95,11 +101,31 @@ onstart:
         logger.info(f"effective config {outcome}: {CONFIG_FILE}")
 
 
+# The family of a generated batch rule (backbone_cache_train0 -> backbone_cache, frng/batches.py); config
+# digests, profile settings and job counts go by it.
+rule_family = frng_batches.rule_family
+
+
+def inherit_profile_settings(name):
+    """Give generated batch rule `name` what the profile sets for its family (`set-threads`, `set-resources`, e.g.
+    profiles/slurm's GPU partition for backbone_cache), unless the profile names the batch rule itself."""
+    rs, family, r = workflow.resource_settings, rule_family(name), workflow.get_rule(name)
+    threads = getattr(rs, "_parsed_overwrite_threads", {})
+    if family in threads and name not in threads:
+        r.resources["_cores"] = threads[family]
+    resources = getattr(rs, "_parsed_overwrite_resources", {})
+    for key in (family, name):  # the batch rule's own entry last
+        if key in resources:
+            r.resources.update(resources[key])
+
+
 # Each rule's config digest travels with the results folder (see rules/digests.smk). Every job of a rule reads
 # {results}/.digests/{rule}-{digest}.txt; the default target asks for each of them.
 def digest_rules(rules):
     return [
-        r for r in rules if r.name not in frng_digests.RULES_WITHOUT_DIGEST and r.name in frng_digests.RULE_CONFIG_KEYS
+        r
+        for r in rules
+        if r.name not in frng_digests.RULES_WITHOUT_DIGEST and rule_family(r.name) in frng_digests.RULE_CONFIG_KEYS
     ]
 
 
@@ -109,10 +135,10 @@ def add_digest_inputs(rules):
     anyway: the target makes it run, and then every job reading it)."""
     files = []
     for r in digest_rules(rules):
-        path = L.rule_digest(r.name, frng_digests.rule_digest(config, r.name))
+        path = L.rule_digest(rule_family(r.name), frng_digests.rule_digest(config, rule_family(r.name)))
         r.set_input(config_digest=path)
         files.append(path)
-    return files
+    return sorted(set(files))
 
 
 # Python running the stages: the interpreter snakemake runs in (the project's venv) unless --sdm conda.
@@ -140,6 +166,8 @@ except frng_catalog.CatalogError as e:
     raise WorkflowError(f"invalid dataset plan: {e}")
 TRAIN_IDS = CATALOG.split("train")
 TEST_IDS = CATALOG.split("test")
+# Batch name -> objects, per split (train0, train1, ..., test0): one job per batch for backbone_cache and idm_priors
+PRIOR_BATCHES = frng_batches.object_batches({"train": TRAIN_IDS, "test": TEST_IDS}, PRIORS_BATCH)
 # GPUs per torch job: 0 on CPU (CPU clusters reject gpu > 0; see profiles/slurm-ci), else 1 (profiles raise it).
 TORCH_GPUS = 0 if config.get("device", "auto") == "cpu" else 1
 IDM_MODEL = [L.idm_model()] if config["idm"]["kind"] == "learned" else []  # the learned IDM, when there is one

@@ -1,5 +1,5 @@
 # Frozen priors (frng/priors/): the RelitLRM-style backbone and the IDM are trained once on the TRAINING split,
-# then cached per object (one job per object) so that F-RNG training reads caches only.
+# then cached per object (one file per object, one job per batch of objects) so that F-RNG training reads caches only.
 
 
 rule backbone_train:
@@ -52,55 +52,66 @@ rule idm_train:
         "exec {params.py:q} -m frng idm-train --config {params.config:q} --out {params.out:q} > {log:q} 2>&1"
 
 
-rule backbone_cache:
-    input:
-        model=rules.backbone_train.output.model,
-        meta=rules.curate.output.meta,
-    output:
-        cache=L.backbone_cache(),
-    log:
-        L.log("backbone_cache", "{obj}"),
-    wildcard_constraints:
-        obj=r"[a-z0-9_]+",
-    conda:
-        "../envs/torch.yaml"
-    threads: 1
-    resources:
-        mem_mb=3000,
-        runtime=15,
-        gpu=TORCH_GPUS,
-    params:
-        **stage_params("backbone_cache"),
-    message:
-        "Caching backbone tokens of {wildcards.obj}"
-    shell:
-        "exec {params.py:q} -m frng backbone-cache --config {params.config:q} --object {wildcards.obj:q} "
-        "--model {input.model:q} --out {output.cache:q} > {log:q} 2>&1"
+# One job per batch of objects (frng/batches.py; `--config priors_batch=N`, default 32): each batch is its own
+# rule, {family}_{batch} (backbone_cache_train0, ..., idm_priors_test0), declaring every object's file as an output,
+# so the files, their bytes and everything downstream stay per object. A batch reruns as a whole when one of its
+# objects' inputs changes; a stopped batch leaves only complete files (written atomically) and reruns next time.
+for _batch, _objs in PRIOR_BATCHES.items():
 
+    rule:
+        name:
+            f"backbone_cache_{_batch}"
+        input:
+            model=rules.backbone_train.output.model,
+            meta=expand(L.object_meta(), obj=_objs),
+        output:
+            caches=expand(L.backbone_cache(), obj=_objs),
+        log:
+            L.log("backbone_cache", _batch),
+        conda:
+            "../envs/torch.yaml"
+        threads: 1
+        resources:
+            mem_mb=3000,
+            runtime=lambda wildcards, attempt, n=len(_objs): (10 + 5 * n) * attempt,
+            gpu=TORCH_GPUS,
+        params:
+            **stage_params("backbone_cache"),
+            objects=_objs,
+        message:
+            f"Caching backbone tokens of {len(_objs)} objects (batch {_batch})"
+        shell:
+            "exec {params.py:q} -m frng backbone-cache --config {params.config:q} --object {params.objects:q} "
+            "--model {input.model:q} --out {output.caches:q} > {log:q} 2>&1"
 
-rule idm_priors:
-    input:
-        model=IDM_MODEL,
-        meta=rules.curate.output.meta,
-    output:
-        priors=L.idm_priors(),
-    log:
-        L.log("idm_priors", "{obj}"),
-    wildcard_constraints:
-        obj=r"[a-z0-9_]+",
-    conda:
-        "../envs/torch.yaml"
-    threads: 1
-    resources:
-        mem_mb=2000,
-        runtime=10,
-        gpu=TORCH_GPUS,
-    params:
-        **stage_params("idm_priors"),
-    message:
-        "IDM priors ({kind}) of {{wildcards.obj}}".format(kind=config["idm"]["kind"])
-    shell:
-        "exec {params.py:q} -m frng idm-priors --config {params.config:q} --object {wildcards.obj:q} --out {output.priors:q} > {log:q} 2>&1"
+    rule:
+        name:
+            f"idm_priors_{_batch}"
+        input:
+            model=IDM_MODEL,
+            meta=expand(L.object_meta(), obj=_objs),
+        output:
+            priors=expand(L.idm_priors(), obj=_objs),
+        log:
+            L.log("idm_priors", _batch),
+        conda:
+            "../envs/torch.yaml"
+        threads: 1
+        resources:
+            mem_mb=2000,
+            runtime=lambda wildcards, attempt, n=len(_objs): (10 + 3 * n) * attempt,
+            gpu=TORCH_GPUS,
+        params:
+            **stage_params("idm_priors"),
+            objects=_objs,
+        message:
+            f"IDM priors ({config['idm']['kind']}) of {len(_objs)} objects (batch {_batch})"
+        shell:
+            "exec {params.py:q} -m frng idm-priors --config {params.config:q} --object {params.objects:q} "
+            "--out {output.priors:q} > {log:q} 2>&1"
+
+    inherit_profile_settings(f"backbone_cache_{_batch}")
+    inherit_profile_settings(f"idm_priors_{_batch}")
 
 
 rule eval_backbone:

@@ -16,7 +16,7 @@ FRNG_ALIASES = [v for v in all_variants(config) if canonical_variant(config, v) 
 
 rule training_set_caches:
     input:
-        caches=expand(rules.backbone_cache.output.cache, obj=TRAIN_IDS),
+        caches=expand(L.backbone_cache(), obj=TRAIN_IDS),
         meta=expand(rules.curate.output.meta, obj=TRAIN_IDS),
     output:
         L.backbone_cache_index(),
@@ -35,7 +35,7 @@ rule training_set_caches:
 
 rule training_set_priors:
     input:
-        priors=expand(rules.idm_priors.output.priors, obj=TRAIN_IDS),
+        priors=expand(L.idm_priors(), obj=TRAIN_IDS),
     output:
         L.idm_priors_index(),
     log:

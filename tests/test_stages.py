@@ -65,11 +65,13 @@ CLI_NAMES_DIFFER = {"import_benchmark": "import"}
 
 
 def rule_blocks() -> dict[str, str]:
-    """rule name -> its text, over rules/*.smk."""
+    """rule name -> its text, over rules/*.smk. Rules generated in a loop (`rule:` + `name: f"backbone_cache_{_batch}"`,
+    rules/priors.smk) count under their family's name."""
     blocks = {}
     for f in sorted((ROOT / "rules").glob("*.smk")):
-        parts = re.split(r"^rule (\w+):\s*$", f.read_text(), flags=re.M)
-        for name, body in zip(parts[1::2], parts[2::2]):
+        parts = re.split(r'^(?:rule (\w+):|\s+rule:\n\s+name:\n\s+f"(\w+)_\{\w+\}")\s*$', f.read_text(), flags=re.M)
+        for name, family, body in zip(parts[1::3], parts[2::3], parts[3::3]):
+            name = name or family
             assert name not in blocks, f"rule {name} defined twice"
             blocks[name] = body
     return blocks

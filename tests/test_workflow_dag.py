@@ -29,6 +29,7 @@ PAPER = ROOT / "config" / "paper.yaml"
 PLAN_LIMIT_S = 20
 
 
+from frng.batches import DEFAULT_BATCH_OBJECTS, batches, rule_family  # noqa: E402
 from frng.variants import all_variants, trained_variants  # noqa: E402
 
 
@@ -40,7 +41,13 @@ def n_test_objects(c: dict) -> int:
     return c["objects"]["test_count"] + sum(e["split"] == "test" for e in c["objects"].get("extra", []))
 
 
-# rule -> expected number of jobs, from the config.
+def n_prior_batches(c: dict) -> int:
+    """Jobs of a batched prior rule (rules/priors.smk, frng/batches.py): each split cut into batches."""
+    n_test = n_test_objects(c)
+    return sum(len(batches(range(n), DEFAULT_BATCH_OBJECTS)) for n in (n_objects(c) - n_test, n_test))
+
+
+# rule (a batched rule's family: backbone_cache for backbone_cache_train0, ...) -> expected number of jobs.
 EXPECTED = {
     "all": lambda c: 1,
     "envmaps": lambda c: 1,  # one job bakes/rotates every map (seconds)
@@ -48,8 +55,8 @@ EXPECTED = {
     "dataset_preview": lambda c: 1,  # one contact-sheet job over all objects
     "backbone_train": lambda c: 1,  # trained once on the training split, then frozen
     "idm_train": lambda c: int(c["idm"]["kind"] == "learned"),  # only the learned IDM is trained
-    "backbone_cache": n_objects,  # tokens per object
-    "idm_priors": n_objects,  # IDM passes per object
+    "backbone_cache": n_prior_batches,  # tokens of a batch of objects per job, one file per object
+    "idm_priors": n_prior_batches,  # IDM passes of a batch of objects per job, one file per object
     "eval_backbone": lambda c: 1,
     "training_set_caches": lambda c: 1,  # one index of the training split's caches (the train jobs' fan-in)
     "training_set_priors": lambda c: int(any(v != "no-idm" for v in trained_variants(c))),
@@ -101,7 +108,10 @@ def _plan(configfile: Path, results: Path) -> tuple[dict[str, int], float, str]:
         if m and m.group(1) != "total":
             counts[m.group(1)] = int(m.group(2))
     assert counts, f"no job-count table in:\n{out[-3000:]}"
-    return counts, elapsed, out
+    families = {}  # batched rules (backbone_cache_train0, ...) counted under their family
+    for rule, n in counts.items():
+        families[rule_family(rule)] = families.get(rule_family(rule), 0) + n
+    return families, elapsed, out
 
 
 @pytest.fixture(scope="module")

@@ -1,12 +1,15 @@
-"""Stage ``frng backbone-cache --object OBJ`` (rule ``backbone_cache``, one job per object): cache one object's
-backbone tokens and Gaussians (schema: :mod:`frng.priors.cache`)."""
+"""Stage ``frng backbone-cache --object OBJ [OBJ ...]`` (rules ``backbone_cache_{batch}``, one job per batch of
+objects, :mod:`frng.batches`): cache each object's backbone tokens and Gaussians in its own file (schema:
+:mod:`frng.priors.cache`), one after another in this process."""
 
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 from frng import config as frng_config
+from frng.batches import object_outputs
 from frng.device import resolve_device
 from frng.layout import Layout
 from frng.priors.cache import make_backbone_cache
@@ -15,16 +18,23 @@ from frng.typedconfig import typed
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)
-    parser.add_argument("--object", required=True)
+    parser.add_argument("--object", nargs="+", required=True, metavar="OBJ", help="the object(s) to cache")
     parser.add_argument("--model", help="backbone model file (default {results}/backbone/model.pt)")
-    parser.add_argument("--out", help="cache file (default {results}/backbone/cache/{obj}.safetensors)")
+    parser.add_argument(
+        "--out",
+        nargs="+",
+        help="cache file per object, in --object order (default {results}/backbone/cache/{obj}.safetensors)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     config = typed(frng_config.load(args.config))
     L = Layout(config.results)
     model = Path(args.model or L.backbone_model())
-    out = Path(args.out or L.backbone_cache(args.object))
+    outs = object_outputs(args.object, args.out, L.backbone_cache)
     device = resolve_device(config.device)
-    print(f"backbone-cache: wrote {make_backbone_cache(config, args.object, model, out, device)}")
+    for obj, out in zip(args.object, outs):
+        t0 = time.perf_counter()
+        path = make_backbone_cache(config, obj, model, Path(out), device)
+        print(f"backbone-cache: wrote {path} ({time.perf_counter() - t0:.2f} s)", flush=True)
     return 0

@@ -1,12 +1,15 @@
-"""Stage ``frng idm-priors --object OBJ`` (rule ``idm_priors``, one job per object): one object's IDM priors for
-all its input views (schema: :mod:`frng.priors.cache`)."""
+"""Stage ``frng idm-priors --object OBJ [OBJ ...]`` (rules ``idm_priors_{batch}``, one job per batch of objects,
+:mod:`frng.batches`): each object's IDM priors for all its input views in its own file (schema:
+:mod:`frng.priors.cache`), one after another in this process."""
 
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 from frng import config as frng_config
+from frng.batches import object_outputs
 from frng.device import resolve_device
 from frng.layout import Layout
 from frng.priors.cache import make_idm_priors
@@ -15,14 +18,21 @@ from frng.typedconfig import typed
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)
-    parser.add_argument("--object", required=True)
+    parser.add_argument("--object", nargs="+", required=True, metavar="OBJ", help="the object(s) to make priors for")
     parser.add_argument("--kind", help="override idm.kind")
-    parser.add_argument("--out", help="priors file (default {results}/priors/idm/{obj}.safetensors)")
+    parser.add_argument(
+        "--out",
+        nargs="+",
+        help="priors file per object, in --object order (default {results}/priors/idm/{obj}.safetensors)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     config = typed(frng_config.load(args.config))
-    out = Path(args.out or Layout(config.results).idm_priors(args.object))
+    outs = object_outputs(args.object, args.out, Layout(config.results).idm_priors)
     device = resolve_device(config.device)
-    print(f"idm-priors: wrote {make_idm_priors(config, args.object, out, device, args.kind)}")
+    for obj, out in zip(args.object, outs):
+        t0 = time.perf_counter()
+        path = make_idm_priors(config, obj, Path(out), device, args.kind)
+        print(f"idm-priors: wrote {path} ({time.perf_counter() - t0:.2f} s)", flush=True)
     return 0
