@@ -1,19 +1,9 @@
 """``backbone.light_cue_input: fit``: the input light's shading ratio estimated from the input pixels alone."""
 
 import torch
+from test_priors_units import TINY
 
 from frng.priors import backbone as bb
-
-TINY = {
-    "width": 32,
-    "heads": 2,
-    "geo_depth": 1,
-    "app_depth": 1,
-    "env_height": 8,
-    "sh_degree": 1,
-    "den_views": 2,
-    "patch": 8,
-}
 
 
 def _sphere_pixels(env: torch.Tensor, albedo=(0.6, 0.4, 0.3), size: int = 48) -> tuple[torch.Tensor, torch.Tensor]:
