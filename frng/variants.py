@@ -143,12 +143,18 @@ def reads_priors(name: str) -> bool:
 
 
 def canonical_variant(config: TypedConfig | Mapping, name: str) -> str:
-    """The variant whose training produces ``name``'s model: the K-sweep entry equal to the full model's K is the
-    full model itself (``k2`` -> ``full`` with the paper's K = 2%), so it is not trained twice. A training-seed
-    suffix is kept (``k2@s1`` -> ``full@s1``)."""
+    """The variant whose training produces ``name``'s model under the config's ``frng.top_k_percent``
+    (:func:`canonical_for`)."""
+    return canonical_for(name, float(as_dict(config)["frng"]["top_k_percent"]))
+
+
+def canonical_for(name: str, top_k_percent: float) -> str:
+    """The variant whose training produces ``name``'s model when the full model's K is ``top_k_percent``: the K-sweep
+    entry equal to it is the full model itself (``k2`` -> ``full`` with the paper's K = 2%), so it is not trained
+    twice. A training-seed suffix is kept (``k2@s1`` -> ``full@s1``)."""
     base, seed = split_seed(name)
     pct = k_percent(base)
-    if pct is not None and pct == float(as_dict(config)["frng"]["top_k_percent"]):
+    if pct is not None and pct == float(top_k_percent):
         return "full" if seed is None else seed_variant("full", seed)
     return name
 

@@ -40,8 +40,24 @@ def _objects(config, use_priors=True):
 
     res = Path(config["results"])
     return load_objects(
-        typed(config), catalog.plan(config).split("train"), res / "backbone" / "model.pt", use_priors, 6
+        res, config["idm"]["kind"], catalog.plan(config).split("train"), res / "backbone" / "model.pt", use_priors, 6
     )
+
+
+def _sections(config):
+    from frng.model.frng import ModelSections
+
+    return ModelSections.of(typed(config))
+
+
+def _train(config, variant, out, **kw):
+    """frng.model.train.train handed the sections as the stage hands them (frng/stages/train.py)."""
+    from frng.data import catalog
+    from frng.model.train import TrainRun, train
+
+    tc = typed(config)
+    job = TrainRun(tc.results, tc.model_seed, tc.device, tc.idm.kind, tuple(catalog.plan(tc).split("train")))
+    return train(_sections(config), tc.train, job, variant, out, **kw)
 
 
 def _fixed_loss(model, objects, config) -> float:
@@ -75,7 +91,7 @@ def test_frozen_backbone_gets_no_gradient(frng_smoke):
     _, config = frng_smoke
     res = Path(config["results"])
     backbone = load_backbone(res / "backbone" / "model.pt")
-    model, ind = build_model(typed(config), "full", res / "backbone" / "model.pt", "cpu")
+    model, ind = build_model(_sections(config), "full", res / "backbone" / "model.pt", "cpu")
     from frng.model.frng import FRNG
 
     model = FRNG.from_backbone(model.cfg, backbone, model.raster_cfg, model.shading_cfg)
@@ -100,7 +116,6 @@ def test_frozen_backbone_gets_no_gradient(frng_smoke):
 
 def test_no_idm_never_reads_priors(frng_smoke, tmp_path, monkeypatch):
     import frng.priors.cache as cache_mod
-    from frng.model import train as train_mod
 
     _, config = frng_smoke
     res = Path(config["results"])
@@ -116,7 +131,7 @@ def test_no_idm_never_reads_priors(frng_smoke, tmp_path, monkeypatch):
         raise AssertionError("no-idm read IDM priors")
 
     monkeypatch.setattr(cache_mod, "load_idm_priors", boom)
-    out = train_mod.train(typed(cfg), "no-idm", tmp_path / "no-idm", steps=2)
+    out = _train(cfg, "no-idm", tmp_path / "no-idm", steps=2)
     assert out.exists()
     from frng.model.frng import FRNG
 
@@ -139,10 +154,12 @@ def test_training_overfits_one_object(frng_smoke, tmp_path):
     # under the default target-foreground L_2 the untrained Lambertian relighting already leaves little to fit
     config = {**config, "train": {**config["train"], "l2_pixels": "union"}}
     objs = _objects(config)[:1]
-    fresh, _ = train_mod.build_model(typed(config), "full", Path(config["results"]) / "backbone" / "model.pt", "cpu")
+    fresh, _ = train_mod.build_model(
+        _sections(config), "full", Path(config["results"]) / "backbone" / "model.pt", "cpu"
+    )
     before = _fixed_loss(fresh, objs, config)
     t0 = time.time()
-    path = train_mod.train(typed(config), "full", tmp_path / "full", steps=STEPS, objects=objs)
+    path = _train(config, "full", tmp_path / "full", steps=STEPS, objects=objs)
     wall = time.time() - t0
     after = _fixed_loss(FRNG.load(path, "cpu"), objs, config)
     print(f"smoke full: fixed-sample L2 {before:.4f} -> {after:.4f} in {wall:.1f}s")
@@ -162,8 +179,8 @@ def test_no_neural_ablation_starts_at_the_same_lambertian_relighting(frng_smoke)
     objs = _objects(config)[:2]
     bb = Path(config["results"]) / "backbone" / "model.pt"
     torch.manual_seed(0)
-    full = _fixed_loss(train_mod.build_model(typed(config), "full", bb, "cpu")[0], objs, config)
-    pbr = _fixed_loss(train_mod.build_model(typed(config), "no-neural", bb, "cpu")[0], objs, config)
+    full = _fixed_loss(train_mod.build_model(_sections(config), "full", bb, "cpu")[0], objs, config)
+    pbr = _fixed_loss(train_mod.build_model(_sections(config), "no-neural", bb, "cpu")[0], objs, config)
     print(f"untrained fixed-sample L2: full {full:.4f}, no-neural {pbr:.4f}")
     assert pbr < 2.0 * full  # measured 0.047 vs 0.039 (GGX adds its rough specular lobe); the old start ~black
 
@@ -193,15 +210,12 @@ def test_no_neural_renders_no_black_holes(frng_smoke):
     the ground truth). Before the fix (one-sided GGX, unbounded parameters) the same count on the smoke tier's
     4 objects was 4.0 % after its 8 ablation steps (15.8 % on the held-out object after 1500 steps): Gaussian
     normals facing away from a new camera. Now 0 there; measured here 1 of 3196 lit pixels, hence <= 1 in 1000."""
-    from frng.model import train as train_mod
     from frng.model.frng import FRNG
 
     _, config = frng_smoke
     objs = _objects(config)[:2]
     torch.manual_seed(0)
-    path = train_mod.train(
-        typed(config), "no-neural", Path(config["results"]) / "models" / "no-neural-holes", steps=8, objects=objs
-    )
+    path = _train(config, "no-neural", Path(config["results"]) / "models" / "no-neural-holes", steps=8, objects=objs)
     holes, lit = _black_holes(FRNG.load(path, "cpu"), objs)
     print(f"no-neural black holes: {holes} of {lit} lit pixels")
     assert lit > 100 and holes <= lit // 1000

@@ -20,25 +20,25 @@ def test_schema_enum_is_the_table():
 
 
 def test_variant_config_applies_the_table():
-    from frng.model.frng import variant_config
+    from frng.model.frng import ModelSections, variant_config
 
     config = frng_config.load(ROOT / "config" / "smoke.yaml")
-    full, ind_full = variant_config(typed(config), "full")
+    sections = ModelSections.of(typed(config))
+    full, ind_full = variant_config(sections, "full")
     assert full.fine and full.prior_dim > 0 and full.head == "neural" and ind_full.lambda_c > 0
-    assert not variant_config(typed(config), "no-fine")[0].fine
+    assert not variant_config(sections, "no-fine")[0].fine
     assert (
-        variant_config(typed(config), "no-idm")[0].prior_dim == 0
-        and not variant_config(typed(config), "no-idm")[0].uses_priors
+        variant_config(sections, "no-idm")[0].prior_dim == 0 and not variant_config(sections, "no-idm")[0].uses_priors
     )
-    ind = variant_config(typed(config), "no-ind")[1]
+    ind = variant_config(sections, "no-ind")[1]
     assert ind.lambda_c == 0 and ind.lambda_kld == 0
-    assert variant_config(typed(config), "no-neural")[0].head == "pbr"
-    assert variant_config(typed(config), "k8")[0].top_k == pytest.approx(0.08)
+    assert variant_config(sections, "no-neural")[0].head == "pbr"
+    assert variant_config(sections, "k8")[0].top_k == pytest.approx(0.08)
     k_full = V.k_variant(config["frng"]["top_k_percent"])
-    assert variant_config(typed(config), k_full) == (full, ind_full)  # the K-sweep entry equal to K is the full model
+    assert variant_config(sections, k_full) == (full, ind_full)  # the K-sweep entry equal to K is the full model
     for bad in ("no-such", "kx", "k0", "k200"):
         with pytest.raises(ValueError, match=bad):
-            variant_config(typed(config), bad)
+            variant_config(sections, bad)
 
 
 def test_labels_and_priors_come_from_the_table():
@@ -101,8 +101,8 @@ def test_train_stage_trains_a_seeded_variant_with_its_seed(monkeypatch, tmp_path
     monkeypatch.setattr(
         stage,
         "train",
-        lambda config, variant, out, backbone, steps=None: (
-            seen.update(variant=variant, seed=config.model_seed, out=out) or out / "model.pt"
+        lambda sections, tcfg, job, variant, out, backbone, steps=None: (
+            seen.update(variant=variant, seed=job.seed, out=out) or out / "model.pt"
         ),
     )
     cfg = tmp_path / "c.yaml"

@@ -29,6 +29,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import torch
 from torch import nn
@@ -51,7 +52,7 @@ from frng.model.tokenizers import PriorTokenizer, stack_priors
 from frng.render import RasterConfig, rasterize
 from frng.render.shading import GGX_MIN_ALBEDO, NeuralDecoder, ShadingConfig, deferred_shade, ggx_shade, lambert_sh
 from frng.sections import TypedConfig, register, section, section_dict
-from frng.variants import canonical_variant, variant
+from frng.variants import canonical_for, variant
 
 MODEL_KIND = "frng"
 
@@ -699,21 +700,48 @@ class FRNG(nn.Module):
 # -- variants from the pipeline config --------------------------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class ModelSections:
+    """The config sections an F-RNG variant's model is built from (:func:`variant_config`,
+    :func:`frng.model.train.build_model`); a stage picks them out of the typed config (:meth:`of`)."""
+
+    frng: FRNGSection
+    shading: ShadingConfig
+    raster: RasterConfig
+    patch_size: int  # model.patch_size
+    # not imported here: frng.model.train imports this module, frng.priors.backbone_train all of frng.priors
+    # (frng.priors.backbone_train.BackboneSection: the token width and near/far/max_radius_px when no frozen
+    # backbone is given; frng.model.train.LossConfig: the L_ind weights)
+    backbone: Any
+    loss: Any  # train.loss
+
+    @classmethod
+    def of(cls, config: TypedConfig) -> ModelSections:
+        """The sections of the typed config (``frng.typedconfig.Config``)."""
+        return cls(
+            frng=config.frng,
+            shading=config.shading,
+            raster=config.raster,
+            patch_size=config.model.patch_size,
+            backbone=config.backbone,
+            loss=config.train.loss,
+        )
+
+
 def variant_config(
-    config: TypedConfig, name: str, backbone_cfg: dict | None = None
+    sections: ModelSections, name: str, backbone_cfg: dict | None = None
 ) -> tuple[FRNGConfig, LightIndependenceConfig]:
-    """(architecture, L_ind weights) of a variant from a validated pipeline config.
+    """(architecture, L_ind weights) of a variant from the config's model sections.
 
     ``backbone_cfg``: the frozen backbone's architecture dict (its ``model.pt`` ``config``); the token width and
     near/far/max_radius_px come from it (default: the config's ``backbone`` section).
     """
     from frng.priors.backbone import BackboneConfig
 
-    c = config
-    f, sh = c.frng, c.shading
-    bb = BackboneConfig.from_saved(backbone_cfg) if backbone_cfg else c.backbone
+    f, sh = sections.frng, sections.shading
+    bb = BackboneConfig.from_saved(backbone_cfg) if backbone_cfg else sections.backbone
     cfg = FRNGConfig(
-        patch=c.model.patch_size,
+        patch=sections.patch_size,
         geo_dim=bb.width,
         prior_dim=f.prior_dim,
         fine=True,
@@ -737,10 +765,10 @@ def variant_config(
         back_completion=f.back_completion,
         decoder_specular=sh.decoder_cosine and sh.decoder_specular,
     )
-    loss = c.train.loss
+    loss = sections.loss
     ind = LightIndependenceConfig(lambda_c=loss.lambda_c, lambda_kld=loss.lambda_kld, temperature=loss.temperature)
-    v = variant(canonical_variant(c, name))
+    v = variant(canonical_for(name, f.top_k_percent))
     return replace(cfg, **v.arch), replace(ind, **v.loss)
 
 
-__all__ = ["FRNG", "FRNGConfig", "Reconstruction", "variant_config"]
+__all__ = ["FRNG", "FRNGConfig", "ModelSections", "Reconstruction", "variant_config"]

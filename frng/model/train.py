@@ -49,10 +49,10 @@ from frng import training as tr
 from frng.device import autocast, bf16_ok
 from frng.hashing import data_digest, file_sha256
 from frng.layout import Layout
-from frng.model.frng import FRNG, variant_config
+from frng.model.frng import FRNG, ModelSections, variant_config
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
 from frng.sections import TypedConfig, config_section, register
-from frng.variants import canonical_variant
+from frng.variants import canonical_for
 
 CACHE_KEYS = ("t_geo", "raw_prior", "means", "quats", "scales", "opacities", "keep", "c2w", "intr")  # + light{j}.t_app
 BACK_KEYS = tuple("back_" + k for k in ("means", "quats", "scales", "opacities", "src", "dirs"))  # when cached
@@ -122,14 +122,15 @@ class TrainObject:
 
 
 def load_objects(
-    config: TypedConfig, ids: list[str], backbone_path: Path, use_priors: bool, V: int
+    results: str | Path, idm_kind: str, ids: list[str], backbone_path: Path, use_priors: bool, V: int
 ) -> list[TrainObject]:
-    """Read caches + curated images of ``ids``. IDM priors are opened only when ``use_priors``."""
+    """Read caches + curated images of ``ids`` under ``results``. IDM priors are opened only when ``use_priors``
+    (``idm_kind``: the config's ``idm.kind``; the learned IDM's priors are checked against its model file)."""
     from frng.data.dataset import open_object
     from frng.priors.cache import load_backbone_cache, load_idm_priors
 
-    L = Layout(config.results)
-    idm_model = L.idm_model() if config.idm.kind == "learned" else None
+    L = Layout(results)
+    idm_model = L.idm_model() if idm_kind == "learned" else None
     envs: dict[str, torch.Tensor] = {}
     out = []
     for oid in ids:
@@ -276,18 +277,35 @@ def sample(obj: TrainObject, rng: random.Random, n_views: int) -> tuple[int, int
     return j, ti, vidx
 
 
-def build_model(config: TypedConfig, variant: str, backbone_path: Path, device) -> tuple[FRNG, LightIndependenceConfig]:
+def build_model(
+    sections: ModelSections, variant: str, backbone_path: Path, device
+) -> tuple[FRNG, LightIndependenceConfig]:
     """A fresh variant model, FineGeoDetokenizer initialised from the frozen backbone's GeoDetokenizer."""
     from frng.priors import load_backbone
 
     backbone = load_backbone(backbone_path, "cpu")
-    cfg, ind = variant_config(config, variant, backbone.cfg.to_dict())
-    model = FRNG.from_backbone(cfg, backbone, config.raster, config.shading)
+    cfg, ind = variant_config(sections, variant, backbone.cfg.to_dict())
+    model = FRNG.from_backbone(cfg, backbone, sections.raster, sections.shading)
     return model.to(device), ind
 
 
+@dataclass(frozen=True)
+class TrainRun:
+    """What one training run reads besides the sections: the results folder, the models' seed
+    (``frng.typedconfig.Config.model_seed``), the config's ``device`` and ``idm.kind``, and the training split's
+    object ids (the dataset plan's; read only when :func:`train` is not handed the objects)."""
+
+    results: str
+    seed: int
+    device: str
+    idm_kind: str
+    train_ids: tuple[str, ...] = ()
+
+
 def train(
-    config: TypedConfig,
+    sections: ModelSections,
+    tcfg: TrainConfig,
+    job: TrainRun,
     variant: str,
     out: Path,
     backbone_path: Path | None = None,
@@ -296,20 +314,18 @@ def train(
     objects: list[TrainObject] | None = None,
 ) -> Path:
     """Train (or resume) one variant; returns ``out/model.pt`` (or the checkpoint when stopped by ``stop_after``,
-    which tests use to simulate an interruption)."""
-    variant = canonical_variant(config, variant)
-    backbone_path = Path(backbone_path or Layout(config.results).backbone_model())
-    tcfg = config.train
+    which tests use to simulate an interruption). ``sections``: the model's config sections, ``tcfg``: the config's
+    ``train`` section."""
+    variant = canonical_for(variant, sections.frng.top_k_percent)
+    backbone_path = Path(backbone_path or Layout(job.results).backbone_model())
     total = steps or tcfg.steps_for(variant)
-    info = distributed.init(config.device)
+    info = distributed.init(job.device)
     device = info.device
-    distributed.seed_everything(config.model_seed, info, per_rank=False)  # identical init on every rank
-    model, ind = build_model(config, variant, backbone_path, device)
+    distributed.seed_everything(job.seed, info, per_rank=False)  # identical init on every rank
+    model, ind = build_model(sections, variant, backbone_path, device)
     if objects is None:
-        from frng.data import catalog
-
-        ids = distributed.shard_items(catalog.plan(config).split("train"), info)
-        objects = load_objects(config, ids, backbone_path, model.cfg.uses_priors, tcfg.views)
+        ids = distributed.shard_items(list(job.train_ids), info)
+        objects = load_objects(job.results, job.idm_kind, ids, backbone_path, model.cfg.uses_priors, tcfg.views)
     if not objects:
         raise ValueError("frng train: no training objects on this rank")
     perceptual = None
@@ -331,14 +347,14 @@ def train(
         model.cfg.to_dict(),
         tcfg,
         total,
-        config.model_seed,
+        job.seed,
         variant=variant,
         shading=asdict(model.shading_cfg),
         world=info.world_size,
         backbone_sha256=file_sha256(backbone_path),
         data=hooks.gather(data_digest(objects)),
     )
-    rng = random.Random(distributed.rank_seed(config.model_seed, info))
+    rng = random.Random(distributed.rank_seed(job.seed, info))
     local_batch = max(1, tcfg.batch // info.world_size)
 
     def step_fn(step: int) -> dict[str, float]:
@@ -346,7 +362,7 @@ def train(
         for b in range(local_batch):
             obj = objects[rng.randrange(len(objects))]
             j, ti, vidx = sample(obj, rng, tcfg.target_views)
-            seed = (config.model_seed * 1_000_003 + step * 1009 + info.rank * 31 + b) % (2**31 - 1)
+            seed = (job.seed * 1_000_003 + step * 1009 + info.rank * 31 + b) % (2**31 - 1)
             samples.append((obj, j, ti, vidx, seed))
         step_loss.step = step
         loss, logs = ddp(samples)

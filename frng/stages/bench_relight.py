@@ -113,7 +113,7 @@ def synthetic_env(height: int, seed: int, dev: torch.device) -> torch.Tensor:
 
 def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict:
     from frng import config as frng_config
-    from frng.model.frng import FRNG, variant_config
+    from frng.model.frng import FRNG, ModelSections, variant_config
     from frng.priors import backbone as backbone_mod
     from frng.priors import freeze
     from frng.priors import idm as idm_mod
@@ -133,7 +133,7 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
             dev
         )
     )
-    fcfg, _ = variant_config(config, "full", backbone.cfg.to_dict())
+    fcfg, _ = variant_config(ModelSections.of(config), "full", backbone.cfg.to_dict())
     shading = config.shading
     if args.bf16:
         shading = replace(shading, bf16_infer=True)

@@ -13,10 +13,11 @@ from pathlib import Path
 
 from frng import config as frng_config
 from frng import distributed
+from frng.data import catalog
 from frng.io import check_file_index
 from frng.layout import Layout
-from frng.model.frng import variant_config
-from frng.model.train import train
+from frng.model.frng import ModelSections, variant_config
+from frng.model.train import TrainRun, train
 from frng.typedconfig import typed
 from frng.variants import all_variants, canonical_variant, reads_priors, split_seed, trained_variants
 
@@ -40,7 +41,9 @@ def run(args: argparse.Namespace) -> int:
     if args.variant not in all_variants(config) and canonical_variant(config, args.variant) not in trained_variants(
         config
     ):
-        variant_config(config, args.variant)  # raises for unknown names; other k<percent> values are allowed
+        variant_config(
+            ModelSections.of(config), args.variant
+        )  # raises for unknown names; other k<percent> values are allowed
     layout = Layout(config.results)
     out = Path(args.out or layout.model_dir(args.variant))
     # the training split's files as the indexes recorded them (rules training_set_*): a truncated or corrupted
@@ -54,7 +57,14 @@ def run(args: argparse.Namespace) -> int:
     base, seed = split_seed(args.variant)
     if seed is not None:
         config = dataclasses.replace(config, train_seed=seed)
-    path = train(config, base, out, args.backbone, steps=args.steps)
+    job = TrainRun(
+        results=config.results,
+        seed=config.model_seed,
+        device=config.device,
+        idm_kind=config.idm.kind,
+        train_ids=tuple(catalog.plan(config).split("train")),
+    )
+    path = train(ModelSections.of(config), config.train, job, base, out, args.backbone, steps=args.steps)
     print(f"train: wrote {path}")
     distributed.cleanup()
     return 0
