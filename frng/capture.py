@@ -785,7 +785,7 @@ def reconstruct(
         net = FRNG.load(model, dev).set_inference_shading(cfg.shading)
         if net.cfg.head != "neural" or net.decoder is None:
             raise CaptureError(f"{model}: a {net.cfg.head!r} model has no neural decoder; reconstruct needs one")
-        idm = build_idm(cfg, dev)
+        idm = build_idm(cfg.idm, cfg.backbone, cfg.results, dev)
         backbone = load_backbone(backbone_path, dev)
         with Timer(dev) as t_idm:
             pri = idm.priors(oid, views)
@@ -802,7 +802,7 @@ def reconstruct(
             light_info = {"source": str(light)}
         env_t = torch.from_numpy(np.ascontiguousarray(env))
         with Timer(dev) as t_bb:
-            bv = backbone_views(cfg, backbone, oid, views, env_t, light_name, dev)
+            bv = backbone_views(cfg.seed, backbone, oid, views, env_t, light_name, dev)
         images_t = torch.cat([views.rgb, views.alpha], -1).to(dev)
         with Timer(dev) as t_rec:
             rec = net.reconstruct(

@@ -46,34 +46,74 @@ import os
 import shutil
 import tempfile
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from frng import envmap, io
+from frng.data.catalog import Catalog
 from frng.device import resolve_device, synchronize
 from frng.layout import Layout, RelightFolder, TrainingFolder
+from frng.priors.backbone_train import BackboneSection
+from frng.priors.idm_train import IDMSection
+from frng.render.shading import ShadingConfig
 from frng.sections import TypedConfig
-from frng.variants import BACKBONE, RIG_VIEWS, Run, model_variants, runs  # noqa: F401
+from frng.variants import BACKBONE, RIG_VIEWS, Run, RunPlan, model_variants, runs  # noqa: F401
 
 
 class RelightError(ValueError):
     """Bad input to ``frng relight`` (names the file at fault); nothing was written."""
 
 
+@dataclass(frozen=True)
+class RelightJob:
+    """What relighting reads of the config, picked out by the stage (:meth:`of`): the results folder, the data
+    ``seed`` (the live backbone's DDIM seeds and the light-sample seeds), ``render.resolution``, the default
+    ``device``, the ``shading``, ``idm`` and ``backbone`` sections (inference spp; the IDM, :func:`frng.priors.
+    build_idm`), the runs (:class:`frng.variants.RunPlan`) and the dataset plan (:func:`frng.data.catalog.plan`:
+    the split an object is planned in)."""
+
+    results: str
+    seed: int
+    resolution: int
+    device: str
+    shading: ShadingConfig
+    idm: IDMSection
+    backbone: BackboneSection
+    runs: RunPlan
+    plan: Catalog
+
+    @classmethod
+    def of(cls, config: TypedConfig) -> RelightJob:
+        """The job of the typed config (``frng.typedconfig.Config``)."""
+        from frng.data import catalog
+
+        return cls(
+            results=config.results,
+            seed=config.seed,
+            resolution=int(config.render.resolution),
+            device=config.device,
+            shading=config.shading,
+            idm=config.idm,
+            backbone=config.backbone,
+            runs=RunPlan.of(config),
+            plan=catalog.plan(config),
+        )
+
+
 # -- validation --------------------------------------------------------------------------------------
 
 
-def validate_inputs(config: TypedConfig, oid: str) -> dict:
+def validate_inputs(job: RelightJob, oid: str) -> dict:
     """Check everything ``relight`` reads, before anything is written. Returns the object's meta.json.
 
     Raises :class:`RelightError` naming the file: missing/unreadable meta.json, an object of the training split
     (relighting evaluates held-out objects), a missing, corrupt or non-RGBA input view (no alpha channel: the
     masks are part of the input), an input view that is not ``render.resolution`` square, a missing or non-2:1
     env map."""
-    L = Layout(config.results)
+    L = Layout(job.results)
     meta_path = Path(L.object_meta(oid))
     try:
         meta = io.read_json(meta_path)
@@ -82,8 +122,8 @@ def validate_inputs(config: TypedConfig, oid: str) -> dict:
     for key in ("views", "input_lights", "target_lights"):
         if key not in meta:
             raise RelightError(f"{meta_path}: missing key {key!r}")
-    check_test_split(config, oid, meta, meta_path)
-    res = int(config.render.resolution)
+    check_test_split(job.plan, oid, meta, meta_path)
+    res = job.resolution
     light_in = meta["input_lights"][0]
     for cam in meta["views"]["inputs"]:
         path = L.object_image(oid, "inputs", light_in, cam["name"])
@@ -105,9 +145,9 @@ def validate_inputs(config: TypedConfig, oid: str) -> dict:
     return meta
 
 
-def check_test_split(config: TypedConfig, oid: str, meta: dict, meta_path: Path) -> None:
-    """Refuse an object of the training split: its split as curated (``meta.json``'s ``split``) and as the config
-    plans it must both be ``test``. Raises :class:`RelightError` naming the object and the file."""
+def check_test_split(plan: Catalog, oid: str, meta: dict, meta_path: Path) -> None:
+    """Refuse an object of the training split: its split as curated (``meta.json``'s ``split``) and as the config's
+    dataset plan ``plan`` (:class:`frng.data.catalog.Catalog`) has it must both be ``test``. Raises :class:`RelightError` naming the object and the file."""
     from frng.data import catalog
 
     curated = meta.get("split")
@@ -116,7 +156,7 @@ def check_test_split(config: TypedConfig, oid: str, meta: dict, meta_path: Path)
             raise RelightError(f"{meta_path}: imported benchmark object with split {curated!r}, expected 'test'")
         return
     try:
-        planned = catalog.plan(config).object(oid).split
+        planned = plan.object(oid).split
     except catalog.CatalogError as e:
         raise RelightError(f"{meta_path}: object {oid!r} is not planned by this config ({e})") from e
     for split, source in ((curated, f"{meta_path} (split)"), (planned, "the config's dataset plan")):
@@ -146,18 +186,18 @@ class Timer:
         self.s = time.perf_counter() - self.t0
 
 
-def backbone_views(config: TypedConfig, backbone, oid: str, views, env_in: torch.Tensor, light_in: str, device) -> dict:
+def backbone_views(seed: int, backbone, oid: str, views, env_in: torch.Tensor, light_in: str, device) -> dict:
     """The backbone's tokens for V input views, live, keyed as a cache entry (:class:`frng.priors.cache.
     BackboneCache.views`): t_geo (V, h, w, D), raw (V, H, W, 9), means/quats/scales/opacities, keep (N,) uint8,
     c2w, intr, light0.t_app (V, h, w, D), light0.sh (N, K, 3), the far-side copies back_*; light 0 = the input
-    light, with the DDIM seed the cache stage uses."""
+    light, with the DDIM seed the cache stage uses (derived from the config's data ``seed``)."""
     from frng.data import catalog
 
     rgb, a, c2w, intr = (x.to(device) for x in (views.rgb, views.alpha, views.c2w, views.intr))
     H, W = rgb.shape[1:3]
     t_geo, raw, gauss, keep, raw_prior, pixels = backbone.reconstruct(rgb, a, c2w, intr)
     nd = backbone.cfg.den_views
-    g = torch.Generator(device=device).manual_seed(catalog.derive_seed(config.seed, "cache", oid, light_in))
+    g = torch.Generator(device=device).manual_seed(catalog.derive_seed(seed, "cache", oid, light_in))
     sh, t_app = backbone.denoise(
         t_geo, gauss, keep, env_in.to(device)[None], c2w[:nd], intr[:nd], H, W, generator=g, pixels=pixels
     )
@@ -186,7 +226,7 @@ def _write_images(folder: Path, light: str, names: list[str], rgba: torch.Tensor
 
 
 def relight_object(
-    config: TypedConfig, oid: str, models: dict[str, Path], backbone_path: Path, out_root: Path, device: torch.device
+    job: RelightJob, oid: str, models: dict[str, Path], backbone_path: Path, out_root: Path, device: torch.device
 ) -> dict:
     """Do the whole job for one object (see the module docstring). ``models``: variant -> model.pt.
 
@@ -196,13 +236,13 @@ def relight_object(
     from frng.priors import build_idm, load_backbone
     from frng.priors.dataset import load_object
 
-    idm = build_idm(config, device)
-    meta = io.read_json(Layout(config.results).object_meta(oid))
-    the_runs = runs(config, len(meta["views"]["inputs"]))
+    idm = build_idm(job.idm, job.backbone, job.results, device)
+    meta = io.read_json(Layout(job.results).object_meta(oid))
+    the_runs = job.runs.runs(len(meta["views"]["inputs"]))
     if isinstance(meta.get("benchmark"), dict):  # imported benchmarks ship no G-buffer: no oracle-prior run
         the_runs = [r for r in the_runs if r.priors != "oracle"]
     need_gbuffer = idm.kind == "oracle" or any(r.priors == "oracle" for r in the_runs)
-    obj = load_object(config, oid, with_targets=False, with_gbuffer=need_gbuffer)
+    obj = load_object(job.results, oid, with_targets=False, with_gbuffer=need_gbuffer)
     light_in = obj.input_lights[0]
     views_all = obj.inputs[light_in]
     cams_t = meta["views"]["targets"]
@@ -212,7 +252,7 @@ def relight_object(
     H, W = views_all.rgb.shape[1:3]
     lights = obj.target_lights or list(meta["target_lights"])
     envs = {l: obj.envs[l].to(device) for l in lights}
-    spp = int(config.shading.spp_infer)
+    spp = int(job.shading.spp_infer)
     backbone = load_backbone(backbone_path, device)
 
     # live priors per view count (shared by every run with that V)
@@ -223,7 +263,7 @@ def relight_object(
         for V in sorted({r.views for r in the_runs}):
             v = views_all.select(range(V))
             with Timer(device) as t_bb:
-                bv = backbone_views(config, backbone, oid, v, obj.envs[light_in], light_in, device)
+                bv = backbone_views(job.seed, backbone, oid, v, obj.envs[light_in], light_in, device)
             images = torch.cat([v.rgb, v.alpha], -1).to(device)
             prepared[V] = {
                 "bv": bv,
@@ -258,9 +298,7 @@ def relight_object(
                 with Timer(device) as t_rec:
                     t_geo, _, gauss, keep, _, pixels = backbone.reconstruct(rgb, a, c2w, intr)
                 for light in lights:
-                    g = torch.Generator(device=device).manual_seed(
-                        catalog.derive_seed(config.seed, "relight", oid, light)
-                    )
+                    g = torch.Generator(device=device).manual_seed(catalog.derive_seed(job.seed, "relight", oid, light))
                     with Timer(device) as t_l:
                         sh, _ = backbone.denoise(
                             t_geo, gauss, keep, envs[light][None], c2w[:nd], intr[:nd], H, W, generator=g, pixels=pixels
@@ -272,7 +310,7 @@ def relight_object(
             rec_s = t_rec.s
         else:
             if run.variant not in loaded:
-                loaded[run.variant] = FRNG.load(models[run.variant], device).set_inference_shading(config.shading)
+                loaded[run.variant] = FRNG.load(models[run.variant], device).set_inference_shading(job.shading)
             model = loaded[run.variant]
             priors = (p["oracle"] if run.priors == "oracle" else p["priors"]) if model.cfg.uses_priors else None
             with torch.no_grad():
@@ -284,7 +322,7 @@ def relight_object(
                 shade_ms = []
                 for light in lights:
                     g = torch.Generator(device=device).manual_seed(
-                        catalog.derive_seed(config.seed, "relight-frng", oid, light)
+                        catalog.derive_seed(job.seed, "relight-frng", oid, light)
                     )
                     with Timer(device) as t_l:
                         rgba = (
@@ -389,24 +427,24 @@ def publish(staging: Path, results: Path, oid: str) -> None:
     os.replace(staged_timing(staging), timing)
 
 
-def relight(config: TypedConfig, oid: str, models_dir: Path | None = None, device: str | None = None) -> dict:
+def relight(job: RelightJob, oid: str, models_dir: Path | None = None, device: str | None = None) -> dict:
     """Validate, relight into a staging folder, publish. Returns the timing dict."""
-    results = Path(config.results)
+    results = Path(job.results)
     L = Layout(results)
-    validate_inputs(config, oid)
+    validate_inputs(job, oid)
     models_dir = Path(models_dir or L.models_dir())
-    models = {v: Path(TrainingFolder(models_dir / v).model()) for v in model_variants(config)}
+    models = {v: Path(TrainingFolder(models_dir / v).model()) for v in job.runs.model_variants()}
     missing = [str(p) for p in models.values() if not p.exists()]
     if missing:
         raise RelightError(f"trained F-RNG model(s) missing: {missing}; run the train rules first")
     backbone = Path(L.backbone_model())
     if not backbone.exists():
         raise RelightError(f"{backbone}: backbone model missing")
-    dev = resolve_device(device or config.device)
+    dev = resolve_device(device or job.device)
     Path(L.relight_dir()).mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".staging-{oid}-", dir=L.relight_dir()))
     try:
-        timing = relight_object(config, oid, models, backbone, staging, dev)
+        timing = relight_object(job, oid, models, backbone, staging, dev)
         publish(staging, results, oid)
     finally:
         shutil.rmtree(staging, ignore_errors=True)

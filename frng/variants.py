@@ -185,36 +185,77 @@ class Run:
     decoder: str = "full"  # "full", or "base": the cosine decoder's Lambertian base alone (residual dropped)
 
 
-def runs(config: TypedConfig | Mapping, n_input_views: int | None = None) -> list[Run]:
-    """All runs of one test object (``n_input_views`` None: the views the config gives every test object).
+@dataclass(frozen=True)
+class RunPlan:
+    """What the runs of a test object follow from (:meth:`runs`): the ``frng`` keys ``variants``, ``k_sweep``,
+    ``top_k_percent`` and ``prior_dim``, ``idm.kind``, ``shading.decoder_cosine``, the other training seeds
+    (:func:`extra_seeds`) and ``render.extra_input_views``. :meth:`of` reads them from a config; a stage hands a
+    library this instead of the config."""
 
-    ``frng.variants`` at 6 views, the K sweep ``frng.k_sweep`` (the entry equal to ``frng.top_k_percent`` is the
-    full run itself), the #views sweep ``full-v{V}``, the oracle-prior run, the other training seeds of ``full``
-    and the ablations (:func:`seeded_variants`), the Lambertian-base run and the backbone."""
-    config = as_dict(config)
-    if n_input_views is None:
-        n_input_views = RIG_VIEWS + int(config["render"].get("extra_input_views", 0))
-    f = config["frng"]
-    k_full = float(f["top_k_percent"])
-    out = [Run(v, "F-RNG", v, RIG_VIEWS, k_full) for v in dict.fromkeys(["full", *f["variants"]])]
-    for p in f["k_sweep"]:
-        name = k_variant(p)
-        if canonical_variant(config, name) != "full":
-            out.append(Run(name, "F-RNG", name, RIG_VIEWS, float(p)))
-    out += [Run(f"full-v{V}", "F-RNG", "full", V, k_full) for V in view_counts("test", n_input_views) if V != RIG_VIEWS]
-    if config["idm"]["kind"] != "oracle" and int(config["frng"].get("prior_dim", 1)) > 0:
-        out.append(Run(ORACLE_RUN, "F-RNG", "full", RIG_VIEWS, k_full, priors="oracle"))
-    for name in seeded_variants(config):
-        out.append(Run(name, "F-RNG", name, RIG_VIEWS, k_full, seed=split_seed(name)[1]))
-    if config.get("shading", {}).get("decoder_cosine", False):
-        out.append(Run(BASE_RUN, "F-RNG", "full", RIG_VIEWS, k_full, decoder="base"))
-    out.append(Run(BACKBONE, "backbone", BACKBONE, RIG_VIEWS, float("nan")))
-    return out
+    variants: tuple[str, ...]
+    k_sweep: tuple[float, ...]
+    top_k_percent: float
+    prior_dim: int
+    idm_kind: str
+    decoder_cosine: bool
+    extra_seeds: tuple[int, ...]
+    extra_input_views: int
+
+    @classmethod
+    def of(cls, config: TypedConfig | Mapping) -> RunPlan:
+        c = as_dict(config)
+        f = c["frng"]
+        return cls(
+            variants=tuple(f["variants"]),
+            k_sweep=tuple(f["k_sweep"]),
+            top_k_percent=float(f["top_k_percent"]),
+            prior_dim=int(f.get("prior_dim", 1)),
+            idm_kind=c["idm"]["kind"],
+            decoder_cosine=bool(c.get("shading", {}).get("decoder_cosine", False)),
+            extra_seeds=tuple(extra_seeds(c)),
+            extra_input_views=int(c.get("render", {}).get("extra_input_views", 0)),
+        )
+
+    def runs(self, n_input_views: int | None = None) -> list[Run]:
+        """All runs of one test object (``n_input_views`` None: the views the config gives every test object).
+
+        ``frng.variants`` at 6 views, the K sweep ``frng.k_sweep`` (the entry equal to ``frng.top_k_percent`` is the
+        full run itself), the #views sweep ``full-v{V}``, the oracle-prior run, the other training seeds of ``full``
+        and the ablations (:func:`seeded_variants`), the Lambertian-base run and the backbone."""
+        if n_input_views is None:
+            n_input_views = RIG_VIEWS + self.extra_input_views
+        k_full = self.top_k_percent
+        out = [Run(v, "F-RNG", v, RIG_VIEWS, k_full) for v in dict.fromkeys(["full", *self.variants])]
+        for p in self.k_sweep:
+            name = k_variant(p)
+            if canonical_for(name, k_full) != "full":
+                out.append(Run(name, "F-RNG", name, RIG_VIEWS, float(p)))
+        out += [
+            Run(f"full-v{V}", "F-RNG", "full", V, k_full) for V in view_counts("test", n_input_views) if V != RIG_VIEWS
+        ]
+        if self.idm_kind != "oracle" and self.prior_dim > 0:
+            out.append(Run(ORACLE_RUN, "F-RNG", "full", RIG_VIEWS, k_full, priors="oracle"))
+        seeded = [seed_variant(v, s) for s in self.extra_seeds for v in dict.fromkeys(["full", *self.variants])]
+        for name in seeded:
+            out.append(Run(name, "F-RNG", name, RIG_VIEWS, k_full, seed=split_seed(name)[1]))
+        if self.decoder_cosine:
+            out.append(Run(BASE_RUN, "F-RNG", "full", RIG_VIEWS, k_full, decoder="base"))
+        out.append(Run(BACKBONE, "backbone", BACKBONE, RIG_VIEWS, float("nan")))
+        return out
+
+    def model_variants(self) -> list[str]:
+        """The trained variants (``{results}/models/{variant}/model.pt``) the runs read."""
+        return list(dict.fromkeys(r.variant for r in self.runs() if r.method != BACKBONE))
+
+
+def runs(config: TypedConfig | Mapping, n_input_views: int | None = None) -> list[Run]:
+    """All runs of one test object under the config (:meth:`RunPlan.runs`)."""
+    return RunPlan.of(config).runs(n_input_views)
 
 
 def model_variants(config: TypedConfig | Mapping) -> list[str]:
-    """The trained variants (``{results}/models/{variant}/model.pt``) the runs read."""
-    return list(dict.fromkeys(r.variant for r in runs(config) if r.method != BACKBONE))
+    """The trained variants (``{results}/models/{variant}/model.pt``) the runs read (:meth:`RunPlan.model_variants`)."""
+    return RunPlan.of(config).model_variants()
 
 
 def torchrun_command(nproc: int, module: str = "frng", python: str | None = None) -> str:

@@ -41,7 +41,8 @@ obj.targets["t0"] = Views([f"tgt_{{i:03d}}" for i in range(4)], v.rgb * torch.te
                           v.c2w, v.intr)
 h = config["backbone"]["env_height"]
 obj.envs.update({{l: torch.rand(h, 2 * h, 3, generator=g) * 2 for l in ("l0", "l1", "t0")}})
-path = backbone_train.train(typed(config), [obj], Path({out!r}), steps={steps})
+tc = typed(config)
+path = backbone_train.train(tc.backbone, tc.model.patch_size, tc.device, tc.model_seed, [obj], Path({out!r}), steps={steps})
 sd = torch.load(path, weights_only=False)["state_dict"]
 digest = hashlib.sha256()
 for k in sorted(sd):

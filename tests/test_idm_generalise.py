@@ -103,10 +103,18 @@ def test_cue_cache_reuses_the_hull_under_another_light():
         assert torch.allclose(got[k], ref[k], atol=1e-6), k
 
 
+def train_idm(config, objects, out, **kw):
+    """frng.priors.idm_train.train handed the typed config's sections (as frng/stages/idm_train.py does)."""
+    b = config.backbone
+    return idm_train.train(
+        config.idm, config.model.patch_size, b.near, b.far, config.device, config.model_seed, objects, out, **kw
+    )
+
+
 def test_overfits_one_object(tmp_path):
     config = trainer_config({"steps": 60, "lr": 3e-3, "warmup": 2, "bf16": False, "checkpoint_every": 60})
     torch.manual_seed(0)
-    path = idm_train.train(typed(config), [sphere_object()], tmp_path / "idm")
+    path = train_idm(typed(config), [sphere_object()], tmp_path / "idm")
     with open(tmp_path / "idm" / "loss.csv") as f:
         loss = [float(r["total"]) for r in csv.DictReader(f)]
     assert len(loss) == 60

@@ -51,6 +51,12 @@ def test_idm_train_killed_then_resumed(smoke):
     assert [int(r["step"]) for r in rows] == list(range(1, steps_total + 1))  # resumed, not restarted
 
 
+def _bb(config):
+    """What frng.priors.backbone_train.train reads of the config (as frng/stages/backbone_train.py hands it)."""
+    tc = typed(config)
+    return tc.backbone, tc.model.patch_size, tc.device, tc.model_seed
+
+
 def test_backbone_resume_cache_and_stale(smoke):
     from frng.priors import backbone_train, cache
     from frng.priors.dataset import load_split
@@ -59,13 +65,22 @@ def test_backbone_resume_cache_and_stale(smoke):
     res = Path(config["results"])
     objs = load_split(typed(config), "train")
     out = res / "backbone"
-    backbone_train.train(typed(config), objs, out, stop_after=5)
+    backbone_train.train(*_bb(config), objs, out, stop_after=5)
     assert torch.load(out / "checkpoint.pt", weights_only=False)["step"] == 5
-    model = backbone_train.train(typed(config), objs, out)  # resumes at 5
+    model = backbone_train.train(*_bb(config), objs, out)  # resumes at 5
     rows = _rows(out / "loss.csv")
     assert [int(r["step"]) for r in rows] == list(range(1, config["backbone"]["train"]["steps"] + 1))
     test_id = cache.catalog.plan(config).split("test")[0]
-    p = cache.make_backbone_cache(typed(config), test_id, model, res / "backbone" / "cache" / f"{test_id}.safetensors")
+    tc = typed(config)
+    p = cache.make_backbone_cache(
+        tc.results,
+        tc.seed,
+        cache.catalog.plan(tc).envmaps,
+        tc.backbone.cache_extra_lights,
+        test_id,
+        model,
+        res / "backbone" / "cache" / f"{test_id}.safetensors",
+    )
     c = cache.load_backbone_cache(p, model)
     assert len(c.lights) == 2 and c.lights[0] == c.meta["input_light"]
     train_lights = {e.name for e in cache.catalog.plan(config).envmaps if e.split == "train"}
@@ -92,7 +107,7 @@ def test_priors_beat_trivial_baselines(smoke):
     assert (res / "backbone" / "model.pt").exists() and (res / "idm" / "model.pt").exists()
     train_objs, test = load_split(typed(config), "train"), load_split(typed(config), "test")
     rows = evaluate.eval_backbone(
-        typed(config), load_backbone(res / "backbone" / "model.pt"), test, evaluate.mean_image(train_objs)
+        typed(config).seed, load_backbone(res / "backbone" / "model.pt"), test, evaluate.mean_image(train_objs)
     )
 
     def mean(method, key):
@@ -101,7 +116,9 @@ def test_priors_beat_trivial_baselines(smoke):
 
     assert mean("backbone", "psnr") > mean("mean-image", "psnr") + 1.0
     assert 0 <= mean("backbone", "lpips") < mean("mean-image", "lpips")  # recorded for the ladder's rows a-c
-    idm_rows = evaluate.eval_idm(typed(config), build_idm(typed(config)), test, train_objs)
+    idm_rows = evaluate.eval_idm(
+        build_idm(typed(config).idm, typed(config).backbone, config["results"]), test, train_objs
+    )
     learned = [r for r in idm_rows if r["method"] == "idm-learned"]
     const = [r for r in idm_rows if r["method"] == "constant"]
     assert sum(r["albedo_psnr"] for r in learned) > sum(r["albedo_psnr"] for r in const) + 0.2 * len(learned)

@@ -50,7 +50,7 @@ def test_registry_names():
     assert "relitlrm" in BACKBONES
     assert {"learned", "oracle", "diffusion-renderer"} <= set(IDMS)
     with pytest.raises(KeyError, match="unknown IDM kind"):
-        build_idm({"idm": {"kind": "nope"}}, kind="nope")
+        build_idm(None, None, "unused", kind="nope")
 
 
 def test_frozen_backbone_cannot_be_updated(tiny_backbone_file):

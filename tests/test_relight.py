@@ -102,10 +102,10 @@ def _corrupt_envmap(res, oid, meta):
 )
 def test_bad_input_names_the_file_and_writes_nothing(private_object, corrupt, words):
     path, config, oid, meta, res = _fresh(private_object, corrupt.__name__)
-    relight.validate_inputs(typed(config), oid)  # the clean copy is fine
+    relight.validate_inputs(relight.RelightJob.of(typed(config)), oid)  # the clean copy is fine
     bad = corrupt(res, oid, meta)
     with pytest.raises(relight.RelightError) as e:
-        relight.relight(typed(config), oid)
+        relight.relight(relight.RelightJob.of(typed(config)), oid)
     assert str(bad) in str(e.value) and words in str(e.value), str(e.value)
     assert not (res / "relight").exists(), "relight wrote something on bad input"
 
@@ -202,14 +202,14 @@ def _synthetic_object(tmp_path, split):
 def test_rgb_only_input_view_is_refused(tmp_path):
     config, oid, root = _synthetic_object(tmp_path, "test")
     with pytest.raises(relight.RelightError) as e:
-        relight.validate_inputs(typed(config), oid)
+        relight.validate_inputs(relight.RelightJob.of(typed(config)), oid)
     assert "no alpha channel" in str(e.value) and str(root / "inputs") in str(e.value), str(e.value)
 
 
 def test_training_object_is_refused(tmp_path):
     config, oid, root = _synthetic_object(tmp_path, "train")
     with pytest.raises(relight.RelightError) as e:
-        relight.validate_inputs(typed(config), oid)
+        relight.validate_inputs(relight.RelightJob.of(typed(config)), oid)
     assert repr(oid) in str(e.value) and "'train' split" in str(e.value), str(e.value)
 
 
@@ -219,5 +219,5 @@ def test_object_curated_as_training_is_refused(tmp_path):
     meta = io.read_json(root / "meta.json")
     io.write_json(root / "meta.json", {**meta, "split": "train"})
     with pytest.raises(relight.RelightError) as e:
-        relight.validate_inputs(typed(config), oid)
+        relight.validate_inputs(relight.RelightJob.of(typed(config)), oid)
     assert str(root / "meta.json") in str(e.value) and "'train' split" in str(e.value), str(e.value)

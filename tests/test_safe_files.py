@@ -275,13 +275,12 @@ def test_same_object_same_bytes(tmp_path):
 
 def test_identical_retrain_same_model_bytes(tmp_path):
     """Two identical trainings (the IDM's, a few steps) write byte-identical model.pt files."""
-    from test_training_loop import _config, _objects
+    from test_training_loop import _config, _objects, train_idm
 
     from frng.hashing import file_sha256
-    from frng.priors import idm_train
 
     for d in "ab":
-        idm_train.train(_config(), _objects(), tmp_path / d)
+        train_idm(_config(), _objects(), tmp_path / d)
     assert file_sha256(tmp_path / "a" / "model.pt") == file_sha256(tmp_path / "b" / "model.pt")
 
 

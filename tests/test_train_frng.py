@@ -27,10 +27,21 @@ def frng_smoke(smoke_dataset, tmp_path_factory):
     path, config = smoke_results(smoke_dataset, d, idm={"kind": "oracle"})
     res = Path(config["results"])
     tc = typed(config)
-    model = backbone_train.train(tc, load_split(tc, "train"), res / "backbone")
+    model = backbone_train.train(
+        tc.backbone, tc.model.patch_size, tc.device, tc.model_seed, load_split(tc, "train"), res / "backbone"
+    )
+    envmaps = catalog.plan(tc).envmaps
     for oid in catalog.plan(tc).split("train"):
-        cache.make_backbone_cache(tc, oid, model, res / "backbone" / "cache" / f"{oid}.safetensors")
-        cache.make_idm_priors(tc, oid, res / "priors" / "idm" / f"{oid}.safetensors")
+        cache.make_backbone_cache(
+            tc.results,
+            tc.seed,
+            envmaps,
+            tc.backbone.cache_extra_lights,
+            oid,
+            model,
+            res / "backbone" / "cache" / f"{oid}.safetensors",
+        )
+        cache.make_idm_priors(tc.idm, tc.backbone, tc.results, oid, res / "priors" / "idm" / f"{oid}.safetensors")
     return path, config
 
 

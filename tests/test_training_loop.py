@@ -22,7 +22,7 @@ from types import SimpleNamespace
 import pytest
 import torch
 import torch.multiprocessing as mp
-from test_idm_generalise import TINY, sphere_object, trainer_config
+from test_idm_generalise import TINY, sphere_object, train_idm, trainer_config
 
 from frng import io
 from frng import training as tr
@@ -79,20 +79,20 @@ def save_then_die(obj, path):
     if isinstance(obj, dict) and obj.get("step") == {kill_at}:
         os.kill(os.getpid(), signal.SIGKILL)  # no cleanup, no finally: as a killed job
 io.save_torch = save_then_die
-idm_train.train(t._config(), t._objects(), __import__("pathlib").Path({out!r}))
+t.train_idm(t._config(), t._objects(), __import__("pathlib").Path({out!r}))
 """
 
 
 def test_killed_then_resumed_equals_uninterrupted(tmp_path):
     torch.manual_seed(0)
-    idm_train.train(_config(), _objects(), tmp_path / "a")
+    train_idm(_config(), _objects(), tmp_path / "a")
     b = tmp_path / "b"
     code = _KILLED_RUN.format(here=str(HERE), threads=torch.get_num_threads(), kill_at=6, out=str(b))
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert proc.returncode == -signal.SIGKILL, proc.stderr[-2000:]
     assert torch.load(b / "checkpoint.pt", weights_only=False)["step"] == 6 and not (b / "model.pt").exists()
     (b / "loss.csv").unlink()  # Snakemake deletes a failed job's outputs; the checkpoint carries the history
-    idm_train.train(_config(), _objects(), b)
+    train_idm(_config(), _objects(), b)
     _assert_same_weights(_weights(tmp_path / "a"), _weights(b))
     assert [int(r["step"]) for r in _rows(b)] == list(range(1, STEPS + 1))
     assert _losses(b) == _losses(tmp_path / "a")
@@ -102,10 +102,10 @@ def test_killed_then_resumed_equals_uninterrupted(tmp_path):
 
 def test_changed_config_does_not_resume(tmp_path):
     out = tmp_path / "run"
-    idm_train.train(_config(), _objects(), out, stop_after=4)
+    train_idm(_config(), _objects(), out, stop_after=4)
     assert torch.load(out / "checkpoint.pt", weights_only=False)["step"] == 4
-    idm_train.train(_config(lr=1e-3), _objects(), out)  # another learning rate: trains from step 0
-    idm_train.train(_config(lr=1e-3), _objects(), tmp_path / "fresh")
+    train_idm(_config(lr=1e-3), _objects(), out)  # another learning rate: trains from step 0
+    train_idm(_config(lr=1e-3), _objects(), tmp_path / "fresh")
     _assert_same_weights(_weights(out), _weights(tmp_path / "fresh"))
     assert _losses(out) == _losses(tmp_path / "fresh")
     assert [int(r["step"]) for r in _rows(out)] == list(range(1, STEPS + 1))
@@ -116,13 +116,13 @@ def test_changed_config_does_not_resume(tmp_path):
 
 def test_changed_checkpoint_every_still_resumes(tmp_path, monkeypatch):
     out = tmp_path / "run"
-    idm_train.train(_config(), _objects(), out, stop_after=4)
+    train_idm(_config(), _objects(), out, stop_after=4)
     calls = []
     loss = idm_train.idm_mod.idm_loss
     monkeypatch.setattr(idm_train.idm_mod, "idm_loss", lambda *a, **k: calls.append(1) or loss(*a, **k))
-    idm_train.train(_config(checkpoint_every=5), _objects(), out)
+    train_idm(_config(checkpoint_every=5), _objects(), out)
     assert len(calls) == STEPS - 4  # resumed at step 4
-    idm_train.train(_config(), _objects(), tmp_path / "a")
+    train_idm(_config(), _objects(), tmp_path / "a")
     _assert_same_weights(_weights(out), _weights(tmp_path / "a"))
 
 
@@ -132,7 +132,7 @@ def test_finished_checkpoint_trains_again(tmp_path, monkeypatch, keep_model):
     the total: the rerun must train again (it used to resume the final checkpoint, re-save the old weights and
     write a header-only loss.csv). A manual rerun with the model still there trains again too."""
     out = tmp_path / "run"
-    idm_train.train(_config(), _objects(), out)
+    train_idm(_config(), _objects(), out)
     assert torch.load(out / "checkpoint.pt", weights_only=False)["step"] == STEPS
     first = _weights(out)
     if not keep_model:
@@ -141,7 +141,7 @@ def test_finished_checkpoint_trains_again(tmp_path, monkeypatch, keep_model):
     calls = []
     loss = idm_train.idm_mod.idm_loss
     monkeypatch.setattr(idm_train.idm_mod, "idm_loss", lambda *a, **k: calls.append(1) or loss(*a, **k))
-    idm_train.train(_config(), _objects(), out)
+    train_idm(_config(), _objects(), out)
     assert len(calls) == STEPS  # every step ran again
     assert [int(r["step"]) for r in _rows(out)] == list(range(1, STEPS + 1))
     _assert_same_weights(first, _weights(out))  # same config and seed: the same model, retrained

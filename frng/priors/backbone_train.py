@@ -43,7 +43,7 @@ from frng.hashing import data_digest
 from frng.priors import backbone as bb
 from frng.priors.dataset import PriorObject, Views
 from frng.priors.diffusion import to_diffusion_space
-from frng.sections import TypedConfig, register, section
+from frng.sections import register, section
 from frng.seeding import seed_everything
 
 
@@ -181,7 +181,10 @@ LOSS_NAMES = ["total", "l2", "alpha", "depth", "perceptual"]
 
 
 def train(
-    config: TypedConfig,
+    backbone: BackboneSection,
+    patch_size: int,
+    device: str,
+    seed: int,
     objects: list[PriorObject],
     out: Path,
     steps: int | None = None,
@@ -191,24 +194,26 @@ def train(
     model path.
 
     ``stop_after``: stop (after checkpointing) once this many steps have run in this call -- for tests of
-    resumption. ``steps`` overrides ``backbone.train.steps``."""
+    resumption. ``steps`` overrides ``backbone.train.steps``. ``backbone``: the config's ``backbone`` section;
+    ``patch_size``, ``device``: its ``model.patch_size`` and ``device``; ``seed``: the models' seed
+    (``train_seed``, else ``seed``)."""
     tr.check_training_split(objects, "backbone-train")
-    tcfg = config.backbone.train
+    tcfg = backbone.train
     total = steps or tcfg.steps
-    cfg = backbone_config(config.backbone, config.model.patch_size)
-    device = resolve_device(config.device)
-    seed_everything(config.model_seed)
+    cfg = backbone_config(backbone, patch_size)
+    device = resolve_device(device)
+    seed_everything(seed)
     model = bb.RelitLRMBackbone(cfg).to(device)
     opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, betas=(0.9, 0.95), weight_decay=tcfg.weight_decay)
     fingerprint = checkpoint.fingerprint(
         cfg.to_dict(),
         tcfg,
         total,
-        config.model_seed,
+        seed,
         objects=sorted(o.id for o in objects),
         data=data_digest(objects),
     )
-    rng = random.Random(config.model_seed)
+    rng = random.Random(seed)
     perceptual = None
     if tcfg.lambda_per > 0 and tcfg.perceptual_after < total:
         from frng.perceptual import PerceptualLoss
@@ -232,7 +237,7 @@ def train(
 
     def save_model(path: Path) -> None:
         io.save_torch(
-            {"kind": config.backbone.kind, "config": cfg.to_dict(), "state_dict": model.state_dict(), "steps": total},
+            {"kind": backbone.kind, "config": cfg.to_dict(), "state_dict": model.state_dict(), "steps": total},
             path,
         )
 

@@ -48,6 +48,7 @@ the current model file and raise :class:`StaleCacheError` on mismatch; they are 
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -59,7 +60,6 @@ from frng.hashing import file_sha256
 from frng.layout import Layout
 from frng.priors import build_idm, load_backbone
 from frng.priors.intrinsics import IntrinsicPriors
-from frng.sections import TypedConfig
 from frng.variants import SWEEP_VIEWS, view_counts  # noqa: F401
 
 BACKBONE_CACHE_VERSION = "3"
@@ -89,27 +89,42 @@ def _load(path: Path) -> tuple[dict[str, torch.Tensor], dict[str, str]]:
         ) from None
 
 
-def extra_training_lights(config: TypedConfig, oid: str, exclude: str, count: int) -> list[str]:
-    """``count`` random training env maps (not ``exclude``), seeded by the config seed and the object id."""
-    pool = sorted(e.name for e in catalog.plan(config).envmaps if e.split == "train" and e.name != exclude)
+def extra_training_lights(
+    envmaps: Sequence[catalog.EnvMapSpec], seed: int, oid: str, exclude: str, count: int
+) -> list[str]:
+    """``count`` random training env maps of the planned ``envmaps`` (not ``exclude``), seeded by the config's data
+    ``seed`` and the object id."""
+    pool = sorted(e.name for e in envmaps if e.split == "train" and e.name != exclude)
     if len(pool) < count:
         raise ValueError(f"only {len(pool)} training env maps besides {exclude}; need {count} extra lights")
-    rng = catalog.rng_for(config.seed, "cache-lights", oid)
+    rng = catalog.rng_for(seed, "cache-lights", oid)
     return [pool[i] for i in rng.choice(len(pool), count, replace=False)]
 
 
 # -- backbone cache ------------------------------------------------------------------------------------
 
 
-def make_backbone_cache(config: TypedConfig, oid: str, model_path: Path, out: Path, device="cpu") -> Path:
+def make_backbone_cache(
+    results: str | Path,
+    seed: int,
+    envmaps: Sequence[catalog.EnvMapSpec],
+    extra_lights: int,
+    oid: str,
+    model_path: Path,
+    out: Path,
+    device="cpu",
+) -> Path:
+    """Cache object ``oid`` (curated under ``results``) through the backbone ``model_path`` into ``out``: its input
+    light and ``extra_lights`` (``backbone.cache_extra_lights``) training lights of the planned ``envmaps``
+    (:func:`extra_training_lights`); ``seed``: the config's data seed (DDIM seeds)."""
     from frng.priors.dataset import load_object
 
     model = load_backbone(model_path, device)
     sha = file_sha256(model_path)
-    obj = load_object(config, oid, with_targets=False, with_gbuffer=False)
+    obj = load_object(results, oid, with_targets=False, with_gbuffer=False)
     light_in = obj.input_lights[0]
-    lights = [light_in] + extra_training_lights(config, oid, light_in, config.backbone.cache_extra_lights)
-    envs = {l: torch.from_numpy(envmap.read(Layout(config.results).envmap(l))) for l in lights}
+    lights = [light_in] + extra_training_lights(envmaps, seed, oid, light_in, extra_lights)
+    envs = {l: torch.from_numpy(envmap.read(Layout(results).envmap(l))) for l in lights}
     views = obj.inputs[light_in]
     H, W = views.rgb.shape[1:3]
     tensors: dict[str, torch.Tensor] = {}
@@ -138,7 +153,7 @@ def make_backbone_cache(config: TypedConfig, oid: str, model_path: Path, out: Pa
         tensors.update({p + "back_" + k: t for k, t in model.back_gaussians(gauss, a, c2w, intr).items()})
         nd = model.cfg.den_views
         for j, light in enumerate(lights):
-            g = torch.Generator(device=device).manual_seed(catalog.derive_seed(config.seed, "cache", oid, light))
+            g = torch.Generator(device=device).manual_seed(catalog.derive_seed(seed, "cache", oid, light))
             sh, t_app = model.denoise(
                 t_geo, gauss, keep, envs[light].to(device)[None], c2w[:nd], intr[:nd], H, W, generator=g, pixels=pixels
             )
@@ -202,11 +217,15 @@ def load_backbone_cache(path: str | Path, model_path: str | Path) -> BackboneCac
 # -- IDM priors ------------------------------------------------------------------------------------------
 
 
-def make_idm_priors(config: TypedConfig, oid: str, out: Path, device="cpu", kind: str | None = None) -> Path:
+def make_idm_priors(
+    idm_section, backbone_section, results: str | Path, oid: str, out: Path, device="cpu", kind: str | None = None
+) -> Path:
+    """The IDM's priors of object ``oid`` (curated under ``results``) into ``out``; the IDM of ``kind`` (default
+    ``idm.kind``) from the config's ``idm`` and ``backbone`` sections (:func:`frng.priors.build_idm`)."""
     from frng.priors.dataset import load_object
 
-    idm = build_idm(config, device, kind)
-    obj = load_object(config, oid, with_targets=False, with_gbuffer=idm.kind == "oracle")
+    idm = build_idm(idm_section, backbone_section, results, device, kind)
+    obj = load_object(results, oid, with_targets=False, with_gbuffer=idm.kind == "oracle")
     light = obj.input_lights[0]
     views = obj.inputs[light]
     pri = idm.priors(oid, views, obj.gbuffer)

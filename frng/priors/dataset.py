@@ -90,8 +90,9 @@ def read_gbuffer(obj: ObjectData) -> IntrinsicPriors:
     ).masked()
 
 
-def load_object(config: TypedConfig, oid: str, with_targets: bool = True, with_gbuffer: bool = True) -> PriorObject:
-    results = Path(config.results)
+def load_object(results: str | Path, oid: str, with_targets: bool = True, with_gbuffer: bool = True) -> PriorObject:
+    """Curated object ``oid`` under ``results``: its input (and target) views, env maps and G-buffer."""
+    results = Path(results)
     obj = open_object(results, oid)
     inputs = {l: _views(obj, "inputs", l) for l in obj.input_lights}
     targets = {l: _views(obj, "targets", l) for l in obj.target_lights} if with_targets else {}
@@ -109,4 +110,4 @@ def split_ids(config: TypedConfig, split: str) -> list[str]:
 
 
 def load_split(config: TypedConfig, split: str, **kw) -> list[PriorObject]:
-    return [load_object(config, oid, **kw) for oid in split_ids(config, split)]
+    return [load_object(config.results, oid, **kw) for oid in split_ids(config, split)]

@@ -35,7 +35,6 @@ import torch
 
 from frng.priors.dataset import PriorObject
 from frng.priors.intrinsics import IntrinsicPriors
-from frng.sections import TypedConfig
 
 
 def _rgba(rgb: torch.Tensor, alpha: torch.Tensor) -> np.ndarray:
@@ -95,9 +94,8 @@ def mean_image(train_objects: list[PriorObject]) -> np.ndarray:
     return torch.cat(imgs).mean(0).numpy()
 
 
-def eval_backbone(
-    config: TypedConfig, model, test: list[PriorObject], mean_img: np.ndarray, device="cpu"
-) -> list[dict]:
+def eval_backbone(seed: int, model, test: list[PriorObject], mean_img: np.ndarray, device="cpu") -> list[dict]:
+    """The backbone's rows of the quality ladder on ``test``; ``seed``: the config's data seed (DDIM seeds)."""
     rows = []
     nd = model.cfg.den_views
     for obj in test:
@@ -120,7 +118,7 @@ def eval_backbone(
         )
         mr = model.cfg.max_radius_px
         for i, (task, light, out) in enumerate(jobs):
-            g = torch.Generator(device=device).manual_seed(config.seed + i)
+            g = torch.Generator(device=device).manual_seed(seed + i)
             env = obj.envs[light].to(device)[None]
             sh, _ = model.denoise(t_geo, gauss, keep, env, c2w[:nd], intr[:nd], H, W, generator=g, pixels=pixels)
             pred, pa, _ = model.render(gauss, sh, out.c2w.to(device), out.intr.to(device), H, W, keep)
@@ -176,7 +174,7 @@ def constant_priors(train_objects: list[PriorObject], views, gt: IntrinsicPriors
     )
 
 
-def eval_idm(config: TypedConfig, idm, test: list[PriorObject], train_objects: list[PriorObject]) -> list[dict]:
+def eval_idm(idm, test: list[PriorObject], train_objects: list[PriorObject]) -> list[dict]:
     rows = []
     for obj in test:
         views = obj.inputs[obj.input_lights[0]]

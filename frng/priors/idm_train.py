@@ -31,7 +31,7 @@ from frng.hashing import data_digest
 from frng.priors import idm as idm_mod
 from frng.priors import multiview
 from frng.priors.dataset import PriorObject, Views
-from frng.sections import TypedConfig, register, section
+from frng.sections import register, section
 from frng.seeding import seed_everything
 
 
@@ -145,31 +145,38 @@ LOSS_NAMES = ["total", "normal", "depth", "albedo", "roughness", "metallic"]
 
 
 def train(
-    config: TypedConfig,
+    idm: IDMSection,
+    patch_size: int,
+    near: float,
+    far: float,
+    device: str,
+    seed: int,
     objects: list[PriorObject],
     out: Path,
     steps: int | None = None,
     stop_after: int | None = None,
 ) -> Path:
     """Train (or resume, :func:`frng.training.fit`) the learned IDM; returns the model path (or the checkpoint
-    when stopped early)."""
+    when stopped early). ``idm``: the config's ``idm`` section; ``patch_size``: ``model.patch_size``; ``near``,
+    ``far``: ``backbone.near``/``far``; ``device``: the config's; ``seed``: the models' seed (``train_seed``, else
+    ``seed``; the IDM trains with ``seed + 1``)."""
     tr.check_training_split(objects, "idm-train")
-    tcfg = config.idm.train
+    tcfg = idm.train
     total = steps or tcfg.steps
-    cfg = idm_config(config.idm, config.model.patch_size, config.backbone.near, config.backbone.far)
-    device = resolve_device(config.device)
-    seed_everything(config.model_seed + 1)
+    cfg = idm_config(idm, patch_size, near, far)
+    device = resolve_device(device)
+    seed_everything(seed + 1)
     model = idm_mod.LearnedIDM(cfg).to(device)
     opt = torch.optim.AdamW(param_groups(model, tcfg), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
     fingerprint = checkpoint.fingerprint(
         cfg.to_dict(),
         tcfg,
         total,
-        config.model_seed,
+        seed,
         objects=sorted(o.id for o in objects),
         data=data_digest(objects),
     )
-    rng = random.Random(config.model_seed + 1)
+    rng = random.Random(seed + 1)
     cue_cache = CueCache()  # data only: a resumed run recomputes the same cues (bit-identical, see the test)
 
     def step_fn(step: int) -> dict[str, float]:

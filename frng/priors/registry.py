@@ -6,7 +6,8 @@ without touching F-RNG (``backbone.kind`` / ``idm.kind`` in the config):
 - ``BACKBONES[name](path, device) -> nn.Module`` loads a trained backbone file; the module must offer the
   :class:`frng.priors.backbone.RelitLRMBackbone` methods ``reconstruct``, ``denoise``, ``render``, ``relight``.
   :func:`load_backbone` freezes it (:func:`freeze`).
-- ``IDMS[name](config, device) -> IDMPrior``; an :class:`IDMPrior` turns one object's input views into
+- ``IDMS[name](idm, backbone, results, device) -> IDMPrior`` (the config's ``idm`` and ``backbone`` sections, the
+  results folder; :func:`build_idm`); an :class:`IDMPrior` turns one object's input views into
   :class:`frng.priors.intrinsics.IntrinsicPriors` (adapters: :class:`LearnedIDMPrior`, :class:`OracleIDMPrior`,
   :class:`DiffusionRendererIDMPrior`).
 
@@ -24,7 +25,6 @@ import torch
 from torch import nn
 
 from frng.io import CorruptFileError, load_torch
-from frng.sections import TypedConfig
 
 BACKBONES: dict[str, Callable[..., nn.Module]] = {}
 IDMS: dict[str, Callable[..., IDMPrior]] = {}
@@ -129,30 +129,33 @@ class DiffusionRendererIDMPrior:
         )
 
 
-def _learned(config: TypedConfig, device="cpu") -> IDMPrior:
+def _learned(idm, backbone, results: str | Path, device="cpu") -> IDMPrior:
     from frng.layout import Layout
 
-    return LearnedIDMPrior(Path(Layout(config.results).idm_model()), device)
+    return LearnedIDMPrior(Path(Layout(results).idm_model()), device)
 
 
-def _oracle(config: TypedConfig, device="cpu") -> IDMPrior:
+def _oracle(idm, backbone, results: str | Path, device="cpu") -> IDMPrior:
     return OracleIDMPrior()
 
 
-def _diffusion_renderer(config: TypedConfig, device="cpu") -> IDMPrior:
-    c = config.idm
-    if not c.diffusion_renderer_dir:
+def _diffusion_renderer(idm, backbone, results: str | Path, device="cpu") -> IDMPrior:
+    if not idm.diffusion_renderer_dir:
         raise ValueError("config key 'idm.diffusion_renderer_dir': required for idm.kind = diffusion-renderer")
     return DiffusionRendererIDMPrior(
-        c.diffusion_renderer_dir, config.backbone.near, config.backbone.far, c.normal_space, c.depth_invert
+        idm.diffusion_renderer_dir, backbone.near, backbone.far, idm.normal_space, idm.depth_invert
     )
 
 
-def build_idm(config: TypedConfig, device="cpu", kind: str | None = None) -> IDMPrior:
-    kind = kind or config.idm.kind
+def build_idm(idm, backbone, results: str | Path, device="cpu", kind: str | None = None) -> IDMPrior:
+    """The IDM of ``kind`` (default ``idm.kind``) from the config's ``idm`` section
+    (:class:`frng.priors.idm_train.IDMSection`), its ``backbone`` section
+    (:class:`frng.priors.backbone_train.BackboneSection`: near/far) and the results folder (the learned IDM's model
+    file). The sections are not annotated: their modules import this one's package."""
+    kind = kind or idm.kind
     if kind not in IDMS:
         raise KeyError(f"unknown IDM kind {kind!r}; registered: {sorted(IDMS)}")
-    return IDMS[kind](config, device)
+    return IDMS[kind](idm, backbone, results, device)
 
 
 register_backbone("relitlrm", _load_relitlrm)

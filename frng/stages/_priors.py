@@ -21,7 +21,8 @@ def configure_training(parser: argparse.ArgumentParser, folder: str, steps_key: 
 
 def run_training(args: argparse.Namespace, stage: str, folder: str, train: Callable, **load_kw) -> int:
     """Load the config and the training split (:func:`frng.priors.dataset.load_split` with ``load_kw``), train
-    with ``train(config, objects, out, steps=...)`` and say where the model went."""
+    with ``train(config, objects, out, steps=...)`` (the stage's adapter: it hands the trainer the sections it
+    reads) and say where the model went."""
     from frng.priors.dataset import load_split
 
     config = typed(frng_config.load(args.config))

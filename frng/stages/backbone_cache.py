@@ -10,6 +10,7 @@ from pathlib import Path
 
 from frng import config as frng_config
 from frng.batches import object_outputs
+from frng.data import catalog
 from frng.device import resolve_device
 from frng.layout import Layout
 from frng.priors.cache import make_backbone_cache
@@ -33,8 +34,10 @@ def run(args: argparse.Namespace) -> int:
     model = Path(args.model or L.backbone_model())
     outs = object_outputs(args.object, args.out, L.backbone_cache)
     device = resolve_device(config.device)
+    envmaps = catalog.plan(config).envmaps
+    extra = config.backbone.cache_extra_lights
     for obj, out in zip(args.object, outs):
         t0 = time.perf_counter()
-        path = make_backbone_cache(config, obj, model, Path(out), device)
+        path = make_backbone_cache(config.results, config.seed, envmaps, extra, obj, model, Path(out), device)
         print(f"backbone-cache: wrote {path} ({time.perf_counter() - t0:.2f} s)", flush=True)
     return 0

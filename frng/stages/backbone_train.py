@@ -17,5 +17,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     configure_training(parser, "backbone", "backbone.train.steps")
 
 
+def train_sections(config, objects, out, steps=None):
+    """:func:`frng.priors.backbone_train.train` handed the sections it reads of the typed config."""
+    return train(config.backbone, config.model.patch_size, config.device, config.model_seed, objects, out, steps=steps)
+
+
 def run(args: argparse.Namespace) -> int:
-    return run_training(args, "backbone-train", "backbone", train)
+    return run_training(args, "backbone-train", "backbone", train_sections)

@@ -37,8 +37,8 @@ def run(args: argparse.Namespace) -> int:
     train_objs = load_split(config, "train")
     test = load_split(config, "test")
     model = load_backbone(Path(args.model or L.backbone_model()), device)
-    bb = pd.DataFrame(eval_backbone(config, model, test, mean_image(train_objs), device))
-    idm = pd.DataFrame(eval_idm(config, build_idm(config, device), test, train_objs))
+    bb = pd.DataFrame(eval_backbone(config.seed, model, test, mean_image(train_objs), device))
+    idm = pd.DataFrame(eval_idm(build_idm(config.idm, config.backbone, config.results, device), test, train_objs))
     for df, path in ((bb, args.backbone_csv or L.metrics("backbone")), (idm, args.idm_csv or L.metrics("idm"))):
         with io.atomic_path(path) as tmp:
             df.to_csv(tmp, index=False, float_format="%.5g")

@@ -33,6 +33,6 @@ def run(args: argparse.Namespace) -> int:
     device = resolve_device(config.device)
     for obj, out in zip(args.object, outs):
         t0 = time.perf_counter()
-        path = make_idm_priors(config, obj, Path(out), device, args.kind)
+        path = make_idm_priors(config.idm, config.backbone, config.results, obj, Path(out), device, args.kind)
         print(f"idm-priors: wrote {path} ({time.perf_counter() - t0:.2f} s)", flush=True)
     return 0

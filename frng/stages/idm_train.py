@@ -17,5 +17,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     configure_training(parser, "idm", "idm.train.steps")
 
 
+def train_sections(config, objects, out, steps=None):
+    """:func:`frng.priors.idm_train.train` handed the sections it reads of the typed config."""
+    b = config.backbone
+    return train(
+        config.idm, config.model.patch_size, b.near, b.far, config.device, config.model_seed, objects, out, steps=steps
+    )
+
+
 def run(args: argparse.Namespace) -> int:
-    return run_training(args, "idm-train", "idm", train, with_targets=False)
+    return run_training(args, "idm-train", "idm", train_sections, with_targets=False)

@@ -10,7 +10,7 @@ import argparse
 import json
 
 from frng import config as frng_config
-from frng.relight import BACKBONE, RelightError, relight
+from frng.relight import BACKBONE, RelightError, RelightJob, relight
 from frng.typedconfig import typed
 
 
@@ -24,7 +24,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     config = typed(frng_config.load(args.config))
     try:
-        timing = relight(config, args.object, args.models, args.device)
+        timing = relight(RelightJob.of(config), args.object, args.models, args.device)
     except RelightError as e:
         print(f"frng relight: error: {e}")
         return 2
