@@ -19,7 +19,7 @@ import json
 import os
 import re
 import zlib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -323,16 +323,20 @@ def _cached_glb(root: Path, uid: str) -> Path | None:
 
 
 def objaverse_file(config: TypedConfig | Mapping, uid: str) -> Path:
-    """The cached GLB of Objaverse ``uid``. Nothing is fetched when it is there; otherwise, with
-    ``objects.objaverse.download`` and the ``objaverse`` package installed, the package downloads the missing
-    uids of the plan into the cache; else (or if that fails) a one-line :class:`CatalogError` names every
-    planned uid missing from the cache."""
-    cfg = config_section(config, "objects").objaverse
+    """The cached GLB of Objaverse ``uid`` under the config (:func:`objaverse_glb`)."""
+    return objaverse_glb(config_section(config, "objects").objaverse, uid, lambda: plan(config))
+
+
+def objaverse_glb(cfg: ObjaverseConfig, uid: str, catalog_of: Callable[[], Catalog]) -> Path:
+    """The cached GLB of Objaverse ``uid`` (``cfg``: the config's ``objects.objaverse`` section). Nothing is fetched
+    when it is there; otherwise, with ``objects.objaverse.download`` and the ``objaverse`` package installed, the
+    package downloads the missing uids of the plan (``catalog_of()``, asked only then) into the cache; else (or if that
+    fails) a one-line :class:`CatalogError` names every planned uid missing from the cache."""
     root = objaverse_dir(cfg)
     path = _cached_glb(root, uid)
     if path is not None:
         return path
-    planned = [o.mesh for o in plan(config).objects if o.source == "objaverse"]
+    planned = [o.mesh for o in catalog_of().objects if o.source == "objaverse"]
     missing = [u for u in planned if _cached_glb(root, u) is None] or [uid]
     hint = "copy the files there or set objects.objaverse.download: true at a site with internet"
     if cfg.download:
@@ -357,8 +361,14 @@ def objaverse_file(config: TypedConfig | Mapping, uid: str) -> Path:
 
 
 def objaverse_annotation(config: TypedConfig | Mapping, uid: str, path: Path | None = None) -> dict | None:
-    """The cached annotation of ``uid`` (from ``metadata/{group}.json.gz``, group = the GLB's folder), or None."""
-    root = objaverse_dir(config_section(config, "objects").objaverse)
+    """The cached annotation of ``uid`` under the config (:func:`objaverse_glb_annotation`)."""
+    return objaverse_glb_annotation(config_section(config, "objects").objaverse, uid, path)
+
+
+def objaverse_glb_annotation(cfg: ObjaverseConfig, uid: str, path: Path | None = None) -> dict | None:
+    """The cached annotation of ``uid`` (from ``metadata/{group}.json.gz``, group = the GLB's folder), or None
+    (``cfg``: the config's ``objects.objaverse`` section)."""
+    root = objaverse_dir(cfg)
     path = path or _cached_glb(root, uid)
     groups = [path.parent.name] if path is not None else None
     try:

@@ -41,7 +41,6 @@ from frng.data import catalog, rig
 from frng.data.envmaps import read_index
 from frng.data.stopguard import NoGuard, StopGuard
 from frng.layout import EnvmapFolder, Layout, ObjectFolder
-from frng.sections import TypedConfig
 
 GBUFFER_CHANNELS = (
     "A",
@@ -139,9 +138,19 @@ def check_envmaps(spec: catalog.ObjectSpec, env_dir: Path) -> dict[str, dict]:
 
 
 def curate(
-    config: TypedConfig, oid: str, env_dir: Path, out_root: Path, log=print, guard: StopGuard | None = None
+    plan: catalog.Catalog,
+    objaverse: catalog.ObjaverseConfig,
+    render: catalog.RenderConfig,
+    envmaps: catalog.EnvmapsConfig,
+    oid: str,
+    env_dir: Path,
+    out_root: Path,
+    log=print,
+    guard: StopGuard | None = None,
 ) -> Path:
-    """Render object ``oid`` into ``out_root/oid`` (atomically). Returns the final folder.
+    """Render object ``oid`` of the dataset plan ``plan`` (:func:`frng.data.catalog.plan`) into ``out_root/oid``
+    (atomically). Returns the final folder. The config's sections it reads: ``objects.objaverse`` (the Objaverse
+    cache), ``render`` and ``envmaps`` (their width: the light-sampling map's resolution).
 
     ``guard``: a :class:`StopGuard` (installed after ``import bpy``) that removes the staging folders on SIGINT /
     SIGTERM; every write into them happens under its lock."""
@@ -151,9 +160,7 @@ def curate(
     from frng.blender import materials, objects, world
     from frng.blender import scene as bscene
 
-    cat = catalog.plan(config)
-    spec = cat.object(oid)
-    render = config.render
+    spec = plan.object(oid)
     lights = check_envmaps(spec, env_dir)
     rig_rng, shape_rng, mat_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(spec.seed).spawn(3))
     inputs, targets = rig.object_views(rig_rng, render)
@@ -180,10 +187,10 @@ def curate(
         mat = {"class": catalog.OWN} if own else materials.sample(mat_rng, spec.material, render.fur_strands)
         radius = 1.0 - mat["hair"]["length"] if "hair" in mat else 1.0  # fur stays inside the unit sphere
         pybullet_dir = catalog.pybullet_data_dir() if spec.source == "pybullet" else None
-        mesh_path = catalog.objaverse_file(config, spec.mesh) if spec.source == "objaverse" else None
+        mesh_path = catalog.objaverse_glb(objaverse, spec.mesh, lambda: plan) if spec.source == "objaverse" else None
         licence, provenance = spec.licence, None
         if mesh_path is not None:
-            ann = catalog.objaverse_annotation(config, spec.mesh, mesh_path) or {}
+            ann = catalog.objaverse_glb_annotation(objaverse, spec.mesh, mesh_path) or {}
             provenance = {"uid": spec.mesh, "file": str(mesh_path)} | {
                 k: ann[k] for k in ("name", "license", "viewerUrl", "uri") if k in ann
             }
@@ -222,7 +229,7 @@ def curate(
                 world.set_envmap(
                     scene,
                     Path(EnvmapFolder(env_dir).envmap(light)),
-                    sample_map_resolution=max(64, config.envmaps.width),
+                    sample_map_resolution=max(64, envmaps.width),
                 )
                 for view in views:
                     bscene.set_camera_pose(cam, view.c2w)

@@ -33,7 +33,6 @@ from frng import envmap, io
 from frng.data import catalog
 from frng.data.stopguard import NoGuard
 from frng.layout import EnvmapFolder
-from frng.sections import TypedConfig
 
 SKY_BAKE_WIDTH = 512  # skies are smooth; baked at this width then resized
 GROUND_ALBEDO = 0.3
@@ -124,8 +123,17 @@ def load_base(spec: catalog.EnvMapSpec, work: Path, threads: int) -> np.ndarray:
     raise ValueError(f"unknown env-map source {spec.source!r}")
 
 
-def prepare(config: TypedConfig, out: Path, log=print, guard=None) -> list[dict]:
-    """Write every planned map into ``out`` (see the module docstring). Returns the index records.
+def prepare(
+    env: catalog.EnvmapsConfig,
+    specs: list[catalog.EnvMapSpec],
+    threads: int,
+    out: Path,
+    log=print,
+    guard=None,
+) -> list[dict]:
+    """Write every planned map ``specs`` (:func:`frng.data.catalog.envmap_plan`) into ``out`` (see the module
+    docstring), ``env`` the config's ``envmaps`` section, ``threads`` its ``render.threads`` (Blender's, for the
+    skies). Returns the index records.
 
     All-or-nothing: the maps and records are written into a staging folder ``out/.tmp-envmaps-*`` and moved into
     place only once every map succeeded, each EXR before its record, the index last -- so a failed or killed run
@@ -134,13 +142,10 @@ def prepare(config: TypedConfig, out: Path, log=print, guard=None) -> list[dict]
     ``guard``: a :class:`frng.data.stopguard.StopGuard` that removes the staging folder on SIGINT/SIGTERM.
     """
     guard = guard or NoGuard()
-    env = config.envmaps
-    specs = catalog.envmap_plan(config)
     out.mkdir(parents=True, exist_ok=True)
     remove_stale(out, log)
     records: list[dict] = []
     bases: dict[str, np.ndarray] = {}
-    threads = config.render.threads
     with guard.lock:
         staging = io.temp_dir(".tmp-envmaps-", out)
         guard.paths.append(staging)

@@ -20,7 +20,6 @@ import numpy as np
 from frng import io
 from frng.data.dataset import ObjectData
 from frng.layout import Layout
-from frng.sections import TypedConfig
 
 BACKGROUND = (0.18, 0.18, 0.18)  # linear grey behind the renders
 LABEL_W = 150
@@ -107,9 +106,10 @@ def _draw_labels(sheet: np.ndarray, names: list[str], cell: int, title: str) -> 
 
 
 def write_previews(
-    config: TypedConfig, objects: list[str], out: Path, cell: int, max_views: int, max_lights: int, log=print
+    results: str | Path, objects: list[str], out: Path, cell: int, max_views: int, max_lights: int, log=print
 ) -> list[Path]:
-    L = Layout(config.results)
+    """One contact sheet per curated object of ``objects`` (under ``results``) into ``out/{obj}.png``."""
+    L = Layout(results)
     paths = []
     for oid in objects:
         obj = ObjectData.open(L.object_dir(oid))

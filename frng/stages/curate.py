@@ -37,7 +37,17 @@ def run(args: argparse.Namespace) -> int:
 
     guard = StopGuard(f"frng curate {args.object}").install()
     try:
-        final = curate(config, args.object, env_dir, out, log=lambda m: print(m, flush=True), guard=guard)
+        final = curate(
+            catalog.plan(config),
+            config.objects.objaverse,
+            config.render,
+            config.envmaps,
+            args.object,
+            env_dir,
+            out,
+            log=lambda m: print(m, flush=True),
+            guard=guard,
+        )
     except (CurationError, catalog.CatalogError, envmap.EnvMapError, io.ImageError) as e:
         print(f"frng curate: error: {e}", file=sys.stderr, flush=True)
         return 1

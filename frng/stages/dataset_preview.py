@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path(Layout(config.results).previews_dir())
     try:
         write_previews(
-            config, objects, out, args.cell, args.max_views, args.max_lights, log=lambda m: print(m, flush=True)
+            config.results, objects, out, args.cell, args.max_views, args.max_lights, log=lambda m: print(m, flush=True)
         )
     except (DatasetError, io.ImageError) as e:
         print(f"frng dataset-preview: error: {e}", file=sys.stderr)

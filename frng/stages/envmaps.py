@@ -35,7 +35,10 @@ def run(args: argparse.Namespace) -> int:
     guard = StopGuard("frng envmaps").install()
     t0 = time.perf_counter()
     try:
-        records = prepare(config, out, log=lambda m: print(m, flush=True), guard=guard)
+        specs = catalog.envmap_plan(config)
+        records = prepare(
+            config.envmaps, specs, config.render.threads, out, log=lambda m: print(m, flush=True), guard=guard
+        )
     except (envmap.EnvMapError, catalog.CatalogError, io.ImageError) as e:
         print(f"frng envmaps: error: {e}", file=sys.stderr)
         return 1
