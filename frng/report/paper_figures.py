@@ -15,6 +15,7 @@ Outputs (``{results}/figures/``):
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +24,6 @@ import pandas as pd
 from frng import envmap, io
 from frng.layout import Layout
 from frng.report import figures
-from frng.sections import TypedConfig
 from frng.variants import BACKBONE
 
 
@@ -105,19 +105,23 @@ def loss_curves(results: Path, out_png: Path) -> None:
     figures.loss_curves(runs, out_png, title="Training losses (all runs)")
 
 
-def make_figures(config: TypedConfig, objects: list[str], out_dir: Path) -> list[Path]:
+def make_figures(
+    results: str | Path, patch_size: int, variants: Sequence[str], objects: list[str], out_dir: Path
+) -> list[Path]:
+    """The paper's figures of ``objects`` into ``out_dir``: ``patch_size`` is the config's ``model.patch_size`` (the
+    saliency maps' patches), ``variants`` its ``frng.variants`` (the ablation figure, after ``full``)."""
     from frng.metrics import read_csv
 
-    results = Path(config.results)
+    results = Path(results)
     psnr = _psnr_lookup(read_csv(Layout(results).metrics("relight_per_image")))
     written = []
     for oid in objects:
         p = out_dir / "comparison" / f"{oid}.png"
         comparison(results, oid, p, psnr)
         s = out_dir / "saliency" / f"{oid}.png"
-        saliency(results, oid, s, int(config.model.patch_size))
+        saliency(results, oid, s, int(patch_size))
         written += [p, s]
-    variants = list(dict.fromkeys(["full", *config.frng.variants]))
+    variants = list(dict.fromkeys(["full", *variants]))
     ablation(results, objects, variants, out_dir / "ablation.png", psnr)
     loss_curves(results, out_dir / "loss_curves.png")
     return written + [out_dir / "ablation.png", out_dir / "loss_curves.png"]

@@ -40,6 +40,7 @@ of the row's mean PSNR difference to its reference, seed by seed where the refer
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -49,7 +50,6 @@ from frng import io
 from frng import metrics as M
 from frng.report import stats as S
 from frng.report import tables as T
-from frng.sections import TypedConfig
 from frng.variants import BACKBONE, BASE_RUN, BASE_VARIANTS, ORACLE_RUN, RIG_VIEWS, SEED_SEP, VARIANTS, split_seed
 
 TABLES = tuple(T.TABLE_COLUMNS)
@@ -65,12 +65,12 @@ DIFF_NOTE = (
 )
 
 
-def _caption(title: str, config: TypedConfig, df: pd.DataFrame) -> str:
+def _caption(title: str, tier: str, background: Sequence[float], df: pd.DataFrame) -> str:
     n_obj = df["object"].nunique()
     return (
-        f"{title} Tier {config.tier}: {n_obj} test object(s), {len(df)} images; "
+        f"{title} Tier {tier}: {n_obj} test object(s), {len(df)} images; "
         f"{df['protocol'].iloc[0]} metric protocol (see frng/metrics.py), background "
-        f"{list(config.eval.background)}; mean over test objects, lights and views. {DIFF_NOTE}"
+        f"{list(background)}; mean over test objects, lights and views. {DIFF_NOTE}"
     )
 
 
@@ -421,14 +421,16 @@ def timing_table(timings: list[dict]) -> pd.DataFrame:
 
 
 def write_tables(
-    config: TypedConfig,
+    tier: str,
+    background: Sequence[float],
     per_image_csv: Path,
     timing_files: list[Path],
     out_dir: Path,
     prior_csv: Path,
     cross_csv: Path | None = None,
 ) -> dict[str, dict]:
-    """Write the tables (see the module docstring). Returns {table: {"csv"|"md"|"tex": path}}."""
+    """Write the tables (see the module docstring). Returns {table: {"csv"|"md"|"tex": path}}. ``tier`` and
+    ``background`` (the config's ``tier`` and ``eval.background``) go into the captions."""
     df = M.read_csv(per_image_csv)
     missing = [
         c
@@ -457,7 +459,8 @@ def write_tables(
         best_within=["dataset"],
         caption=_caption(
             "Relighting quality: F-RNG vs the backbone it builds on (datasets = material classes)." + seed_note,
-            config,
+            tier,
+            background,
             df[df["run"].isin(["full", BACKBONE])],
         ),
         label="tab:vs_backbone",
@@ -468,7 +471,8 @@ def write_tables(
         caption=_caption(
             "Ablation of F-RNG's components (differences: variant minus the full model)."
             + seed_note.replace("F-RNG rows", "Every row"),
-            config,
+            tier,
+            background,
             ablation_rows(df),
         ),
         label="tab:ablation",
@@ -477,7 +481,10 @@ def write_tables(
         views_table(df),
         out_dir / "views",
         caption=_caption(
-            "Number of input views (the same trained full model; differences to 6 views).", config, views_rows(df)
+            "Number of input views (the same trained full model; differences to 6 views).",
+            tier,
+            background,
+            views_rows(df),
         ),
         label="tab:views",
     )
@@ -485,7 +492,10 @@ def write_tables(
         k_table(df),
         out_dir / "k",
         caption=_caption(
-            "Top-K salient patches (K in % of a view's patches; differences to the full model's K).", config, k_rows(df)
+            "Top-K salient patches (K in % of a view's patches; differences to the full model's K).",
+            tier,
+            background,
+            k_rows(df),
         ),
         label="tab:k",
     )
@@ -503,7 +513,7 @@ def write_tables(
             f"means (ground truth over prediction). Row g: F-RNG rendered with its decoder's closed-form Lambertian "
             f"base alone. Rows s: each method's render for one test light scored against the ground truth of another "
             f"test light (same object and view); their Δ = right light minus that wrong light (ground truth: "
-            f"itself vs the other light's). {DIFF_NOTE} The models' own training seed. Tier {config.tier}."
+            f"itself vs the other light's). {DIFF_NOTE} The models' own training seed. Tier {tier}."
         ),
         label="tab:ladder",
     )
@@ -513,7 +523,8 @@ def write_tables(
         caption=_caption(
             "F-RNG and its decoder's closed-form Lambertian base alone (residual, attenuation and "
             "specular base dropped), per material class; differences: base minus F-RNG.",
-            config,
+            tier,
+            background,
             df[df["run"].isin(["full", BASE_RUN])],
         ),
         label="tab:lambertian",
@@ -526,7 +537,7 @@ def write_tables(
             f"Reconstruction and relighting time per image, measured side by side in the same job on "
             f"{', '.join(device)} at {int(t['resolution'].iloc[0])} px, mean over {len(timings)} test "
             f"object(s); F-RNG renders with {t['spp'].iloc[0]:.0f} light samples per pixel, the backbone "
-            f"runs one full denoising pass per light. Tier {config.tier}."
+            f"runs one full denoising pass per light. Tier {tier}."
         ),
         label="tab:timing",
     )

@@ -27,6 +27,6 @@ def run(args: argparse.Namespace) -> int:
     config = typed(frng_config.load(args.config))
     objects = args.objects or catalog.plan(config).split("test")
     out = Path(args.out or Layout(config.results).figures_dir())
-    for p in make_figures(config, objects, out):
+    for p in make_figures(config.results, config.model.patch_size, config.frng.variants, objects, out):
         print(f"figures: wrote {p}")
     return 0

@@ -39,7 +39,8 @@ def run(args: argparse.Namespace) -> int:
     L = Layout(config.results)
     timing = args.timing or [L.relight_timing(o) for o in catalog.plan(config).split("test")]
     out = write_tables(
-        config,
+        config.tier,
+        config.eval.background,
         Path(args.metrics or L.metrics("relight_per_image")),
         [Path(p) for p in timing],
         Path(args.out or L.tables_dir()),
