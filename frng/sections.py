@@ -223,6 +223,9 @@ def as_dict(config: Any) -> Mapping:
 
 
 TypedConfig = Any
-"""How a library annotates the whole typed config (``frng.typedconfig.Config``) that a stage hands it: libraries do
-not import ``frng.typedconfig`` (it imports every component that declares a section); a library that reads one
-section takes that section's class instead."""
+"""How a library annotates the whole typed config (``frng.typedconfig.Config``): libraries do not import
+``frng.typedconfig`` (it imports every component that declares a section). Library functions take the sections
+they read (their classes) and small typed arguments, not the whole config; what still takes it: the section
+selectors a stage calls (``X.from_config``, ``frng.model.frng.ModelSections.of``, ``frng.relight.RelightJob.of``)
+and the torch-free planning helpers of :mod:`frng.data.catalog` and :mod:`frng.variants` (the dataset plan, the
+variants and runs follow from many sections; the rule files call them with the validated dict)."""

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from frng.data.catalog import plan
 from frng.typedconfig import typed
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -63,7 +64,7 @@ def test_backbone_resume_cache_and_stale(smoke):
 
     _, config = smoke
     res = Path(config["results"])
-    objs = load_split(typed(config), "train")
+    objs = load_split(config["results"], plan(config).split("train"))
     out = res / "backbone"
     backbone_train.train(*_bb(config), objs, out, stop_after=5)
     assert torch.load(out / "checkpoint.pt", weights_only=False)["step"] == 5
@@ -105,7 +106,10 @@ def test_priors_beat_trivial_baselines(smoke):
     _, config = smoke
     res = Path(config["results"])
     assert (res / "backbone" / "model.pt").exists() and (res / "idm" / "model.pt").exists()
-    train_objs, test = load_split(typed(config), "train"), load_split(typed(config), "test")
+    train_objs, test = (
+        load_split(config["results"], plan(config).split("train")),
+        load_split(config["results"], plan(config).split("test")),
+    )
     rows = evaluate.eval_backbone(
         typed(config).seed, load_backbone(res / "backbone" / "model.pt"), test, evaluate.mean_image(train_objs)
     )
@@ -135,7 +139,7 @@ def test_backbone_overfits_one_object(smoke):
     from frng.priors.dataset import load_split
 
     _, config = smoke
-    obj = load_split(typed(config), "train")[0]
+    obj = load_split(config["results"], plan(config).split("train"))[0]
     torch.manual_seed(0)
     model = bb.RelitLRMBackbone(bt.backbone_config(typed(config).backbone, config["model"]["patch_size"]))
     tcfg = bt.BackboneTrainConfig.from_dict({**config["backbone"]["train"], "bf16": False})

@@ -28,7 +28,12 @@ def frng_smoke(smoke_dataset, tmp_path_factory):
     res = Path(config["results"])
     tc = typed(config)
     model = backbone_train.train(
-        tc.backbone, tc.model.patch_size, tc.device, tc.model_seed, load_split(tc, "train"), res / "backbone"
+        tc.backbone,
+        tc.model.patch_size,
+        tc.device,
+        tc.model_seed,
+        load_split(tc.results, catalog.plan(tc).split("train")),
+        res / "backbone",
     )
     envmaps = catalog.plan(tc).envmaps
     for oid in catalog.plan(tc).split("train"):

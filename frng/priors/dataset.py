@@ -21,10 +21,8 @@ from pathlib import Path
 import torch
 
 from frng import envmap
-from frng.data import catalog
 from frng.data.dataset import ObjectData, open_object
 from frng.priors.intrinsics import IntrinsicPriors
-from frng.sections import TypedConfig
 
 RIG_VIEWS = 6
 
@@ -104,10 +102,7 @@ def load_object(results: str | Path, oid: str, with_targets: bool = True, with_g
     return PriorObject(oid, obj.split, inputs, targets, gb, envs, rig_views=min(RIG_VIEWS, n_in))
 
 
-def split_ids(config: TypedConfig, split: str) -> list[str]:
-    """Object ids of a split, from the dataset plan (no file scanning)."""
-    return catalog.plan(config).split(split)
-
-
-def load_split(config: TypedConfig, split: str, **kw) -> list[PriorObject]:
-    return [load_object(config.results, oid, **kw) for oid in split_ids(config, split)]
+def load_split(results: str | Path, ids: list[str], **kw) -> list[PriorObject]:
+    """The curated objects ``ids`` under ``results`` (:func:`load_object` with ``kw``): a split of the dataset plan,
+    ``frng.data.catalog.plan(config).split(name)`` (no file scanning)."""
+    return [load_object(results, oid, **kw) for oid in ids]

@@ -23,12 +23,13 @@ def run_training(args: argparse.Namespace, stage: str, folder: str, train: Calla
     """Load the config and the training split (:func:`frng.priors.dataset.load_split` with ``load_kw``), train
     with ``train(config, objects, out, steps=...)`` (the stage's adapter: it hands the trainer the sections it
     reads) and say where the model went."""
+    from frng.data import catalog
     from frng.priors.dataset import load_split
 
     config = typed(frng_config.load(args.config))
     out = Path(args.out or getattr(Layout(config.results), f"{folder}_dir")())
     t0 = time.time()
-    objects = load_split(config, "train", **load_kw)
+    objects = load_split(config.results, catalog.plan(config).split("train"), **load_kw)
     print(f"{stage}: {len(objects)} training objects loaded in {time.time() - t0:.1f}s")
     print(f"{stage}: wrote {train(config, objects, out, steps=args.steps)}")
     return 0

@@ -11,6 +11,7 @@ import argparse
 from pathlib import Path
 
 from frng import config as frng_config
+from frng.data import catalog
 from frng.device import resolve_device
 from frng.layout import Layout
 from frng.priors import build_idm, load_backbone
@@ -34,8 +35,9 @@ def run(args: argparse.Namespace) -> int:
     config = typed(frng_config.load(args.config))
     L = Layout(config.results)
     device = resolve_device(config.device)
-    train_objs = load_split(config, "train")
-    test = load_split(config, "test")
+    plan = catalog.plan(config)
+    train_objs = load_split(config.results, plan.split("train"))
+    test = load_split(config.results, plan.split("test"))
     model = load_backbone(Path(args.model or L.backbone_model()), device)
     bb = pd.DataFrame(eval_backbone(config.seed, model, test, mean_image(train_objs), device))
     idm = pd.DataFrame(eval_idm(build_idm(config.idm, config.backbone, config.results, device), test, train_objs))
