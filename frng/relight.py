@@ -147,7 +147,8 @@ def validate_inputs(job: RelightJob, oid: str) -> dict:
 
 def check_test_split(plan: Catalog, oid: str, meta: dict, meta_path: Path) -> None:
     """Refuse an object of the training split: its split as curated (``meta.json``'s ``split``) and as the config's
-    dataset plan ``plan`` (:class:`frng.data.catalog.Catalog`) has it must both be ``test``. Raises :class:`RelightError` naming the object and the file."""
+    dataset plan ``plan`` (:class:`frng.data.catalog.Catalog`) has it must both be ``test``. Raises
+    :class:`RelightError` naming the object and the file."""
     from frng.data import catalog
 
     curated = meta.get("split")

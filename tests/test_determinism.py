@@ -42,7 +42,9 @@ obj.targets["t0"] = Views([f"tgt_{{i:03d}}" for i in range(4)], v.rgb * torch.te
 h = config["backbone"]["env_height"]
 obj.envs.update({{l: torch.rand(h, 2 * h, 3, generator=g) * 2 for l in ("l0", "l1", "t0")}})
 tc = typed(config)
-path = backbone_train.train(tc.backbone, tc.model.patch_size, tc.device, tc.model_seed, [obj], Path({out!r}), steps={steps})
+path = backbone_train.train(
+    tc.backbone, tc.model.patch_size, tc.device, tc.model_seed, [obj], Path({out!r}), steps={steps}
+)
 sd = torch.load(path, weights_only=False)["state_dict"]
 digest = hashlib.sha256()
 for k in sorted(sd):
