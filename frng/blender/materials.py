@@ -10,11 +10,14 @@ from __future__ import annotations
 
 import colorsys
 import math
+from pathlib import Path
 
 import bpy
 import numpy as np
 
 TEXTURE_SIZE = 256
+# A texture the importer could not load is looked for in the asset's folders under these suffixes (see relink).
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tga", ".bmp", ".tif", ".tiff", ".exr", ".hdr", ".webp")
 PATTERNS = ("checker", "stripes", "dots", "noise")
 FUR_POINTS = 6  # control points per strand (Catmull-Rom curves)
 FUR_ROOT_RADIUS = 0.004  # strand radius at the root / tip (world units; the object fits the unit sphere)
@@ -352,7 +355,39 @@ def _data_colourspace(bsdf, nt) -> list[str]:
     return sorted(set(changed))
 
 
-def adopt(obj: bpy.types.Object) -> dict:
+def find_texture(ref: str, search_dirs) -> Path | None:
+    """Where a texture reference that does not load (``ref``: the path the file names, often one from the author's
+    machine, or a file shipped under another image format) can be found: in each of ``search_dirs`` (in order), the
+    same base name, then the same stem with any of :data:`IMAGE_SUFFIXES`. None when nothing matches."""
+    name = ref.replace("\\", "/").rsplit("/", 1)[-1]
+    if not name:
+        return None
+    stem = name.rsplit(".", 1)[0] if "." in name else name
+    for d in search_dirs:
+        d = Path(d)
+        for cand in [d / name, *(d / f"{stem}{suffix}" for suffix in IMAGE_SUFFIXES)]:
+            if cand.is_file():
+                return cand
+    return None
+
+
+def _relink(nt, search_dirs, relinked: list) -> None:
+    """Point each image node of ``nt`` whose image did not load at :func:`find_texture`'s file; each fix is
+    appended to ``relinked`` as ``{"from", "to"}`` (an image shared by several nodes once)."""
+    for n in nt.nodes:
+        if n.bl_idname != "ShaderNodeTexImage" or n.image is None or n.image.size[0] != 0:
+            continue
+        ref = n.image.filepath or n.image.name
+        found = find_texture(bpy.path.abspath(ref), search_dirs)
+        if found is None:
+            continue
+        n.image.filepath = str(found)
+        n.image.reload()
+        if n.image.size[0] != 0:
+            relinked.append({"from": ref, "to": str(found)})
+
+
+def adopt(obj: bpy.types.Object, search_dirs=()) -> dict:
     """Keep ``obj``'s own materials (imported from the file) and make them write the G-buffer AOVs from their
     own inputs: ``albedo`` <- whatever feeds the Principled BSDF's Base Color (texture x factor x vertex colour
     as the importer built it), ``roughness`` / ``metallic`` <- what feeds those inputs (the glTF
@@ -365,12 +400,15 @@ def adopt(obj: bpy.types.Object) -> dict:
     What the AOVs cannot describe is reported, never guessed silently: a surface that is not a Principled BSDF
     (custom node trees: AOVs from the tree's only Principled BSDF if it has one, else the neutral constants),
     transmission, emission, transparency, clear coat, sheen, subsurface, volume, displacement, missing textures.
+    A texture that does not load is first looked for in ``search_dirs`` (the asset's folders; rule:
+    :func:`find_texture`): LIBERO's MTLs, for one, name ``.jpeg`` files from the author's disk that ship as ``.png``
+    beside the mesh. What was found that way is listed under ``textures_relinked``.
 
     Returns the description recorded in meta.json's ``material``: ``{"class": "own", "slots": [...],
-    "unsupported": [{"slot", "material", "reasons"}], "colourspace_fixed": [...]}``.
+    "unsupported": [{"slot", "material", "reasons"}], "colourspace_fixed": [...], "textures_relinked": [...]}``.
     """
     me = obj.data
-    info: dict = {"class": "own", "slots": [], "unsupported": [], "colourspace_fixed": []}
+    info: dict = {"class": "own", "slots": [], "unsupported": [], "colourspace_fixed": [], "textures_relinked": []}
     if not len(me.materials) or all(m is None for m in me.materials):
         layers = list(me.color_attributes.keys())
         me.materials.clear()
@@ -405,6 +443,7 @@ def adopt(obj: bpy.types.Object) -> dict:
             for name in ("Volume", "Displacement"):
                 if out.inputs[name].is_linked:
                     reasons.append(name.lower())
+        _relink(nt, search_dirs, info["textures_relinked"])
         for n in nt.nodes:
             if n.bl_idname == "ShaderNodeTexImage" and n.image is not None and n.image.size[0] == 0:  # not loadable
                 reasons.append(f"missing texture {n.image.filepath or n.image.name}")

@@ -201,7 +201,10 @@ def curate(
         except objects.MeshError as e:
             raise CurationError(str(e)) from e
         if own:
-            mat = materials.adopt(obj)
+            asset = Path(mesh_path or (pybullet_dir / spec.mesh if pybullet_dir else spec.mesh))
+            mat = materials.adopt(obj, [asset if asset.is_dir() else asset.parent])
+            for fix in mat["textures_relinked"]:
+                log(f"[{oid}] texture {fix['from']} does not load; using {fix['to']} (found in the asset's folder)")
             for bad in mat["unsupported"]:
                 log(
                     f"[{oid}] material slot {bad['slot']} ({bad['material']}): the G-buffer cannot describe "

@@ -310,7 +310,9 @@ def sensitivity_rows(df: pd.DataFrame, cross: pd.DataFrame | None) -> list[dict]
     test light scored against the ground truth of another test light (same object and view; ``cross``:
     ``relight_cross_light.csv``), and the paired difference right light minus wrong light with its interval
     (``d*``; ``better``: objects that score higher against the right light). The ground truth's right-light score
-    is the ground truth against itself (its ``scored_against == light`` rows)."""
+    is the ground truth against itself (its ``scored_against == light`` rows): its SSIM and LPIPS differences are
+    finite, its PSNR difference is not (identical images; the metric's cap is not a measurement), so its ``dpsnr``
+    columns are left empty and its wrong-light PSNR is the number to read (how different the test lights are)."""
     if cross is None or not len(cross):
         return []
     rows = []
@@ -332,6 +334,8 @@ def sensitivity_rows(df: pd.DataFrame, cross: pd.DataFrame | None) -> list[dict]
             }
             | diff_to(right, wrong)
         )
+        if run == GROUND_TRUTH:
+            rows[-1] |= {"dpsnr": np.nan, "dpsnr_lo": np.nan, "dpsnr_hi": np.nan}
     return rows
 
 
