@@ -193,30 +193,18 @@ def backbone_views(seed: int, backbone, oid: str, views, env_in: torch.Tensor, l
     c2w, intr, light0.t_app (V, h, w, D), light0.sh (N, K, 3), the far-side copies back_*; light 0 = the input
     light, with the DDIM seed the cache stage uses (derived from the config's data ``seed``)."""
     from frng.data import catalog
+    from frng.priors.cache import geometry_entry
 
     rgb, a, c2w, intr = (x.to(device) for x in (views.rgb, views.alpha, views.c2w, views.intr))
     H, W = rgb.shape[1:3]
-    t_geo, raw, gauss, keep, raw_prior, pixels = backbone.reconstruct(rgb, a, c2w, intr)
+    recon = backbone.reconstruct(rgb, a, c2w, intr)
+    t_geo, _, gauss, keep, _, pixels = recon
     nd = backbone.cfg.den_views
     g = torch.Generator(device=device).manual_seed(catalog.derive_seed(seed, "cache", oid, light_in))
     sh, t_app = backbone.denoise(
         t_geo, gauss, keep, env_in.to(device)[None], c2w[:nd], intr[:nd], H, W, generator=g, pixels=pixels
     )
-    return {
-        "t_geo": t_geo[0].float(),
-        "raw": raw.float(),
-        "raw_prior": raw_prior.float(),
-        "means": gauss.means,
-        "quats": gauss.quats,
-        "scales": gauss.scales,
-        "opacities": gauss.opacities,
-        "keep": keep.to(torch.uint8),
-        "c2w": c2w,
-        "intr": intr,
-        "light0.t_app": t_app[0].float(),
-        "light0.sh": sh.float(),
-        **{"back_" + k: t for k, t in backbone.back_gaussians(gauss, a, c2w, intr).items()},
-    }
+    return geometry_entry(backbone, recon, a, c2w, intr) | {"light0.t_app": t_app[0].float(), "light0.sh": sh.float()}
 
 
 def _write_images(folder: Path, light: str, names: list[str], rgba: torch.Tensor) -> None:

@@ -17,6 +17,7 @@ A finished run writes the final model file (``model.pt``) with the trainer's ``s
 from __future__ import annotations
 
 import os
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -32,6 +33,8 @@ from frng.hashing import config_digest
 from frng.layout import TrainingFolder
 from frng.losslog import LossLog
 from frng.seeding import rng_state, set_rng_state
+
+PROGRESS_LOG_S = 30.0  # seconds between progress lines when stderr is a log file
 
 
 def cosine_lr(step: int, total: int, peak: float, warmup: int) -> float:
@@ -214,8 +217,17 @@ def fit(
         hooks.barrier()
 
     model.train()
+    # In a terminal the bar updates live; in a rule's log file (not a TTY) every PROGRESS_LOG_S seconds, so the log
+    # stays a readable few lines instead of one carriage return per step.
+    tty = sys.stderr.isatty()
     bar = tqdm(
-        range(start, total), initial=start, total=total, desc=desc, dynamic_ncols=True, disable=not hooks.is_main
+        range(start, total),
+        initial=start,
+        total=total,
+        desc=desc,
+        dynamic_ncols=True,
+        disable=not hooks.is_main,
+        mininterval=0.1 if tty else PROGRESS_LOG_S,
     )
     ran = 0
     for step in bar:
@@ -236,7 +248,7 @@ def fit(
         run.step_times.append(time.time() - t0)
         if log:
             log.append(step + 1, timer.elapsed(), logs)
-        bar.set_postfix({("loss" if k == "total" else k): f"{logs[k]:.4f}" for k in trainer.postfix})
+        bar.set_postfix({("loss" if k == "total" else k): f"{logs[k]:.4f}" for k in trainer.postfix}, refresh=False)
         ran += 1
         due = (step + 1) % every == 0 and step + 1 < total
         stop = stop_after is not None and ran >= stop_after and step + 1 < total

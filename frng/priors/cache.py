@@ -104,6 +104,30 @@ def extra_training_lights(
 # -- backbone cache ------------------------------------------------------------------------------------
 
 
+def geometry_entry(model, recon: tuple, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor) -> dict:
+    """The light-independent part of one view set's cache entry (the table above, without the ``v{V}.`` prefix):
+    ``t_geo``, ``raw``, ``raw_prior``, the decoded Gaussians, ``keep``, ``c2w``, ``intr`` and the far-side copies
+    ``back_*``. ``recon``: what ``model.reconstruct(rgb, alpha, c2w, intr)`` returned for alpha (V, H, W, 1),
+    c2w (V, 4, 4), intr (V, 4) of V input views. The cache stage, live relighting and the relighting benchmark
+    all build their entries here, so the three cannot drift apart."""
+    t_geo, raw, gauss, keep, raw_prior, _ = recon
+    V = c2w.shape[0]
+    assert alpha.shape[0] == V and c2w.shape == (V, 4, 4) and intr.shape == (V, 4), (alpha.shape, c2w.shape, intr.shape)
+    return {
+        "t_geo": t_geo[0].float(),
+        "raw": raw.float(),
+        "raw_prior": raw_prior.float(),
+        "means": gauss.means,
+        "quats": gauss.quats,
+        "scales": gauss.scales,
+        "opacities": gauss.opacities,
+        "keep": keep.to(torch.uint8),
+        "c2w": c2w,
+        "intr": intr,
+        **{"back_" + k: t for k, t in model.back_gaussians(gauss, alpha, c2w, intr).items()},
+    }
+
+
 def make_backbone_cache(
     results: str | Path,
     seed: int,
@@ -134,23 +158,10 @@ def make_backbone_cache(
         v = views.select(range(V))
         names[V] = v.names
         rgb, a, c2w, intr = (x.to(device) for x in (v.rgb, v.alpha, v.c2w, v.intr))
-        t_geo, raw, gauss, keep, raw_prior, pixels = model.reconstruct(rgb, a, c2w, intr)
+        recon = model.reconstruct(rgb, a, c2w, intr)
+        t_geo, _, gauss, keep, _, pixels = recon
         p = f"v{V}."
-        tensors.update(
-            {
-                p + "t_geo": t_geo[0].float(),
-                p + "raw": raw.float(),
-                p + "raw_prior": raw_prior.float(),
-                p + "means": gauss.means,
-                p + "quats": gauss.quats,
-                p + "scales": gauss.scales,
-                p + "opacities": gauss.opacities,
-                p + "keep": keep.to(torch.uint8),
-                p + "c2w": v.c2w,
-                p + "intr": v.intr,
-            }
-        )
-        tensors.update({p + "back_" + k: t for k, t in model.back_gaussians(gauss, a, c2w, intr).items()})
+        tensors.update({p + k: t for k, t in geometry_entry(model, recon, a, c2w, intr).items()})
         nd = model.cfg.den_views
         for j, light in enumerate(lights):
             g = torch.Generator(device=device).manual_seed(catalog.derive_seed(seed, "cache", oid, light))
