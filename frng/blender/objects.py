@@ -484,6 +484,18 @@ def procedural(kind: str, rng: np.random.Generator) -> tuple[bpy.types.Object, d
 # -- the object of a dataset entry ------------------------------------------------------------------------
 
 
+FILE_SOURCES = ("pybullet", "user", "objaverse", "libero")  # sources whose objects come from files on disk
+
+
+def mesh_path(spec, pybullet_dir, path: Path | None = None) -> Path:
+    """The file (a LIBERO object: its folder) a file-backed ``spec`` (:data:`FILE_SOURCES`) is read from: ``path``
+    when given (an Objaverse uid resolved in the local cache), a pybullet mesh inside ``pybullet_dir``, else
+    ``spec.mesh`` itself."""
+    if path is not None:
+        return Path(path)
+    return Path(pybullet_dir) / spec.mesh if spec.source == "pybullet" else Path(spec.mesh)
+
+
 def load(
     spec,
     rng: np.random.Generator,
@@ -501,9 +513,8 @@ def load(
     ``params`` for generated shapes, ``had_uvs``, ``vertices`` and ``faces`` counts.
     """
     info: dict = {}
-    if spec.source in ("pybullet", "user", "objaverse", "libero"):
-        if path is None:
-            path = Path(pybullet_dir) / spec.mesh if spec.source == "pybullet" else Path(spec.mesh)
+    if spec.source in FILE_SOURCES:
+        path = mesh_path(spec, pybullet_dir, path)
         try:
             if spec.source == "libero":  # an object folder: its visual OBJs, joined
                 from frng.data.catalog import libero_meshes

@@ -201,7 +201,7 @@ def curate(
         except objects.MeshError as e:
             raise CurationError(str(e)) from e
         if own:
-            asset = Path(mesh_path or (pybullet_dir / spec.mesh if pybullet_dir else spec.mesh))
+            asset = objects.mesh_path(spec, pybullet_dir, mesh_path)
             mat = materials.adopt(obj, [asset if asset.is_dir() else asset.parent])
             for fix in mat["textures_relinked"]:
                 log(f"[{oid}] texture {fix['from']} does not load; using {fix['to']} (found in the asset's folder)")
