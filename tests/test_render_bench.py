@@ -1,4 +1,5 @@
-"""`frng bench render --json` prints one JSON object per configuration with the documented keys."""
+"""`frng bench render --json` and `frng bench perceptual --json` print one JSON object per configuration with the
+documented keys."""
 
 import json
 import subprocess
@@ -21,3 +22,33 @@ def test_bench_render_json():
             assert key in r
         assert r["gaussians"] == 6 * 16 * 16 and r["fwd_ms"] > 0 and r["fwd_bwd_ms"] > 0
     assert rows[-1]["shade_infer_ms_per_image"] > 0
+
+
+def test_bench_perceptual_json():
+    """`frng bench perceptual --json`: one row per (net, size, batch) with a positive time."""
+    out = subprocess.run(
+        [
+            venv_bin("frng"),
+            "bench",
+            "perceptual",
+            "--nets",
+            "alex",
+            "--sizes",
+            "32",
+            "--batches",
+            "1",
+            "2",
+            "--repeats",
+            "1",
+            "--threads",
+            "1",
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=120,
+    ).stdout
+    rows = [json.loads(line) for line in out.splitlines() if line.strip()]
+    assert [(r["net"], r["size"], r["batch"]) for r in rows] == [("alex", 32, 1), ("alex", 32, 2)]
+    assert all(r["fwd_bwd_ms"] > 0 and r["threads"] == 1 for r in rows)

@@ -50,6 +50,7 @@ STAGES_WITHOUT_RULE = {
     "frng.stages.bench": "benchmarks are run by hand (`make bench`), never by the workflow",
     "frng.stages.bench_render": "`frng bench render` (frng.stages.bench.BENCHES), run by hand",
     "frng.stages.bench_relight": "`frng bench relight` (frng.stages.bench.BENCHES), run by hand",
+    "frng.stages.bench_perceptual": "`frng bench perceptual` (frng.stages.bench.BENCHES), run by hand",
     "frng.stages.export_benchmark": "writes curated objects in the public benchmarks' layouts, run by hand and by "
     "tests/test_benchmarks.py (nothing downstream in the workflow reads it)",
     "frng.stages.reconstruct": "your own photos -> an asset, run by hand (tests/test_reconstruct.py)",
@@ -59,7 +60,7 @@ STAGES_WITHOUT_RULE = {
 # ``frng`` subcommands whose module is not in frng/stages/, and why
 OUTSIDE_STAGES: dict[str, str] = {}
 # ``frng <subcommand> <action>`` of the rules' commands (a stage with sub-subcommands)
-SUB_ACTIONS = {"bench": ["render", "relight"]}
+SUB_ACTIONS = {"bench": ["render", "relight", "perceptual"]}
 # rules whose ``frng`` subcommand is not the rule's name with dashes
 CLI_NAMES_DIFFER = {"import_benchmark": "import"}
 

@@ -16,6 +16,7 @@ BENCHES: dict[str, tuple[str, str]] = {
         "frng.stages.bench_relight",
         "F-RNG vs backbone relighting/reconstruction time at each config's model sizes",
     ),
+    "perceptual": ("frng.stages.bench_perceptual", "training perceptual loss (LPIPS-alex / -vgg) fwd+bwd cost"),
 }
 
 
