@@ -7,15 +7,16 @@ import subprocess
 from conftest import venv_bin
 
 
-def test_bench_render_json():
+def bench_rows(*args: str) -> list[dict]:
+    """The JSON rows `frng bench ARGS --json` prints."""
     out = subprocess.run(
-        [venv_bin("frng"), "bench", "render", "--sizes", "16", "--channels", "3", "8", "--repeats", "1", "--json"],
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=120,
+        [venv_bin("frng"), "bench", *args, "--json"], capture_output=True, text=True, check=True, timeout=120
     ).stdout
-    rows = [json.loads(line) for line in out.splitlines() if line.strip()]
+    return [json.loads(line) for line in out.splitlines() if line.strip()]
+
+
+def test_bench_render_json():
+    rows = bench_rows("render", "--sizes", "16", "--channels", "3", "8", "--repeats", "1")
     assert [r["channels"] for r in rows] == [3, 8]
     for r in rows:
         for key in ["backend", "size", "views", "gaussians", "channels", "fwd_ms", "fwd_bwd_ms", "peak_mb"]:
@@ -26,29 +27,8 @@ def test_bench_render_json():
 
 def test_bench_perceptual_json():
     """`frng bench perceptual --json`: one row per (net, size, batch) with a positive time."""
-    out = subprocess.run(
-        [
-            venv_bin("frng"),
-            "bench",
-            "perceptual",
-            "--nets",
-            "alex",
-            "--sizes",
-            "32",
-            "--batches",
-            "1",
-            "2",
-            "--repeats",
-            "1",
-            "--threads",
-            "1",
-            "--json",
-        ],
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=120,
-    ).stdout
-    rows = [json.loads(line) for line in out.splitlines() if line.strip()]
+    rows = bench_rows(
+        "perceptual", "--nets", "alex", "--sizes", "32", "--batches", "1", "2", "--repeats", "1", "--threads", "1"
+    )
     assert [(r["net"], r["size"], r["batch"]) for r in rows] == [("alex", 32, 1), ("alex", 32, 2)]
     assert all(r["fwd_bwd_ms"] > 0 and r["threads"] == 1 for r in rows)
