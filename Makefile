@@ -30,7 +30,7 @@ reproduce: $(STAMP)
 	$(SNAKEMAKE) --configfile $(CONFIG) --cores $(CORES)
 
 test: $(STAMP)
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q --durations=15 tests  # the 15 slowest tests, for keeping CI well under 30 min
 
 smoke: $(STAMP)
 	@$(CHECK) config/smoke.yaml
