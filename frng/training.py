@@ -228,6 +228,7 @@ def fit(
         dynamic_ncols=True,
         disable=not hooks.is_main,
         mininterval=0.1 if tty else PROGRESS_LOG_S,
+        maxinterval=10.0 if tty else PROGRESS_LOG_S,  # tqdm's default 10 s would force a line every ~15 s
     )
     ran = 0
     for step in bar:
