@@ -674,7 +674,7 @@ class AssetRenderer:
                 )
                 if self.specular:
                     _, d = camera.pixel_rays(c2w.float(), intr.float(), maps.shape[1], maps.shape[2])
-                    rgb = rgb + specular_base(maps, alpha, prefilter(env.to(maps.device)), d, sc.alpha_eps)
+                    rgb = rgb + specular_base(maps, alpha, prefilter(env).to(maps.device), d, sc.alpha_eps)
                 if self.decoder.attenuation:
                     rgb = rgb.clamp_min(0.0)
             else:

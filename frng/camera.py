@@ -18,7 +18,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import torch
+
+from frng.lazytorch import torch
 
 # Blender camera frame (x right, y up, z back) -> OpenCV (x right, y down, z forward): flip y and z.
 BLENDER_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -68,8 +69,9 @@ def spherical_to_cartesian(azimuth_deg: float, elevation_deg: float, radius: flo
 # -- torch ----------------------------------------------------------------------------------------
 
 
-def pixel_centers(height: int, width: int, device=None, dtype=torch.float32) -> torch.Tensor:
-    """Pixel-centre coordinates ``uv`` (H, W, 2) = (col + 0.5, row + 0.5)."""
+def pixel_centers(height: int, width: int, device=None, dtype=None) -> torch.Tensor:
+    """Pixel-centre coordinates ``uv`` (H, W, 2) = (col + 0.5, row + 0.5); dtype default float32."""
+    dtype = torch.float32 if dtype is None else dtype
     ys = torch.arange(height, device=device, dtype=dtype) + 0.5
     xs = torch.arange(width, device=device, dtype=dtype) + 0.5
     yy, xx = torch.meshgrid(ys, xs, indexing="ij")

@@ -22,9 +22,9 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-import torch
 
 from frng import io
+from frng.lazytorch import torch
 
 
 class EnvMapError(ValueError):
@@ -46,21 +46,23 @@ def dir_to_uv(d: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return u, v
 
 
-def pixel_uv(height: int, width: int, device=None, dtype=torch.float32) -> tuple[torch.Tensor, torch.Tensor]:
-    """(u, v) of every pixel centre, each (H, W)."""
+def pixel_uv(height: int, width: int, device=None, dtype=None) -> tuple[torch.Tensor, torch.Tensor]:
+    """(u, v) of every pixel centre, each (H, W); dtype default float32."""
+    dtype = torch.float32 if dtype is None else dtype
     v = (torch.arange(height, device=device, dtype=dtype) + 0.5) / height
     u = (torch.arange(width, device=device, dtype=dtype) + 0.5) / width
     vv, uu = torch.meshgrid(v, u, indexing="ij")
     return uu, vv
 
 
-def pixel_directions(height: int, width: int, device=None, dtype=torch.float32) -> torch.Tensor:
-    """Unit direction of every pixel centre (H, W, 3)."""
+def pixel_directions(height: int, width: int, device=None, dtype=None) -> torch.Tensor:
+    """Unit direction of every pixel centre (H, W, 3); dtype default float32."""
     return uv_to_dir(*pixel_uv(height, width, device, dtype))
 
 
-def pixel_solid_angles(height: int, width: int, device=None, dtype=torch.float64) -> torch.Tensor:
-    """Exact solid angle of each pixel (H, W); sums to 4 pi."""
+def pixel_solid_angles(height: int, width: int, device=None, dtype=None) -> torch.Tensor:
+    """Exact solid angle of each pixel (H, W); sums to 4 pi; dtype default float64."""
+    dtype = torch.float64 if dtype is None else dtype
     edges = torch.linspace(0.0, math.pi, height + 1, device=device, dtype=dtype)  # polar angle edges
     band = (torch.cos(edges[:-1]) - torch.cos(edges[1:])) * (2.0 * math.pi / width)
     return band[:, None].expand(height, width)

@@ -4,15 +4,30 @@ training data held in memory (:func:`data_digest`) and of a training fingerprint
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import os
+import time
 
 import numpy as np
 import torch
 
 
 def file_sha256(path: str | os.PathLike) -> str:
+    """sha256 of a file's bytes (hex). Memoised per process on the file's identity and change times (inode, size,
+    mtime, ctime): loading a training split's caches checks each against the same model file (~120 hashes of one
+    file per training job); a rewritten or replaced file has another identity and is hashed again. A file changed
+    in the last two seconds is always hashed (file times are coarser than a fast in-place rewrite, as git's "racy"
+    entries)."""
+    st = os.stat(path)
+    if time.time_ns() - max(st.st_mtime_ns, st.st_ctime_ns) < 2 * 10**9:
+        return _sha256_of.__wrapped__(path, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+    return _sha256_of(os.path.realpath(path), st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns)
+
+
+@functools.lru_cache(maxsize=64)
+def _sha256_of(path: str, ino: int, size: int, mtime_ns: int, ctime_ns: int) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):

@@ -45,6 +45,19 @@ def test_files_sizes_alpha_and_log(curated):
     assert set(meta["render_seconds"]) == set(obj.input_lights) | set(obj.target_lights)
 
 
+def test_curation_runs_without_importing_torch(curated, tmp_path):
+    """A curation job imports no torch (~2.5 s of each of the ~140 jobs of a default-tier run): frng.lazytorch."""
+    import subprocess
+    import sys
+
+    _, cfg, _ = curated
+    cmd = [sys.executable, "-X", "importtime", "-m", "frng", "curate", "--config", str(cfg), "--object", "obj_0000"]
+    proc = subprocess.run(cmd + ["--out", str(tmp_path / "objects")], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout[-2000:]
+    imported = {ln.rsplit("|", 1)[-1].strip() for ln in proc.stderr.splitlines() if ln.startswith("import time:")}
+    assert "bpy" in imported and "torch" not in imported
+
+
 def test_gbuffer_channels(curated):
     tmp, _, _ = curated
     obj = open_object(tmp / "results", "obj_0000")

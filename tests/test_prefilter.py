@@ -31,6 +31,18 @@ def test_prefilter_keeps_energy_and_blurs_more_at_lower_kappa():
     assert away < 0.05 * at_spot[0]
 
 
+def test_prefilter_is_memoised_per_tensor_and_sees_in_place_changes():
+    env = _spot([0.0, 1.0, 0.0])
+    first = prefilter(env)
+    assert prefilter(env) is first  # the same map again: no second convolution
+    env.mul_(2.0)  # changed in place: recomputed, not the stale result
+    doubled = prefilter(env)
+    assert doubled is not first and torch.allclose(doubled, 2.0 * first, rtol=1e-5)
+    other = env.clone()  # equal content, another tensor: computed for it (equal values)
+    assert prefilter(other) is not doubled and torch.allclose(prefilter(other), doubled)
+    assert prefilter(env, kappas=(50.0,)).shape == (1, 32, 64, 3)  # other lobes: another entry
+
+
 def test_lookup_interpolates_levels_and_wraps_longitude():
     pref = torch.arange(4, dtype=torch.float32)[:, None, None, None].expand(4, 8, 16, 3).clone()
     v = lookup(pref, torch.tensor([[0.0, 0.0, 1.0], [-1.0, 1e-4, 0.0]]), torch.tensor([1.25, 2.5]))

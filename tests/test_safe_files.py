@@ -18,6 +18,7 @@ import os
 import pickle
 import random
 import struct
+import time
 from pathlib import Path
 
 import numpy as np
@@ -190,6 +191,28 @@ def test_training_set_index_is_checked(tmp_path):
     with pytest.raises(io.CorruptFileError, match="sha256") as e:
         io.check_file_index(index)
     assert str(files[1]) in str(e.value)
+    old_ns = files[0].stat().st_mtime_ns - 10**9
+    os.utime(files[1], ns=(old_ns, old_ns))  # replaced, its mtime set back (cp -p): the inode's ctime still tells
+    with pytest.raises(io.CorruptFileError, match="sha256"):
+        io.check_file_index(index)
+
+
+def test_training_set_index_skips_hashing_files_older_than_the_index(tmp_path, monkeypatch):
+    import hashlib
+
+    files = [tmp_path / f"o{i}.safetensors" for i in range(3)]
+    for i, f in enumerate(files):
+        f.write_bytes(bytes([i]) * 50)
+    index = io.write_file_index(files, tmp_path / "train_set.json")
+    later = max(max(f.stat().st_ctime_ns, f.stat().st_mtime_ns) for f in files) + 10**9
+    os.utime(index, ns=(later, later))  # written a second after the files: they cannot have changed since
+    hashed = []
+    real = hashlib.sha256
+    monkeypatch.setattr(hashlib, "sha256", lambda *a: hashed.append(1) or real(*a))
+    assert io.check_file_index(index) == 3 and hashed == []
+    assert io.check_file_index(index, hashes=True) == 3
+    os.utime(index, ns=(later - 2 * 10**9,) * 2)  # an index older than its files: every file is hashed
+    assert io.check_file_index(index) == 3 and len(hashed) == 3
 
 
 # -- 4: RGB-only views --------------------------------------------------------------------------------------
@@ -376,3 +399,18 @@ def test_stage_errors_are_one_line(capsys):
         assert cli.run_stage("train", run, None) == 2
         line = capsys.readouterr().err.strip()
         assert line.startswith("frng train: error: /r/") and "\n" not in line
+
+
+def test_file_hash_memo_follows_the_file(tmp_path):
+    """file_sha256 is memoised per file identity; a rewritten file (even fast, same size) is hashed again."""
+    from frng.hashing import file_sha256
+
+    f = tmp_path / "model.pt"
+    f.write_bytes(b"a" * 64)
+    first = file_sha256(f)
+    assert first == hashlib.sha256(b"a" * 64).hexdigest()
+    f.write_bytes(b"b" * 64)  # in place, same size, within the file system's timestamp tick
+    assert file_sha256(f) == hashlib.sha256(b"b" * 64).hexdigest()
+    old = time.time_ns() - 10 * 10**9  # an old, settled file: memoised, still right
+    os.utime(f, ns=(old, old))
+    assert file_sha256(f) == file_sha256(f) == hashlib.sha256(b"b" * 64).hexdigest()

@@ -659,7 +659,7 @@ class FRNG(nn.Module):
 
         H, W = maps.shape[1:3]
         _, d = camera.pixel_rays(c2w.float(), intr.float(), H, W)
-        return specular_base(maps, alpha, prefilter(env.to(maps.device)), d, self.shading_cfg.alpha_eps)
+        return specular_base(maps, alpha, prefilter(env).to(maps.device), d, self.shading_cfg.alpha_eps)
 
     def set_inference_shading(self, shading: ShadingConfig) -> FRNG:
         """Take the inference-time settings (``chunk_pixels``, ``chunk_pairs``, ``bf16_infer``, ``sampling``) from
