@@ -1,6 +1,6 @@
 """Where torch runs and how: the device (:func:`resolve_device`), bf16 where the hardware has it (:func:`bf16_ok`,
 :func:`autocast`), the intra-op thread count a training runs with (:func:`training_threads`), and timing on it
-(:func:`synchronize`, :func:`median_time`)."""
+(:func:`synchronize`, :func:`median_time`), and deterministic kernels on a CPU (:func:`deterministic_kernels`)."""
 
 from __future__ import annotations
 
@@ -64,6 +64,23 @@ def training_threads() -> int:
     if n:
         torch.set_num_threads(int(n))
     return torch.get_num_threads()
+
+
+def deterministic_kernels(device: torch.device | str | None = None) -> bool:
+    """Switch torch to its deterministic kernels when training on a CPU; returns whether they are on.
+
+    With two or more threads, ``index_put_(accumulate=True)`` -- the backward of every advanced-indexing read
+    ``x[idx]`` -- splits its sums between threads in whatever order they run, so two runs of the same config
+    differed in the 7th digit after a few steps and the default tier's backbone (1000 steps) ended with different
+    weights (measured; ``tests/test_determinism.py`` reproduces it in-process). Deterministic mode sorts the indices
+    first: same sums as ``index_add_``, no measurable cost at the default tier. Uninitialised memory is not filled
+    (torch's deterministic-mode default), which only costs time. Left alone on a GPU: gsplat's rasterizer
+    accumulates with atomics regardless, and some CUDA kernels have no deterministic version."""
+    if device is not None and torch.device(device).type != "cpu":
+        return torch.are_deterministic_algorithms_enabled()
+    torch.use_deterministic_algorithms(True, warn_only=True)
+    torch.utils.deterministic.fill_uninitialized_memory = False
+    return True
 
 
 def synchronize(device: torch.device) -> None:

@@ -42,6 +42,7 @@ from typing import Any
 import torch
 import torch.distributed as dist
 
+from frng.device import deterministic_kernels, training_threads
 from frng.variants import torchrun_command  # noqa: F401  (torch-free, used by the rule files)
 
 DEFAULT_PORT = 29500
@@ -189,9 +190,12 @@ def rank_seed(seed: int, info: DistInfo, per_rank: bool = True) -> int:
 
 
 def seed_everything(seed: int, info: DistInfo, per_rank: bool = True) -> int:
-    """Seed python, numpy and torch for this rank. Model init must use ``per_rank=False`` (or be broadcast:
+    """Seed python, numpy and torch for this rank, fix the thread count and, on a CPU, switch torch's deterministic
+    kernels on (:func:`frng.device.deterministic_kernels`). Model init must use ``per_rank=False`` (or be broadcast:
     DDP broadcasts rank 0's parameters when it wraps the model). Returns the seed used."""
     s = rank_seed(seed, info, per_rank)
+    training_threads()
+    deterministic_kernels(info.device)
     random.seed(s)
     try:
         import numpy as np

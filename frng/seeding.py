@@ -9,12 +9,15 @@ import random
 import numpy as np
 import torch
 
-from frng.device import training_threads
+from frng.device import deterministic_kernels, training_threads
 
 
-def seed_everything(seed: int) -> None:
-    """Python / numpy / torch seeds from ``seed``, and the thread count fixed (:func:`frng.device.training_threads`)."""
+def seed_everything(seed: int, device: torch.device | str | None = None) -> None:
+    """Python / numpy / torch seeds from ``seed``, the thread count fixed (:func:`frng.device.training_threads`) and,
+    training on a CPU (``device`` cpu or None), torch's deterministic kernels on
+    (:func:`frng.device.deterministic_kernels`)."""
     training_threads()
+    deterministic_kernels(device)
     random.seed(seed)
     np.random.seed(seed % (2**32))
     torch.manual_seed(seed)

@@ -202,7 +202,7 @@ def train(
     total = steps or tcfg.steps
     cfg = backbone_config(backbone, patch_size)
     device = resolve_device(device)
-    seed_everything(seed)
+    seed_everything(seed, device)
     model = bb.RelitLRMBackbone(cfg).to(device)
     opt = torch.optim.AdamW(model.parameters(), lr=tcfg.lr, betas=(0.9, 0.95), weight_decay=tcfg.weight_decay)
     fingerprint = checkpoint.fingerprint(

@@ -165,7 +165,7 @@ def train(
     total = steps or tcfg.steps
     cfg = idm_config(idm, patch_size, near, far)
     device = resolve_device(device)
-    seed_everything(seed + 1)
+    seed_everything(seed + 1, device)
     model = idm_mod.LearnedIDM(cfg).to(device)
     opt = torch.optim.AdamW(param_groups(model, tcfg), lr=tcfg.lr, weight_decay=tcfg.weight_decay)
     fingerprint = checkpoint.fingerprint(
