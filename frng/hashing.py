@@ -1,5 +1,7 @@
 """Digests: of a file's bytes (:func:`file_sha256`, what caches record of the models they were made with), of
-training data held in memory (:func:`data_digest`) and of a training fingerprint (:func:`config_digest`)."""
+training data held in memory (:func:`data_digest`) and of a training fingerprint (:func:`config_digest`).
+Torch-free (:mod:`frng.io` hashes with it in curation jobs): :func:`data_digest` recognises tensors only when torch
+is already imported, as it must be for one to exist."""
 
 from __future__ import annotations
 
@@ -8,10 +10,10 @@ import functools
 import hashlib
 import json
 import os
+import sys
 import time
 
 import numpy as np
-import torch
 
 
 def file_sha256(path: str | os.PathLike) -> str:
@@ -46,9 +48,10 @@ def data_digest(obj) -> str:
     their order), lists/tuples, strings and numbers, walked recursively. What the fingerprints record of the
     objects a run trains on, so that a resume never continues on other data under the same object ids."""
     h = hashlib.sha256()
+    torch = sys.modules.get("torch")
 
     def walk(x) -> None:
-        if isinstance(x, torch.Tensor):
+        if torch is not None and isinstance(x, torch.Tensor):
             t = x.detach().cpu().contiguous()
             h.update(f"T{t.dtype}{tuple(t.shape)}".encode())
             h.update(t.view(torch.uint8).numpy().tobytes() if t.numel() else b"")

@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from frng.hashing import file_sha256
+
 
 class ImageError(ValueError):
     """An image file is missing, unreadable or has unexpected content. The message names the file."""
@@ -363,17 +365,11 @@ def write_file_index(
     """Write ``out``: a JSON index ``{**fields, "files": [{"path", "bytes", "sha256"}, ...]}`` of files a later stage
     depends on as a whole (e.g. the training split's caches), atomically; a missing file raises FileNotFoundError
     naming it. ``log``: where to note what was indexed. :func:`check_file_index` verifies it."""
-    import hashlib
-
     entries = []
     for p in paths:
         if not os.path.exists(p):
             raise FileNotFoundError(f"{p}: cannot index a missing file")
-        h = hashlib.sha256()
-        with open(p, "rb") as f:
-            for chunk in iter(lambda: f.read(1 << 20), b""):
-                h.update(chunk)
-        entries.append({"path": str(p), "bytes": os.path.getsize(p), "sha256": h.hexdigest()})
+        entries.append({"path": str(p), "bytes": os.path.getsize(p), "sha256": file_sha256(p)})
     write_json(out, {**fields, "files": entries})
     if log is not None:
         Path(log).parent.mkdir(parents=True, exist_ok=True)
@@ -389,8 +385,6 @@ def check_file_index(index: str | os.PathLike, hashes: bool = True) -> int:
     A file whose inode last changed (``st_ctime``, which writes, renames and ``cp -p`` all set and nothing can set
     back; and ``st_mtime``) strictly before the index was written is not hashed again: it is the file that was
     indexed (re-hashing a training split's caches took ~8 s of every training job); its size is still checked."""
-    import hashlib
-
     entries = read_json(index).get("files", [])
     indexed_ns = os.stat(index).st_mtime_ns
     for e in entries:
@@ -404,13 +398,10 @@ def check_file_index(index: str | os.PathLike, hashes: bool = True) -> int:
                 f"since it was indexed); delete it and rerun the rule that makes it"
             )
         if hashes and e.get("sha256") and max(st.st_mtime_ns, st.st_ctime_ns) >= indexed_ns:
-            h = hashlib.sha256()
-            with open(p, "rb") as f:
-                for chunk in iter(lambda: f.read(1 << 20), b""):
-                    h.update(chunk)
-            if h.hexdigest() != e["sha256"]:
+            digest = file_sha256(p)
+            if digest != e["sha256"]:
                 raise CorruptFileError(
-                    f"{p}: sha256 {h.hexdigest()[:12]}, but {index} recorded "
+                    f"{p}: sha256 {digest[:12]}, but {index} recorded "
                     f"{e['sha256'][:12]} (corrupted or replaced since it was indexed); delete it "
                     f"and rerun the rule that makes it"
                 )
