@@ -252,6 +252,18 @@ def evaluate_pair(
     }
 
 
+def psnr_pair(
+    pred: np.ndarray,
+    gt: np.ndarray,
+    mask: np.ndarray | None = None,
+    protocol: str = DEFAULT_PROTOCOL,
+    background: Sequence[float] = DEFAULT_BACKGROUND,
+) -> float:
+    """The PSNR of :func:`evaluate_pair` alone (same protocol, mask and background), without SSIM and LPIPS."""
+    p, g, mask, _ = prepare(pred, gt, mask, protocol, background)
+    return psnr(p, g, mask if protocol == "aligned" else None)
+
+
 def evaluate_files(pred_path: str | os.PathLike, gt_path: str | os.PathLike, **kwargs) -> dict:
     """:func:`evaluate_pair` on two RGBA EXR files (both must have alpha); errors name the file
     (``frng.io.ImageError``)."""

@@ -116,3 +116,49 @@ def test_figures_asset_and_report(smoke_run):
     assert "vs_backbone" in html and "ablation.png" in html
     # self-contained: nothing loaded from the network when opened offline
     assert not re.findall(r'<(?:script|link|img)[^>]*(?:src|href)="https?://', html)
+
+
+def test_bench_heldout_scores_equal_the_pipeline(smoke_run, tmp_path):
+    """``frng bench heldout`` (cached tokens, no relight folders) gives the pipeline's scores of the full run, image
+    by image, and its light-sensitivity PSNRs equal the cross-light CSV's; a second model name gets a paired row."""
+    results, config = smoke_run
+    model = results / "models" / "full" / "model.pt"
+    out = tmp_path / "heldout.csv"
+    r = subprocess.run(
+        [
+            str(Path(sys.executable).parent / "frng"),
+            "bench",
+            "heldout",
+            "--config",
+            str(results / "config.yaml"),
+            "--model",
+            f"full={model}",
+            "--model",
+            f"again={model}",
+            "--out",
+            str(out),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert r.returncode == 0, _tail(r.stdout + r.stderr)
+    assert "again - full: psnr +0.0000 [+0.0000, +0.0000]" in r.stdout, r.stdout
+    rows = pd.read_csv(out)
+    mine = rows[(rows["model"] == "full") & (rows["decoder"] == "full")]
+    pipeline = pd.read_csv(results / "metrics" / "relight_per_image.csv")
+    m = mine.merge(pipeline[pipeline["run"] == "full"], on=["object", "light", "view"], suffixes=("", "_pipeline"))
+    assert len(m) == len(mine) == (pipeline["run"] == "full").sum() > 0
+    for metric in ("psnr", "ssim", "lpips"):
+        np.testing.assert_allclose(m[metric], m[f"{metric}_pipeline"], rtol=0, atol=1e-9, err_msg=metric)
+    base = rows[(rows["model"] == "full") & (rows["decoder"] == "base")]
+    p_base = pipeline[pipeline["run"] == "full-base"]
+    if len(p_base):
+        mb = base.merge(p_base, on=["object", "light", "view"], suffixes=("", "_pipeline"))
+        np.testing.assert_allclose(mb["psnr"], mb["psnr_pipeline"], rtol=0, atol=1e-9)
+    if config["render"]["target_lights"] > 1:
+        cross = pd.read_csv(results / "metrics" / "relight_cross_light.csv")
+        mc = mine.merge(cross[cross["run"] == "full"], on=["object", "light", "view"], suffixes=("", "_cross"))
+        assert len(mc) == len(mine)
+        np.testing.assert_allclose(mc["psnr_other_light"], mc["psnr_cross"], rtol=0, atol=1e-9)

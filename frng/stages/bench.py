@@ -17,6 +17,10 @@ BENCHES: dict[str, tuple[str, str]] = {
         "F-RNG vs backbone relighting/reconstruction time at each config's model sizes",
     ),
     "perceptual": ("frng.stages.bench_perceptual", "training perceptual loss (LPIPS-alex / -vgg) fwd+bwd cost"),
+    "heldout": (
+        "frng.stages.bench_heldout",
+        "held-out relighting quality of trained F-RNG models from the cached tokens (experiments; paired CIs)",
+    ),
 }
 
 

@@ -1,0 +1,206 @@
+"""``frng bench heldout``: how good trained F-RNG models are on the held-out split, in about a minute per model on
+two CPU cores -- the loop for experiments on the model (train a variant with ``frng train --out``, score it here
+beside the full model), without relighting folders, the 13-model ``relight`` rule or ``evaluate``.
+
+What it does per test object (``catalog.plan(config).split("test")``, or ``--objects``) and model:
+
+1. reads the object's CACHED backbone tokens and IDM priors (``{results}/backbone/cache``, ``{results}/idm/priors``,
+   what the pipeline's cache rules wrote for the test split; :func:`frng.model.train.load_objects`, the training
+   loader) instead of running the backbone and the IDM live as ``frng relight`` does (the test split's caches are
+   the same tensors: same DDIM seeds);
+2. reconstructs from ``--views`` input views, rasterizes the target views once and shades them under every target
+   light with the relighting seeds of ``frng relight`` (so a model's scores equal the pipeline's scores of its
+   ``full`` run, image by image: ``tests/test_smoke_workflow.py``), and the Lambertian base alone
+   (:func:`frng.relight.shade_base`, the ladder's "Lambertian base only" row) where the decoder has one;
+3. scores each image under the config's ``eval`` protocol (:func:`frng.metrics.evaluate_pair`), and the light
+   sensitivity: PSNR with the right light minus PSNR against the next test light's ground truth
+   (:func:`frng.stages.evaluate.other_light`, the ladder's s-rows).
+
+Prints, per model: PSNR / SSIM / LPIPS, the base's PSNR, the light sensitivity and the PSNR per material class;
+and every model after the first against the first: the paired difference with its 95% bootstrap interval over
+objects (:func:`frng.report.stats.paired`). ``--out`` writes the per-image rows (CSV).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from frng import config as frng_config
+from frng.variants import RIG_VIEWS
+
+
+def _model_arg(text: str) -> tuple[str, Path]:
+    name, sep, path = text.partition("=")
+    if not sep or not name or not path:
+        raise argparse.ArgumentTypeError(
+            f"--model takes NAME=PATH (e.g. full=results/models/full/model.pt), got {text!r}"
+        )
+    return name, Path(path)
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    frng_config.add_config_argument(parser)
+    parser.add_argument(
+        "--model",
+        type=_model_arg,
+        action="append",
+        metavar="NAME=PATH",
+        help="a trained F-RNG model.pt under a name; repeat to compare (the first is the reference). "
+        "Default: full={results}/models/full/model.pt",
+    )
+    parser.add_argument("--objects", nargs="+", metavar="OBJ", help="test objects (default: the config's test split)")
+    parser.add_argument(
+        "--views", type=int, default=RIG_VIEWS, help=f"input views (default {RIG_VIEWS}; cached counts)"
+    )
+    parser.add_argument("--out", help="write the per-image rows to this CSV")
+    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
+
+
+def score_object(
+    obj, models: dict, target_lights: list[str], view_names: list[str], seed: int, spp: int, protocol: str, background
+) -> list:
+    """Per-image rows of one :class:`frng.model.train.TrainObject` (test object) under each of ``models`` (name ->
+    loaded :class:`frng.model.frng.FRNG`): ``model``, ``decoder`` (``full`` / ``base``), ``light``, ``view``
+    (``view_names``: the target views in the order of the object's cameras), psnr/ssim/lpips and
+    ``psnr_other_light``."""
+    import torch
+
+    from frng import metrics as M
+    from frng.data import catalog
+    from frng.relight import shade_base
+    from frng.stages.evaluate import other_light
+
+    targets = {}
+    for light, env, c2w, intr, rgba in obj.targets:
+        targets.setdefault(light, (env, c2w, intr, rgba))
+    missing = [l for l in target_lights if l not in targets]
+    if missing:
+        raise ValueError(f"{obj.id}: no target images for light(s) {missing}")
+    _, c2w, intr, _ = targets[target_lights[0]]
+    if any(not torch.equal(targets[l][1], c2w) for l in target_lights):
+        raise ValueError(f"{obj.id}: the target lights' cameras differ")
+    if c2w.shape[0] != len(view_names):
+        raise ValueError(f"{obj.id}: {c2w.shape[0]} target cameras but {len(view_names)} target view names")
+    H, W = obj.images.shape[1:3]
+    gts = {l: targets[l][3].numpy() for l in target_lights}
+    rows = []
+    for name, model in models.items():
+        priors = obj.priors if model.cfg.uses_priors else None
+        with torch.no_grad():
+            rec = model.reconstruct(obj.views, 0, priors, obj.images, input_env=obj.env_in)
+            raster = model.rasterize(rec, c2w, intr, H, W)
+            renders = {}
+            for light in target_lights:
+                env = targets[light][0]
+                g = torch.Generator().manual_seed(catalog.derive_seed(seed, "relight-frng", obj.id, light))
+                renders["full", light] = model.shade(raster, env, spp, generator=g).float().numpy()
+                if model.cfg.head == "neural" and model.decoder.cosine:
+                    renders["base", light] = shade_base(model, raster, env).float().numpy()
+        for (decoder, light), pred in renders.items():
+            wrong = other_light(target_lights, light)
+            for k in range(pred.shape[0]):
+                m = M.evaluate_pair(pred[k], gts[light][k], protocol=protocol, background=background)
+                cross = M.psnr_pair(pred[k], gts[wrong][k], protocol=protocol, background=background)
+                rows.append(
+                    {"object": obj.id, "model": name, "decoder": decoder, "light": light, "view": view_names[k]}
+                    | {key: m[key] for key in ("psnr", "ssim", "lpips")}
+                    | {"psnr_other_light": cross if wrong != light else float("nan")}
+                )
+    return rows
+
+
+def summary(df, names: list[str]) -> str:
+    """The printed report of the per-image rows ``df`` (with a ``class`` column) for ``names`` (first = reference)."""
+    import pandas as pd
+
+    from frng.report.stats import paired
+
+    full = df[df["decoder"] == "full"]
+    lines = []
+    table = []
+    for name in names:
+        d = full[full["model"] == name]
+        base = df[(df["model"] == name) & (df["decoder"] == "base")]
+        row = {
+            "model": name,
+            "images": len(d),
+            "psnr": d["psnr"].mean(),
+            "ssim": d["ssim"].mean(),
+            "lpips": d["lpips"].mean(),
+            "base_psnr": base["psnr"].mean() if len(base) else float("nan"),
+            "light_sensitivity": (d["psnr"] - d["psnr_other_light"]).mean(),
+        }
+        row |= {f"psnr[{c}]": v for c, v in d.groupby("class")["psnr"].mean().items()}
+        table.append(row)
+    lines.append(pd.DataFrame(table).set_index("model").to_string(float_format=lambda x: f"{x:.4f}"))
+    ref = full[full["model"] == names[0]]
+    for name in names[1:]:
+        other = full[full["model"] == name]
+        keys = ("object", "light", "view")
+        parts = []
+        for metric in ("psnr", "ssim", "lpips"):
+            p = paired(other, ref, metric, keys=keys)
+            parts.append(f"{metric} {p.diff:+.4f} [{p.lo:+.4f}, {p.hi:+.4f}]")
+        p = paired(other, ref, "psnr", keys=keys)
+        lines.append(
+            f"{name} - {names[0]}: " + ", ".join(parts) + f" (95% bootstrap over {p.objects} objects; PSNR better on "
+            f"{p.better} of {p.objects})"
+        )
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    import pandas as pd
+    import torch
+    from tqdm import tqdm
+
+    from frng.data import catalog
+    from frng.io import read_json
+    from frng.layout import Layout, TrainingFolder
+    from frng.model.frng import FRNG
+    from frng.model.train import load_objects
+    from frng.typedconfig import typed
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    config = typed(frng_config.load(args.config))
+    L = Layout(config.results)
+    models = dict(args.model or [("full", Path(TrainingFolder(Path(L.models_dir()) / "full").model()))])
+    for name, path in models.items():
+        if not path.exists():
+            print(f"frng bench heldout: error: model {name}: {path} does not exist", file=sys.stderr)
+            return 2
+    plan = catalog.plan(config)
+    objects = args.objects or plan.split("test")
+    unknown = [o for o in objects if o not in plan.object_ids]
+    if unknown:
+        print(f"frng bench heldout: error: not objects of this config: {unknown}", file=sys.stderr)
+        return 2
+    dev = torch.device("cpu")
+    loaded = {n: FRNG.load(p, dev).set_inference_shading(config.shading) for n, p in models.items()}
+    uses_priors = any(m.cfg.uses_priors for m in loaded.values())
+    spp = int(config.shading.spp_infer)
+    print(
+        f"# frng bench heldout: {len(objects)} objects, {args.views} views, protocol {config.eval.protocol}, "
+        f"threads {torch.get_num_threads()}",
+        flush=True,
+    )
+    rows = []
+    for oid in tqdm(objects, desc="heldout", file=sys.stderr):
+        (obj,) = load_objects(config.results, config.idm.kind, [oid], L.backbone_model(), uses_priors, args.views)
+        meta = read_json(L.object_meta(oid))
+        lights = list(meta["target_lights"])
+        views = [c["name"] for c in meta["views"]["targets"]]
+        proto, bg = config.eval.protocol, config.eval.background
+        for r in score_object(obj, loaded, lights, views, config.seed, spp, proto, bg):
+            rows.append(r | {"class": meta["material_class"]})
+    df = pd.DataFrame(rows)
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        df.to_csv(args.out, index=False)
+    print(summary(df, list(models)))
+    return 0 if np.isfinite(df["psnr"]).all() else 1
