@@ -39,6 +39,23 @@ ENVMAP_PLAN_KEYS: tuple[str, ...] = ("seed", "envmaps")
 # architecture or training
 _IDM_NOT_TRAINED = ("!idm.kind", "!idm.diffusion_renderer_dir", "!idm.normal_space", "!idm.depth_invert")
 
+# frng/relight.py: the runs (frng.*, idm.kind, render.extra_input_views, train.seeds), resolution check, split check,
+# build_idm, shading.spp_infer + inference shading, seeds, device
+RELIGHT_KEYS: tuple[str, ...] = (
+    *PLAN_KEYS,
+    "device",
+    "render.resolution",
+    "render.extra_input_views",
+    "idm",
+    "!idm.train",
+    "backbone.near",
+    "backbone.far",
+    "shading",
+    "frng",
+    "train.seeds",
+    "train_seed",
+)
+
 RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     # frng/data/envmaps.py: the env-map plan, envmaps.width/normalize, Blender threads of the sky bakes
     "envmaps": (*ENVMAP_PLAN_KEYS, "render.threads"),
@@ -99,22 +116,9 @@ RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     ),
     # a copy of the full model: which K-sweep entry is the full model
     "model_alias": ("frng.top_k_percent",),
-    # frng/relight.py: the runs (frng.*, idm.kind, render.extra_input_views, train.seeds), resolution check, split check,
-    # build_idm, shading.spp_infer + inference shading, seeds, device
-    "relight": (
-        *PLAN_KEYS,
-        "device",
-        "render.resolution",
-        "render.extra_input_views",
-        "idm",
-        "!idm.train",
-        "backbone.near",
-        "backbone.far",
-        "shading",
-        "frng",
-        "train.seeds",
-        "train_seed",
-    ),
+    "relight": RELIGHT_KEYS,
+    # the other training seeds' runs (rules/relight.smk): what `relight` reads
+    "relight_seed": RELIGHT_KEYS,
     # frng/stages/evaluate.py: eval.protocol/background and the planned runs (frng/variants.py: the variants, the
     # training seeds, whether the Lambertian-base run exists)
     "evaluate": (

@@ -21,6 +21,11 @@ What one job does (one test object, all runs, so the paper-scale DAG stays at on
 Everything is first written to a staging folder ``{results}/relight/.staging-{obj}-*`` and each run folder is
 renamed into place only after the whole object succeeded.
 
+Groups (``group``, :func:`frng.variants.run_groups`): the workflow relights an object in one job per group, the
+``main`` group (the models' seed runs and the backbone, timed side by side: it writes the timing) and one per
+other training seed (its ``{variant}@s{seed}`` runs only, no timing), so that relighting of the first seed's
+models overlaps the other seeds' trainings; ``all`` (the CLI's default) does every run in one job.
+
 Runs
 ----
 ``full`` (V = 6, K = ``frng.top_k_percent``), the ablations of ``frng.variants`` (``no-fine``, ``no-idm``,
@@ -60,7 +65,7 @@ from frng.priors.backbone_train import BackboneSection
 from frng.priors.idm_train import IDMSection
 from frng.render.shading import ShadingConfig
 from frng.sections import TypedConfig
-from frng.variants import BACKBONE, RIG_VIEWS, Run, RunPlan, model_variants, runs  # noqa: F401
+from frng.variants import ALL_GROUPS, BACKBONE, MAIN_GROUP, RIG_VIEWS, Run, RunPlan, model_variants, runs  # noqa: F401
 
 
 class RelightError(ValueError):
@@ -215,11 +220,20 @@ def _write_images(folder: Path, light: str, names: list[str], rgba: torch.Tensor
 
 
 def relight_object(
-    job: RelightJob, oid: str, models: dict[str, Path], backbone_path: Path, out_root: Path, device: torch.device
+    job: RelightJob,
+    oid: str,
+    models: dict[str, Path],
+    backbone_path: Path,
+    out_root: Path,
+    device: torch.device,
+    group: str = ALL_GROUPS,
 ) -> dict:
-    """Do the whole job for one object (see the module docstring). ``models``: variant -> model.pt.
+    """Do the whole job for one object (see the module docstring): the runs of relighting group ``group``.
+    ``models``: variant -> model.pt.
 
-    Writes into ``out_root`` (a staging folder): ``{run}/...`` folders and ``timing.json``. Returns the timing."""
+    Writes into ``out_root`` (a staging folder): ``{run}/...`` folders and, for a group holding the full run and the
+    backbone, ``timing.json``. Returns the timing (without ``speedup`` and the methods' entries when the group has
+    neither)."""
     from frng.data import catalog
     from frng.model.frng import FRNG
     from frng.priors import build_idm, load_backbone
@@ -227,7 +241,7 @@ def relight_object(
 
     idm = build_idm(job.idm, job.backbone, job.results, device)
     meta = io.read_json(Layout(job.results).object_meta(oid))
-    the_runs = job.runs.runs(len(meta["views"]["inputs"]))
+    the_runs = job.runs.runs(len(meta["views"]["inputs"]), group)
     if isinstance(meta.get("benchmark"), dict):  # imported benchmarks ship no G-buffer: no oracle-prior run
         the_runs = [r for r in the_runs if r.priors != "oracle"]
     need_gbuffer = idm.kind == "oracle" or any(r.priors == "oracle" for r in the_runs)
@@ -349,8 +363,9 @@ def relight_object(
             }
             if run.method != BACKBONE:
                 timing[run.method] |= {"raster_ms_per_view": raster_ms, "shade_ms_per_image": float(np.mean(shade_ms))}
-    timing["speedup"] = timing[BACKBONE]["relight_ms_per_image"] / timing["F-RNG"]["relight_ms_per_image"]
-    io.write_json(staged_timing(out_root), timing)
+    if BACKBONE in timing and "F-RNG" in timing:
+        timing["speedup"] = timing[BACKBONE]["relight_ms_per_image"] / timing["F-RNG"]["relight_ms_per_image"]
+        io.write_json(staged_timing(out_root), timing)
     return timing
 
 
@@ -402,7 +417,7 @@ def staged_timing(staging: Path) -> Path:
 
 
 def publish(staging: Path, results: Path, oid: str) -> None:
-    """Move each staged run folder to ``{results}/relight/{run}/{oid}`` and the timing to
+    """Move each staged run folder to ``{results}/relight/{run}/{oid}`` and the timing, if staged, to
     ``{results}/relight/timing/{oid}.json`` (an existing, e.g. snakemake-created empty, folder is replaced)."""
     L = Layout(results)
     for folder in sorted(p for p in staging.iterdir() if p.is_dir()):
@@ -411,18 +426,27 @@ def publish(staging: Path, results: Path, oid: str) -> None:
         if dest.exists():
             shutil.rmtree(dest)
         os.replace(folder, dest)
+    if not staged_timing(staging).exists():
+        return
     timing = Path(L.relight_timing(oid))
     timing.parent.mkdir(parents=True, exist_ok=True)
     os.replace(staged_timing(staging), timing)
 
 
-def relight(job: RelightJob, oid: str, models_dir: Path | None = None, device: str | None = None) -> dict:
-    """Validate, relight into a staging folder, publish. Returns the timing dict."""
+def relight(
+    job: RelightJob, oid: str, models_dir: Path | None = None, device: str | None = None, group: str = ALL_GROUPS
+) -> dict:
+    """Validate, relight the runs of ``group`` (:func:`frng.variants.run_groups`, default every run) into a staging
+    folder, publish. Returns the timing dict (see :func:`relight_object`)."""
     results = Path(job.results)
     L = Layout(results)
     validate_inputs(job, oid)
     models_dir = Path(models_dir or L.models_dir())
-    models = {v: Path(TrainingFolder(models_dir / v).model()) for v in job.runs.model_variants()}
+    try:
+        variants = job.runs.model_variants(group)
+    except ValueError as e:
+        raise RelightError(str(e)) from e
+    models = {v: Path(TrainingFolder(models_dir / v).model()) for v in variants}
     missing = [str(p) for p in models.values() if not p.exists()]
     if missing:
         raise RelightError(f"trained F-RNG model(s) missing: {missing}; run the train rules first")
@@ -431,9 +455,9 @@ def relight(job: RelightJob, oid: str, models_dir: Path | None = None, device: s
         raise RelightError(f"{backbone}: backbone model missing")
     dev = resolve_device(device or job.device)
     Path(L.relight_dir()).mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".staging-{oid}-", dir=L.relight_dir()))
+    staging = Path(tempfile.mkdtemp(prefix=f".staging-{oid}-{group}-", dir=L.relight_dir()))
     try:
-        timing = relight_object(job, oid, models, backbone, staging, dev)
+        timing = relight_object(job, oid, models, backbone, staging, dev, group)
         publish(staging, results, oid)
     finally:
         shutil.rmtree(staging, ignore_errors=True)

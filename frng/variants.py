@@ -17,6 +17,11 @@ seeds), the K sweep, the #views sweep ``full-v{V}`` (the full model fed V input 
 model fed the test object's rendered G-buffers instead of the IDM's priors: how much a perfect IDM would add),
 ``full-base`` (the full model's closed-form Lambertian base alone, the decoder's residual, attenuation and specular
 base dropped; only with ``shading.decoder_cosine``) and the ``backbone`` baseline.
+
+Relighting groups (:func:`run_groups`, one ``relight`` job per group and test object): ``main`` holds every run of
+the models' seed and the backbone (and the timing); each other training seed ``S`` is its own group ``"S"`` (its
+``{variant}@s{S}`` runs), so that those runs relight as soon as that seed's models exist instead of waiting for
+every model; ``all`` selects every run (``frng relight`` without ``--seeds``).
 """
 
 from __future__ import annotations
@@ -60,6 +65,8 @@ BACKBONE = "backbone"
 ORACLE_RUN = "full-oracle"  # the full model fed the G-buffers instead of the IDM's priors (quality ladder row f)
 BASE_RUN = "full-base"  # the full model's Lambertian base alone (decoder residual, attenuation, specular base dropped)
 SEED_SEP = "@s"  # {variant}@s{seed}: a variant trained with another training seed
+MAIN_GROUP = "main"  # the relighting group of the models' seed runs and the backbone (timing included)
+ALL_GROUPS = "all"  # every run of a test object
 
 
 def seed_variant(name: str, seed: int) -> str:
@@ -184,6 +191,11 @@ class Run:
     seed: int | None = None  # training seed of the model (None: the models' seed, train_seed else seed)
     decoder: str = "full"  # "full", or "base": the cosine decoder's Lambertian base alone (residual dropped)
 
+    @property
+    def group(self) -> str:
+        """Its relighting group: :data:`MAIN_GROUP` for the models' seed and the backbone, else ``str(seed)``."""
+        return MAIN_GROUP if self.seed is None else str(self.seed)
+
 
 @dataclass(frozen=True)
 class RunPlan:
@@ -216,8 +228,9 @@ class RunPlan:
             extra_input_views=int(c.get("render", {}).get("extra_input_views", 0)),
         )
 
-    def runs(self, n_input_views: int | None = None) -> list[Run]:
-        """All runs of one test object (``n_input_views`` None: the views the config gives every test object).
+    def runs(self, n_input_views: int | None = None, group: str = ALL_GROUPS) -> list[Run]:
+        """All runs of one test object (``n_input_views`` None: the views the config gives every test object), or
+        those of relighting group ``group`` (:meth:`groups`; :data:`ALL_GROUPS`: every run).
 
         ``frng.variants`` at 6 views, the K sweep ``frng.k_sweep`` (the entry equal to ``frng.top_k_percent`` is the
         full run itself), the #views sweep ``full-v{V}``, the oracle-prior run, the other training seeds of ``full``
@@ -241,11 +254,19 @@ class RunPlan:
         if self.decoder_cosine:
             out.append(Run(BASE_RUN, "F-RNG", "full", RIG_VIEWS, k_full, decoder="base"))
         out.append(Run(BACKBONE, "backbone", BACKBONE, RIG_VIEWS, float("nan")))
-        return out
+        if group == ALL_GROUPS:
+            return out
+        if group not in self.groups():
+            raise ValueError(f"unknown relighting group {group!r}; this config has {', '.join(self.groups())}")
+        return [r for r in out if r.group == group]
 
-    def model_variants(self) -> list[str]:
-        """The trained variants (``{results}/models/{variant}/model.pt``) the runs read."""
-        return list(dict.fromkeys(r.variant for r in self.runs() if r.method != BACKBONE))
+    def groups(self) -> list[str]:
+        """The relighting groups: :data:`MAIN_GROUP`, then one per other training seed (``"1"``, ...)."""
+        return [MAIN_GROUP, *(str(s) for s in self.extra_seeds)]
+
+    def model_variants(self, group: str = ALL_GROUPS) -> list[str]:
+        """The trained variants (``{results}/models/{variant}/model.pt``) the runs (of ``group``) read."""
+        return list(dict.fromkeys(r.variant for r in self.runs(group=group) if r.method != BACKBONE))
 
 
 def runs(config: TypedConfig | Mapping, n_input_views: int | None = None) -> list[Run]:
@@ -253,9 +274,15 @@ def runs(config: TypedConfig | Mapping, n_input_views: int | None = None) -> lis
     return RunPlan.of(config).runs(n_input_views)
 
 
-def model_variants(config: TypedConfig | Mapping) -> list[str]:
-    """The trained variants (``{results}/models/{variant}/model.pt``) the runs read (:meth:`RunPlan.model_variants`)."""
-    return RunPlan.of(config).model_variants()
+def model_variants(config: TypedConfig | Mapping, group: str = ALL_GROUPS) -> list[str]:
+    """The trained variants (``{results}/models/{variant}/model.pt``) the runs (of relighting group ``group``) read
+    (:meth:`RunPlan.model_variants`)."""
+    return RunPlan.of(config).model_variants(group)
+
+
+def run_groups(config: TypedConfig | Mapping) -> list[str]:
+    """The relighting groups of the config (:meth:`RunPlan.groups`)."""
+    return RunPlan.of(config).groups()
 
 
 def torchrun_command(nproc: int, module: str = "frng", python: str | None = None) -> str:

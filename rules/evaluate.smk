@@ -20,6 +20,7 @@ rule evaluate:
         # one file per test object stands for all its runs (relight publishes every run before its timing file);
         # listing every run.json would add runs x objects inputs to the paper DAG
         timing=expand(rules.relight.output.timing, obj=TEST_IDS),
+        seeded=expand(rules.relight_seed.output.runs, obj=TEST_IDS, seed=RELIGHT_SEEDS),
     output:
         per_image=L.metrics("relight_per_image"),
         summary=L.metrics("relight_summary"),

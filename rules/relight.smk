@@ -1,16 +1,22 @@
-# Relighting of the held-out objects (frng/relight.py): ONE job per test object runs every F-RNG run (ablation
-# variants, K sweep, #views sweep of the full model) and the backbone baseline, so that both are timed side by side
-# in the same job and the paper-scale DAG grows by the number of test objects only. One thread per job: on the
-# default tier's 2 cores two objects relight side by side (one object: 34 s at one thread, 28 s at two, on the
-# project's machine), so the timings are taken beside another relighting job, both methods in the same job.
-from frng.variants import model_variants, runs
+# Relighting of the held-out objects (frng/relight.py): ONE job per test object runs every F-RNG run of the models'
+# seed (ablation variants, K sweep, #views sweep of the full model) and the backbone baseline, so that both are timed
+# side by side in the same job and the paper-scale DAG grows by the number of test objects only; each other training
+# seed (train.seeds) relights in its own job per object (rule relight_seed), so the first seed's runs relight while
+# the other seeds' models train. One thread per job: on the default tier's 2 cores two objects relight side by side
+# (one object: 34 s at one thread, 28 s at two, on the project's machine), so the timings are taken beside another
+# relighting job, both methods in the same job.
+from frng.variants import MAIN_GROUP, SEED_SEP, RunPlan, model_variants, seed_variant
 
-RELIGHT_RUNS = [r.name for r in runs(config)]
+_RUN_PLAN = RunPlan.of(config)
+RELIGHT_RUNS = [r.name for r in _RUN_PLAN.runs(group=MAIN_GROUP)]
+# other training seeds: one relight_seed job per (object, seed); its runs are {variant}@s{seed}
+RELIGHT_SEEDS = _RUN_PLAN.groups()[1:]
+SEEDED_BASES = list(dict.fromkeys(["full", *config["frng"]["variants"]]))
 
 
 rule relight:
     input:
-        models=expand(L.model(), variant=model_variants(config)),
+        models=expand(L.model(), variant=model_variants(config, MAIN_GROUP)),
         backbone=rules.backbone_train.output.model,
         idm=IDM_MODEL,
         meta=rules.curate.output.meta,
@@ -31,8 +37,39 @@ rule relight:
     params:
         **stage_params("relight"),
         models=lambda wildcards, input: os.path.dirname(os.path.dirname(input.models[0])),
+        group=MAIN_GROUP,
     message:
         "Relighting {wildcards.obj}: F-RNG runs and the backbone under every target light"
     shell:
         "exec {params.py:q} -m frng relight --config {params.config:q} --object {wildcards.obj:q} --models {params.models:q} "
-        "> {log:q} 2>&1"
+        "--group {params.group:q} > {log:q} 2>&1"
+
+
+rule relight_seed:
+    input:
+        models=lambda wildcards: [L.model(seed_variant(v, int(wildcards.seed))) for v in SEEDED_BASES],
+        backbone=rules.backbone_train.output.model,
+        idm=IDM_MODEL,
+        meta=rules.curate.output.meta,
+    output:
+        runs=[L.relight_record(f"{v}{SEED_SEP}{{seed}}", "{obj}") for v in SEEDED_BASES],
+    log:
+        L.log("relight", f"{{obj}}{SEED_SEP}{{seed}}"),
+    wildcard_constraints:
+        obj=r"[a-z0-9_]+",
+        seed="|".join(RELIGHT_SEEDS) if RELIGHT_SEEDS else "(?!)",
+    conda:
+        "../envs/torch.yaml"
+    threads: 1
+    resources:
+        mem_mb=6000,
+        runtime=60,
+        gpu=TORCH_GPUS,
+    params:
+        **stage_params("relight_seed"),
+        models=lambda wildcards, input: os.path.dirname(os.path.dirname(input.models[0])),
+    message:
+        "Relighting {wildcards.obj}: the F-RNG runs of training seed {wildcards.seed}"
+    shell:
+        "exec {params.py:q} -m frng relight --config {params.config:q} --object {wildcards.obj:q} --models {params.models:q} "
+        "--group {wildcards.seed:q} > {log:q} 2>&1"

@@ -4,7 +4,7 @@
 # into its own folder instead of training it twice.
 # Other training seeds (train.seeds) are variants too: `full@s1`, `no-fine@s1`, ... (frng/variants.py), each its own
 # `train` job with train_seed = 1 (the stage reads the suffix); the K sweep is not repeated per seed.
-from frng.variants import all_variants, canonical_variant, reads_priors, torchrun_command, trained_variants
+from frng.variants import all_variants, canonical_variant, reads_priors, split_seed, torchrun_command, trained_variants
 
 FRNG_TRAINED = trained_variants(config)
 FRNG_ALIASES = [v for v in all_variants(config) if canonical_variant(config, v) != v]
@@ -64,6 +64,10 @@ rule train:
         L.model_file("{variant}", "train.log"),
     wildcard_constraints:
         variant="|".join(re.escape(v) for v in FRNG_TRAINED),
+    # the models' seed first (2), then the other seeds (1), both before the relighting jobs (0): the first seed's
+    # relighting (rule relight) then fills the core the other seeds' last training leaves idle (13 trainings on 2
+    # cores at the default tier: the last one ran alone for ~6 min while relighting waited for every model)
+    priority: lambda wildcards: 1 if split_seed(wildcards.variant)[1] is not None else 2
     conda:
         "../envs/torch.yaml"
     # one thread: on a 2-core machine two trainings side by side at one thread each finish 8 variants ~20% sooner

@@ -150,15 +150,73 @@ def test_bench_heldout_scores_equal_the_pipeline(smoke_run, tmp_path):
     pipeline = pd.read_csv(results / "metrics" / "relight_per_image.csv")
     m = mine.merge(pipeline[pipeline["run"] == "full"], on=["object", "light", "view"], suffixes=("", "_pipeline"))
     assert len(m) == len(mine) == (pipeline["run"] == "full").sum() > 0
+    # equal up to float rounding: the bench and the relight jobs run in other processes (thread counts), which moves
+    # a PSNR in the 7th digit (2e-7 dB measured)
     for metric in ("psnr", "ssim", "lpips"):
-        np.testing.assert_allclose(m[metric], m[f"{metric}_pipeline"], rtol=0, atol=1e-9, err_msg=metric)
+        np.testing.assert_allclose(m[metric], m[f"{metric}_pipeline"], rtol=0, atol=1e-5, err_msg=metric)
     base = rows[(rows["model"] == "full") & (rows["decoder"] == "base")]
     p_base = pipeline[pipeline["run"] == "full-base"]
     if len(p_base):
         mb = base.merge(p_base, on=["object", "light", "view"], suffixes=("", "_pipeline"))
-        np.testing.assert_allclose(mb["psnr"], mb["psnr_pipeline"], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(mb["psnr"], mb["psnr_pipeline"], rtol=0, atol=1e-5)
     if config["render"]["target_lights"] > 1:
         cross = pd.read_csv(results / "metrics" / "relight_cross_light.csv")
         mc = mine.merge(cross[cross["run"] == "full"], on=["object", "light", "view"], suffixes=("", "_cross"))
         assert len(mc) == len(mine)
-        np.testing.assert_allclose(mc["psnr_other_light"], mc["psnr_cross"], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(mc["psnr_other_light"], mc["psnr_cross"], rtol=0, atol=1e-5)
+
+
+def test_relight_groups_split_the_runs_of_training_seeds(smoke_run, tmp_path):
+    """The workflow relights an object in one job per group (rules relight / relight_seed): ``--group main`` writes
+    the models' seed runs, the backbone and the timing but no ``@s1`` run; ``--group 1`` writes exactly the
+    ``{variant}@s1`` runs and no timing; together they are every run. With seed 1's models copied from seed 0's, its
+    relit images equal seed 0's bit for bit (same light-sample seeds), so a group job relights exactly as the
+    all-runs job does."""
+    import yaml
+
+    from frng import io
+    from frng.data import catalog
+    from frng.variants import run_groups, runs, seed_variant
+
+    results, config = smoke_run
+    res = tmp_path / "results"
+    res.mkdir()
+    for name in ("objects", "envmaps", "backbone", "idm"):
+        if (results / name).exists():
+            (res / name).symlink_to(results / name)
+    bases = list(dict.fromkeys(["full", *config["frng"]["variants"]]))
+    (res / "models").mkdir()
+    for v in (results / "models").iterdir():
+        (res / "models" / v.name).symlink_to(v)
+    for v in bases:
+        (res / "models" / seed_variant(v, 1)).symlink_to(results / "models" / v)
+    cfg = yaml.safe_load((results / "config.yaml").read_text())
+    cfg["results"], cfg["train"]["seeds"] = str(res), [0, 1]
+    path = tmp_path / "seeds.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    assert run_groups(cfg) == ["main", "1"]
+    oid = catalog.plan(config).split("test")[0]
+
+    def relight(group):
+        r = subprocess.run(
+            [sys.executable, "-m", "frng", "relight", "--config", str(path), "--object", oid, "--group", group],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
+        assert r.returncode == 0, _tail(r.stdout + r.stderr)
+
+    relight("1")
+    written = {p.name for p in (res / "relight").iterdir() if (p / oid / "run.json").exists()}
+    assert written == {seed_variant(v, 1) for v in bases}
+    assert not (res / "relight" / "timing").exists()
+    relight("main")
+    written = {p.name for p in (res / "relight").iterdir() if (p / oid / "run.json").exists()}
+    assert written == {r.name for r in runs(cfg)}
+    assert (res / "relight" / "timing" / f"{oid}.json").exists()
+    meta = io.read_json(res / "objects" / oid / "meta.json")
+    light, view = meta["target_lights"][0], meta["views"]["targets"][0]["name"]
+    a = io.read_rgba(res / "relight" / "full" / oid / light / f"{view}.exr")
+    b = io.read_rgba(res / "relight" / seed_variant("full", 1) / oid / light / f"{view}.exr")
+    np.testing.assert_array_equal(a, b)

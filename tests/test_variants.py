@@ -77,6 +77,24 @@ def test_training_seeds_add_seeded_variants_and_runs():
     assert V.seeded_variants(_cfg(seeds=[0])) == []
 
 
+def test_relighting_groups_partition_the_runs():
+    """One relighting job per group (rules/relight.smk): ``main`` (the models' seed and the backbone) and one per
+    other training seed; the groups partition the runs, each reads only its own models."""
+    plan = V.RunPlan.of(_cfg(seeds=[0, 1, 3]))
+    assert plan.groups() == [V.MAIN_GROUP, "1", "3"]
+    every = [r.name for r in plan.runs()]
+    grouped = [r.name for g in plan.groups() for r in plan.runs(group=g)]
+    assert sorted(grouped) == sorted(every) and len(set(grouped)) == len(grouped)
+    main = plan.runs(group=V.MAIN_GROUP)
+    assert {"full", V.BACKBONE} <= {r.name for r in main} and all(r.seed is None for r in main)
+    assert {r.name for r in plan.runs(group="3")} == {V.seed_variant(v, 3) for v in ["full", *plan.variants]}
+    assert plan.model_variants("1") == [V.seed_variant(v, 1) for v in dict.fromkeys(["full", *plan.variants])]
+    assert not any("@" in v for v in plan.model_variants(V.MAIN_GROUP))
+    with pytest.raises(ValueError, match="relighting group '2'"):
+        plan.runs(group="2")
+    assert V.RunPlan.of(_cfg(seeds=[0])).groups() == [V.MAIN_GROUP]
+
+
 def test_lambertian_base_run_needs_the_cosine_decoder():
     config = _cfg()
     base = [r for r in V.runs(config) if r.name == V.BASE_RUN]

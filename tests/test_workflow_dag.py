@@ -30,7 +30,7 @@ PLAN_LIMIT_S = 20
 
 
 from frng.batches import DEFAULT_BATCH_OBJECTS, batches, rule_family  # noqa: E402
-from frng.variants import all_variants, trained_variants  # noqa: E402
+from frng.variants import all_variants, extra_seeds, trained_variants  # noqa: E402
 
 
 def n_objects(c: dict) -> int:
@@ -69,6 +69,8 @@ EXPECTED = {
     "train": lambda c: len(trained_variants(c)),  # one job per variant; k2 (= full's K) is not retrained
     "model_alias": lambda c: len(all_variants(c)) - len(trained_variants(c)),  # k2: a copy of full
     "relight": n_test_objects,  # one job per test object: every F-RNG run + the backbone, timed side by side
+    # one job per (test object, other training seed): that seed's {variant}@s{seed} runs (rules/relight.smk)
+    "relight_seed": lambda c: n_test_objects(c) * len(extra_seeds(c)),
     "evaluate": lambda c: 1,
     "tables": lambda c: 1,
     "figures": lambda c: 1,

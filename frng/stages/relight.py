@@ -1,5 +1,7 @@
-"""Stage ``frng relight --object OBJ`` (rule ``relight``, one job per test object): relight one held-out object with
-every F-RNG run and with the backbone, timed side by side; prints the timing.
+"""Stage ``frng relight --object OBJ [--group G]`` (rules ``relight`` and ``relight_seed``, one job per test object
+and relighting group): relight one held-out object with every F-RNG run and with the backbone, timed side by side,
+or with the runs of one group only (``main``: the models' seed and the backbone; a training seed: its
+``{variant}@s{seed}`` runs); prints the timing.
 
 What one job does, the runs, the outputs and the timing file: :mod:`frng.relight`.
 """
@@ -10,7 +12,7 @@ import argparse
 import json
 
 from frng import config as frng_config
-from frng.relight import BACKBONE, RelightError, RelightJob, relight
+from frng.relight import ALL_GROUPS, BACKBONE, RelightError, RelightJob, relight
 from frng.typedconfig import typed
 
 
@@ -19,15 +21,26 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--object", required=True, help="test object id")
     parser.add_argument("--models", help="folder of trained variants (default {results}/models)")
     parser.add_argument("--device", help="override the config's device")
+    parser.add_argument(
+        "--group",
+        default=ALL_GROUPS,
+        help="relight only the runs of this group: 'main' (the models' seed runs and the backbone, writes the timing) "
+        "or a training seed of train.seeds other than the models' (its {variant}@s{seed} runs); default 'all'",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     config = typed(frng_config.load(args.config))
     try:
-        timing = relight(RelightJob.of(config), args.object, args.models, args.device)
+        timing = relight(RelightJob.of(config), args.object, args.models, args.device, args.group)
     except RelightError as e:
         print(f"frng relight: error: {e}")
         return 2
+    if "speedup" not in timing:
+        print(
+            f"relight {args.object}: group {args.group} done (no timing: the full run and the backbone are in 'main')"
+        )
+        return 0
     f, b = timing["F-RNG"], timing[BACKBONE]
     print(
         f"relight {args.object}: F-RNG {f['relight_ms_per_image']:.1f} ms/image, backbone "
