@@ -39,10 +39,9 @@ ENVMAP_PLAN_KEYS: tuple[str, ...] = ("seed", "envmaps")
 # architecture or training
 _IDM_NOT_TRAINED = ("!idm.kind", "!idm.diffusion_renderer_dir", "!idm.normal_space", "!idm.depth_invert")
 
-# frng/relight.py: the runs (frng.*, idm.kind, render.extra_input_views, train.seeds), resolution check, split check,
-# build_idm, shading.spp_infer + inference shading, seeds, device
-RELIGHT_KEYS: tuple[str, ...] = (
-    *PLAN_KEYS,
+# frng/relight.py: the runs (frng.*, idm.kind, render.extra_input_views, train.seeds), resolution check, build_idm,
+# shading.spp_infer + inference shading, seeds, device; RELIGHT_KEYS adds the split check's dataset plan
+RELIGHT_MODEL_KEYS: tuple[str, ...] = (
     "device",
     "render.resolution",
     "render.extra_input_views",
@@ -55,6 +54,7 @@ RELIGHT_KEYS: tuple[str, ...] = (
     "train.seeds",
     "train_seed",
 )
+RELIGHT_KEYS: tuple[str, ...] = (*PLAN_KEYS, *RELIGHT_MODEL_KEYS)
 
 RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     # frng/data/envmaps.py: the env-map plan, envmaps.width/normalize, Blender threads of the sky bakes
@@ -138,20 +138,7 @@ RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     # frng/benchmarks (rules/benchmarks.smk): the import converts to the resolution, map width and input-view count;
     # relighting an imported object reads what `relight` reads; the benchmark table reads the runs and eval
     "import_benchmark": ("benchmarks", "render.resolution", "render.extra_input_views", "envmaps.width"),
-    "relight_benchmark": (
-        "device",
-        "render.resolution",
-        "render.extra_input_views",
-        "idm",
-        "!idm.train",
-        "backbone.near",
-        "backbone.far",
-        "shading",
-        "frng",
-        "train.seeds",
-        "train_seed",
-        "seed",
-    ),
+    "relight_benchmark": (*RELIGHT_MODEL_KEYS, "seed"),
     "evaluate_benchmarks": ("benchmarks", "eval", "tier"),
 }
 """Rule name -> the config keys its stage reads (see the comment above)."""
