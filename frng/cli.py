@@ -46,6 +46,10 @@ STAGES: dict[str, tuple[str, str]] = {
     "reconstruct": ("frng.stages.reconstruct", "your own photos (2-10 views) -> a relightable asset folder"),
     "render-asset": ("frng.stages.render_asset", "render an asset folder under any env map (views, turntable)"),
     "relight-benchmark": ("frng.stages.relight_benchmark", "relight one imported benchmark object (as relight)"),
+    "relight-seed": (
+        "frng.stages.relight_seed",
+        "relight one test object's runs of another training seed (as relight)",
+    ),
     "evaluate-benchmarks": (
         "frng.stages.evaluate_benchmarks",
         "relit benchmark objects scored with each benchmark's published protocol; the benchmarks table",

@@ -71,5 +71,5 @@ rule relight_seed:
     message:
         "Relighting {wildcards.obj}: the F-RNG runs of training seed {wildcards.seed}"
     shell:
-        "exec {params.py:q} -m frng relight --config {params.config:q} --object {wildcards.obj:q} --models {params.models:q} "
-        "--group {wildcards.seed:q} > {log:q} 2>&1"
+        "exec {params.py:q} -m frng relight-seed --config {params.config:q} --object {wildcards.obj:q} "
+        "--models {params.models:q} --group {wildcards.seed:q} > {log:q} 2>&1"

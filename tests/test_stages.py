@@ -29,6 +29,7 @@ RULE_STAGES = {
     "eval_backbone": "frng.stages.eval_backbone",
     "train": "frng.stages.train",
     "relight": "frng.stages.relight",
+    "relight_seed": "frng.stages.relight_seed",
     "evaluate": "frng.stages.evaluate",
     "tables": "frng.stages.tables",
     "figures": "frng.stages.figures",
@@ -51,6 +52,7 @@ STAGES_WITHOUT_RULE = {
     "frng.stages.bench_render": "`frng bench render` (frng.stages.bench.BENCHES), run by hand",
     "frng.stages.bench_relight": "`frng bench relight` (frng.stages.bench.BENCHES), run by hand",
     "frng.stages.bench_perceptual": "`frng bench perceptual` (frng.stages.bench.BENCHES), run by hand",
+    "frng.stages.bench_heldout": "`frng bench heldout` (frng.stages.bench.BENCHES), run by hand on a finished run",
     "frng.stages.export_benchmark": "writes curated objects in the public benchmarks' layouts, run by hand and by "
     "tests/test_benchmarks.py (nothing downstream in the workflow reads it)",
     "frng.stages.reconstruct": "your own photos -> an asset, run by hand (tests/test_reconstruct.py)",
