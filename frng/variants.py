@@ -21,7 +21,7 @@ base dropped; only with ``shading.decoder_cosine``) and the ``backbone`` baselin
 Relighting groups (:func:`run_groups`, one ``relight`` job per group and test object): ``main`` holds every run of
 the models' seed and the backbone (and the timing); each other training seed ``S`` is its own group ``"S"`` (its
 ``{variant}@s{S}`` runs), so that those runs relight as soon as that seed's models exist instead of waiting for
-every model; ``all`` selects every run (``frng relight`` without ``--seeds``).
+every model; ``all`` selects every run (``frng relight`` without ``--group``).
 """
 
 from __future__ import annotations
@@ -96,10 +96,14 @@ def extra_seeds(config: TypedConfig | Mapping) -> list[int]:
     return [int(s) for s in dict.fromkeys(as_dict(config)["train"].get("seeds", [])) if int(s) != own]
 
 
+def seeded_bases(config: TypedConfig | Mapping) -> list[str]:
+    """The variants trained once more per other training seed: ``full`` and every ablation of ``frng.variants``."""
+    return list(dict.fromkeys(["full", *as_dict(config)["frng"]["variants"]]))
+
+
 def seeded_variants(config: TypedConfig | Mapping) -> list[str]:
-    """``{variant}@s{seed}`` for ``full`` and every ablation of ``frng.variants``, per :func:`extra_seeds`."""
-    f = as_dict(config)["frng"]
-    return [seed_variant(v, s) for s in extra_seeds(config) for v in dict.fromkeys(["full", *f["variants"]])]
+    """``{variant}@s{seed}`` for every :func:`seeded_bases` entry, per :func:`extra_seeds`."""
+    return [seed_variant(v, s) for s in extra_seeds(config) for v in seeded_bases(config)]
 
 
 def k_variant(percent: float) -> str:

@@ -5,13 +5,13 @@
 # the other seeds' models train. One thread per job: on the default tier's 2 cores two objects relight side by side
 # (one object: 34 s at one thread, 28 s at two, on the project's machine), so the timings are taken beside another
 # relighting job, both methods in the same job.
-from frng.variants import MAIN_GROUP, SEED_SEP, RunPlan, model_variants, seed_variant
+from frng.variants import MAIN_GROUP, SEED_SEP, RunPlan, model_variants, seed_variant, seeded_bases
 
 _RUN_PLAN = RunPlan.of(config)
 RELIGHT_RUNS = [r.name for r in _RUN_PLAN.runs(group=MAIN_GROUP)]
 # other training seeds: one relight_seed job per (object, seed); its runs are {variant}@s{seed}
 RELIGHT_SEEDS = _RUN_PLAN.groups()[1:]
-SEEDED_BASES = list(dict.fromkeys(["full", *config["frng"]["variants"]]))
+SEEDED_BASES = seeded_bases(config)
 
 
 rule relight:
