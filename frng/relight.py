@@ -65,7 +65,7 @@ from frng.priors.backbone_train import BackboneSection
 from frng.priors.idm_train import IDMSection
 from frng.render.shading import ShadingConfig
 from frng.sections import TypedConfig
-from frng.variants import ALL_GROUPS, BACKBONE, MAIN_GROUP, RIG_VIEWS, Run, RunPlan, model_variants, runs  # noqa: F401
+from frng.variants import ALL_GROUPS, BACKBONE, RIG_VIEWS, Run, RunPlan, model_variants, runs  # noqa: F401
 
 
 class RelightError(ValueError):

@@ -10,7 +10,7 @@ from frng.variants import MAIN_GROUP, SEED_SEP, RunPlan, model_variants, seed_va
 _RUN_PLAN = RunPlan.of(config)
 RELIGHT_RUNS = [r.name for r in _RUN_PLAN.runs(group=MAIN_GROUP)]
 # other training seeds: one relight_seed job per (object, seed); its runs are {variant}@s{seed}
-RELIGHT_SEEDS = _RUN_PLAN.groups()[1:]
+RELIGHT_SEEDS = [g for g in _RUN_PLAN.groups() if g != MAIN_GROUP]
 SEEDED_BASES = seeded_bases(config)
 
 

@@ -176,7 +176,7 @@ def test_relight_groups_split_the_runs_of_training_seeds(smoke_run, tmp_path):
 
     from frng import io
     from frng.data import catalog
-    from frng.variants import run_groups, runs, seed_variant
+    from frng.variants import run_groups, runs, seed_variant, seeded_bases
 
     results, config = smoke_run
     res = tmp_path / "results"
@@ -184,7 +184,7 @@ def test_relight_groups_split_the_runs_of_training_seeds(smoke_run, tmp_path):
     for name in ("objects", "envmaps", "backbone", "idm"):
         if (results / name).exists():
             (res / name).symlink_to(results / name)
-    bases = list(dict.fromkeys(["full", *config["frng"]["variants"]]))
+    bases = seeded_bases(config)
     (res / "models").mkdir()
     for v in (results / "models").iterdir():
         (res / "models" / v.name).symlink_to(v)
