@@ -647,10 +647,12 @@ class AssetRenderer:
         """Deferred shading under an equirect map (He, We, 3) -> RGBA (V, H, W, 4), linear, premultiplied."""
         from frng import camera, envmap
         from frng.render.prefilter import prefilter, specular_base
-        from frng.render.shading import deferred_shade, lambert_sh
+        from frng.render.shading import deferred_shade, lambert_sh, smooth_normals
 
         maps, alpha, c2w, intr = raster
         sc = self.shading
+        if self.decoder.cosine:  # the model's screen-space normal filtering (FRNG.shade)
+            maps = smooth_normals(maps, alpha, slice(0, 3), sc.normal_sigma_px(maps.shape[2]))
         spp = spp or sc.spp_infer
         env = torch.as_tensor(env).float()
         seed = 0 if generator is None else int(torch.randint(0, 2**31 - 1, (1,), generator=generator))

@@ -50,7 +50,15 @@ from frng.model.materialformer import (
 from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, select_top_k
 from frng.model.tokenizers import PriorTokenizer, stack_priors
 from frng.render import RasterConfig, rasterize
-from frng.render.shading import GGX_MIN_ALBEDO, NeuralDecoder, ShadingConfig, deferred_shade, ggx_shade, lambert_sh
+from frng.render.shading import (
+    GGX_MIN_ALBEDO,
+    NeuralDecoder,
+    ShadingConfig,
+    deferred_shade,
+    ggx_shade,
+    lambert_sh,
+    smooth_normals,
+)
 from frng.sections import TypedConfig, register, section, section_dict
 from frng.variants import canonical_for, variant
 
@@ -549,12 +557,19 @@ class FRNG(nn.Module):
         from frng.priors.multiview import mirror_normals
 
         rb = raw[back["rows"]]
-        ns = slice(5, 8) if self.cfg.head == "pbr" else (slice(0, 3) if self.cfg.decoder_cosine else None)
+        ns = self.normal_channels()
         if ns is None:
             return rb
         return torch.cat(
             [rb[:, : ns.start], mirror_normals(rb[:, ns], back["dirs"].to(rb.dtype)), rb[:, ns.stop :]], -1
         )
+
+    def normal_channels(self) -> slice | None:
+        """Where a Gaussian's payload holds its shading normal: Cook-Torrance 5:8, the cosine decoder's features 0:3;
+        None for a decoder without a normal (``decoder_cosine`` off)."""
+        if self.cfg.head == "pbr":
+            return slice(5, 8)
+        return slice(0, 3) if self.cfg.decoder_cosine else None
 
     # -- rendering --------------------------------------------------------------------------------------------
 
@@ -597,6 +612,9 @@ class FRNG(nn.Module):
         spp = spp or self.shading_cfg.spp_infer
         samples = self.light_samples(env, spp, generator)
         sc = self.shading_cfg
+        ns = self.normal_channels()
+        if ns is not None:  # screen-space normal filtering (shading.normal_blur): no stripes of disagreeing views
+            maps = smooth_normals(maps, alpha, ns, sc.normal_sigma_px(maps.shape[2]))
         # bf16 decoding at inference only (shading.bf16_infer; ~2x on AMX CPUs and GPUs, ~1e-3 relative error)
         amp = sc.bf16_infer and not torch.is_grad_enabled() and self.cfg.head == "neural" and bf16_ok(maps.device)
         with torch.autocast(maps.device.type, dtype=torch.bfloat16, enabled=amp):

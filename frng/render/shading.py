@@ -60,6 +60,7 @@ class ShadingConfig:
     chunk_pixels: int
     chunk_pairs: int
     bf16_infer: bool
+    normal_blur: float
 
     def __post_init__(self):
         if self.spp_grad > self.spp_train:
@@ -75,6 +76,11 @@ class ShadingConfig:
     @classmethod
     def from_config(cls, config: TypedConfig) -> ShadingConfig:
         return config_section(config, "shading")
+
+    def normal_sigma_px(self, width: int) -> float:
+        """The standard deviation in pixels of :func:`smooth_normals` in an image ``width`` pixels wide
+        (``normal_blur`` is a fraction of the width, so a tier's resolution does not change what it smooths)."""
+        return float(self.normal_blur) * int(width)
 
 
 def encode_dirs(d: torch.Tensor, freqs: int) -> torch.Tensor:
@@ -328,6 +334,43 @@ def deferred_shade(
     if background is not None:
         out = out + (1.0 - alpha) * background.to(out.dtype)
     return out
+
+
+def gaussian_blur(x: torch.Tensor, sigma_px: float) -> torch.Tensor:
+    """Separable Gaussian blur of images x (V, H, W, C), standard deviation ``sigma_px`` pixels, truncated at 3 sigma,
+    zero outside the image (premultiplied maps: outside is empty). Differentiable. Returns (V, H, W, C)."""
+    assert x.dim() == 4, x.shape
+    r = max(1, int(math.ceil(3.0 * sigma_px)))
+    t = torch.arange(-r, r + 1, device=x.device, dtype=torch.float32)
+    k = torch.exp(-0.5 * (t / sigma_px) ** 2)
+    k = (k / k.sum()).to(x.dtype)
+    C = x.shape[-1]
+    y = x.permute(0, 3, 1, 2)
+    y = nn.functional.conv2d(y, k.view(1, 1, 1, -1).expand(C, 1, 1, -1), padding=(0, r), groups=C)
+    y = nn.functional.conv2d(y, k.view(1, 1, -1, 1).expand(C, 1, -1, 1), padding=(r, 0), groups=C)
+    return y.permute(0, 2, 3, 1)
+
+
+def smooth_normals(maps: torch.Tensor, alpha: torch.Tensor, normals: slice, sigma_px: float) -> torch.Tensor:
+    """Screen-space normal filtering of a deferred G-buffer: the normal channels ``normals`` of maps (V, H, W, C)
+    (alpha-premultiplied, alpha (V, H, W, 1)) get the direction of their alpha-weighted Gaussian average over
+    ``sigma_px`` pixels (:func:`gaussian_blur` of the premultiplied normals over that of alpha), keeping each pixel's
+    own length and premultiplication; every other channel is returned as it is. ``sigma_px <= 0``: maps unchanged.
+
+    Why: the backbone's per-pixel Gaussians of different input views land at slightly different depths, so at a new
+    view the front-most layer alternates between views in stripes whose normals (each view's own estimate) disagree
+    by tens of degrees; the blended normal map is striped, and so is any shading that reads it (measured on the
+    default tier: dark stripes in the Cook-Torrance ablation where the ground truth is lit, and in the full model's
+    Lambertian base). The rendered depth is striped too, so its normals are no better. Returns (V, H, W, C)."""
+    assert maps.shape[:3] == alpha.shape[:3] and alpha.shape[-1] == 1, (maps.shape, alpha.shape)
+    if sigma_px <= 0:
+        return maps
+    n = maps[..., normals].float()
+    a = alpha.float()
+    avg = gaussian_blur(n, sigma_px) / gaussian_blur(a, sigma_px).clamp_min(1e-6)
+    length = (n / a.clamp_min(1e-6)).norm(dim=-1, keepdim=True)
+    smoothed = nn.functional.normalize(avg, dim=-1, eps=1e-8) * length * a
+    return torch.cat([maps[..., : normals.start], smoothed.to(maps.dtype), maps[..., normals.stop :]], -1)
 
 
 def face_forward(normal: torch.Tensor, wo: torch.Tensor, min_cos: float = GGX_MIN_COS_VIEW) -> torch.Tensor:
