@@ -96,14 +96,14 @@ def extra_seeds(config: TypedConfig | Mapping) -> list[int]:
     return [int(s) for s in dict.fromkeys(as_dict(config)["train"].get("seeds", [])) if int(s) != own]
 
 
-def _full_and(variants) -> list[str]:
+def full_and(variants) -> list[str]:
     """``full`` then the ablations ``variants`` (``frng.variants``), duplicates dropped."""
     return list(dict.fromkeys(["full", *variants]))
 
 
 def seeded_bases(config: TypedConfig | Mapping) -> list[str]:
     """The variants trained once more per other training seed: ``full`` and every ablation of ``frng.variants``."""
-    return _full_and(as_dict(config)["frng"]["variants"])
+    return full_and(as_dict(config)["frng"]["variants"])
 
 
 def seeded_variants(config: TypedConfig | Mapping) -> list[str]:
@@ -247,7 +247,7 @@ class RunPlan:
         if n_input_views is None:
             n_input_views = RIG_VIEWS + self.extra_input_views
         k_full = self.top_k_percent
-        out = [Run(v, "F-RNG", v, RIG_VIEWS, k_full) for v in _full_and(self.variants)]
+        out = [Run(v, "F-RNG", v, RIG_VIEWS, k_full) for v in full_and(self.variants)]
         for p in self.k_sweep:
             name = k_variant(p)
             if canonical_for(name, k_full) != "full":
@@ -257,7 +257,7 @@ class RunPlan:
         ]
         if self.idm_kind != "oracle" and self.prior_dim > 0:
             out.append(Run(ORACLE_RUN, "F-RNG", "full", RIG_VIEWS, k_full, priors="oracle"))
-        seeded = [seed_variant(v, s) for s in self.extra_seeds for v in _full_and(self.variants)]
+        seeded = [seed_variant(v, s) for s in self.extra_seeds for v in full_and(self.variants)]
         for name in seeded:
             out.append(Run(name, "F-RNG", name, RIG_VIEWS, k_full, seed=split_seed(name)[1]))
         if self.decoder_cosine:

@@ -24,7 +24,7 @@ import pandas as pd
 from frng import envmap, io
 from frng.layout import Layout
 from frng.report import figures
-from frng.variants import BACKBONE
+from frng.variants import BACKBONE, full_and
 
 
 def _psnr_lookup(per_image: pd.DataFrame):
@@ -121,7 +121,7 @@ def make_figures(
         s = out_dir / "saliency" / f"{oid}.png"
         saliency(results, oid, s, int(patch_size))
         written += [p, s]
-    variants = list(dict.fromkeys(["full", *variants]))
+    variants = full_and(variants)
     ablation(results, objects, variants, out_dir / "ablation.png", psnr)
     loss_curves(results, out_dir / "loss_curves.png")
     return written + [out_dir / "ablation.png", out_dir / "loss_curves.png"]
