@@ -13,9 +13,9 @@ rule backbone_train:
         L.log("backbone_train"),
     conda:
         "../envs/torch.yaml"
-    # Two threads: one thread was tried for reproducibility (856109f) and cost ~3 min of the default tier's wall
-    # time, but a one-thread rerun still parted from the pipeline's run (step 134, 7th digit; README "Provenance").
-    threads: 2
+    # One thread on a CPU: two 2-thread runs of the default tier's 1000 steps parted in the 7th digit at step 73 /
+    # 464 (measured, README "Provenance"); one thread gives the same weights every time, like `frng train`'s.
+    threads: 1
     resources:
         mem_mb=6000,
         runtime=60,
@@ -40,7 +40,7 @@ rule idm_train:
         L.log("idm_train"),
     conda:
         "../envs/torch.yaml"
-    threads: 2
+    threads: 1  # as backbone_train: reproducible weights; the two trainings run side by side on two cores
     resources:
         mem_mb=4000,
         runtime=30,
