@@ -624,6 +624,7 @@ class AssetRenderer:
     def rasterize(self, c2w: torch.Tensor, intr: torch.Tensor, height: int, width: int) -> tuple:
         """The feature maps at cameras c2w (V, 4, 4), intr (V, 4): (maps, alpha, c2w, intr) as FRNG.rasterize."""
         from frng.render import rasterize
+        from frng.render.shading import COSINE_NORMAL, smooth_normals
 
         g = self.gaussians
         c2w, intr = c2w.to(self.device).float(), intr.to(self.device).float()
@@ -639,6 +640,8 @@ class AssetRenderer:
             int(width),
             **self.raster.kwargs(),
         )
+        if self.decoder.cosine:  # the model's screen-space normal filtering (FRNG.rasterize)
+            maps = smooth_normals(maps, alpha, COSINE_NORMAL, self.shading.normal_sigma_px(width))
         return maps, alpha, c2w, intr
 
     def shade(
@@ -647,12 +650,10 @@ class AssetRenderer:
         """Deferred shading under an equirect map (He, We, 3) -> RGBA (V, H, W, 4), linear, premultiplied."""
         from frng import camera, envmap
         from frng.render.prefilter import prefilter, specular_base
-        from frng.render.shading import deferred_shade, lambert_sh, smooth_normals
+        from frng.render.shading import deferred_shade, lambert_sh
 
         maps, alpha, c2w, intr = raster
         sc = self.shading
-        if self.decoder.cosine:  # the model's screen-space normal filtering (FRNG.shade)
-            maps = smooth_normals(maps, alpha, slice(0, 3), sc.normal_sigma_px(maps.shape[2]))
         spp = spp or sc.spp_infer
         env = torch.as_tensor(env).float()
         seed = 0 if generator is None else int(torch.randint(0, 2**31 - 1, (1,), generator=generator))

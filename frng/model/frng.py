@@ -51,7 +51,9 @@ from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, sele
 from frng.model.tokenizers import PriorTokenizer, stack_priors
 from frng.render import RasterConfig, rasterize
 from frng.render.shading import (
+    COSINE_NORMAL,
     GGX_MIN_ALBEDO,
+    GGX_NORMAL,
     NeuralDecoder,
     ShadingConfig,
     deferred_shade,
@@ -568,8 +570,8 @@ class FRNG(nn.Module):
         """Where a Gaussian's payload holds its shading normal: Cook-Torrance 5:8, the cosine decoder's features 0:3;
         None for a decoder without a normal (``decoder_cosine`` off)."""
         if self.cfg.head == "pbr":
-            return slice(5, 8)
-        return slice(0, 3) if self.cfg.decoder_cosine else None
+            return GGX_NORMAL
+        return COSINE_NORMAL if self.cfg.decoder_cosine else None
 
     # -- rendering --------------------------------------------------------------------------------------------
 
@@ -596,6 +598,9 @@ class FRNG(nn.Module):
         maps, alpha, _ = rasterize(
             g.means, g.quats, g.scales, g.opacities, g.features.float(), c2w, intr, height, width, **kw
         )
+        ns = self.normal_channels()
+        if ns is not None:  # screen-space normal filtering (shading.normal_blur), once for every light and consumer
+            maps = smooth_normals(maps, alpha, ns, self.shading_cfg.normal_sigma_px(width))
         return maps, alpha, c2w, intr
 
     def shade(
@@ -612,9 +617,6 @@ class FRNG(nn.Module):
         spp = spp or self.shading_cfg.spp_infer
         samples = self.light_samples(env, spp, generator)
         sc = self.shading_cfg
-        ns = self.normal_channels()
-        if ns is not None:  # screen-space normal filtering (shading.normal_blur): no stripes of disagreeing views
-            maps = smooth_normals(maps, alpha, ns, sc.normal_sigma_px(maps.shape[2]))
         # bf16 decoding at inference only (shading.bf16_infer; ~2x on AMX CPUs and GPUs, ~1e-3 relative error)
         amp = sc.bf16_infer and not torch.is_grad_enabled() and self.cfg.head == "neural" and bf16_ok(maps.device)
         with torch.autocast(maps.device.type, dtype=torch.bfloat16, enabled=amp):

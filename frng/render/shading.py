@@ -37,7 +37,11 @@ DIFFUSE_MODES = ("sh", "mc")
 # surface off: base colour >= 0.03 (charcoal), metallic <= 0.9 (>= 10 % diffuse lobe left), roughness >= 0.08
 # (alpha = 0.0064: a glossy lobe, not the near-delta the light samples miss).
 GGX_MIN_ALBEDO, GGX_MIN_ROUGHNESS, GGX_MAX_METALLIC = 0.03, 0.08, 0.9
-GGX_MIN_COS_VIEW = 0.1  # :func:`face_forward` bends shading normals to n . w_o >= ~this
+GGX_MIN_COS_VIEW = 0.1
+COSINE_NORMAL, GGX_NORMAL = (
+    slice(0, 3),
+    slice(5, 8),
+)  # where a payload holds its shading normal (smooth_normals)  # :func:`face_forward` bends shading normals to n . w_o >= ~this
 
 
 @register("shading")
