@@ -608,7 +608,7 @@ class AssetRenderer:
         settings = meta.get(RENDER_KEY) or {}
         try:
             self.raster = RasterConfig.from_dict(dict(settings.get("raster", {})))
-            self.shading = ShadingConfig.from_dict(dict(settings.get("shading", {})))
+            self.shading = ShadingConfig.from_saved(dict(settings.get("shading", {})))
         except (ValueError, KeyError, TypeError) as e:
             raise AssetError(f"{meta_path}: field {RENDER_KEY!r}: {e}") from e
         self.gaussians = Gaussians(
@@ -677,7 +677,8 @@ class AssetRenderer:
                 )
                 if self.specular:
                     _, d = camera.pixel_rays(c2w.float(), intr.float(), maps.shape[1], maps.shape[2])
-                    rgb = rgb + specular_base(maps, alpha, prefilter(env).to(maps.device), d, sc.alpha_eps)
+                    pref = prefilter(env).to(maps.device)
+                    rgb = rgb + specular_base(maps, alpha, pref, d, sc.alpha_eps, sc.specular_param)
                 if self.decoder.attenuation:
                     rgb = rgb.clamp_min(0.0)
             else:

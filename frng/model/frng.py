@@ -383,7 +383,7 @@ class FRNG(nn.Module):
         model = cls(
             FRNGConfig.from_dict(state["config"]),
             RasterConfig.from_dict(state.get("raster", {})),
-            ShadingConfig.from_dict(state.get("shading", {})),
+            ShadingConfig.from_saved(state.get("shading", {})),
         )
         model.load_state_dict(state["state_dict"])
         model.meta = {k: v for k, v in state.items() if k not in ("state_dict",)}
@@ -413,9 +413,13 @@ class FRNG(nn.Module):
             base += " x (1 - sigmoid(MLP[3:6]))"
         out = f"({base} + softplus(MLP[0:3])) x max(0, n.w_i), n = normalise(feature[0:3])"
         if self.cfg.decoder_specular:
+            ks, level = {
+                "linear": ("softplus(20 (feature[6:9] - 0.035)) / 20", "3 sigmoid(4 feature[9])"),
+                "softplus": ("softplus(feature[6:9] - 4)", "3 sigmoid(feature[9])"),
+            }[self.shading_cfg.specular_param]
             out += (
-                " + softplus(feature[6:9] - 4) x prefiltered env (frng.render.prefilter, vMF kappas "
-                "400/100/25/6) at reflect(w_o, n), level 3 sigmoid(feature[9])"
+                f" + {ks} x prefiltered env (frng.render.prefilter, vMF kappas "
+                f"400/100/25/6) at reflect(w_o, n), level {level}"
             )
         return out
 
@@ -679,7 +683,8 @@ class FRNG(nn.Module):
 
         H, W = maps.shape[1:3]
         _, d = camera.pixel_rays(c2w.float(), intr.float(), H, W)
-        return specular_base(maps, alpha, prefilter(env).to(maps.device), d, self.shading_cfg.alpha_eps)
+        sc = self.shading_cfg
+        return specular_base(maps, alpha, prefilter(env).to(maps.device), d, sc.alpha_eps, sc.specular_param)
 
     def set_inference_shading(self, shading: ShadingConfig) -> FRNG:
         """Take the inference-time settings (``chunk_pixels``, ``chunk_pairs``, ``bf16_infer``, ``sampling``) from

@@ -10,7 +10,22 @@ levels, looked up at the reflected direction and interpolated between levels by 
     S(p) = k_s(p) L_kappa(p)(r),   r = 2 (n . w_o) n - w_o,   L_kappa(w) = int L(w') vMF_kappa(w . w') dw'
 
 with k_s (specular colour) and the level (roughness) read from the decoder's feature channels 6:10
-(:func:`specular_base`). Shapes: env maps (He, We, 3) linear HDR, equirect in :mod:`frng.envmap`'s convention.
+(:func:`specular_params`, :func:`specular_base`). Shapes: env maps (He, We, 3) linear HDR, equirect in
+:mod:`frng.envmap`'s convention.
+
+Parameterisations (``shading.specular_param``):
+
+- ``linear`` (default): k_s = softplus(G (f - f0)) / G with G = :data:`SPECULAR_GAIN`, i.e. ~max(f - f0, 0) with a
+  smooth floor, 0.02 at f = 0 (slope 0.33 there, 1 above ~0.1): the same scale as the diffuse channels 3:6, so a
+  training step moves k_s as far as it moves the albedo; level = (L - 1) sigmoid(4 f_9) (1.5 at f = 0).
+- ``softplus`` (models saved before the key existed): k_s = softplus(f - 4) (0.018 at f = 0, slope 0.018), level =
+  (L - 1) sigmoid(f_9). Measured on the 856109f reproduction's full model: k_s stayed at 0.022-0.026 on EVERY
+  pixel of every object (metal, glossy dielectric and diffuse alike): Adam moves a feature by ~lr per step, and
+  k_s = 0.5 needs f ~ 4.5 (or ~0 needs f ~ -4), so the base stayed the constant haze it started as.
+
+With ``linear`` the default-tier training turns the base almost off instead (k_s median 0.006, level 2.7: the
+broadest lobes), which scored +0.06 / +0.10 dB over ``softplus`` with training seeds 0 / 1 (README, "F-RNG model");
+trained on glossy objects alone it carries half of their light. Highlights need normals good enough to place them.
 """
 
 from __future__ import annotations
@@ -23,11 +38,15 @@ import torch
 import torch.nn.functional as F
 
 from frng import envmap
+from frng.render.shading import SPECULAR_PARAMS
 
 KAPPAS = (400.0, 100.0, 25.0, 6.0)  # lobe sharpness per level: ~3, 6, 11, 23 degrees (1 / sqrt(kappa) rad)
 PREFILTER_HEIGHT = 32  # maps are area-averaged to 32 x 64 before convolving (texel ~5.6 degrees)
 SPECULAR_CHANNELS = slice(6, 10)  # decoder features: 6:9 specular colour logits, 9 level logit
-SPECULAR_OFFSET = 4.0  # k_s = softplus(f - 4): ~0.018 at a zero feature (a new model starts almost Lambertian)
+SPECULAR_OFFSET = 4.0  # softplus: k_s = softplus(f - 4): ~0.018 at a zero feature (a new model starts almost Lambertian)
+SPECULAR_GAIN = 20.0  # linear: k_s = softplus(G (f - f0)) / G, ~max(f - f0, 0) with a floor ~1 / G wide
+SPECULAR_F0 = 0.035  # linear: softplus(-G f0) / G = 0.020 at f = 0 (as softplus starts: almost Lambertian)
+LEVEL_GAIN = 4.0  # linear: level = (L - 1) sigmoid(4 f_9): a feature step of ~1 spans the levels
 
 
 @functools.lru_cache(maxsize=4)
@@ -97,8 +116,25 @@ def lookup(pref: torch.Tensor, dirs: torch.Tensor, level: torch.Tensor) -> torch
     return a * (1.0 - t) + b * t
 
 
+def specular_params(f: torch.Tensor, levels: int, param: str = "linear") -> tuple[torch.Tensor, torch.Tensor]:
+    """Unpremultiplied features f (P, C >= 10) -> (k_s (P, 3) >= 0, level (P,) in [0, levels - 1]) under the
+    parameterisation ``param`` (module docstring; ``shading.specular_param``)."""
+    assert f.shape[-1] >= 10, f.shape
+    if param == "linear":
+        ks = F.softplus(SPECULAR_GAIN * (f[:, 6:9] - SPECULAR_F0)) / SPECULAR_GAIN
+        return ks, (levels - 1) * torch.sigmoid(LEVEL_GAIN * f[:, 9])
+    if param == "softplus":
+        return F.softplus(f[:, 6:9] - SPECULAR_OFFSET), (levels - 1) * torch.sigmoid(f[:, 9])
+    raise ValueError(f"shading.specular_param must be one of {SPECULAR_PARAMS}, got {param!r}")
+
+
 def specular_base(
-    maps: torch.Tensor, alpha: torch.Tensor, pref: torch.Tensor, view_dirs: torch.Tensor, alpha_eps: float = 1e-3
+    maps: torch.Tensor,
+    alpha: torch.Tensor,
+    pref: torch.Tensor,
+    view_dirs: torch.Tensor,
+    alpha_eps: float = 1e-3,
+    param: str = "linear",
 ) -> torch.Tensor:
     """The specular base S (V, H, W, 3), premultiplied by alpha, of the decoder's rasterized features.
 
@@ -115,8 +151,7 @@ def specular_base(
     n = F.normalize(f[:, :3], dim=-1, eps=1e-6)
     wo = -view_dirs[fg].float()
     r = F.normalize(2.0 * (n * wo).sum(-1, keepdim=True) * n - wo, dim=-1, eps=1e-6)
-    ks = F.softplus(f[:, 6:9] - SPECULAR_OFFSET)
-    level = (pref.shape[0] - 1) * torch.sigmoid(f[:, 9])
+    ks, level = specular_params(f, pref.shape[0], param)
     s = ks * lookup(pref, r, level) * a
     return out.index_put(torch.nonzero(fg, as_tuple=True), s)
 
@@ -126,4 +161,14 @@ def vmf_lobe_mean(kappa: float) -> float:
     return 1.0 / math.tanh(kappa) - 1.0 / kappa
 
 
-__all__ = ["KAPPAS", "PREFILTER_HEIGHT", "SPECULAR_CHANNELS", "lookup", "prefilter", "specular_base", "vmf_lobe_mean"]
+__all__ = [
+    "KAPPAS",
+    "PREFILTER_HEIGHT",
+    "SPECULAR_CHANNELS",
+    "SPECULAR_PARAMS",
+    "lookup",
+    "prefilter",
+    "specular_base",
+    "specular_params",
+    "vmf_lobe_mean",
+]

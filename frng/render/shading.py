@@ -31,6 +31,9 @@ from frng.envmap import EnvSamples
 from frng.sections import TypedConfig, config_section, register, section
 
 DIFFUSE_MODES = ("sh", "mc")
+SPECULAR_PARAMS = ("linear", "softplus")  # frng.render.prefilter.specular_params (that module imports this one)
+# Shading keys that came after models were saved -> the behaviour those models were trained with
+SAVED_DEFAULTS = {"normal_blur": 0.0, "specular_param": "softplus"}
 
 # Cook-Torrance parameter ranges of the no-neural ablation (:func:`frng.model.materialformer.decode_pbr` maps its
 # logits into them, :func:`ggx_shade` clamps blended maps to them). Bounded so that no parameter can switch a lit
@@ -65,17 +68,27 @@ class ShadingConfig:
     chunk_pairs: int
     bf16_infer: bool
     normal_blur: float
+    specular_param: str
 
     def __post_init__(self):
         if self.spp_grad > self.spp_train:
             raise ValueError(f"shading.spp_grad ({self.spp_grad}) exceeds shading.spp_train ({self.spp_train})")
         if self.diffuse not in DIFFUSE_MODES:
             raise ValueError(f"shading.diffuse must be one of {DIFFUSE_MODES}, got {self.diffuse!r}")
+        if self.specular_param not in SPECULAR_PARAMS:
+            raise ValueError(f"shading.specular_param must be one of {SPECULAR_PARAMS}, got {self.specular_param!r}")
 
     @classmethod
     def from_dict(cls, d: dict) -> ShadingConfig:
-        """Strict (:func:`frng.sections.section`; ``{}``: the schema's defaults; a model file's ``shading``)."""
+        """Strict (:func:`frng.sections.section`; ``{}``: the schema's defaults)."""
         return section(cls, d, "shading")
+
+    @classmethod
+    def from_saved(cls, d: dict) -> ShadingConfig:
+        """The shading a saved model or asset records (``model.pt``'s ``shading``, ``asset.json``'s
+        ``render.shading``): keys added after it was saved take :data:`SAVED_DEFAULTS` (what the model was trained
+        with before the key existed), not today's schema defaults; an empty record is the schema's defaults."""
+        return cls.from_dict({**SAVED_DEFAULTS, **dict(d)} if d else {})
 
     @classmethod
     def from_config(cls, config: TypedConfig) -> ShadingConfig:
