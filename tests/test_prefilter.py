@@ -82,7 +82,9 @@ def test_specular_params_start_almost_lambertian_in_both_parameterisations():
     f = torch.zeros(3, 10)
     for param in ("linear", "softplus"):
         ks, level = specular_params(f, len(KAPPAS), param)
-        assert torch.allclose(ks, torch.full_like(ks, 0.02), atol=0.003) and torch.allclose(level, torch.full((3,), 1.5))
+        assert torch.allclose(ks, torch.full_like(ks, 0.02), atol=0.003) and torch.allclose(
+            level, torch.full((3,), 1.5)
+        )
     f[:, 6:9] = torch.tensor([0.5, 1.0, -1.0])
     ks, _ = specular_params(f, len(KAPPAS), "linear")  # ~max(f - 0.035, 0): the diffuse channels' scale
     assert torch.allclose(ks[0], torch.tensor([0.465, 0.965, 0.0]), atol=1e-3)

@@ -43,7 +43,7 @@ from frng.render.shading import SPECULAR_PARAMS
 KAPPAS = (400.0, 100.0, 25.0, 6.0)  # lobe sharpness per level: ~3, 6, 11, 23 degrees (1 / sqrt(kappa) rad)
 PREFILTER_HEIGHT = 32  # maps are area-averaged to 32 x 64 before convolving (texel ~5.6 degrees)
 SPECULAR_CHANNELS = slice(6, 10)  # decoder features: 6:9 specular colour logits, 9 level logit
-SPECULAR_OFFSET = 4.0  # softplus: k_s = softplus(f - 4): ~0.018 at a zero feature (a new model starts almost Lambertian)
+SPECULAR_OFFSET = 4.0  # softplus: k_s = softplus(f - 4): ~0.018 at a zero feature (almost Lambertian)
 SPECULAR_GAIN = 20.0  # linear: k_s = softplus(G (f - f0)) / G, ~max(f - f0, 0) with a floor ~1 / G wide
 SPECULAR_F0 = 0.035  # linear: softplus(-G f0) / G = 0.020 at f = 0 (as softplus starts: almost Lambertian)
 LEVEL_GAIN = 4.0  # linear: level = (L - 1) sigmoid(4 f_9): a feature step of ~1 spans the levels
