@@ -648,8 +648,8 @@ class AssetRenderer:
         self, raster: tuple, env: torch.Tensor, spp: int | None = None, generator: torch.Generator | None = None
     ) -> torch.Tensor:
         """Deferred shading under an equirect map (He, We, 3) -> RGBA (V, H, W, 4), linear, premultiplied."""
-        from frng import camera, envmap
-        from frng.render.prefilter import prefilter, specular_base
+        from frng import envmap
+        from frng.render.prefilter import specular_at_cameras
         from frng.render.shading import deferred_shade, lambert_sh
 
         maps, alpha, c2w, intr = raster
@@ -676,9 +676,7 @@ class AssetRenderer:
                     maps, alpha, envmap.sh_project(env.detach().float().cpu()).float(), sc.alpha_eps
                 )
                 if self.specular:
-                    _, d = camera.pixel_rays(c2w.float(), intr.float(), maps.shape[1], maps.shape[2])
-                    pref = prefilter(env).to(maps.device)
-                    rgb = rgb + specular_base(maps, alpha, pref, d, sc.alpha_eps, sc.specular_param)
+                    rgb = rgb + specular_at_cameras(maps, alpha, c2w, intr, env, sc.alpha_eps, sc.specular_param)
                 if self.decoder.attenuation:
                     rgb = rgb.clamp_min(0.0)
             else:

@@ -34,7 +34,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from frng import camera, envmap, io
+from frng import envmap, io
 from frng.device import bf16_ok
 from frng.gaussians import GaussianDecodeConfig, Gaussians
 from frng.model.fine_geometry import FineGeometry, FineGeometryConfig, fine_keep_mask, sample_pixels
@@ -413,10 +413,9 @@ class FRNG(nn.Module):
             base += " x (1 - sigmoid(MLP[3:6]))"
         out = f"({base} + softplus(MLP[0:3])) x max(0, n.w_i), n = normalise(feature[0:3])"
         if self.cfg.decoder_specular:
-            ks, level = {
-                "linear": ("softplus(20 (feature[6:9] - 0.035)) / 20", "3 sigmoid(4 feature[9])"),
-                "softplus": ("softplus(feature[6:9] - 4)", "3 sigmoid(feature[9])"),
-            }[self.shading_cfg.specular_param]
+            from frng.render.prefilter import SPECULAR_FORMULAS
+
+            ks, level = SPECULAR_FORMULAS[self.shading_cfg.specular_param]
             out += (
                 f" + {ks} x prefiltered env (frng.render.prefilter, vMF kappas "
                 f"400/100/25/6) at reflect(w_o, n), level {level}"
@@ -678,13 +677,11 @@ class FRNG(nn.Module):
         self, maps: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, env: torch.Tensor
     ) -> torch.Tensor:
         """The specular base (Vt, H, W, 3) of rasterized features under an env map (He, We, 3)
-        (:func:`frng.render.prefilter.specular_base`)."""
-        from frng.render.prefilter import prefilter, specular_base
+        (:func:`frng.render.prefilter.specular_at_cameras`)."""
+        from frng.render.prefilter import specular_at_cameras
 
-        H, W = maps.shape[1:3]
-        _, d = camera.pixel_rays(c2w.float(), intr.float(), H, W)
         sc = self.shading_cfg
-        return specular_base(maps, alpha, prefilter(env).to(maps.device), d, sc.alpha_eps, sc.specular_param)
+        return specular_at_cameras(maps, alpha, c2w, intr, env, sc.alpha_eps, sc.specular_param)
 
     def set_inference_shading(self, shading: ShadingConfig) -> FRNG:
         """Take the inference-time settings (``chunk_pixels``, ``chunk_pairs``, ``bf16_infer``, ``sampling``) from

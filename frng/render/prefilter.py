@@ -116,6 +116,13 @@ def lookup(pref: torch.Tensor, dirs: torch.Tensor, level: torch.Tensor) -> torch
     return a * (1.0 - t) + b * t
 
 
+# the same maps as text, for a model's decoder description (asset.json "output"): (k_s, level) per parameterisation
+SPECULAR_FORMULAS = {
+    "linear": ("softplus(20 (feature[6:9] - 0.035)) / 20", "3 sigmoid(4 feature[9])"),
+    "softplus": ("softplus(feature[6:9] - 4)", "3 sigmoid(feature[9])"),
+}
+
+
 def specular_params(f: torch.Tensor, levels: int, param: str = "linear") -> tuple[torch.Tensor, torch.Tensor]:
     """Unpremultiplied features f (P, C >= 10) -> (k_s (P, 3) >= 0, level (P,) in [0, levels - 1]) under the
     parameterisation ``param`` (module docstring; ``shading.specular_param``)."""
@@ -156,6 +163,24 @@ def specular_base(
     return out.index_put(torch.nonzero(fg, as_tuple=True), s)
 
 
+def specular_at_cameras(
+    maps: torch.Tensor,
+    alpha: torch.Tensor,
+    c2w: torch.Tensor,
+    intr: torch.Tensor,
+    env: torch.Tensor,
+    alpha_eps: float = 1e-3,
+    param: str = "linear",
+) -> torch.Tensor:
+    """:func:`specular_base` of rasterized maps (V, H, W, C) seen by cameras c2w (V, 4, 4), intr (V, 4) under an
+    env map (He, We, 3): the view rays and the (memoised) prefiltered map made here. The one entry point of both
+    renderers (:meth:`frng.model.frng.FRNG.specular`, :class:`frng.asset.AssetRenderer`)."""
+    from frng import camera
+
+    _, d = camera.pixel_rays(c2w.float(), intr.float(), maps.shape[1], maps.shape[2])
+    return specular_base(maps, alpha, prefilter(env).to(maps.device), d, alpha_eps, param)
+
+
 def vmf_lobe_mean(kappa: float) -> float:
     """Mean cosine of a vMF lobe (its angular width): coth(kappa) - 1 / kappa (tests, documentation)."""
     return 1.0 / math.tanh(kappa) - 1.0 / kappa
@@ -165,9 +190,11 @@ __all__ = [
     "KAPPAS",
     "PREFILTER_HEIGHT",
     "SPECULAR_CHANNELS",
+    "SPECULAR_FORMULAS",
     "SPECULAR_PARAMS",
     "lookup",
     "prefilter",
+    "specular_at_cameras",
     "specular_base",
     "specular_params",
     "vmf_lobe_mean",
