@@ -147,7 +147,7 @@ def specular_base(
 
     maps (V, H, W, C >= 10) alpha-premultiplied features (0:3 normal n, 6:9 specular colour logits, 9 level logit);
     alpha (V, H, W, 1); pref from :func:`prefilter`; view_dirs (V, H, W, 3) unit camera rays (camera -> surface).
-    k_s = softplus(f_6:9 - SPECULAR_OFFSET), level = (L - 1) sigmoid(f_9); zero where alpha <= alpha_eps."""
+    k_s and the level from :func:`specular_params` (``param``); zero where alpha <= alpha_eps."""
     assert maps.shape[:3] == alpha.shape[:3] == view_dirs.shape[:3] and maps.shape[-1] >= 10, (maps.shape,)
     fg = alpha[..., 0] > alpha_eps
     out = torch.zeros(*maps.shape[:3], 3, device=maps.device, dtype=torch.float32)
