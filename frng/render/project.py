@@ -45,6 +45,46 @@ def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
     ).reshape(q.shape[:-1] + (3, 3))
 
 
+def rotmat_to_quat(R: torch.Tensor) -> torch.Tensor:
+    """(..., 3, 3) rotation matrices -> (..., 4) unit quaternions (w, x, y, z) with w >= 0; the inverse of
+    :func:`quat_to_rotmat` (Shepperd's method: the largest of the four candidate components is computed first)."""
+    assert R.shape[-2:] == (3, 3), R.shape
+    m = R.reshape(-1, 3, 3)
+    tr = m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]
+    cand = torch.stack([tr, m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], -1)  # 4 w^2 - 1, 4 x^2 - 1, ... (up to +1 - tr)
+    k = cand.argmax(-1)
+    q = torch.empty(m.shape[0], 4, dtype=R.dtype, device=R.device)
+    # each branch: the dominant component from the diagonal, the others from the off-diagonal sums/differences
+    for i in range(4):
+        sel = k == i
+        if not bool(sel.any()):
+            continue
+        a = m[sel]
+        if i == 0:
+            s = torch.sqrt((1 + a[:, 0, 0] + a[:, 1, 1] + a[:, 2, 2]).clamp_min(1e-12)) * 2
+            q[sel] = torch.stack(
+                [s / 4, (a[:, 2, 1] - a[:, 1, 2]) / s, (a[:, 0, 2] - a[:, 2, 0]) / s, (a[:, 1, 0] - a[:, 0, 1]) / s], -1
+            )
+        elif i == 1:
+            s = torch.sqrt((1 + a[:, 0, 0] - a[:, 1, 1] - a[:, 2, 2]).clamp_min(1e-12)) * 2
+            q[sel] = torch.stack(
+                [(a[:, 2, 1] - a[:, 1, 2]) / s, s / 4, (a[:, 0, 1] + a[:, 1, 0]) / s, (a[:, 0, 2] + a[:, 2, 0]) / s], -1
+            )
+        elif i == 2:
+            s = torch.sqrt((1 + a[:, 1, 1] - a[:, 0, 0] - a[:, 2, 2]).clamp_min(1e-12)) * 2
+            q[sel] = torch.stack(
+                [(a[:, 0, 2] - a[:, 2, 0]) / s, (a[:, 0, 1] + a[:, 1, 0]) / s, s / 4, (a[:, 1, 2] + a[:, 2, 1]) / s], -1
+            )
+        else:
+            s = torch.sqrt((1 + a[:, 2, 2] - a[:, 0, 0] - a[:, 1, 1]).clamp_min(1e-12)) * 2
+            q[sel] = torch.stack(
+                [(a[:, 1, 0] - a[:, 0, 1]) / s, (a[:, 0, 2] + a[:, 2, 0]) / s, (a[:, 1, 2] + a[:, 2, 1]) / s, s / 4], -1
+            )
+    q = q / q.norm(dim=-1, keepdim=True)
+    q = torch.where(q[:, :1] < 0, -q, q)
+    return q.reshape(R.shape[:-2] + (4,))
+
+
 def covariance_3d(quats: torch.Tensor, scales: torch.Tensor) -> torch.Tensor:
     """World covariances (N, 3, 3) = R S S^T R^T from quaternions (N, 4) and scales (N, 3) (clamped >= 0)."""
     R = quat_to_rotmat(quats)

@@ -277,7 +277,7 @@ def k_table(df: pd.DataFrame) -> pd.DataFrame:
 LADDER_STEPS = (  # (step, what, source, task/run, method, reference step); source "prior" = backbone.csv
     (
         "a",
-        "ground-truth depth + oracle colour (representation ceiling)",
+        "ground-truth depth (pixel-footprint surfels) + oracle colour",
         "prior",
         "relight",
         "gt-depth+oracle-colour",
