@@ -47,40 +47,43 @@ def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
 
 def rotmat_to_quat(R: torch.Tensor) -> torch.Tensor:
     """(..., 3, 3) rotation matrices -> (..., 4) unit quaternions (w, x, y, z) with w >= 0; the inverse of
-    :func:`quat_to_rotmat` (Shepperd's method: the largest of the four candidate components is computed first)."""
+    :func:`quat_to_rotmat` (Shepperd's method: of the four candidate solutions, each exact where its own component
+    is large, take the one whose component is largest)."""
     assert R.shape[-2:] == (3, 3), R.shape
     m = R.reshape(-1, 3, 3)
-    tr = m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]
-    cand = torch.stack([tr, m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], -1)  # 4 w^2 - 1, 4 x^2 - 1, ... (up to +1 - tr)
-    k = cand.argmax(-1)
-    q = torch.empty(m.shape[0], 4, dtype=R.dtype, device=R.device)
-    # each branch: the dominant component from the diagonal, the others from the off-diagonal sums/differences
-    for i in range(4):
-        sel = k == i
-        if not bool(sel.any()):
-            continue
-        a = m[sel]
-        if i == 0:
-            s = torch.sqrt((1 + a[:, 0, 0] + a[:, 1, 1] + a[:, 2, 2]).clamp_min(1e-12)) * 2
-            q[sel] = torch.stack(
-                [s / 4, (a[:, 2, 1] - a[:, 1, 2]) / s, (a[:, 0, 2] - a[:, 2, 0]) / s, (a[:, 1, 0] - a[:, 0, 1]) / s], -1
-            )
-        elif i == 1:
-            s = torch.sqrt((1 + a[:, 0, 0] - a[:, 1, 1] - a[:, 2, 2]).clamp_min(1e-12)) * 2
-            q[sel] = torch.stack(
-                [(a[:, 2, 1] - a[:, 1, 2]) / s, s / 4, (a[:, 0, 1] + a[:, 1, 0]) / s, (a[:, 0, 2] + a[:, 2, 0]) / s], -1
-            )
-        elif i == 2:
-            s = torch.sqrt((1 + a[:, 1, 1] - a[:, 0, 0] - a[:, 2, 2]).clamp_min(1e-12)) * 2
-            q[sel] = torch.stack(
-                [(a[:, 0, 2] - a[:, 2, 0]) / s, (a[:, 0, 1] + a[:, 1, 0]) / s, s / 4, (a[:, 1, 2] + a[:, 2, 1]) / s], -1
-            )
-        else:
-            s = torch.sqrt((1 + a[:, 2, 2] - a[:, 0, 0] - a[:, 1, 1]).clamp_min(1e-12)) * 2
-            q[sel] = torch.stack(
-                [(a[:, 1, 0] - a[:, 0, 1]) / s, (a[:, 0, 2] + a[:, 2, 0]) / s, (a[:, 1, 2] + a[:, 2, 1]) / s, s / 4], -1
-            )
-    q = q / q.norm(dim=-1, keepdim=True)
+    r = {f"{i}{j}": m[:, i, j] for i in range(3) for j in range(3)}
+    diag = torch.stack([r["00"] + r["11"] + r["22"], r["00"], r["11"], r["22"]], -1)
+    big = torch.stack(  # 4 q_k^2 for k = w, x, y, z
+        [
+            1 + diag[:, 0],
+            1 + 2 * diag[:, 1] - diag[:, 0],
+            1 + 2 * diag[:, 2] - diag[:, 0],
+            1 + 2 * diag[:, 3] - diag[:, 0],
+        ],
+        -1,
+    )
+    sym = [
+        r["21"] - r["12"],
+        r["02"] - r["20"],
+        r["10"] - r["01"],
+        r["01"] + r["10"],
+        r["02"] + r["20"],
+        r["12"] + r["21"],
+    ]
+    wx, wy, wz, xy, xz, yz = sym
+    # candidate k, scaled by 4 q_k: its components from the off-diagonal sums and differences
+    cand = torch.stack(
+        [
+            torch.stack([big[:, 0], wx, wy, wz], -1),
+            torch.stack([wx, big[:, 1], xy, xz], -1),
+            torch.stack([wy, xy, big[:, 2], yz], -1),
+            torch.stack([wz, xz, yz, big[:, 3]], -1),
+        ],
+        1,
+    )  # (N, 4 candidates, 4)
+    k = diag.argmax(-1)
+    q = cand[torch.arange(m.shape[0], device=R.device), k]
+    q = q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     q = torch.where(q[:, :1] < 0, -q, q)
     return q.reshape(R.shape[:-2] + (4,))
 
