@@ -62,6 +62,7 @@ from frng.render.shading import (
     smooth_normals,
 )
 from frng.sections import TypedConfig, register, section, section_dict
+from frng.surfels import grid_normals
 from frng.variants import canonical_for, variant
 
 MODEL_KIND = "frng"
@@ -186,25 +187,11 @@ def pixel_normal_index(uses_priors: bool) -> int:
     return PIXEL_IDM_NORMAL if uses_priors else PIXEL_GEO_NORMAL
 
 
-def geometry_normals(means: torch.Tensor, keep: torch.Tensor, c2w: torch.Tensor) -> torch.Tensor:
-    """World normals (V, H, W, 3) of the backbone's per-pixel Gaussians: means (V*H*W, 3) on the input pixel grid,
-    keep (V*H*W,) bool, c2w (V, 4, 4); from finite differences of the means (:func:`frng.priors.multiview.
-    depth_normals`), facing the input camera."""
-    from frng.priors.multiview import depth_normals
-
-    V = c2w.shape[0]
-    pts = means.reshape(V, -1, 3)
-    H = W = int(round(pts.shape[1] ** 0.5))
-    assert H * W == pts.shape[1], f"per-pixel Gaussians of square views expected, got {pts.shape[1]} per view"
-    n_cam = depth_normals(pts.reshape(V, H, W, 3).float(), c2w, keep.reshape(V, H, W).bool())
-    return (c2w[:, None, None, :3, :3].float() @ n_cam.unsqueeze(-1)).squeeze(-1)
-
-
 def pixel_map(images: torch.Tensor, priors, V: int, normals: torch.Tensor, input_env: torch.Tensor) -> torch.Tensor:
     """Per-pixel inputs of the pixel head.
 
     images (V, H, W, 4) linear premultiplied RGBA under the input light; priors IntrinsicPriors (first V views) or
-    None; normals (V, H, W, 3) world normals of the backbone's geometry (:func:`geometry_normals`); input_env
+    None; normals (V, H, W, 3) world normals of the backbone's geometry (:func:`frng.surfels.grid_normals`); input_env
     (He, We, 3) the input light's HDR map. Returns (V, H, W, C) = [unpremultiplied gamma-2.2 colour, alpha,
     shading-normalised colour (gamma of c * pi / E(n): an albedo estimate under a Lambertian assumption, clamped
     to [0, 4]), input irradiance (gamma of E(n) / pi), the geometry normal, (IDM albedo, world normal, roughness,
@@ -498,7 +485,7 @@ class FRNG(nn.Module):
                 raise ValueError(
                     "F-RNG with a pixel head needs the input light's env map: reconstruct(..., input_env=)"
                 )
-            normals = geometry_normals(bv["means"], keep_c, c2w)
+            normals = grid_normals(bv["means"], keep_c, c2w)
             pix_map = pixel_map(images, priors if self.cfg.uses_priors else None, V, normals, input_env)
             pix = [pix_map.reshape(-1, pix_map.shape[-1])[keep_c]]
             if fine is not None:

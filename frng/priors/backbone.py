@@ -78,6 +78,7 @@ from frng.priors.multiview import CUE_CHANNELS, geometry_cues
 from frng.render import rasterize
 from frng.render.sh import C0, eval_sh
 from frng.sections import section
+from frng.surfels import pixel_surfels
 
 GEO_CHANNELS = 9  # distance 1, scale 3, rotation 4, opacity 1 (RelitLRM's split)
 
@@ -107,10 +108,11 @@ class BackboneArch:
     pixel_features: int
     light_cue: bool
     light_cue_input: str  # "uniform" | "fit": how the light cue treats the (unknown) input light
+    surfels: bool  # inference: the per-pixel Gaussians become pixel-footprint surfels (frng.surfels)
 
 
 # Architecture keys that came after models were already saved -> the behaviour those models were trained with.
-SAVED_DEFAULTS = {"light_cue_input": "uniform"}
+SAVED_DEFAULTS = {"light_cue_input": "uniform", "surfels": False}
 
 
 @dataclass(frozen=True)
@@ -143,7 +145,8 @@ class BackboneConfig(BackboneArch):
 class BackboneGeometry(NamedTuple):
     """What :meth:`RelitLRMBackbone.reconstruct` returns for one object (V views, N = V*H*W Gaussians).
 
-    t_geo (1, V, h, w, D); raw (V, H, W, 9) the decoded Gaussians' raw parameters; gaussians (N); keep (N,) bool =
+    t_geo (1, V, h, w, D); raw (V, H, W, 9) the decoded Gaussians' raw parameters; gaussians (N) (with ``surfels``:
+    their pixels' surfels, :func:`frng.surfels.pixel_surfels`, not raw's shapes); keep (N,) bool =
     input alpha >= 0.5; raw_prior (V, H, W, 9) the multi-view prior's part of raw (zeros with ``cues: false``);
     pixels (1, V, H, W, 4) the per-pixel appearance inputs :meth:`RelitLRMBackbone.denoise` takes."""
 
@@ -485,11 +488,14 @@ class RelitLRMBackbone(nn.Module):
         (V, H, W, 1), c2w (V, 4, 4), intr (V, 4). See :class:`BackboneGeometry` for what comes back."""
         t_geo, raw, prior, normals = self.encode_geometry(images[None], alpha[None], c2w[None], intr[None])
         gauss = self.gaussians(raw[0], c2w, intr)
+        keep = alpha.reshape(-1) >= 0.5
+        if self.cfg.surfels:  # training renders the learned shapes; inference their pixels' surfels (frng.surfels)
+            gauss = pixel_surfels(gauss, keep, c2w, intr)
         return BackboneGeometry(
             t_geo,
             raw[0],
             gauss,
-            alpha.reshape(-1) >= 0.5,
+            keep,
             prior[0],
             self.pixel_inputs(images, alpha, normals[0] if self.cfg.light_cue else None),
         )

@@ -37,6 +37,7 @@ import torch
 
 from frng.priors.dataset import PriorObject
 from frng.priors.intrinsics import IntrinsicPriors
+from frng.surfels import PIXEL_STD
 
 
 def _rgba(rgb: torch.Tensor, alpha: torch.Tensor) -> np.ndarray:
@@ -77,49 +78,29 @@ def oracle_colour_render(
     return torch.cat(rgbs), torch.cat(alphas)
 
 
-PIXEL_STD = 1.0 / math.sqrt(12.0)  # a ceiling surfel's width in pixels: the standard deviation of a one-pixel box
-SURFEL_MAX_STRETCH = 4.0  # a ceiling surfel grows along the tilt by 1 / |cos| up to this factor
-SURFEL_THICKNESS = 0.1  # its standard deviation along the normal, in units of its footprint
-
-
 def gt_depth_gaussians(rig, gbuffer, footprint_px: float, decode_cfg):
     """One Gaussian per rig pixel at the G-buffer's depth, and the keep mask (input alpha >= 0.5, G-buffer coverage
     and depth): the representation's reference for :func:`oracle_colour_render`.
 
-    Each is a surfel on the true surface covering its pixel's footprint there: a flat Gaussian in the plane of the
-    G-buffer normal, ``footprint_px`` pixels wide at its distance (the backbone's starting footprint,
-    :func:`frng.gaussians.isotropic_raw`) across the tilt and ``1 / |cos|`` times that along it (the angle between
-    its pixel ray and the normal; at most ``SURFEL_MAX_STRETCH``), ``SURFEL_THICKNESS`` of it thick. So the surface
-    an input view sees at a grazing angle is covered without gaps from other views, which isotropic Gaussians of the
-    pixel footprint are not (they leave the background showing through, and scored below the backbone's own
-    learned Gaussians). Pixels without a G-buffer normal keep the isotropic Gaussian."""
+    Each is a surfel on the true surface (:func:`frng.surfels.surfel_shapes`, the shape the backbone's own Gaussians
+    take at inference): a flat Gaussian in the plane of the G-buffer normal, ``footprint_px`` pixels wide at its
+    distance across the tilt and up to 4x that along it. So the surface an input view sees at a grazing angle is
+    covered without gaps from other views, which isotropic Gaussians of the pixel footprint are not (they leave the
+    background showing through). Pixels without a G-buffer normal keep the isotropic Gaussian of
+    :func:`frng.gaussians.isotropic_raw`."""
     from frng import camera
     from frng.gaussians import Gaussians, isotropic_raw, pixel_gaussians
     from frng.priors.backbone_train import ray_distance_target
-    from frng.render.project import rotmat_to_quat
+    from frng.surfels import surfel_shapes
 
     V, H, W = rig.alpha.shape[:3]
     dist = ray_distance_target(gbuffer.depth, rig.c2w, rig.intr)
     raw = isotropic_raw(dist, rig.alpha, rig.intr[:, 0], footprint_px, decode_cfg)
     iso = pixel_gaussians(raw, rig.c2w, rig.intr, decode_cfg)
     _, d = camera.pixel_rays(rig.c2w.float(), rig.intr.float(), H, W)
-    d = d.reshape(-1, 3)
     n = gbuffer.normal.reshape(-1, 3).float()
     has_n = n.norm(dim=-1) > 0.5
-    n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-8)
-    cos = (n * d).sum(-1)
-    t1 = d - cos[:, None] * n  # the ray's direction within the surface plane: the axis the tilt stretches
-    # a ray along the normal has no such direction: any tangent will do
-    alt = torch.cross(
-        n, torch.where(n[:, 2:3].abs() < 0.9, n.new_tensor([0.0, 0.0, 1.0]), n.new_tensor([1.0, 0.0, 0.0])), dim=-1
-    )
-    t1 = torch.where(t1.norm(dim=-1, keepdim=True) > 1e-4, t1, alt)
-    t1 = t1 / t1.norm(dim=-1, keepdim=True).clamp_min(1e-8)
-    t2 = torch.cross(n, t1, dim=-1)
-    quats = rotmat_to_quat(torch.stack([t1, t2, n], -1))  # columns: local x, y, z in the world
-    s0 = iso.scales[:, :1]
-    stretch = 1.0 / cos.abs().clamp_min(1.0 / SURFEL_MAX_STRETCH)
-    scales = torch.cat([s0 * stretch[:, None], s0, s0 * SURFEL_THICKNESS], -1)
+    quats, scales = surfel_shapes(n / n.norm(dim=-1, keepdim=True).clamp_min(1e-8), d.reshape(-1, 3), iso.scales[:, 0])
     surfels = Gaussians(
         iso.means,
         torch.where(has_n[:, None], quats, iso.quats),

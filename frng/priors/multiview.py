@@ -29,6 +29,7 @@ import torch
 import torch.nn.functional as F
 
 from frng import camera
+from frng.render.project import quat_to_rotmat, rotmat_to_quat
 
 CUE_CHANNELS = 1 + 3 + 1 + 1  # hull distance (normalised), hull normal (camera frame), photo agreement, hull hit
 
@@ -190,15 +191,19 @@ def back_gaussians(
     bins: int = 48,
     radius: float = 1.05,
 ) -> dict[str, torch.Tensor]:
-    """Complete the surfaces no input view sees (few views) with copies of the pixels' Gaussians on the hull's
-    far side (:func:`back_surface`).
+    """Complete the surfaces no input view sees (few views) with copies of the pixels' Gaussians on the far side.
 
     means/quats/scales/opacities: the N = V*H*W per-pixel Gaussians (N, 3)/(N, 4)/(N, 3)/(N,); alpha (V, H, W, 1);
-    c2w (V, 4, 4); intr (V, 4). Each pixel whose hull exit is unseen gets one more Gaussian at the exit point,
-    with its own rotation and opacity and its scale grown with the distance (same footprint in pixels). Returns
-    ``means`` (M, 3), ``quats`` (M, 4), ``scales`` (M, 3), ``opacities`` (M,), ``src`` (M,) int64 the source
-    pixel's index in N (whose colour or features the copy takes), ``dirs`` (M, 3) the source pixel's unit ray (a
-    copy's normal is the source normal mirrored across the plane normal to it: ``n - 2 (n . d) d``)."""
+    c2w (V, 4, 4); intr (V, 4). Each pixel whose hull exit is unseen (:func:`back_surface`) gets one more Gaussian
+    on its ray, behind its own: its mirror image across the plane through the object's centre normal to the ray
+    (a symmetric object's far side), but no farther than the visual hull's exit. The centre is the centroid of the
+    foreground pixels' Gaussians and the unseen exits. The hull alone is loose with few views (two views 90
+    degrees apart cut a box around a ball), so copies at the exit stood outside the object and swelled its
+    silhouette. A copy is the source Gaussian mirrored across the plane normal to the ray (its covariance reflected,
+    its opacity kept), its scale grown with the distance (same footprint in pixels). Returns ``means`` (M, 3),
+    ``quats`` (M, 4), ``scales`` (M, 3), ``opacities`` (M,), ``src`` (M,) int64 the source pixel's index in N (whose
+    colour or features the copy takes), ``dirs`` (M, 3) the source pixel's unit ray (a copy's normal is the source
+    normal mirrored across the plane normal to it: :func:`mirror_normals`)."""
     V, H, W, _ = alpha.shape
     N = V * H * W
     assert means.shape == (N, 3), (means.shape, alpha.shape)
@@ -206,16 +211,31 @@ def back_gaussians(
     o, d = camera.pixel_rays(c2w.float(), intr.float(), H, W)
     src = unseen.reshape(-1).nonzero()[:, 0]
     o, d, t_exit = o.reshape(-1, 3)[src], d.reshape(-1, 3)[src], exit_.reshape(-1)[src]
-    t_front = (means[src] - o).norm(dim=-1).clamp_min(1e-6)
+    front = means[src]
+    t_front = (front - o).norm(dim=-1).clamp_min(1e-6)
+    if len(src):
+        fg = alpha.reshape(-1) >= 0.5
+        centre = torch.cat([means[fg], o + d * t_exit[:, None]]).mean(0)
+        t_mirror = t_front + 2.0 * ((centre - front) * d).sum(-1).clamp_min(0.0)
+        t_exit = torch.minimum(t_exit, t_mirror)
     grow = (t_exit / t_front).clamp(0.5, 4.0)[:, None]
     return {
         "means": o + d * t_exit[:, None],
-        "quats": quats[src],
+        "quats": mirror_quats(quats[src], d),
         "scales": scales[src] * grow,
         "opacities": opacities[src],
         "src": src,
         "dirs": d,
     }
+
+
+def mirror_quats(q: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+    """Rotations (M, 4) (w, x, y, z) of Gaussians mirrored across the planes normal to unit directions d (M, 3):
+    the reflection H = I - 2 d d^T applied to the rotation's frame, one axis flipped to keep it a rotation (the
+    covariance becomes H R S^2 R^T H, the mirror image's)."""
+    Hm = torch.eye(3, device=d.device, dtype=d.dtype) - 2.0 * d[:, :, None] * d[:, None, :]
+    R = Hm @ quat_to_rotmat(q).to(d.dtype)
+    return rotmat_to_quat(torch.stack([R[..., 0], -R[..., 1], R[..., 2]], -1))
 
 
 def mirror_normals(n: torch.Tensor, d: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,92 @@
+"""Pixel-footprint surfels (frng.surfels) and the mirrored far-side copies (frng.priors.multiview.mirror_quats):
+point-like per-pixel Gaussians of a surface seen at a grazing angle leave the background showing through from
+above; their surfels close it."""
+
+import numpy as np
+import torch
+
+from frng import camera
+from frng.gaussians import Gaussians
+from frng.priors.multiview import mirror_quats
+from frng.render import rasterize
+from frng.render.project import covariance_3d, quat_to_rotmat
+from frng.surfels import THICKNESS, grid_normals, pixel_surfels, surfel_shapes
+
+
+def _plane_points(elevation_deg: float, size: int = 32):
+    """Point-like per-pixel Gaussians on the square |x|, |y| <= 0.5 of the plane z = 0 seen by one camera from
+    ``elevation_deg`` above it (std 0.002, as the backbone learns them), the keep mask and the camera."""
+    eye = camera.spherical_to_cartesian(0.0, elevation_deg, 2.5)
+    c2w = torch.tensor(camera.look_at(eye), dtype=torch.float32)[None]
+    intr = torch.tensor(camera.intrinsics_from_fov(40.0, size, size), dtype=torch.float32)[None]
+    o, d = camera.pixel_rays(c2w, intr, size, size)
+    t = -o[..., 2] / d[..., 2]
+    hit = o + t[..., None] * d
+    keep = ((hit[..., 0].abs() <= 0.5) & (hit[..., 1].abs() <= 0.5) & (t > 0)).reshape(-1)
+    means = torch.where(keep[:, None], hit.reshape(-1, 3), o.reshape(-1, 3) + d.reshape(-1, 3))
+    N = means.shape[0]
+    g = Gaussians(means, torch.tensor([1.0, 0, 0, 0]).expand(N, 4), torch.full((N, 3), 0.002), torch.full((N,), 0.95))
+    return g, keep, c2w, intr
+
+
+def _alpha_from_above(g: Gaussians, size: int = 32) -> tuple[torch.Tensor, torch.Tensor]:
+    top = torch.tensor(camera.look_at(camera.spherical_to_cartesian(0.0, 89.0, 2.5)), dtype=torch.float32)[None]
+    intr = torch.tensor(camera.intrinsics_from_fov(40.0, size, size), dtype=torch.float32)[None]
+    _, alpha, _ = rasterize(g.means, g.quats, g.scales, g.opacities, torch.ones(len(g.means), 3), top, intr, size, size)
+    uv, _ = camera.project(g.means, top, intr)
+    return alpha[0, ..., 0], uv[0]
+
+
+def _inner(alpha: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+    """The alpha of the middle of the region the Gaussians project to (20-80 % quantiles in u and v)."""
+    lo_u, hi_u = np.quantile(uv[:, 0].numpy(), [0.2, 0.8])
+    lo_v, hi_v = np.quantile(uv[:, 1].numpy(), [0.2, 0.8])
+    return alpha[int(lo_v) + 1 : int(hi_v), int(lo_u) + 1 : int(hi_u)]
+
+
+def test_surfels_close_a_grazing_surface_that_points_leave_open():
+    g, keep, c2w, intr = _plane_points(elevation_deg=15.0)  # the view sees the plane 75 degrees off its normal
+    assert int(keep.sum()) > 50
+    a_pts, uv = _alpha_from_above(g[keep])
+    inner_pts = _inner(a_pts, uv)
+    assert inner_pts.numel() > 20
+    assert float(inner_pts.min()) < 0.3, "control: point-like Gaussians should leave gaps from above"
+    s = pixel_surfels(g, keep, c2w, intr)[keep]
+    assert torch.equal(s.means, g.means[keep]) and torch.equal(s.opacities, g.opacities[keep])
+    # flat in the plane (thinnest axis along +-z), stretched along the tilt (at most 4x)
+    R = quat_to_rotmat(s.quats)
+    thin = R[torch.arange(len(s.scales)), :, s.scales.argmin(-1)]
+    inner_rows = thin[:, 2].abs() > 0.99
+    assert float(inner_rows.float().mean()) > 0.8  # the silhouette's rim has one-sided normals
+    ratio = s.scales.max(-1).values / s.scales.median(-1).values
+    assert float(ratio.median()) > 3.0 and float(ratio.max()) <= 4.0 + 1e-4
+    a_surf, uv = _alpha_from_above(s)
+    inner = _inner(a_surf, uv)
+    assert float(inner.min()) > 0.5, f"holes in the covered region: min alpha {float(inner.min()):.3f}"
+
+
+def test_surfel_shapes_face_on_is_a_pixel_wide_disc():
+    n = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.6, 0.8]])
+    d = -n  # looked at straight on
+    q, sc = surfel_shapes(n, d, torch.tensor([0.01, 0.02]))
+    assert torch.allclose(sc, torch.tensor([[0.01, 0.01, 0.01 * THICKNESS], [0.02, 0.02, 0.02 * THICKNESS]]))
+    assert torch.allclose(quat_to_rotmat(q)[:, :, 2], n, atol=1e-5)
+
+
+def test_grid_normals_of_a_plane():
+    g, keep, c2w, _ = _plane_points(elevation_deg=40.0)
+    n = grid_normals(g.means, keep, c2w).reshape(-1, 3)[keep]
+    assert float((n[:, 2] > 0.999).float().mean()) > 0.9  # +z: the side facing the camera above the plane
+
+
+def test_mirror_quats_reflect_the_covariance():
+    gen = torch.Generator().manual_seed(0)
+    q = torch.randn(64, 4, generator=gen)
+    sc = torch.rand(64, 3, generator=gen) + 0.1
+    d = torch.randn(64, 3, generator=gen)
+    d = d / d.norm(dim=-1, keepdim=True)
+    H = torch.eye(3) - 2 * d[:, :, None] * d[:, None, :]
+    want = H @ covariance_3d(q, sc) @ H
+    qm = mirror_quats(q, d)
+    assert torch.allclose(covariance_3d(qm, sc), want, atol=1e-5)
+    assert torch.allclose(torch.linalg.det(quat_to_rotmat(qm)), torch.ones(64), atol=1e-5)
