@@ -1,32 +1,56 @@
-"""Pixel-footprint surfels (frng.surfels) and the mirrored far-side copies (frng.priors.multiview.mirror_quats):
-point-like per-pixel Gaussians of a surface seen at a grazing angle leave the background showing through from
-above; their surfels close it."""
+"""Pixel-footprint surfels (frng.surfels), the mirrored far-side copies (frng.priors.multiview.mirror_quats) and the
+quality ladder's ground-truth-depth surfels (frng.priors.evaluate.gt_depth_gaussians): point-like per-pixel
+Gaussians of a surface seen at a grazing angle leave the background showing through from above; surfels close it."""
+
+from types import SimpleNamespace
 
 import numpy as np
 import torch
 
 from frng import camera
-from frng.gaussians import Gaussians
+from frng.gaussians import GaussianDecodeConfig, Gaussians
+from frng.priors.evaluate import gt_depth_gaussians
 from frng.priors.multiview import mirror_quats
 from frng.render import rasterize
-from frng.render.project import covariance_3d, quat_to_rotmat
-from frng.surfels import THICKNESS, grid_normals, pixel_surfels, surfel_shapes
+from frng.render.project import covariance_3d, quat_to_rotmat, rotmat_to_quat
+from frng.surfels import PIXEL_STD, THICKNESS, grid_normals, pixel_surfels, surfel_shapes
 
 
-def _plane_points(elevation_deg: float, size: int = 32):
-    """Point-like per-pixel Gaussians on the square |x|, |y| <= 0.5 of the plane z = 0 seen by one camera from
-    ``elevation_deg`` above it (std 0.002, as the backbone learns them), the keep mask and the camera."""
+def _plane_view(elevation_deg: float, size: int = 32):
+    """One camera looking at the square |x|, |y| <= 0.5 of the plane z = 0 from ``elevation_deg`` above it: c2w
+    (1, 4, 4), intr (1, 4), its pixel rays o, d (1, size, size, 3), their distance t to the plane and ``inside``
+    (1, size, size) bool: the ray hits the square."""
     eye = camera.spherical_to_cartesian(0.0, elevation_deg, 2.5)
     c2w = torch.tensor(camera.look_at(eye), dtype=torch.float32)[None]
     intr = torch.tensor(camera.intrinsics_from_fov(40.0, size, size), dtype=torch.float32)[None]
     o, d = camera.pixel_rays(c2w, intr, size, size)
     t = -o[..., 2] / d[..., 2]
     hit = o + t[..., None] * d
-    keep = ((hit[..., 0].abs() <= 0.5) & (hit[..., 1].abs() <= 0.5) & (t > 0)).reshape(-1)
+    inside = (hit[..., 0].abs() <= 0.5) & (hit[..., 1].abs() <= 0.5) & (t > 0)
+    return c2w, intr, o, d, t, inside
+
+
+def _plane_points(elevation_deg: float, size: int = 32):
+    """Point-like per-pixel Gaussians on the plane of :func:`_plane_view` (std 0.002, as the backbone learns them),
+    the keep mask and the camera."""
+    c2w, intr, o, d, t, inside = _plane_view(elevation_deg, size)
+    hit = o + t[..., None] * d
+    keep = inside.reshape(-1)
     means = torch.where(keep[:, None], hit.reshape(-1, 3), o.reshape(-1, 3) + d.reshape(-1, 3))
     N = means.shape[0]
     g = Gaussians(means, torch.tensor([1.0, 0, 0, 0]).expand(N, 4), torch.full((N, 3), 0.002), torch.full((N,), 0.95))
     return g, keep, c2w, intr
+
+
+def _plane_gbuffer(elevation_deg: float, size: int = 32):
+    """The view of :func:`_plane_view` as a rig and its G-buffer (camera-z depth, world normal +z, mask)."""
+    c2w, intr, o, d, t, inside = _plane_view(elevation_deg, size)
+    zc = (t[..., None] * d * c2w[:, None, None, :3, 2]).sum(-1, keepdim=True)  # camera-axis depth
+    mask = inside[..., None].float()
+    normal = torch.tensor([0.0, 0.0, 1.0]).expand(1, size, size, 3) * mask
+    rig = SimpleNamespace(alpha=mask, c2w=c2w, intr=intr)
+    gbuffer = SimpleNamespace(depth=zc * mask, normal=normal, mask=mask)
+    return rig, gbuffer
 
 
 def _alpha_from_above(g: Gaussians, size: int = 32) -> tuple[torch.Tensor, torch.Tensor]:
@@ -90,3 +114,30 @@ def test_mirror_quats_reflect_the_covariance():
     qm = mirror_quats(q, d)
     assert torch.allclose(covariance_3d(qm, sc), want, atol=1e-5)
     assert torch.allclose(torch.linalg.det(quat_to_rotmat(qm)), torch.ones(64), atol=1e-5)
+
+
+def test_rotmat_to_quat_inverts_quat_to_rotmat():
+    g = torch.Generator().manual_seed(0)
+    q = torch.randn(2000, 4, generator=g)
+    q = q / q.norm(dim=-1, keepdim=True)
+    q = torch.where(q[:, :1] < 0, -q, q)
+    # include the branches where x, y or z dominates and the trace is negative
+    q = torch.cat([q, torch.tensor([[0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])])
+    back = rotmat_to_quat(quat_to_rotmat(q))
+    assert torch.allclose(back, q, atol=1e-5)
+
+
+def test_ceiling_surfels_cover_a_grazing_surface_seen_from_above():
+    rig, gbuffer = _plane_gbuffer(elevation_deg=15.0)  # the input view sees the plane 75 degrees off its normal
+    gauss, keep = gt_depth_gaussians(rig, gbuffer, PIXEL_STD, GaussianDecodeConfig())
+    assert int(keep.sum()) > 50
+    g = gauss[keep]
+    R = quat_to_rotmat(g.quats)
+    # flat in the plane: the thinnest axis is the normal (+-z)
+    thin = R[torch.arange(len(g.scales)), :, g.scales.argmin(-1)]
+    assert torch.allclose(thin[:, 2].abs(), torch.ones(len(thin)), atol=1e-4)
+    # seen from straight above, the surfels cover the part of the square the input view saw without gaps
+    alpha, uv = _alpha_from_above(g)
+    inner = _inner(alpha, uv)
+    assert inner.numel() > 20
+    assert float(inner.min()) > 0.5, f"holes in the covered region: min alpha {float(inner.min()):.3f}"
