@@ -1,4 +1,4 @@
-"""Pixel-footprint surfels (frng.surfels), the mirrored far-side copies (frng.priors.multiview.mirror_quats) and the
+"""Pixel-footprint surfels (frng.priors.surfels), the mirrored far-side copies (frng.priors.multiview.mirror_quats) and the
 quality ladder's ground-truth-depth surfels (frng.priors.evaluate.gt_depth_gaussians): point-like per-pixel
 Gaussians of a surface seen at a grazing angle leave the background showing through from above; surfels close it."""
 
@@ -11,9 +11,9 @@ from frng import camera
 from frng.gaussians import GaussianDecodeConfig, Gaussians
 from frng.priors.evaluate import gt_depth_gaussians
 from frng.priors.multiview import mirror_quats
+from frng.priors.surfels import PIXEL_STD, THICKNESS, grid_normals, pixel_surfels, surfel_shapes
 from frng.render import rasterize
 from frng.render.project import covariance_3d, quat_to_rotmat, rotmat_to_quat
-from frng.surfels import PIXEL_STD, THICKNESS, grid_normals, pixel_surfels, surfel_shapes
 
 
 def _plane_view(elevation_deg: float, size: int = 32):

@@ -62,7 +62,6 @@ from frng.render.shading import (
     smooth_normals,
 )
 from frng.sections import TypedConfig, register, section, section_dict
-from frng.surfels import grid_normals
 from frng.variants import canonical_for, variant
 
 MODEL_KIND = "frng"
@@ -191,8 +190,8 @@ def pixel_map(images: torch.Tensor, priors, V: int, normals: torch.Tensor, input
     """Per-pixel inputs of the pixel head.
 
     images (V, H, W, 4) linear premultiplied RGBA under the input light; priors IntrinsicPriors (first V views) or
-    None; normals (V, H, W, 3) world normals of the backbone's geometry (:func:`frng.surfels.grid_normals`); input_env
-    (He, We, 3) the input light's HDR map. Returns (V, H, W, C) = [unpremultiplied gamma-2.2 colour, alpha,
+    None; normals (V, H, W, 3) world normals of the backbone's geometry (:func:`frng.priors.surfels.grid_normals`);
+    input_env (He, We, 3) the input light's HDR map. Returns (V, H, W, C) = [unpremultiplied gamma-2.2 colour, alpha,
     shading-normalised colour (gamma of c * pi / E(n): an albedo estimate under a Lambertian assumption, clamped
     to [0, 4]), input irradiance (gamma of E(n) / pi), the geometry normal, (IDM albedo, world normal, roughness,
     metallic)], where E(n) is
@@ -485,6 +484,8 @@ class FRNG(nn.Module):
                 raise ValueError(
                     "F-RNG with a pixel head needs the input light's env map: reconstruct(..., input_env=)"
                 )
+            from frng.priors.surfels import grid_normals  # lazy: importing frng.priors loads every prior
+
             normals = grid_normals(bv["means"], keep_c, c2w)
             pix_map = pixel_map(images, priors if self.cfg.uses_priors else None, V, normals, input_env)
             pix = [pix_map.reshape(-1, pix_map.shape[-1])[keep_c]]

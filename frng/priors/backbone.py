@@ -75,10 +75,10 @@ from frng.nn import PatchDetokenizer, PatchTokenizer, Transformer, timestep_embe
 from frng.priors.diffusion import NoiseSchedule, from_diffusion_space, to_diffusion_space
 from frng.priors.envenc import EnvTokenizer
 from frng.priors.multiview import CUE_CHANNELS, geometry_cues
+from frng.priors.surfels import pixel_surfels
 from frng.render import rasterize
 from frng.render.sh import C0, eval_sh
 from frng.sections import section
-from frng.surfels import pixel_surfels
 
 GEO_CHANNELS = 9  # distance 1, scale 3, rotation 4, opacity 1 (RelitLRM's split)
 
@@ -108,7 +108,7 @@ class BackboneArch:
     pixel_features: int
     light_cue: bool
     light_cue_input: str  # "uniform" | "fit": how the light cue treats the (unknown) input light
-    surfels: bool  # inference: the per-pixel Gaussians become pixel-footprint surfels (frng.surfels)
+    surfels: bool  # inference: the per-pixel Gaussians become pixel-footprint surfels (frng.priors.surfels)
 
 
 # Architecture keys that came after models were already saved -> the behaviour those models were trained with.
@@ -146,7 +146,7 @@ class BackboneGeometry(NamedTuple):
     """What :meth:`RelitLRMBackbone.reconstruct` returns for one object (V views, N = V*H*W Gaussians).
 
     t_geo (1, V, h, w, D); raw (V, H, W, 9) the decoded Gaussians' raw parameters; gaussians (N) (with ``surfels``:
-    their pixels' surfels, :func:`frng.surfels.pixel_surfels`, not raw's shapes); keep (N,) bool =
+    their pixels' surfels, :func:`frng.priors.surfels.pixel_surfels`, not raw's shapes); keep (N,) bool =
     input alpha >= 0.5; raw_prior (V, H, W, 9) the multi-view prior's part of raw (zeros with ``cues: false``);
     pixels (1, V, H, W, 4) the per-pixel appearance inputs :meth:`RelitLRMBackbone.denoise` takes."""
 
@@ -489,7 +489,9 @@ class RelitLRMBackbone(nn.Module):
         t_geo, raw, prior, normals = self.encode_geometry(images[None], alpha[None], c2w[None], intr[None])
         gauss = self.gaussians(raw[0], c2w, intr)
         keep = alpha.reshape(-1) >= 0.5
-        if self.cfg.surfels:  # training renders the learned shapes; inference their pixels' surfels (frng.surfels)
+        if (
+            self.cfg.surfels
+        ):  # training renders the learned shapes; inference their pixels' surfels (frng.priors.surfels)
             gauss = pixel_surfels(gauss, keep, c2w, intr)
         return BackboneGeometry(
             t_geo,

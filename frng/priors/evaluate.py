@@ -37,7 +37,7 @@ import torch
 
 from frng.priors.dataset import PriorObject
 from frng.priors.intrinsics import IntrinsicPriors
-from frng.surfels import PIXEL_STD
+from frng.priors.surfels import PIXEL_STD
 
 
 def _rgba(rgb: torch.Tensor, alpha: torch.Tensor) -> np.ndarray:
@@ -82,7 +82,7 @@ def gt_depth_gaussians(rig, gbuffer, footprint_px: float, decode_cfg):
     """One Gaussian per rig pixel at the G-buffer's depth, and the keep mask (input alpha >= 0.5, G-buffer coverage
     and depth): the representation's reference for :func:`oracle_colour_render`.
 
-    Each is a surfel on the true surface (:func:`frng.surfels.surfel_shapes`, the shape the backbone's own Gaussians
+    Each is a surfel on the true surface (:func:`frng.priors.surfels.surfel_shapes`, the shape the backbone's own Gaussians
     take at inference): a flat Gaussian in the plane of the G-buffer normal, ``footprint_px`` pixels wide at its
     distance across the tilt and up to 4x that along it. So the surface an input view sees at a grazing angle is
     covered without gaps from other views, which isotropic Gaussians of the pixel footprint are not (they leave the
@@ -91,7 +91,7 @@ def gt_depth_gaussians(rig, gbuffer, footprint_px: float, decode_cfg):
     from frng import camera
     from frng.gaussians import Gaussians, isotropic_raw, pixel_gaussians
     from frng.priors.backbone_train import ray_distance_target
-    from frng.surfels import surfel_shapes
+    from frng.priors.surfels import surfel_shapes
 
     V, H, W = rig.alpha.shape[:3]
     dist = ray_distance_target(gbuffer.depth, rig.c2w, rig.intr)
