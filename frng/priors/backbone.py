@@ -489,9 +489,8 @@ class RelitLRMBackbone(nn.Module):
         t_geo, raw, prior, normals = self.encode_geometry(images[None], alpha[None], c2w[None], intr[None])
         gauss = self.gaussians(raw[0], c2w, intr)
         keep = alpha.reshape(-1) >= 0.5
-        if (
-            self.cfg.surfels
-        ):  # training renders the learned shapes; inference their pixels' surfels (frng.priors.surfels)
+        # training renders the learned shapes; inference renders their pixels' surfels (frng.priors.surfels)
+        if self.cfg.surfels:
             gauss = pixel_surfels(gauss, keep, c2w, intr)
         return BackboneGeometry(
             t_geo,

@@ -82,11 +82,11 @@ def gt_depth_gaussians(rig, gbuffer, footprint_px: float, decode_cfg):
     """One Gaussian per rig pixel at the G-buffer's depth, and the keep mask (input alpha >= 0.5, G-buffer coverage
     and depth): the representation's reference for :func:`oracle_colour_render`.
 
-    Each is a surfel on the true surface (:func:`frng.priors.surfels.surfel_shapes`, the shape the backbone's own Gaussians
-    take at inference): a flat Gaussian in the plane of the G-buffer normal, ``footprint_px`` pixels wide at its
-    distance across the tilt and up to 4x that along it. So the surface an input view sees at a grazing angle is
-    covered without gaps from other views, which isotropic Gaussians of the pixel footprint are not (they leave the
-    background showing through). Pixels without a G-buffer normal keep the isotropic Gaussian of
+    Each is a surfel on the true surface (:func:`frng.priors.surfels.surfel_shapes`, the shape the backbone's own
+    Gaussians take at inference): a flat Gaussian in the plane of the G-buffer normal, ``footprint_px`` pixels wide
+    at its distance across the tilt and up to 4x that along it. So the surface an input view sees at a grazing angle
+    is covered without gaps from other views, which isotropic Gaussians of the pixel footprint are not (they leave
+    the background showing through). Pixels without a G-buffer normal keep the isotropic Gaussian of
     :func:`frng.gaussians.isotropic_raw`."""
     from frng import camera
     from frng.gaussians import Gaussians, isotropic_raw, pixel_gaussians
