@@ -109,10 +109,11 @@ class BackboneArch:
     light_cue: bool
     light_cue_input: str  # "uniform" | "fit": how the light cue treats the (unknown) input light
     surfels: bool  # inference: the per-pixel Gaussians become pixel-footprint surfels (frng.priors.surfels)
+    hull_fill: bool  # caches: Gaussians on the visual hull's surface no input view saw (frng.priors.hullfill)
 
 
 # Architecture keys that came after models were already saved -> the behaviour those models were trained with.
-SAVED_DEFAULTS = {"light_cue_input": "uniform", "surfels": False}
+SAVED_DEFAULTS = {"light_cue_input": "uniform", "surfels": False, "hull_fill": False}
 
 
 @dataclass(frozen=True)
@@ -417,20 +418,20 @@ class RelitLRMBackbone(nn.Module):
     @torch.no_grad()
     def back_gaussians(self, gauss: Gaussians, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor) -> dict:
         """Far-side copies of one object's per-pixel Gaussians where no input view sees the hull's far side
-        (:func:`frng.priors.multiview.back_gaussians`; alpha (V, H, W, 1), c2w (V, 4, 4), intr (V, 4))."""
+        (:func:`frng.priors.multiview.back_gaussians`), then, with ``hull_fill``, the fills of the hull's surface that
+        neither they nor the pixels' Gaussians cover (:func:`frng.priors.hullfill.hull_fill_gaussians`; same keys,
+        appended). gauss: the N = V*H*W per-pixel Gaussians; alpha (V, H, W, 1), c2w (V, 4, 4), intr (V, 4)."""
+        from frng.priors.hullfill import hull_fill_gaussians
         from frng.priors.multiview import back_gaussians
 
-        return back_gaussians(
-            gauss.means,
-            gauss.quats,
-            gauss.scales,
-            gauss.opacities,
-            alpha.float(),
-            c2w.float(),
-            intr.float(),
-            self.cfg.far,
-            self.cfg.hull_bins,
-        )
+        alpha, c2w, intr = alpha.float(), c2w.float(), intr.float()
+        args = (gauss.means, gauss.quats, gauss.scales, gauss.opacities, alpha, c2w, intr)
+        back = back_gaussians(*args, self.cfg.far, self.cfg.hull_bins)
+        if not self.cfg.hull_fill:
+            return back
+        keep = alpha.reshape(-1) >= 0.5
+        fill = hull_fill_gaussians(gauss.means, gauss.scales, gauss.opacities, keep, alpha, c2w, intr, extra=back)
+        return {k: torch.cat([back[k], fill[k].to(back[k].dtype)]) for k in back}
 
     # -- denoising (DDIM with x0 prediction, classifier-free guidance) -------------------------------------
 

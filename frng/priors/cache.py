@@ -62,7 +62,7 @@ from frng.priors import build_idm, load_backbone
 from frng.priors.intrinsics import IntrinsicPriors
 from frng.variants import SWEEP_VIEWS, view_counts  # noqa: F401
 
-BACKBONE_CACHE_VERSION = "4"
+BACKBONE_CACHE_VERSION = "5"
 IDM_CACHE_VERSION = "1"
 
 
