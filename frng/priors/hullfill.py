@@ -11,12 +11,13 @@ The fill works on a voxel grid over the bounding sphere:
 1. **Carved hull.** A voxel is solid when every input view sees it inside the object's mask and none sees it in
    front of the surface its per-pixel Gaussians reconstructed there (depth carving: the space between a camera and
    the surface it sees is empty).
-2. **Unseen surface.** Solid voxels with an empty 6-neighbour are the carved hull's surface. Those within ``tol`` of
+2. **Unseen surface.** Solid voxels with an empty one among their 26 neighbours are the carved hull's surface. Those within ``tol`` of
    some view's reconstructed depth are surface the views saw (their Gaussians are already there); the others are
    unseen. Every unseen voxel lies behind the reconstructed surface in every view, so a fill never covers what an
    input view saw.
-3. **Open.** An unseen voxel is filled only when the way from it to the object's centre holds no Gaussian: where a
-   front Gaussian or a far-side copy lies inward of the hull (the hull of few views is loose: two level views cut a
+3. **Open.** An unseen voxel is filled only when the way from it to the object's centre crosses no voxel that
+   Gaussians cover (their discs adding up to :data:`COVERED` of a voxel face): where front Gaussians or far-side
+   copies lie inward of the hull (the hull of few views is loose: two level views cut a
    box around a ball), that Gaussian is already the surface there, and a fill outside it would swell the object.
 4. **Fill.** One flat Gaussian per open voxel at its centre, in the plane of the hull's normal (the gradient of the
    smoothed solid grid), a voxel wide (:data:`FILL_STD` of the spacing, so neighbours overlap), with the opacity of
@@ -88,28 +89,34 @@ def hull_fill_gaussians(
     h = 2.0 * radius / res
     ax = (torch.arange(res, device=means.device, dtype=torch.float32) + 0.5) * h - radius
     grid = torch.stack(torch.meshgrid(ax, ax, ax, indexing="ij"), -1).reshape(-1, 3)  # (P, 3) voxel centres
-    cand = torch.zeros(0, dtype=torch.long, device=means.device)
-    if keep.any():
-        solid, seen = _carved_hull(grid, means, keep, alpha, c2w, intr, TOL_VOXELS * h, radius)
-        cand = (_surface(solid, res) & ~seen).nonzero()[:, 0]
+    if not keep.any():
+        return _fills(grid[:0], grid[:0], keep.nonzero()[:, 0], means, opacities, keep, c2w, h)
+    solid, seen = _carved_hull(grid, means, keep, alpha, c2w, intr, TOL_VOXELS * h, radius)
+    cand = (_surface(solid, res) & ~seen).nonzero()[:, 0]
+    gauss = [(means[keep], scales[keep].float(), opacities[keep].float())]
+    if extra is not None:
+        gauss.append((extra["means"].float(), extra["scales"].float(), extra["opacities"].float()))
+    centre = means[keep].mean(0)
     if len(cand):
-        gauss = [(means[keep], scales[keep].float(), opacities[keep].float())]
-        if extra is not None:
-            gauss.append((extra["means"].float(), extra["scales"].float(), extra["opacities"].float()))
-        centre = means[keep].mean(0)
         cand = cand[~_blocked(grid[cand], centre, _covered(gauss, res, radius), res, radius)]
-    p = grid[cand]
-    normal = _hull_normals(solid, cand, p - means[keep].mean(0), res) if len(cand) else p
-    fg_idx = keep.nonzero()[:, 0]
-    src = fg_idx[torch.cat([torch.cdist(q, means[fg_idx]).argmin(-1) for q in p.split(2048)])] if len(cand) else cand
+    normals = _hull_normals(solid, cand, grid[cand] - centre, res)
+    return _fills(grid[cand], normals, keep.nonzero()[:, 0], means, opacities, keep, c2w, h)
+
+
+def _fills(p, normals, fg_idx, means, opacities, keep, c2w, h: float) -> dict[str, torch.Tensor]:
+    """The fill Gaussians at points p (M, 3) with unit normals (M, 3): colour, opacity and normal source the
+    nearest foreground Gaussian (fg_idx (F,) its indices in N); see :func:`hull_fill_gaussians` for the keys."""
+    src = fg_idx[:0]
+    if len(p):
+        src = torch.cat([fg_idx[torch.cdist(q, means[fg_idx]).argmin(-1)] for q in p.split(2048)])
     src_n = grid_normals(means, keep, c2w).reshape(-1, 3)[src]
-    diff = src_n - normal
+    diff = src_n - normals
     dirs = torch.where(diff.norm(dim=-1, keepdim=True) > 1e-3, F.normalize(diff, dim=-1), torch.zeros_like(diff))
-    quats, shape = surfel_shapes(normal, normal, torch.full((len(cand),), FILL_STD * h, device=p.device))
+    quats, scales = surfel_shapes(normals, normals, torch.full((len(p),), FILL_STD * h, device=p.device))
     return {
         "means": p,
         "quats": quats,
-        "scales": shape,
+        "scales": scales,
         "opacities": opacities.float()[src],
         "src": src,
         "dirs": dirs,
