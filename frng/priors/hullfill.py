@@ -11,14 +11,14 @@ The fill works on a voxel grid over the bounding sphere:
 1. **Carved hull.** A voxel is solid when every input view sees it inside the object's mask and none sees it in
    front of the surface its per-pixel Gaussians reconstructed there (depth carving: the space between a camera and
    the surface it sees is empty).
-2. **Unseen surface.** Solid voxels with an empty one among their 26 neighbours are the carved hull's surface. Those within ``tol`` of
-   some view's reconstructed depth are surface the views saw (their Gaussians are already there); the others are
-   unseen. Every unseen voxel lies behind the reconstructed surface in every view, so a fill never covers what an
+2. **Unseen surface.** Solid voxels with an empty one among their 26 neighbours are the carved hull's surface.
+   Those within ``tol`` of some view's reconstructed depth are surface the views saw (their Gaussians are already
+   there); the others are unseen. Every unseen voxel lies behind the reconstructed surface in every view, so a fill never covers what an
    input view saw.
 3. **Open.** An unseen voxel is filled only when the way from it to the object's centre crosses no voxel that
    Gaussians cover (their discs adding up to :data:`COVERED` of a voxel face): where front Gaussians or far-side
-   copies lie inward of the hull (the hull of few views is loose: two level views cut a
-   box around a ball), that Gaussian is already the surface there, and a fill outside it would swell the object.
+   copies lie inward of the hull (the hull of few views is loose: two level views cut a box around a ball), they
+   are already the surface there, and a fill outside it would swell the object.
 4. **Fill.** One flat Gaussian per open voxel at its centre, in the plane of the hull's normal (the gradient of the
    smoothed solid grid), a voxel wide (:data:`FILL_STD` of the spacing, so neighbours overlap), with the opacity of
    and the colour (``src``) of the nearest foreground Gaussian. Its ``dirs`` is the unit vector across whose normal
@@ -33,6 +33,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from frng import camera
 from frng.priors.multiview import sample_image
 from frng.priors.surfels import grid_normals, surfel_shapes
 
@@ -40,18 +41,6 @@ GRID = 48  # voxels along each axis of the grid over the bounding sphere
 FILL_STD = 0.6  # a fill's standard deviation across the surface, in voxel spacings (neighbours overlap)
 COVERED = 0.5  # a voxel whose Gaussians' discs (2 pi s1 s2 opacity) add up to this share of a voxel face is surface
 TOL_VOXELS = 1.5  # how near a view's reconstructed depth a voxel counts as seen, in voxel spacings
-
-
-def _project(pts: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor):
-    """Pixel coordinates (V, P, 2), camera-frame z (V, P) and distances to the camera (V, P) of points (P, 3)."""
-    R, cam = c2w[:, :3, :3], c2w[:, :3, 3]
-    rel = pts[None] - cam[:, None]  # (V, P, 3)
-    pc = torch.einsum("vji,vpj->vpi", R, rel)  # camera frame: R^T rel
-    z = pc[..., 2]
-    zc = z.clamp_min(1e-6)
-    u = intr[:, None, 0] * pc[..., 0] / zc + intr[:, None, 2]
-    v = intr[:, None, 1] * pc[..., 1] / zc + intr[:, None, 3]
-    return torch.stack([u, v], -1), z, rel.norm(dim=-1)
 
 
 def _voxel_index(pts: torch.Tensor, radius: float, res: int) -> torch.Tensor:
@@ -128,7 +117,8 @@ def _carved_hull(grid, means, keep, alpha, c2w, intr, tol: float, radius: float)
     front of its reconstructed depth (the distance of the pixel's Gaussian) by more than tol; seen (P,) bool: within
     tol of some view's reconstructed depth."""
     V, H, W, _ = alpha.shape
-    uv, z, dist = _project(grid, c2w, intr)
+    uv, z = camera.project(grid, c2w, intr)  # (V, P, 2), (V, P)
+    dist = (grid[None] - c2w[:, None, :3, 3]).norm(dim=-1)  # (V, P) distance to each camera
     in_img = (z > 0) & (uv[..., 0] >= 0) & (uv[..., 0] <= W) & (uv[..., 1] >= 0) & (uv[..., 1] <= H)
     in_mask = (sample_image(alpha.float(), uv)[..., 0] >= 0.5) & in_img  # (V, P)
     depth = (means.reshape(V, H, W, 3) - c2w[:, None, None, :3, 3]).norm(dim=-1)
