@@ -1,4 +1,5 @@
-"""Hull fill (frng.priors.hullfill) on an analytic cube: what no input view saw gets a surface, what one saw does not."""
+"""Hull fill (frng.priors.hullfill) on an analytic cube: what no input view saw gets a surface, what one saw does
+not."""
 
 import numpy as np
 import pytest

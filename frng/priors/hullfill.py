@@ -11,10 +11,10 @@ The fill works on a voxel grid over the bounding sphere:
 1. **Carved hull.** A voxel is solid when every input view sees it inside the object's mask and none sees it in
    front of the surface its per-pixel Gaussians reconstructed there (depth carving: the space between a camera and
    the surface it sees is empty).
-2. **Unseen surface.** Solid voxels with an empty one among their 26 neighbours are the carved hull's surface.
-   Those within ``tol`` of some view's reconstructed depth are surface the views saw (their Gaussians are already
-   there); the others are unseen. Every unseen voxel lies behind the reconstructed surface in every view, so a fill never covers what an
-   input view saw.
+2. **Unseen surface.** Solid voxels with an empty one among their 26 neighbours are the carved hull's surface. Those
+   within ``tol`` of some view's reconstructed depth are surface the views saw (their Gaussians are already there);
+   the others are unseen. Every unseen voxel lies behind the reconstructed surface in every view, so a fill never
+   covers what an input view saw.
 3. **Open.** An unseen voxel is filled only when the way from it to the object's centre crosses no voxel that
    Gaussians cover (their discs adding up to :data:`COVERED` of a voxel face): where front Gaussians or far-side
    copies lie inward of the hull (the hull of few views is loose: two level views cut a box around a ball), they
