@@ -76,6 +76,7 @@ from frng.priors.diffusion import NoiseSchedule, from_diffusion_space, to_diffus
 from frng.priors.envenc import EnvTokenizer
 from frng.priors.multiview import CUE_CHANNELS, geometry_cues
 from frng.priors.surfels import pixel_surfels
+from frng.priors.viewselect import frontal_keep
 from frng.render import rasterize
 from frng.render.sh import C0, eval_sh
 from frng.sections import section
@@ -110,10 +111,11 @@ class BackboneArch:
     light_cue_input: str  # "uniform" | "fit": how the light cue treats the (unknown) input light
     surfels: bool  # inference: the per-pixel Gaussians become pixel-footprint surfels (frng.priors.surfels)
     hull_fill: bool  # caches: Gaussians on the visual hull's surface no input view saw (frng.priors.hullfill)
+    view_select: bool  # inference: a surface seen by several views keeps its most frontal layer (priors.viewselect)
 
 
 # Architecture keys that came after models were already saved -> the behaviour those models were trained with.
-SAVED_DEFAULTS = {"light_cue_input": "uniform", "surfels": False, "hull_fill": False}
+SAVED_DEFAULTS = {"light_cue_input": "uniform", "surfels": False, "hull_fill": False, "view_select": False}
 
 
 @dataclass(frozen=True)
@@ -147,8 +149,9 @@ class BackboneGeometry(NamedTuple):
     """What :meth:`RelitLRMBackbone.reconstruct` returns for one object (V views, N = V*H*W Gaussians).
 
     t_geo (1, V, h, w, D); raw (V, H, W, 9) the decoded Gaussians' raw parameters; gaussians (N) (with ``surfels``:
-    their pixels' surfels, :func:`frng.priors.surfels.pixel_surfels`, not raw's shapes); keep (N,) bool =
-    input alpha >= 0.5; raw_prior (V, H, W, 9) the multi-view prior's part of raw (zeros with ``cues: false``);
+    their pixels' surfels, :func:`frng.priors.surfels.pixel_surfels`, not raw's shapes); keep (N,) bool: the
+    Gaussians rendered = input alpha >= 0.5 (with ``view_select``: less those another input view covers more squarely,
+    :func:`frng.priors.viewselect.frontal_keep`); raw_prior (V, H, W, 9) the multi-view prior's part of raw (zeros with ``cues: false``);
     pixels (1, V, H, W, 4) the per-pixel appearance inputs :meth:`RelitLRMBackbone.denoise` takes."""
 
     t_geo: torch.Tensor
@@ -493,6 +496,8 @@ class RelitLRMBackbone(nn.Module):
         # training renders the learned shapes; inference renders their pixels' surfels (frng.priors.surfels)
         if self.cfg.surfels:
             gauss = pixel_surfels(gauss, keep, c2w, intr)
+        if self.cfg.view_select:  # one layer per surface: the most frontal view's (frng.priors.viewselect)
+            keep = frontal_keep(gauss.means, keep, c2w, intr)
         return BackboneGeometry(
             t_geo,
             raw[0],

@@ -20,7 +20,8 @@ key                             shape           meaning
 ``v{V}.raw``                    (V, H, W, 9)    raw Gaussian parameters (decode with frng.gaussians.pixel_gaussians)
 ``v{V}.raw_prior``              (V, H, W, 9)    the multi-view prior's part of raw (frng.priors.multiview)
 ``v{V}.means`` / ``quats`` /    (N, 3)/(N, 4)/  decoded per-pixel Gaussians, N = V*H*W in (view, row, col)
-``scales`` / ``opacities``      (N, 3)/(N,)     order (quats (w, x, y, z), scales = std devs)
+``scales`` / ``opacities``      (N, 3)/(N,)     order (quats (w, x, y, z), scales = std devs); opacity 0 where
+                                                another view covers the pixel more squarely (backbone.view_select)
 ``v{V}.keep``                   (N,) uint8      1 where the input pixel is foreground (alpha >= 0.5)
 ``v{V}.c2w`` / ``v{V}.intr``    (V, 4, 4)/(V,4) the input cameras
 ``v{V}.back_means`` / ``quats``  (M, 3)/(M, 4)/  far-side copies of per-pixel Gaussians where no input view sees
@@ -62,7 +63,7 @@ from frng.priors import build_idm, load_backbone
 from frng.priors.intrinsics import IntrinsicPriors
 from frng.variants import SWEEP_VIEWS, view_counts  # noqa: F401
 
-BACKBONE_CACHE_VERSION = "5"
+BACKBONE_CACHE_VERSION = "6"
 IDM_CACHE_VERSION = "1"
 
 
@@ -113,6 +114,9 @@ def geometry_entry(model, recon: tuple, alpha: torch.Tensor, c2w: torch.Tensor, 
     t_geo, raw, gauss, keep, raw_prior, _ = recon
     V = c2w.shape[0]
     assert alpha.shape[0] == V and c2w.shape == (V, 4, 4) and intr.shape == (V, 4), (alpha.shape, c2w.shape, intr.shape)
+    # ``keep`` is every foreground pixel's Gaussian (F-RNG reads their features and the far-side copies' sources);
+    # the ones the backbone does not render (frontal view selection, ``backbone.view_select``) get opacity 0
+    fg = alpha.reshape(-1) >= 0.5
     return {
         "t_geo": t_geo[0].float(),
         "raw": raw.float(),
@@ -120,8 +124,8 @@ def geometry_entry(model, recon: tuple, alpha: torch.Tensor, c2w: torch.Tensor, 
         "means": gauss.means,
         "quats": gauss.quats,
         "scales": gauss.scales,
-        "opacities": gauss.opacities,
-        "keep": keep.to(torch.uint8),
+        "opacities": torch.where(fg & ~keep, torch.zeros_like(gauss.opacities), gauss.opacities),
+        "keep": fg.to(torch.uint8),
         "c2w": c2w,
         "intr": intr,
         **{"back_" + k: t for k, t in model.back_gaussians(gauss, alpha, c2w, intr).items()},

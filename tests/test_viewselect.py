@@ -1,0 +1,66 @@
+"""Frontal view selection (frng.priors.viewselect): of two views' per-pixel Gaussians on the same plane, the oblique
+view's are dominated where the frontal view covers the plane, kept where it does not; the frontal view's are kept."""
+
+import torch
+
+from frng import camera
+from frng.priors.surfels import grid_normals
+from frng.priors.viewselect import dominated
+
+
+def _rig(elevations, azimuths, size=32, half=0.5):
+    """Cameras on the plane z = 0 (the square |x|, |y| <= half) and per-pixel Gaussians where their rays hit it."""
+    c2ws, means, keeps = [], [], []
+    intr = torch.tensor(camera.intrinsics_from_fov(40.0, size, size), dtype=torch.float32)[None]
+    for el, az in zip(elevations, azimuths):
+        c2w = torch.tensor(camera.look_at(camera.spherical_to_cartesian(az, el, 2.5)), dtype=torch.float32)[None]
+        o, d = camera.pixel_rays(c2w, intr, size, size)
+        t = -o[..., 2] / d[..., 2]
+        hit = o + t[..., None] * d
+        inside = (hit[..., 0].abs() <= half) & (hit[..., 1].abs() <= half) & (t > 0)
+        c2ws.append(c2w[0])
+        means.append(torch.where(inside[..., None], hit, o + d).reshape(-1, 3))
+        keeps.append(inside.reshape(-1))
+    c2w = torch.stack(c2ws)
+    return torch.cat(means), torch.cat(keeps), c2w, intr.expand(len(c2ws), 4)
+
+
+def test_oblique_view_dominated_where_frontal_covers():
+    size = 32
+    means, keep, c2w, intr = _rig([89.0, 30.0], [0.0, 0.0], size)
+    normals = grid_normals(means, keep, c2w).reshape(-1, 3)
+    dom = dominated(means, normals, keep, c2w, intr)
+    n = size * size
+    frontal, oblique = dom[:n], dom[n:]
+    assert not frontal.any()  # the most frontal view keeps all of its layer
+    assert not dom[~keep].any()
+    # the oblique view's Gaussians the frontal view sees (inside its frame, on the plane) are dominated
+    uv, z = camera.project(means[n:], c2w[:1], intr[:1])
+    seen = keep[n:] & (uv[0] >= 1).all(-1) & (uv[0] < size - 1).all(-1) & (z[0] > 0)
+    assert seen.sum() > 100
+    assert oblique[seen].float().mean() > 0.9
+
+
+def test_no_point_loses_every_layer():
+    """Two views that see the plane equally obliquely from opposite sides: each one's near half is the more frontal
+    (perspective), so each drops its far half, and every dropped Gaussian lands on a kept one of the other view: no
+    hole opens."""
+    size = 32
+    means, keep, c2w, intr = _rig([45.0, 45.0], [0.0, 180.0], size)
+    normals = grid_normals(means, keep, c2w).reshape(-1, 3)
+    dom = dominated(means, normals, keep, c2w, intr)
+    n = size * size
+    assert 0 < dom[:n].sum() < keep[:n].sum() and 0 < dom[n:].sum() < keep[n:].sum()
+    for own, other in ((slice(0, n), 1), (slice(n, 2 * n), 0)):
+        uv, _ = camera.project(means[own][dom[own]], c2w[other : other + 1], intr[other : other + 1])
+        px = uv[0].floor().long()
+        idx = other * n + px[:, 1] * size + px[:, 0]
+        assert keep[idx].all() and not dom[idx].any()
+
+
+def test_other_surface_is_not_the_same_point():
+    """A frontal view whose layer floats well above the oblique view's surface covers nothing of it."""
+    means, keep, c2w, intr = _rig([89.0, 30.0], [0.0, 0.0])
+    means[: means.shape[0] // 2, 2] += 0.3
+    normals = grid_normals(means, keep, c2w).reshape(-1, 3)
+    assert not dominated(means, normals, keep, c2w, intr).any()
