@@ -17,8 +17,8 @@ where only one view saw the surface, and a chain of dominations ends at the most
 The defaults (:data:`TOL_PX`, :data:`MARGIN`) were chosen on a validation set of 25 TRAINING objects (every 5th of
 the default tier's training split, cached with 6 and 10 input views; F-RNG full model, aligned PSNR): the best mean
 of the 6- and 10-view scores over tol 0.5 / 1 / 2 / 4 px x margin 0.1 / 0.3 / 0.5 (README "Priors", Frontal view
-selection). A looser depth match (2-4 px) dropped Gaussians of nearby but different surfaces and lost up to 1.2 dB
-at 6 views.
+selection; the region around the choice is a plateau: margin 0 / 0.05 within 0.03 dB). A looser depth match (2-4
+px) dropped Gaussians of nearby but different surfaces and lost up to 1.2 dB at 6 views.
 
 Shapes: V views of H x W pixels, N = V*H*W per-pixel Gaussians in (view, row, col) order.
 """
