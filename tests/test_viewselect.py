@@ -64,3 +64,38 @@ def test_other_surface_is_not_the_same_point():
     means[: means.shape[0] // 2, 2] += 0.3
     normals = grid_normals(means, keep, c2w).reshape(-1, 3)
     assert not dominated(means, normals, keep, c2w, intr).any()
+
+
+def test_backbone_and_cache_agree_on_what_is_rendered():
+    """A tiny untrained backbone on a sphere seen by 8 views: with ``view_select`` its reconstruction renders fewer
+    Gaussians than the foreground pixels; the cache entry keeps every foreground pixel (F-RNG reads their features)
+    and gives exactly the dropped ones opacity 0, and its far-side copies are those made without the selection."""
+    from frng.priors import backbone as bb
+    from frng.priors.cache import geometry_entry
+
+    V, H = 8, 16
+    intr = torch.tensor(camera.intrinsics_from_fov(50, H, H), dtype=torch.float32).expand(V, 4).clone()
+    c2w = torch.stack(
+        [torch.tensor(camera.look_at(camera.spherical_to_cartesian(45.0 * i, 30.0 * (i % 2), 2.6))) for i in range(V)]
+    ).float()
+    o, d = camera.pixel_rays(c2w, intr, H, H)
+    b = (o * d).sum(-1)
+    alpha = ((b * b - (o * o).sum(-1) + 0.25) > 0).float()[..., None]
+    imgs = torch.full((V, H, H, 3), 0.5) * alpha
+    tiny = {"width": 32, "heads": 2, "geo_depth": 1, "app_depth": 1, "env_height": 8, "sh_degree": 1, "patch": 8}
+    entries = {}
+    for on in (False, True):
+        torch.manual_seed(0)
+        m = bb.build(dict(tiny, den_views=2, view_select=on)).eval()
+        recon = m.reconstruct(imgs, alpha, c2w, intr)
+        entries[on] = (recon.keep, geometry_entry(m, recon, alpha, c2w, intr))
+    fg = alpha.reshape(-1) >= 0.5
+    keep_off, off = entries[False]
+    keep_on, on = entries[True]
+    assert torch.equal(keep_off, fg) and (keep_on <= fg).all() and 0 < int((fg & ~keep_on).sum()) < int(fg.sum())
+    assert torch.equal(on["keep"].bool(), fg) and torch.equal(off["keep"].bool(), fg)
+    dropped = fg & ~keep_on
+    assert (on["opacities"][dropped] == 0).all()
+    assert torch.equal(on["opacities"][~dropped], off["opacities"][~dropped])
+    for k in ("means", "opacities", "src"):
+        assert torch.equal(on["back_" + k], off["back_" + k]), k
