@@ -150,9 +150,10 @@ class BackboneGeometry(NamedTuple):
 
     t_geo (1, V, h, w, D); raw (V, H, W, 9) the decoded Gaussians' raw parameters; gaussians (N) (with ``surfels``:
     their pixels' surfels, :func:`frng.priors.surfels.pixel_surfels`, not raw's shapes); keep (N,) bool: the
-    Gaussians rendered = input alpha >= 0.5 (with ``view_select``: less those another input view covers more squarely,
-    :func:`frng.priors.viewselect.frontal_keep`); raw_prior (V, H, W, 9) the multi-view prior's part of raw (zeros with ``cues: false``);
-    pixels (1, V, H, W, 4) the per-pixel appearance inputs :meth:`RelitLRMBackbone.denoise` takes."""
+    Gaussians rendered = input alpha >= 0.5 (with ``view_select``: less those another input view covers more
+    squarely, :func:`frng.priors.viewselect.frontal_keep`); raw_prior (V, H, W, 9) the multi-view prior's part of raw
+    (zeros with ``cues: false``); pixels (1, V, H, W, 4) the per-pixel appearance inputs
+    :meth:`RelitLRMBackbone.denoise` takes."""
 
     t_geo: torch.Tensor
     raw: torch.Tensor

@@ -56,12 +56,13 @@ def dominated(
     cos = (normals * d.reshape(N, 3)).sum(-1).abs()  # (N,) how squarely each Gaussian's own view sees it
     has_n = normals.norm(dim=-1) > 0.5
     valid = keep.bool() & has_n
-    view = torch.arange(V).repeat_interleave(H * W)
+    dev = means.device
+    view = torch.arange(V, device=dev).repeat_interleave(H * W)
     uv, z = camera.project(means, c2w, intr)  # (V, N, 2), (V, N): every Gaussian in every view
-    z_own = z[view, torch.arange(N)].reshape(V, H, W)  # each pixel's own Gaussian's depth in its view
+    z_own = z[view, torch.arange(N, device=dev)].reshape(V, H, W)  # each pixel's own Gaussian's depth in its view
     z_own = torch.where(valid.reshape(V, H, W), z_own, torch.full_like(z_own, float("nan")))
     cos_map = torch.where(valid, cos, torch.zeros_like(cos)).reshape(V, H, W)
-    out = torch.zeros(N, dtype=torch.bool)
+    out = torch.zeros(N, dtype=torch.bool, device=dev)
     for j in range(V):
         col = uv[j, :, 0].floor().long()
         row = uv[j, :, 1].floor().long()
