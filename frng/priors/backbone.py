@@ -75,7 +75,7 @@ from frng.nn import PatchDetokenizer, PatchTokenizer, Transformer, timestep_embe
 from frng.priors.diffusion import NoiseSchedule, from_diffusion_space, to_diffusion_space
 from frng.priors.envenc import EnvTokenizer
 from frng.priors.multiview import CUE_CHANNELS, geometry_cues
-from frng.priors.surfels import pixel_surfels
+from frng.priors.surfels import grid_normals, pixel_surfels
 from frng.priors.viewselect import frontal_keep
 from frng.render import rasterize
 from frng.render.sh import C0, eval_sh
@@ -495,10 +495,12 @@ class RelitLRMBackbone(nn.Module):
         gauss = self.gaussians(raw[0], c2w, intr)
         keep = alpha.reshape(-1) >= 0.5
         # training renders the learned shapes; inference renders their pixels' surfels (frng.priors.surfels)
+        # the surfels' planes and the view selection read the same normals of the Gaussians' depth maps
+        depth_n = grid_normals(gauss.means, keep, c2w) if self.cfg.surfels or self.cfg.view_select else None
         if self.cfg.surfels:
-            gauss = pixel_surfels(gauss, keep, c2w, intr)
+            gauss = pixel_surfels(gauss, keep, c2w, intr, depth_n)
         if self.cfg.view_select:  # one layer per surface: the most frontal view's (frng.priors.viewselect)
-            keep = frontal_keep(gauss.means, keep, c2w, intr)
+            keep = frontal_keep(gauss.means, keep, c2w, intr, depth_n)
         return BackboneGeometry(
             t_geo,
             raw[0],

@@ -76,7 +76,9 @@ def surfel_shapes(normals: torch.Tensor, dirs: torch.Tensor, width: torch.Tensor
     return quats, torch.cat([w * stretch[:, None], w, w * THICKNESS], -1)
 
 
-def pixel_surfels(gauss: Gaussians, keep: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor) -> Gaussians:
+def pixel_surfels(
+    gauss: Gaussians, keep: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, normals: torch.Tensor | None = None
+) -> Gaussians:
     """Per-pixel Gaussians (N = V*H*W on the input pixel grid; keep (N,) bool: the foreground ones) turned into
     surfels on their own rays, normals from their means (:func:`grid_normals`). c2w (V, 4, 4), intr (V, 4). Means,
     opacities and features are kept; rotations and scales are replaced."""
@@ -88,7 +90,7 @@ def pixel_surfels(gauss: Gaussians, keep: torch.Tensor, c2w: torch.Tensor, intr:
     o, d = o.reshape(-1, 3), d.reshape(-1, 3)
     t = (gauss.means.float() - o).norm(dim=-1)
     fx = intr[:, 0].float().repeat_interleave(H * W)
-    normals = grid_normals(gauss.means, keep, c2w).reshape(-1, 3)
+    normals = grid_normals(gauss.means, keep, c2w).reshape(-1, 3) if normals is None else normals.reshape(-1, 3)
     quats, scales = surfel_shapes(normals, d, PIXEL_STD * t / fx)
     return Gaussians(gauss.means, quats, scales, gauss.opacities, gauss.features)
 

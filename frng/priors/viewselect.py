@@ -75,13 +75,16 @@ def dominated(
     return out
 
 
-def frontal_keep(means: torch.Tensor, keep: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor) -> torch.Tensor:
+def frontal_keep(
+    means: torch.Tensor, keep: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, normals: torch.Tensor | None = None
+) -> torch.Tensor:
     """keep (N,) bool of per-pixel Gaussians (means (N, 3) on the input pixel grid of views c2w (V, 4, 4), intr (V, 4))
-    without the dominated ones (:func:`dominated`; normals from the means, :func:`frng.priors.surfels.grid_normals`)."""
+    without the dominated ones (:func:`dominated`). normals: their world normals (N, 3) or (V, H, W, 3); None: from the
+    means (:func:`frng.priors.surfels.grid_normals`)."""
     from frng.priors.surfels import grid_normals
 
-    normals = grid_normals(means, keep, c2w).reshape(-1, 3)
-    return keep & ~dominated(means, normals, keep, c2w, intr)
+    normals = grid_normals(means, keep, c2w) if normals is None else normals
+    return keep & ~dominated(means, normals.reshape(-1, 3), keep, c2w, intr)
 
 
 __all__ = ["MARGIN", "TOL_PX", "dominated", "frontal_keep"]
