@@ -159,3 +159,23 @@ def test_light_independence_zero_iff_identical():
     x, y = a.clone().requires_grad_(), b.clone().requires_grad_()
     light_independence_loss(x, y)[0].backward()
     assert x.grad.abs().sum() > 0 and y.grad.abs().sum() > 0
+
+
+def test_light_independence_adds_the_per_gaussian_payload():
+    """With payloads (train.loss.ind_pixels) each term is its token value plus its payload value; identical payloads
+    add nothing, different ones add exactly their own cosine and KL terms, with gradients into both."""
+    torch.manual_seed(0)
+    a = torch.randn(1, 40, 32)
+    b = a + 0.3 * torch.randn_like(a)
+    m = torch.randn(500, 16)
+    tokens_only, p0 = light_independence_loss(a, b)
+    same, p1 = light_independence_loss(a, b, None, m, m.clone())
+    torch.testing.assert_close(same, tokens_only)
+    m2 = (m + 0.5 * torch.randn_like(m)).requires_grad_()
+    m1 = m.clone().requires_grad_()
+    loss, parts = light_independence_loss(a, b, None, m1, m2)
+    torch.testing.assert_close(parts["cos"], p0["cos"] + cosine_term(m, m2.detach()))
+    torch.testing.assert_close(parts["kld"], p0["kld"] + kld_term(m, m2.detach()))
+    assert loss > tokens_only
+    loss.backward()
+    assert m1.grad.abs().sum() > 0 and m2.grad.abs().sum() > 0

@@ -50,14 +50,13 @@ def frng_smoke(smoke_dataset, tmp_path_factory):
     return path, config
 
 
-def _objects(config, use_priors=True):
+def _objects(config, use_priors=True, alt_light=False):
     from frng.data import catalog
     from frng.model.train import load_objects
 
     res = Path(config["results"])
-    return load_objects(
-        res, config["idm"]["kind"], catalog.plan(config).split("train"), res / "backbone" / "model.pt", use_priors, 6
-    )
+    ids = catalog.plan(config).split("train")
+    return load_objects(res, config["idm"]["kind"], ids, res / "backbone" / "model.pt", use_priors, 6, alt_light)
 
 
 def _sections(config):
@@ -128,6 +127,44 @@ def test_frozen_backbone_gets_no_gradient(frng_smoke):
         assert any(n.startswith(prefix) for n in got), prefix
     # copied, not shared
     assert model.fine.detokenizer.proj.weight.data_ptr() != backbone.geo_detokenizer.proj.weight.data_ptr()
+
+
+def test_light_independence_sees_the_inputs_under_the_second_input_light(frng_smoke):
+    """train.loss.ind_pixels: the second pass rebuilds the pixel head's payload from the same input views under the
+    object's second input light; its payload differs from the first pass's (the photos differ), the geometry and
+    salient patches are shared, and the loss then exceeds the tokens-only one. The smoke tier curates one input
+    light (no second photos: tokens only), so the re-lit photos here are the inputs halved under a target light."""
+    from dataclasses import replace
+
+    from frng.model.train import StepLoss, TrainConfig, build_model
+
+    _, config = frng_smoke
+    res = Path(config["results"])
+    model, ind = build_model(_sections(config), "full", res / "backbone" / "model.pt", "cpu")
+    assert ind.pixels
+    smoke = _objects(config, alt_light=True)[0]
+    assert smoke.alt_images is None and smoke.alt_env is None  # one input light
+    obj = replace(smoke, alt_images=smoke.images * torch.tensor([0.5, 0.5, 0.5, 1.0]), alt_env=smoke.targets[0][1])
+    with torch.no_grad():
+        r0, r1 = model.reconstruct(
+            obj.views,
+            [0, 1],
+            obj.priors,
+            [obj.images, obj.alt_images],
+            keep_tokens=True,
+            input_env=[obj.env_in, obj.alt_env],
+        )
+        s0, s1 = model.reconstruct(obj.views, [0, 1], obj.priors, obj.images, keep_tokens=True, input_env=obj.env_in)
+    assert r0.material.shape == r1.material.shape and not torch.allclose(r0.material, r1.material)
+    torch.testing.assert_close(r0.material, s0.material)
+    torch.testing.assert_close(s0.material, s1.material)  # same photos: the untrained payload ignores T_app
+    assert torch.equal(r0.gaussians.means, r1.gaussians.means) and torch.equal(r0.patch_idx, r1.patch_idx)
+    tcfg = TrainConfig.from_config(config)
+    with torch.no_grad():
+        on = StepLoss(model, ind, tcfg, None, bf16=False)([(obj, 1, 0, [0, 1], 0)])[1]["ind"]
+        off = StepLoss(model, replace(ind, pixels=False), tcfg, None, bf16=False)([(obj, 1, 0, [0, 1], 0)])[1]["ind"]
+        alone = StepLoss(model, ind, tcfg, None, bf16=False)([(smoke, 1, 0, [0, 1], 0)])[1]["ind"]
+    assert on > 10 * off and alone == pytest.approx(off, rel=1e-3)
 
 
 def test_no_idm_never_reads_priors(frng_smoke, tmp_path, monkeypatch):

@@ -155,7 +155,9 @@ class Reconstruction:
     pbr: {"albedo" (N, 3), "roughness" (N, 1), "metallic" (N, 1), "normal" (N, 3)} (``head='pbr'``) or None;
     patch_idx: (V, n) selected salient patches (flat ``row * w + col``; n = 0 columns for no-fine);
     saliency: (V, H, W) S_final of the input views; num_coarse: how many of the N Gaussians are coarse;
-    t_mat: (1, L, hidden) material tokens (kept for the light-independence loss; None at inference).
+    t_mat: (1, L, hidden) material tokens (kept for the light-independence loss; None at inference);
+    material: (N_front, C) the per-Gaussian material payload the pixel head made from the input views (coarse then
+    fine, far-side copies excluded; kept with t_mat for the light-independence loss; None at inference).
     """
 
     gaussians: Gaussians
@@ -165,6 +167,7 @@ class Reconstruction:
     saliency: torch.Tensor
     num_coarse: int
     t_mat: torch.Tensor | None = None
+    material: torch.Tensor | None = None
 
 
 PRIOR_PIXEL_CHANNELS = ("albedo", "normal", "roughness", "metallic")
@@ -448,23 +451,31 @@ class FRNG(nn.Module):
         c2w (V, 4, 4), intr (V, 4), light{j}.t_app (V, h, w, D)); light: cache light index (0 = input light), or a
         list of indices -> one Reconstruction per light, sharing geometry (one batched MaterialFormer pass);
         priors: IntrinsicPriors of the input views (first V used) or None (required None for no-idm);
-        images: (V, H, W, 4) input RGBA (linear premultiplied) under the input light, for the saliency map and
-        the fine keep mask. keep_tokens: also return T_mat (1, L, hidden) for L_ind. input_env: (He, We, 3) the input
-        light's HDR map (required with the pixel head, ``pixel_head > 0``: see :func:`pixel_map`).
+        images: (V, H, W, 4) input RGBA (linear premultiplied) under the input light, for the saliency map, the
+        fine keep mask and the pixel head. keep_tokens: also return T_mat (1, L, hidden) and the per-Gaussian
+        material payload for L_ind. input_env: (He, We, 3) the input light's HDR map (required with the pixel head,
+        ``pixel_head > 0``: see :func:`pixel_map`). With a list of lights, ``images`` and ``input_env`` may also be
+        lists (one per light: the same views photographed under another light, for L_ind); saliency, salient
+        patches and the fine keep mask always come from the first.
         """
         dev = self.device
         lights = [light] if isinstance(light, int) else list(light)
+        B = len(lights)
+        per_light = isinstance(images, (list, tuple))
+        images_b = [x.to(dev).float() for x in (images if per_light else [images] * B)]
+        envs_b = list(input_env) if isinstance(input_env, (list, tuple)) else [input_env] * B
+        if len(images_b) != B or len(envs_b) != B:
+            raise ValueError(f"reconstruct: {B} lights but {len(images_b)} image sets and {len(envs_b)} env maps")
         bv = {k: v.to(dev) for k, v in backbone_views.items()}
         t_geo = bv["t_geo"].float()
         V, h, w, _ = t_geo.shape
         c2w, intr = bv["c2w"].float(), bv["intr"].float()
-        images = images.to(dev).float()
+        images = images_b[0]
         patch_idx, sal = self.select_patches(images)
         t_prior = self.prior_tokens(priors, V)
         coarse = Gaussians(bv["means"].float(), bv["quats"].float(), bv["scales"].float(), bv["opacities"].float())
         keep_c = bv["keep"].bool()
         apps = torch.stack([bv[f"light{j}.t_app"].float() for j in lights])  # (B, V, h, w, D)
-        B = len(lights)
         if self.fine is not None:
             fine = self.fine(t_geo, patch_idx, c2w, intr, t_prior, bv.get("raw_prior"))
             keep_f = fine_keep_mask(fine.uv, images[..., 3])
@@ -479,19 +490,25 @@ class FRNG(nn.Module):
         prior_seq = None if prior_seq is None else prior_seq.expand(B, -1, -1)
         t_mat, g_mat = self.material(geo_seq, app_seq, prior_seq)  # (B, L, hid), (B, L, P, C)
         g_coarse, g_fine = split_sequence(g_mat.float(), V, h, w)
+        pix_b = [None] * B
         if self.pixel_head is not None:  # per-Gaussian pixel inputs, same order as the kept Gaussians below
-            if input_env is None:
+            if any(e is None for e in envs_b):
                 raise ValueError(
                     "F-RNG with a pixel head needs the input light's env map: reconstruct(..., input_env=)"
                 )
             from frng.priors.surfels import grid_normals  # lazy: importing frng.priors loads every prior
 
             normals = grid_normals(bv["means"], keep_c, c2w)
-            pix_map = pixel_map(images, priors if self.cfg.uses_priors else None, V, normals, input_env)
-            pix = [pix_map.reshape(-1, pix_map.shape[-1])[keep_c]]
-            if fine is not None:
-                pix.append(sample_pixels(pix_map, fine.uv).reshape(-1, pix_map.shape[-1])[keep_f])
-            pix = torch.cat(pix)
+            pri = priors if self.cfg.uses_priors else None
+            for b in range(B):
+                if b > 0 and images_b[b] is images_b[0] and envs_b[b] is envs_b[0]:
+                    pix_b[b] = pix_b[0]
+                    continue
+                pix_map = pixel_map(images_b[b], pri, V, normals, envs_b[b])
+                pix = [pix_map.reshape(-1, pix_map.shape[-1])[keep_c]]
+                if fine is not None:
+                    pix.append(sample_pixels(pix_map, fine.uv).reshape(-1, pix_map.shape[-1])[keep_f])
+                pix_b[b] = torch.cat(pix)
         back = self._back_completion(bv, keep_c)
         out = []
         for b in range(B):
@@ -502,7 +519,8 @@ class FRNG(nn.Module):
                 parts.append(fine.gaussians[keep_f])
             raw = torch.cat(feats)
             if self.pixel_head is not None:
-                raw = self.pixel_head(raw, pix)
+                raw = self.pixel_head(raw, pix_b[b])
+            material = raw if keep_tokens else None
             if back is not None:
                 raw = torch.cat([raw, self._back_features(raw, back)])
                 parts.append(back["gaussians"])
@@ -522,6 +540,7 @@ class FRNG(nn.Module):
                     sal,
                     int(keep_c.sum()),
                     t_mat[b : b + 1] if keep_tokens else None,
+                    material,
                 )
             )
         return out[0] if isinstance(light, int) else out
@@ -776,7 +795,9 @@ def variant_config(
         decoder_specular=sh.decoder_cosine and sh.decoder_specular,
     )
     loss = sections.loss
-    ind = LightIndependenceConfig(lambda_c=loss.lambda_c, lambda_kld=loss.lambda_kld, temperature=loss.temperature)
+    ind = LightIndependenceConfig(
+        lambda_c=loss.lambda_c, lambda_kld=loss.lambda_kld, temperature=loss.temperature, pixels=loss.ind_pixels
+    )
     v = variant(canonical_for(name, f.top_k_percent))
     return replace(cfg, **v.arch), replace(ind, **v.loss)
 

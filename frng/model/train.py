@@ -70,6 +70,7 @@ class LossConfig:
     lambda_c: float
     lambda_kld: float
     temperature: float
+    ind_pixels: bool
 
 
 @register("train")
@@ -118,14 +119,23 @@ class TrainObject:
     priors: object | None  # IntrinsicPriors or None (no-idm: never read)
     images: torch.Tensor  # (V, H, W, 4) input views under the input light
     env_in: torch.Tensor  # (He, We, 3) the input light's env map
+    alt_images: torch.Tensor | None  # (V, H, W, 4) the same input views under the object's second input light
+    alt_env: torch.Tensor | None  # (He, We, 3) that light's env map (None: one input light, or not loaded)
     targets: list  # [(light name, env (He, We, 3), c2w (Vt, 4, 4), intr (Vt, 4), rgba (Vt, H, W, 4))]
 
 
 def load_objects(
-    results: str | Path, idm_kind: str, ids: list[str], backbone_path: Path, use_priors: bool, V: int
+    results: str | Path,
+    idm_kind: str,
+    ids: list[str],
+    backbone_path: Path,
+    use_priors: bool,
+    V: int,
+    alt_light: bool = False,
 ) -> list[TrainObject]:
     """Read caches + curated images of ``ids`` under ``results``. IDM priors are opened only when ``use_priors``
-    (``idm_kind``: the config's ``idm.kind``; the learned IDM's priors are checked against its model file)."""
+    (``idm_kind``: the config's ``idm.kind``; the learned IDM's priors are checked against its model file).
+    ``alt_light``: also the input views under the object's second input light (L_ind's re-lit evidence)."""
     from frng.data.dataset import open_object
     from frng.priors.cache import load_backbone_cache, load_idm_priors
 
@@ -156,7 +166,10 @@ def load_objects(
                 envs[light] = torch.from_numpy(envmap.read(obj.envmap_path(light, L.root))).float()
             c2w, K = obj.cameras(kind, None, torch=True)
             targets.append((light, envs[light], c2w, K, obj.images(kind, light, None, torch=True)))
-        out.append(TrainObject(oid, views, lights, priors, images, envs[light_in], targets))
+        alt = [l for l in obj.input_lights if l != light_in][:1] if alt_light else []
+        alt_images = obj.images("inputs", alt[0], names, torch=True) if alt else None
+        alt_env = envs[alt[0]] if alt else None
+        out.append(TrainObject(oid, views, lights, priors, images, envs[light_in], alt_images, alt_env, targets))
     return out
 
 
@@ -238,8 +251,11 @@ class StepLoss(nn.Module):
         logs = {k: 0.0 for k in LOSS_NAMES}
         for obj, j, ti, vidx, seed in samples:
             lights = [0, j] if self.ind_on and obj.lights > 1 else [0]
+            images, envs = obj.images, obj.env_in
+            if len(lights) > 1 and self.ind.pixels and obj.alt_images is not None:
+                images, envs = [obj.images, obj.alt_images], [obj.env_in, obj.alt_env]
             with autocast(dev, self.bf16):
-                recs = m.reconstruct(obj.views, lights, obj.priors, obj.images, keep_tokens=True, input_env=obj.env_in)
+                recs = m.reconstruct(obj.views, lights, obj.priors, images, keep_tokens=True, input_env=envs)
             _, env, c2w, K, rgba = obj.targets[ti]
             vi = torch.as_tensor(vidx)
             tgt = rgba[vi].to(dev)
@@ -258,7 +274,8 @@ class StepLoss(nn.Module):
                 loss = loss + self.lambda_per * per
                 logs["perceptual"] += float(per.detach())
             if len(recs) > 1:
-                ind, parts = light_independence_loss(recs[0].t_mat, recs[1].t_mat, self.ind)
+                mats = (recs[0].material, recs[1].material) if self.ind.pixels else (None, None)
+                ind, parts = light_independence_loss(recs[0].t_mat, recs[1].t_mat, self.ind, *mats)
                 loss = loss + ind
                 logs["ind"] += float(ind.detach())
                 logs["ind_cos"] += float(parts["cos"])
@@ -325,7 +342,8 @@ def train(
     model, ind = build_model(sections, variant, backbone_path, device)
     if objects is None:
         ids = distributed.shard_items(list(job.train_ids), info)
-        objects = load_objects(job.results, job.idm_kind, ids, backbone_path, model.cfg.uses_priors, tcfg.views)
+        alt = ind.pixels and (ind.lambda_c > 0 or ind.lambda_kld > 0)
+        objects = load_objects(job.results, job.idm_kind, ids, backbone_path, model.cfg.uses_priors, tcfg.views, alt)
     if not objects:
         raise ValueError("frng train: no training objects on this rank")
     perceptual = None
