@@ -165,6 +165,20 @@ def test_light_independence_sees_the_inputs_under_the_second_input_light(frng_sm
         off = StepLoss(model, replace(ind, pixels=False), tcfg, None, bf16=False)([(obj, 1, 0, [0, 1], 0)])[1]["ind"]
         alone = StepLoss(model, ind, tcfg, None, bf16=False)([(smoke, 1, 0, [0, 1], 0)])[1]["ind"]
     assert on > 10 * off and alone == pytest.approx(off, rel=1e-3)
+    # Cook-Torrance: the payload is what GGX reads (decoded albedo, roughness, metallic, normal), not the raw logits
+    pbr, _ = build_model(_sections(config), "no-neural", res / "backbone" / "model.pt", "cpu")
+    with torch.no_grad():
+        p0, p1 = pbr.reconstruct(
+            obj.views,
+            [0, 1],
+            obj.priors,
+            [obj.images, obj.alt_images],
+            keep_tokens=True,
+            input_env=[obj.env_in, obj.alt_env],
+        )
+    assert p0.material.shape[1] == 8 and p0.num_coarse <= p0.material.shape[0] <= p0.gaussians.means.shape[0]
+    torch.testing.assert_close(p0.material[:, :3], p0.pbr["albedo"][: p0.material.shape[0]])
+    assert not torch.allclose(p0.material, p1.material)
 
 
 def test_no_idm_never_reads_priors(frng_smoke, tmp_path, monkeypatch):
