@@ -462,8 +462,10 @@ class FRNG(nn.Module):
         dev = self.device
         lights = [light] if isinstance(light, int) else list(light)
         B = len(lights)
-        per_light = isinstance(images, (list, tuple))
-        images_b = [x.to(dev).float() for x in (images if per_light else [images] * B)]
+        if isinstance(images, (list, tuple)):
+            images_b = [x.to(dev).float() for x in images]
+        else:
+            images_b = [images.to(dev).float()] * B  # one tensor: its pixel map is made once below
         envs_b = list(input_env) if isinstance(input_env, (list, tuple)) else [input_env] * B
         if len(images_b) != B or len(envs_b) != B:
             raise ValueError(f"reconstruct: {B} lights but {len(images_b)} image sets and {len(envs_b)} env maps")

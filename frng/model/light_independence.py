@@ -12,7 +12,8 @@ per-pixel path carries most of the material, and it sees the photographs, not T_
 met almost for free (measured: ~1e-6 after 100 steps, and w/o L_ind scored the same as the full model). With
 ``pixels`` (config ``train.loss.ind_pixels``, default on) the second pass also rebuilds that payload from the same
 input views photographed under the object's second input light (curated data: ``render.input_lights`` >= 2), and
-each term adds its value on the two per-Gaussian payloads (N, F): shadows and highlights baked into the photos are
+each term adds its value on the two per-Gaussian payloads (N, F), what the renderer reads (decoder features, or the
+Cook-Torrance ablation's decoded GGX parameters, not its logits): shadows and highlights baked into the photos are
 what differs, so the term asks the pixel head to take them out.
 
 Exact definitions (the paper names the terms only):
@@ -49,8 +50,7 @@ class LightIndependenceConfig(Settings):
     lambda_c: float = 0.2
     lambda_kld: float = 0.2
     temperature: float = 1.0
-    pixels: bool = True  # also compare the per-Gaussian payload the pixel head makes from the re-lit input views
-    pixels: bool = True  # also compare the per-Gaussian payload the pixel head makes from the re-lit input views
+    pixels: bool = True  # also compare the per-Gaussian material rebuilt from the re-lit input views
 
     def __post_init__(self):
         if self.temperature <= 0:

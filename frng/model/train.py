@@ -160,15 +160,18 @@ def load_objects(
         if light_in not in envs:
             envs[light_in] = torch.from_numpy(envmap.read(obj.envmap_path(light_in, L.root))).float()
         targets = []
-        kinds = [("targets", l) for l in obj.target_lights] + [("inputs", l) for l in obj.input_lights if l != light_in]
+        other_inputs = [l for l in obj.input_lights if l != light_in]
+        kinds = [("targets", l) for l in obj.target_lights] + [("inputs", l) for l in other_inputs]
         for kind, light in kinds:
             if light not in envs:
                 envs[light] = torch.from_numpy(envmap.read(obj.envmap_path(light, L.root))).float()
             c2w, K = obj.cameras(kind, None, torch=True)
             targets.append((light, envs[light], c2w, K, obj.images(kind, light, None, torch=True)))
-        alt = [l for l in obj.input_lights if l != light_in][:1] if alt_light else []
-        alt_images = obj.images("inputs", alt[0], names, torch=True) if alt else None
-        alt_env = envs[alt[0]] if alt else None
+        alt_images = alt_env = None
+        if alt_light and other_inputs:  # the V input views under the second input light: rows of its target entry
+            rows = [obj.view_names("inputs").index(n) for n in names]
+            alt_images = targets[len(obj.target_lights)][4][rows]
+            alt_env = envs[other_inputs[0]]
         out.append(TrainObject(oid, views, lights, priors, images, envs[light_in], alt_images, alt_env, targets))
     return out
 
