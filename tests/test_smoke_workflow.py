@@ -166,6 +166,42 @@ def test_bench_heldout_scores_equal_the_pipeline(smoke_run, tmp_path):
         np.testing.assert_allclose(mc["psnr_other_light"], mc["psnr_cross"], rtol=0, atol=1e-5)
 
 
+def test_bench_heldout_at_the_input_views(smoke_run, tmp_path):
+    """``frng bench heldout --at inputs`` re-renders each test object's own input views under every input light it
+    was photographed in: one row per model, decoder, input light and view, the input light's rows the
+    reconstruction; the images are the curated photographs (a render scored against itself would give the PSNR
+    cap, which the rows must not); the target-view run carries each view's elevation and prints the bands."""
+    from frng.data.dataset import open_object
+
+    results, config = smoke_run
+    frng_bin = str(Path(sys.executable).parent / "frng")
+    common = ["bench", "heldout", "--config", str(results / "config.yaml")]
+    out = tmp_path / "inputs.csv"
+    r = subprocess.run(
+        [frng_bin, *common, "--at", "inputs", "--out", str(out)], cwd=ROOT, capture_output=True, text=True, timeout=600
+    )
+    assert r.returncode == 0, _tail(r.stdout + r.stderr)
+    assert "at the input views" in r.stdout and "psnr[reconstruction]" in r.stdout, r.stdout
+    rows = pd.read_csv(out)
+    for oid, d in rows.groupby("object"):
+        obj = open_object(results, oid)
+        lights = obj.input_lights
+        inputs = obj.view_names("inputs")[:6]
+        assert set(d["light"]) == set(lights) and set(d["view"]) == set(inputs), (oid, set(d["light"]), set(d["view"]))
+        assert len(d) == len(lights) * len(inputs) * d["decoder"].nunique()
+        assert set(d.loc[d["light"] == lights[0], "case"]) == {"reconstruction"}
+        assert set(d.loc[d["light"] != lights[0], "case"]) <= {"relight"}
+    assert np.isfinite(rows["psnr"]).all() and (rows["psnr"] < 60).all() and rows["psnr_other_light"].isna().all()
+    targets = tmp_path / "targets.csv"
+    r = subprocess.run(
+        [frng_bin, *common, "--out", str(targets)], cwd=ROOT, capture_output=True, text=True, timeout=600
+    )
+    assert r.returncode == 0, _tail(r.stdout + r.stderr)
+    assert "PSNR by target-view elevation" in r.stdout, r.stdout
+    t = pd.read_csv(targets)
+    assert t["elevation_deg"].between(-90, 90).all()
+
+
 def test_relight_groups_split_the_runs_of_training_seeds(smoke_run, tmp_path):
     """The workflow relights an object in one job per group (rules relight / relight_seed): ``--group main`` writes
     the models' seed runs, the backbone and the timing but no ``@s1`` run; ``--group 1`` writes exactly the

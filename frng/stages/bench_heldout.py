@@ -16,9 +16,15 @@ What it does per test object (``catalog.plan(config).split("test")``, or ``--obj
    sensitivity: PSNR with the right light minus PSNR against the next test light's ground truth
    (:func:`frng.stages.evaluate.other_light`, the ladder's s-rows).
 
-Prints, per model: PSNR / SSIM / LPIPS, the base's PSNR, the light sensitivity and the PSNR per material class;
-and every model after the first against the first: the paired difference with its 95% bootstrap interval over
-objects (:func:`frng.report.stats.paired`). ``--out`` writes the per-image rows (CSV).
+Prints, per model: PSNR / SSIM / LPIPS, the base's PSNR, the light sensitivity, the PSNR per material class and
+per band of the target view's elevation (views from below see what the rig's cameras, at 0 and 45 degrees, never
+do); and every model after the first against the first: the paired difference with its 95% bootstrap interval
+over objects (:func:`frng.report.stats.paired`). ``--out`` writes the per-image rows (CSV).
+
+``--at inputs`` scores the models at their own V INPUT views instead (:func:`score_inputs`): re-rendered under the
+input light (the reconstruction) and under every other input light the object was photographed in (relighting
+where the geometry is exact by construction: each input pixel has its own Gaussian). Beside the target-view
+scores this splits a model's error into what the representation loses where it was seen and what novel views add.
 """
 
 from __future__ import annotations
@@ -31,6 +37,9 @@ import numpy as np
 
 from frng import config as frng_config
 from frng.variants import RIG_VIEWS
+
+AT = ("targets", "inputs")  # --at: where the models are scored
+ELEVATION_BANDS = (-90.0, -30.0, 0.0, 30.0, 90.0)  # degrees; the summary's target-view elevation bands
 
 
 def _model_arg(text: str) -> tuple[str, Path]:
@@ -55,6 +64,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--objects", nargs="+", metavar="OBJ", help="test objects (default: the config's test split)")
     parser.add_argument(
         "--views", type=int, default=RIG_VIEWS, help=f"input views (default {RIG_VIEWS}; cached counts)"
+    )
+    parser.add_argument(
+        "--at",
+        choices=AT,
+        default=AT[0],
+        help="score at the target views under the target lights (default), or re-render the model's own input "
+        "views under the input light and the object's other input lights",
     )
     parser.add_argument("--out", help="write the per-image rows to this CSV")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
@@ -113,6 +129,55 @@ def score_object(
     return rows
 
 
+def score_inputs(obj, models: dict, results, seed: int, spp: int, protocol: str, background) -> list:
+    """Per-image rows of one test object's own V input views (``--at inputs``): each of ``models`` (name -> loaded
+    :class:`frng.model.frng.FRNG`) reconstructs from them, rasterizes them once and shades them under the input light
+    (``case`` "reconstruction") and every other input light of the object (``case`` "relight"), scored against
+    the photographs (the ``decoder`` "base" rows: the Lambertian base alone). Columns as :func:`score_object`'s,
+    ``psnr_other_light`` NaN, plus ``case``."""
+    import torch
+
+    from frng import envmap
+    from frng import metrics as M
+    from frng.data import catalog
+    from frng.data.dataset import open_object
+    from frng.relight import shade_base
+
+    data = open_object(results, obj.id)
+    c2w, intr = obj.views["c2w"].float(), obj.views["intr"].float()
+    V, H, W = obj.images.shape[:3]
+    assert c2w.shape == (V, 4, 4) and intr.shape == (V, 4), (c2w.shape, intr.shape, obj.images.shape)
+    names = [v["name"] for v in data.meta["views"]["inputs"]][:V]  # the cache's first V input views
+    light_in = data.input_lights[0]
+    if not np.array_equal(data.images("inputs", light_in, names), obj.images.numpy()):
+        raise ValueError(f"{obj.id}: the cache's {V} input views are not the object's first {V} ({names})")
+    gts, envs = {light_in: obj.images.numpy()}, {light_in: obj.env_in}
+    for light in data.input_lights[1:]:
+        gts[light] = data.images("inputs", light, names)
+        envs[light] = torch.from_numpy(envmap.read(data.envmap_path(light, results))).float()
+    rows = []
+    for name, model in models.items():
+        priors = obj.priors if model.cfg.uses_priors else None
+        with torch.no_grad():
+            rec = model.reconstruct(obj.views, 0, priors, obj.images, input_env=obj.env_in)
+            raster = model.rasterize(rec, c2w, intr, H, W)
+            renders = {}
+            for light, env in envs.items():
+                g = torch.Generator().manual_seed(catalog.derive_seed(seed, "relight-frng", obj.id, light))
+                renders["full", light] = model.shade(raster, env, spp, generator=g).float().numpy()
+                if model.cfg.head == "neural" and model.decoder.cosine:
+                    renders["base", light] = shade_base(model, raster, env).float().numpy()
+        for (decoder, light), pred in renders.items():
+            for k in range(V):
+                m = M.evaluate_pair(pred[k], gts[light][k], protocol=protocol, background=background)
+                rows.append(
+                    {"object": obj.id, "model": name, "decoder": decoder, "light": light, "view": names[k]}
+                    | {key: m[key] for key in ("psnr", "ssim", "lpips")}
+                    | {"psnr_other_light": float("nan"), "case": "reconstruction" if light == light_in else "relight"}
+                )
+    return rows
+
+
 def summary(df, names: list[str]) -> str:
     """The printed report of the per-image rows ``df`` (with a ``class`` column) for ``names`` (first = reference)."""
     import pandas as pd
@@ -135,8 +200,18 @@ def summary(df, names: list[str]) -> str:
             "light_sensitivity": (d["psnr"] - d["psnr_other_light"]).mean(),
         }
         row |= {f"psnr[{c}]": v for c, v in d.groupby("class")["psnr"].mean().items()}
+        if "case" in d:  # --at inputs
+            row |= {f"psnr[{c}]": v for c, v in d.groupby("case")["psnr"].mean().items()}
         table.append(row)
     lines.append(pd.DataFrame(table).set_index("model").to_string(float_format=lambda x: f"{x:.4f}"))
+    if "elevation_deg" in full and full["elevation_deg"].notna().any():
+        edges = ELEVATION_BANDS
+        labels = [f"{lo:+.0f}..{hi:+.0f}" for lo, hi in zip(edges[:-1], edges[1:])]
+        band = pd.cut(full["elevation_deg"], edges, labels=labels, include_lowest=True).rename("elevation")
+        by = full.groupby([band, "model"], observed=True)["psnr"].agg(["mean", "count"]).unstack("model")
+        lines.append(
+            "PSNR by target-view elevation (degrees; mean, images):\n" + by.to_string(float_format="{:.2f}".format)
+        )
     ref = full[full["model"] == names[0]]
     for name in names[1:]:
         other = full[full["model"] == name]
@@ -185,19 +260,25 @@ def run(args: argparse.Namespace) -> int:
     uses_priors = any(m.cfg.uses_priors for m in loaded.values())
     spp = int(config.shading.spp_infer)
     print(
-        f"# frng bench heldout: {len(objects)} objects, {args.views} views, protocol {config.eval.protocol}, "
+        f"# frng bench heldout: {len(objects)} objects, {args.views} views, at the {args.at[:-1]} views, "
+        f"protocol {config.eval.protocol}, "
         f"threads {torch.get_num_threads()}",
         flush=True,
     )
     rows = []
+    proto, bg = config.eval.protocol, config.eval.background
     for oid in tqdm(objects, desc="heldout", file=sys.stderr):
         (obj,) = load_objects(config.results, config.idm.kind, [oid], L.backbone_model(), uses_priors, args.views)
         meta = read_json(L.object_meta(oid))
+        if args.at == "inputs":
+            for r in score_inputs(obj, loaded, config.results, config.seed, spp, proto, bg):
+                rows.append(r | {"class": meta["material_class"]})
+            continue
         lights = list(meta["target_lights"])
         views = [c["name"] for c in meta["views"]["targets"]]
-        proto, bg = config.eval.protocol, config.eval.background
+        elevation = {c["name"]: c["elevation_deg"] for c in meta["views"]["targets"]}
         for r in score_object(obj, loaded, lights, views, config.seed, spp, proto, bg):
-            rows.append(r | {"class": meta["material_class"]})
+            rows.append(r | {"class": meta["material_class"], "elevation_deg": elevation[r["view"]]})
     df = pd.DataFrame(rows)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
