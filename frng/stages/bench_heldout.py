@@ -76,6 +76,29 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
 
 
+def relit(obj, model, c2w, intr, envs: dict, seed: int, spp: int) -> dict:
+    """One model's renders of one :class:`frng.model.train.TrainObject` at cameras c2w (Vt, 4, 4), intr (Vt, 4)
+    (rasterized once) under each of ``envs`` (light name -> HDR map), with ``frng relight``'s light-sample seeds:
+    {("full", light): (Vt, H, W, 4), and ("base", light): the Lambertian base alone where the decoder has one}."""
+    import torch
+
+    from frng.data import catalog
+    from frng.relight import shade_base
+
+    H, W = obj.images.shape[1:3]
+    priors = obj.priors if model.cfg.uses_priors else None
+    renders = {}
+    with torch.no_grad():
+        rec = model.reconstruct(obj.views, 0, priors, obj.images, input_env=obj.env_in)
+        raster = model.rasterize(rec, c2w, intr, H, W)
+        for light, env in envs.items():
+            g = torch.Generator().manual_seed(catalog.derive_seed(seed, "relight-frng", obj.id, light))
+            renders["full", light] = model.shade(raster, env, spp, generator=g).float().numpy()
+            if model.cfg.head == "neural" and model.decoder.cosine:
+                renders["base", light] = shade_base(model, raster, env).float().numpy()
+    return renders
+
+
 def score_object(
     obj, models: dict, target_lights: list[str], view_names: list[str], seed: int, spp: int, protocol: str, background
 ) -> list:
@@ -86,8 +109,6 @@ def score_object(
     import torch
 
     from frng import metrics as M
-    from frng.data import catalog
-    from frng.relight import shade_base
     from frng.stages.evaluate import other_light
 
     targets = {}
@@ -101,22 +122,11 @@ def score_object(
         raise ValueError(f"{obj.id}: the target lights' cameras differ")
     if c2w.shape[0] != len(view_names):
         raise ValueError(f"{obj.id}: {c2w.shape[0]} target cameras but {len(view_names)} target view names")
-    H, W = obj.images.shape[1:3]
     gts = {l: targets[l][3].numpy() for l in target_lights}
+    envs = {light: targets[light][0] for light in target_lights}
     rows = []
     for name, model in models.items():
-        priors = obj.priors if model.cfg.uses_priors else None
-        with torch.no_grad():
-            rec = model.reconstruct(obj.views, 0, priors, obj.images, input_env=obj.env_in)
-            raster = model.rasterize(rec, c2w, intr, H, W)
-            renders = {}
-            for light in target_lights:
-                env = targets[light][0]
-                g = torch.Generator().manual_seed(catalog.derive_seed(seed, "relight-frng", obj.id, light))
-                renders["full", light] = model.shade(raster, env, spp, generator=g).float().numpy()
-                if model.cfg.head == "neural" and model.decoder.cosine:
-                    renders["base", light] = shade_base(model, raster, env).float().numpy()
-        for (decoder, light), pred in renders.items():
+        for (decoder, light), pred in relit(obj, model, c2w, intr, envs, seed, spp).items():
             wrong = other_light(target_lights, light)
             for k in range(pred.shape[0]):
                 m = M.evaluate_pair(pred[k], gts[light][k], protocol=protocol, background=background)
@@ -139,13 +149,11 @@ def score_inputs(obj, models: dict, results, seed: int, spp: int, protocol: str,
 
     from frng import envmap
     from frng import metrics as M
-    from frng.data import catalog
     from frng.data.dataset import open_object
-    from frng.relight import shade_base
 
     data = open_object(results, obj.id)
     c2w, intr = obj.views["c2w"].float(), obj.views["intr"].float()
-    V, H, W = obj.images.shape[:3]
+    V = obj.images.shape[0]
     assert c2w.shape == (V, 4, 4) and intr.shape == (V, 4), (c2w.shape, intr.shape, obj.images.shape)
     names = [v["name"] for v in data.meta["views"]["inputs"]][:V]  # the cache's first V input views
     light_in = data.input_lights[0]
@@ -157,17 +165,7 @@ def score_inputs(obj, models: dict, results, seed: int, spp: int, protocol: str,
         envs[light] = torch.from_numpy(envmap.read(data.envmap_path(light, results))).float()
     rows = []
     for name, model in models.items():
-        priors = obj.priors if model.cfg.uses_priors else None
-        with torch.no_grad():
-            rec = model.reconstruct(obj.views, 0, priors, obj.images, input_env=obj.env_in)
-            raster = model.rasterize(rec, c2w, intr, H, W)
-            renders = {}
-            for light, env in envs.items():
-                g = torch.Generator().manual_seed(catalog.derive_seed(seed, "relight-frng", obj.id, light))
-                renders["full", light] = model.shade(raster, env, spp, generator=g).float().numpy()
-                if model.cfg.head == "neural" and model.decoder.cosine:
-                    renders["base", light] = shade_base(model, raster, env).float().numpy()
-        for (decoder, light), pred in renders.items():
+        for (decoder, light), pred in relit(obj, model, c2w, intr, envs, seed, spp).items():
             for k in range(V):
                 m = M.evaluate_pair(pred[k], gts[light][k], protocol=protocol, background=background)
                 rows.append(
