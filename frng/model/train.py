@@ -121,7 +121,9 @@ class TrainObject:
     env_in: torch.Tensor  # (He, We, 3) the input light's env map
     alt_images: torch.Tensor | None  # (V, H, W, 4) the same input views under the object's second input light
     alt_env: torch.Tensor | None  # (He, We, 3) that light's env map (None: one input light, or not loaded)
-    targets: list  # [(light name, env (He, We, 3), c2w (Vt, 4, 4), intr (Vt, 4), rgba (Vt, H, W, 4))]
+    targets: list  # [(light name, env (He, We, 3), c2w (Vt, 4, 4), intr (Vt, 4), rgba (Vt, H, W, 4))]; the object's
+    # other input lights last, with all its input views
+    view_names: list  # the V input views' names (the cache's), in the order of ``images``
 
 
 def load_objects(
@@ -172,7 +174,9 @@ def load_objects(
             rows = [obj.view_names("inputs").index(n) for n in names]
             alt_images = targets[len(obj.target_lights)][4][rows]
             alt_env = envs[other_inputs[0]]
-        out.append(TrainObject(oid, views, lights, priors, images, envs[light_in], alt_images, alt_env, targets))
+        out.append(
+            TrainObject(oid, views, lights, priors, images, envs[light_in], alt_images, alt_env, targets, list(names))
+        )
     return out
 
 

@@ -145,31 +145,26 @@ def score_inputs(obj, models: dict, results, seed: int, spp: int, protocol: str,
     (``case`` "reconstruction") and every other input light of the object (``case`` "relight"), scored against
     the photographs (the ``decoder`` "base" rows: the Lambertian base alone). Columns as :func:`score_object`'s,
     ``psnr_other_light`` NaN, plus ``case``."""
-    import torch
-
-    from frng import envmap
     from frng import metrics as M
     from frng.data.dataset import open_object
 
     data = open_object(results, obj.id)
     c2w, intr = obj.views["c2w"].float(), obj.views["intr"].float()
     V = obj.images.shape[0]
-    assert c2w.shape == (V, 4, 4) and intr.shape == (V, 4), (c2w.shape, intr.shape, obj.images.shape)
-    names = [v["name"] for v in data.meta["views"]["inputs"]][:V]  # the cache's first V input views
+    assert c2w.shape == (V, 4, 4) and intr.shape == (V, 4) and len(obj.view_names) == V, (c2w.shape, obj.view_names)
     light_in = data.input_lights[0]
-    if not np.array_equal(data.images("inputs", light_in, names), obj.images.numpy()):
-        raise ValueError(f"{obj.id}: the cache's {V} input views are not the object's first {V} ({names})")
+    rows_of = [data.view_names("inputs").index(n) for n in obj.view_names]  # other input lights: all input views
     gts, envs = {light_in: obj.images.numpy()}, {light_in: obj.env_in}
-    for light in data.input_lights[1:]:
-        gts[light] = data.images("inputs", light, names)
-        envs[light] = torch.from_numpy(envmap.read(data.envmap_path(light, results))).float()
+    for light, env, _, _, rgba in obj.targets:  # the object's other input lights, as load_objects read them
+        if light in data.input_lights[1:]:
+            gts[light], envs[light] = rgba[rows_of].numpy(), env
     rows = []
     for name, model in models.items():
         for (decoder, light), pred in relit(obj, model, c2w, intr, envs, seed, spp).items():
             for k in range(V):
                 m = M.evaluate_pair(pred[k], gts[light][k], protocol=protocol, background=background)
                 rows.append(
-                    {"object": obj.id, "model": name, "decoder": decoder, "light": light, "view": names[k]}
+                    {"object": obj.id, "model": name, "decoder": decoder, "light": light, "view": obj.view_names[k]}
                     | {key: m[key] for key in ("psnr", "ssim", "lpips")}
                     | {"psnr_other_light": float("nan"), "case": "reconstruction" if light == light_in else "relight"}
                 )
