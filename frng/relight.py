@@ -202,7 +202,7 @@ def backbone_views(seed: int, backbone, oid: str, views, env_in: torch.Tensor, l
 
     rgb, a, c2w, intr = (x.to(device) for x in (views.rgb, views.alpha, views.c2w, views.intr))
     H, W = rgb.shape[1:3]
-    recon = backbone.reconstruct(rgb, a, c2w, intr)
+    recon = backbone.reconstruct(rgb, a, c2w, intr, env_in.to(device))
     t_geo, _, gauss, keep, _, pixels = recon
     nd = backbone.cfg.den_views
     g = torch.Generator(device=device).manual_seed(catalog.derive_seed(seed, "cache", oid, light_in))
@@ -299,7 +299,9 @@ def relight_object(
             nd = backbone.cfg.den_views
             with torch.no_grad():
                 with Timer(device) as t_rec:
-                    t_geo, _, gauss, keep, _, pixels = backbone.reconstruct(rgb, a, c2w, intr)
+                    t_geo, _, gauss, keep, _, pixels = backbone.reconstruct(
+                        rgb, a, c2w, intr, obj.envs[light_in].to(device)
+                    )
                 for light in lights:
                     g = torch.Generator(device=device).manual_seed(catalog.derive_seed(job.seed, "relight", oid, light))
                     with Timer(device) as t_l:

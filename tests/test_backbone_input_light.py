@@ -1,4 +1,5 @@
-"""``backbone.light_cue_input: fit``: the input light's shading ratio estimated from the input pixels alone."""
+"""``backbone.light_cue_input``: the input light's shading ratio estimated from the input pixels alone (``fit``) or
+taken from the input views' map the caller gives (``known``, the default), and ``cue_in_head``."""
 
 import torch
 from test_priors_units import TINY
@@ -49,16 +50,59 @@ def test_fit_cue_is_target_over_input():
     assert cue[m].abs().mean() < 0.05 < r_t[m].abs().mean()
 
 
-def test_models_saved_before_the_key_keep_their_behaviour(tmp_path):
-    """A backbone model.pt saved before ``light_cue_input`` existed was trained with the uniform assumption: it
-    loads as ``uniform`` (not today's default ``fit``); a new model records its own value."""
+def test_models_saved_before_the_keys_keep_their_behaviour(tmp_path):
+    """A backbone model.pt saved before ``light_cue_input`` and ``cue_in_head`` existed was trained with the uniform
+    assumption and a head that sees the cue: it loads that way (not today's defaults ``known`` and no cue in the
+    head), and its head keeps the input width its weights have; a new model records its own values."""
     from frng.priors import load_backbone
 
+    old_m = bb.build(dict(TINY, light_cue_input="uniform", cue_in_head=True))
+    old = {k: v for k, v in old_m.cfg.to_dict().items() if k not in ("light_cue_input", "cue_in_head")}
     m = bb.build(dict(TINY))
-    assert m.cfg.light_cue_input == "fit"
-    cfg = m.cfg.to_dict()
-    old = {k: v for k, v in cfg.items() if k != "light_cue_input"}
-    torch.save({"kind": "relitlrm", "config": old, "state_dict": m.state_dict()}, tmp_path / "old.pt")
-    torch.save({"kind": "relitlrm", "config": cfg, "state_dict": m.state_dict()}, tmp_path / "new.pt")
-    assert load_backbone(tmp_path / "old.pt").cfg.light_cue_input == "uniform"
-    assert load_backbone(tmp_path / "new.pt").cfg.light_cue_input == "fit"
+    assert (m.cfg.light_cue_input, m.cfg.cue_in_head) == ("known", False)
+    torch.save({"kind": "relitlrm", "config": old, "state_dict": old_m.state_dict()}, tmp_path / "old.pt")
+    torch.save({"kind": "relitlrm", "config": m.cfg.to_dict(), "state_dict": m.state_dict()}, tmp_path / "new.pt")
+    loaded = load_backbone(tmp_path / "old.pt").cfg
+    assert (loaded.light_cue_input, loaded.cue_in_head) == ("uniform", True)
+    loaded = load_backbone(tmp_path / "new.pt").cfg
+    assert (loaded.light_cue_input, loaded.cue_in_head) == ("known", False)
+
+
+def test_known_cue_is_target_over_the_given_input_light():
+    """``known``: the pixel inputs carry the given input map's log ratio at the hull normals, and an untrained head
+    (zero-initialised output: gain 0) gives back the input colours under the input light itself and relights them
+    by the Lambertian ratio target / input under another light. Without the map the backbone says what it needs."""
+    import pytest
+
+    env_in = torch.ones(32, 64, 3) * 0.2
+    env_in[:10] = torch.tensor([1.5, 1.2, 0.9])  # bright top
+    env_t = env_in.flip(0)  # bright bottom
+    px7, n = _sphere_pixels(env_in, size=16)
+    m = bb.build(dict(TINY)).eval()
+    col = px7[0, 0, ..., :3] ** 2.2 * px7[0, 0, ..., 3:4]
+    images, alpha, normals = col[None], px7[0, 0, ..., 3:4][None], n[0]
+    px = m.pixel_inputs(images, alpha, normals, env_in)
+    assert px.shape == (1, 1, 16, 16, 10)
+    assert torch.allclose(px[..., 7:10], bb.RelitLRMBackbone.light_ratio(env_in[None], n))
+    with pytest.raises(ValueError, match="input_env"):
+        m.pixel_inputs(images, alpha, normals)
+    t_app = torch.randn(1, 1, 2, 2, m.cfg.width)
+    fg = px[0, 0, ..., 3] > 0.5
+
+    @torch.no_grad()
+    def base_colour(env):  # the DC term's colour in gamma space (sh = (c - 0.5) / C0 for the base)
+        sh = m.sh_coefficients(t_app, px, env[None])
+        return (sh[0, :, 0] * bb.C0 + 0.5).reshape(16, 16, 3)
+
+    assert torch.allclose(base_colour(env_in)[fg], px[0, 0, ..., :3][fg], atol=1e-5)  # identity under its own light
+    ratio = (bb.RelitLRMBackbone.light_ratio(env_t[None], n) - px[..., 7:10])[0, 0] / 2.2
+    relit = px[0, 0, ..., :3] * ratio.exp()
+    assert torch.allclose(base_colour(env_t)[fg], relit[fg], atol=1e-4)
+    assert float((base_colour(env_t) - base_colour(env_in))[fg].abs().mean()) > 0.05  # the cue acts
+
+
+def test_cue_in_head_sets_what_the_head_sees():
+    """``cue_in_head: false`` keeps log r out of the per-pixel head's inputs (F + 4 features), true adds it (F + 7)."""
+    for flag, extra in ((False, 0), (True, 3)):
+        m = bb.build(dict(TINY, cue_in_head=flag))
+        assert m.pixel_head[0].in_features == m.cfg.pixel_features + 4 + extra

@@ -82,15 +82,16 @@ def test_frozen_backbone_cannot_be_updated(tiny_backbone_file):
 
 def test_relight_variable_views_and_guidance(tiny_backbone_file):
     model = load_backbone(tiny_backbone_file)
+    env_in = torch.rand(8, 16, 3)  # the input views' light (light_cue_input: known)
     for V in (2, 5):
         c2w, intr = _rig(V)
         imgs, alpha = torch.rand(V, 16, 16, 3) * 0.5, torch.ones(V, 16, 16, 1)
-        out = model.relight(imgs, alpha, c2w, intr, [torch.rand(8, 16, 3)], c2w[:1], intr[:1])
+        out = model.relight(imgs, alpha, c2w, intr, [torch.rand(8, 16, 3)], c2w[:1], intr[:1], input_env=env_in)
         rgb, a = out[0]
         assert rgb.shape == (1, 16, 16, 3) and a.shape == (1, 16, 16, 1)
         assert torch.isfinite(rgb).all() and rgb.min() >= 0
     model.cfg = dataclasses.replace(model.cfg, guidance=3.0)  # the config is frozen
-    out2 = model.relight(imgs, alpha, c2w, intr, [torch.rand(8, 16, 3)], c2w[:1], intr[:1])
+    out2 = model.relight(imgs, alpha, c2w, intr, [torch.rand(8, 16, 3)], c2w[:1], intr[:1], input_env=env_in)
     assert torch.isfinite(out2[0][0]).all()
 
 
@@ -226,7 +227,7 @@ def test_untrained_backbone_relights_with_light_cue():
     for cue in (True, False):
         torch.manual_seed(0)
         m = bb.build(dict(TINY, light_cue=cue)).eval()
-        out = m.relight(imgs, alpha, c2w, intr, [top, bottom], c2w[:1], intr[:1])
+        out = m.relight(imgs, alpha, c2w, intr, [top, bottom], c2w[:1], intr[:1], input_env=torch.ones(32, 64, 3))
         H = imgs.shape[1]
         up = [float(rgb[0, : H // 2][a[0, : H // 2, :, 0] > 0.5].mean()) for rgb, a in out]
         down = [float(rgb[0, H // 2 :][a[0, H // 2 :, :, 0] > 0.5].mean()) for rgb, a in out]

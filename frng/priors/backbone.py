@@ -108,14 +108,21 @@ class BackboneArch:
     footprint_px: float
     pixel_features: int
     light_cue: bool
-    light_cue_input: str  # "uniform" | "fit": how the light cue treats the (unknown) input light
+    light_cue_input: str  # "uniform" | "fit" | "known": how the light cue treats the input light
+    cue_in_head: bool  # the per-pixel SH head also sees the cue log r (it can then learn to follow it only partly)
     surfels: bool  # inference: the per-pixel Gaussians become pixel-footprint surfels (frng.priors.surfels)
     hull_fill: bool  # caches: Gaussians on the visual hull's surface no input view saw (frng.priors.hullfill)
     view_select: bool  # inference: a surface seen by several views keeps its most frontal layer (priors.viewselect)
 
 
 # Architecture keys that came after models were already saved -> the behaviour those models were trained with.
-SAVED_DEFAULTS = {"light_cue_input": "uniform", "surfels": False, "hull_fill": False, "view_select": False}
+SAVED_DEFAULTS = {
+    "light_cue_input": "uniform",
+    "cue_in_head": True,
+    "surfels": False,
+    "hull_fill": False,
+    "view_select": False,
+}
 
 
 @dataclass(frozen=True)
@@ -186,7 +193,7 @@ class RelitLRMBackbone(nn.Module):
             F_ = cfg.pixel_features
             self.app_detokenizer = PatchDetokenizer(D, F_, p)
             self.pixel_head = nn.Sequential(
-                nn.Linear(F_ + 4 + (3 if cfg.light_cue else 0), 2 * F_),
+                nn.Linear(F_ + 4 + (3 if cfg.light_cue and cfg.cue_in_head else 0), 2 * F_),
                 nn.GELU(),
                 nn.Linear(2 * F_, 3 * cfg.sh_coeffs + 3),
             )
@@ -282,13 +289,31 @@ class RelitLRMBackbone(nn.Module):
         out = self.dit(torch.cat([geo, light, noisy_tok, step], dim=1))
         return out[:, : V * h * w].reshape(B, V, h, w, D)
 
-    @staticmethod
-    def pixel_inputs(images: torch.Tensor, alpha: torch.Tensor, normals: torch.Tensor | None = None) -> torch.Tensor:
+    def pixel_inputs(
+        self,
+        images: torch.Tensor,
+        alpha: torch.Tensor,
+        normals: torch.Tensor | None,
+        input_env: torch.Tensor | None = None,
+    ) -> torch.Tensor:
         """Per-pixel appearance inputs of one object: images (V, H, W, 3) linear premultiplied, alpha (V, H, W, 1),
-        world-frame hull normals (V, H, W, 3) or None -> (1, V, H, W, 4 or 7) = [unpremultiplied gamma-2.2 colour
-        in [0, 1], alpha(, normal)]. The normals are what the light cue (``light_cue``) reads."""
+        world-frame hull normals (V, H, W, 3) -> (1, V, H, W, C) = [unpremultiplied gamma-2.2 colour in [0, 1],
+        alpha] (C = 4), then with ``light_cue`` the normals the cue reads (C = 7), then with ``light_cue_input:
+        known`` the input light's log shading ratio at them (C = 10; :meth:`light_ratio` of ``input_env``
+        (He, We, 3), the input views' HDR map, which that mode requires)."""
         col = (images.float() / alpha.float().clamp_min(1e-3)).clamp(0, 1) ** (1 / 2.2)
-        parts = [col, alpha.float()] + ([] if normals is None else [normals.float()])
+        parts = [col, alpha.float()]
+        if self.cfg.light_cue:
+            assert normals is not None and normals.shape == images.shape, None if normals is None else normals.shape
+            parts.append(normals.float())
+            if self.cfg.light_cue_input == "known":
+                if input_env is None:
+                    raise ValueError(
+                        "this backbone (light_cue_input: known) needs the input views' env map: "
+                        "reconstruct(..., input_env=) / pixel_inputs(..., input_env=)"
+                    )
+                assert input_env.dim() == 3 and input_env.shape[-1] == 3, input_env.shape
+                parts.append(self.light_ratio(input_env[None].to(normals.device), normals[None].float())[0])
         return torch.cat(parts, -1)[None]
 
     @staticmethod
@@ -346,12 +371,14 @@ class RelitLRMBackbone(nn.Module):
     ) -> torch.Tensor:
         """T_app (B, V, h, w, D) -> SH coefficients per Gaussian (B, V*H*W, K, 3), K = (degree + 1)^2.
 
-        pixels (B, V, H, W, 4 or 7) from :meth:`pixel_inputs`: required with ``cues`` (the per-pixel colour path);
+        pixels (B, V, H, W, C) from :meth:`pixel_inputs`: required with ``cues`` (the per-pixel colour path);
         with ``light_cue`` it carries the normals and env (B, He, We, 3) (None: unconditional) gives the light cue
-        (:meth:`light_ratio`): the head sees log r, and the base colour is the input colour relit by it,
-        ``c_in * exp(g + log r / 2.2)`` (gamma space), so an untrained head already relights as a Lambertian
-        surface: under an input light it assumes uniform (``light_cue_input: uniform``), or relative to the input
-        light estimated from the pixels (``fit``: log r = log r_target - :meth:`input_light_ratio`)."""
+        (:meth:`light_ratio`): the base colour is the input colour relit by it, ``c_in * exp(g + log r / 2.2)``
+        (gamma space), so an untrained head already relights as a Lambertian surface: under an input light it
+        assumes uniform (``light_cue_input: uniform``), relative to the input light estimated from the pixels
+        (``fit``: log r = log r_target - :meth:`input_light_ratio`) or to the input light it is told (``known``:
+        minus the ratio ``pixels`` carries). With ``cue_in_head`` the head also sees log r and can learn to follow
+        it only part of the way (it does, where the cue is noisy: README "Priors")."""
         B = t_app.shape[0]
         K = self.cfg.sh_coeffs
         if self.pixel_head is None:
@@ -359,7 +386,8 @@ class RelitLRMBackbone(nn.Module):
         if pixels is None:
             raise ValueError("this backbone (cues: true) needs the input pixels: sh_coefficients(t_app, pixels)")
         feat = self.app_detokenizer(t_app)  # (B, V, H, W, F)
-        n_in = 7 if self.cfg.light_cue else 4
+        known = self.cfg.light_cue and self.cfg.light_cue_input == "known"
+        n_in = 10 if known else 7 if self.cfg.light_cue else 4
         assert pixels.shape[:-1] == feat.shape[:-1] and pixels.shape[-1] == n_in, (pixels.shape, feat.shape)
         head_in = [feat, pixels[..., :4].to(feat.dtype)]
         log_r = None
@@ -367,7 +395,10 @@ class RelitLRMBackbone(nn.Module):
             log_r = self.light_ratio(env, pixels[..., 4:7])
             if env is not None and self.cfg.light_cue_input == "fit":  # relight relative to the estimated input light
                 log_r = log_r - self.input_light_ratio(pixels)
-            head_in.append(log_r.to(feat.dtype))
+            elif env is not None and known:  # relative to the input light the caller gave (pixel_inputs)
+                log_r = log_r - pixels[..., 7:10].float()
+            if self.cfg.cue_in_head:
+                head_in.append(log_r.to(feat.dtype))
         out = self.pixel_head(torch.cat(head_in, -1)).float()
         sh = out[..., : 3 * K].reshape(B, -1, K, 3)
         gain = out[..., 3 * K :].reshape(B, -1, 3)
@@ -487,10 +518,16 @@ class RelitLRMBackbone(nn.Module):
 
     @torch.no_grad()
     def reconstruct(
-        self, images: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor
+        self,
+        images: torch.Tensor,
+        alpha: torch.Tensor,
+        c2w: torch.Tensor,
+        intr: torch.Tensor,
+        input_env: torch.Tensor | None = None,
     ) -> BackboneGeometry:
         """Geometry of one object from V input views: images (V, H, W, 3) linear premultiplied, alpha
-        (V, H, W, 1), c2w (V, 4, 4), intr (V, 4). See :class:`BackboneGeometry` for what comes back."""
+        (V, H, W, 1), c2w (V, 4, 4), intr (V, 4); input_env (He, We, 3): the input views' HDR map, required by
+        ``light_cue_input: known`` (ignored otherwise). See :class:`BackboneGeometry` for what comes back."""
         t_geo, raw, prior, normals = self.encode_geometry(images[None], alpha[None], c2w[None], intr[None])
         gauss = self.gaussians(raw[0], c2w, intr)
         keep = alpha.reshape(-1) >= 0.5
@@ -507,7 +544,7 @@ class RelitLRMBackbone(nn.Module):
             gauss,
             keep,
             prior[0],
-            self.pixel_inputs(images, alpha, normals[0] if self.cfg.light_cue else None),
+            self.pixel_inputs(images, alpha, normals[0] if self.cfg.light_cue else None, input_env),
         )
 
     @torch.no_grad()
@@ -523,17 +560,19 @@ class RelitLRMBackbone(nn.Module):
         den_c2w: torch.Tensor | None = None,
         den_intr: torch.Tensor | None = None,
         seed: int = 0,
+        input_env: torch.Tensor | None = None,
     ) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """The baseline relighting: geometry once, then one full denoising pass per light.
 
         images (V, H, W, 3), alpha (V, H, W, 1), c2w (V, 4, 4), intr (V, 4): the input views; envs: HDR maps
-        (He, We, 3) each; out_c2w (Vo, 4, 4), out_intr (Vo, 4): cameras to render. Denoising cameras default to
+        (He, We, 3) each; out_c2w (Vo, 4, 4), out_intr (Vo, 4): cameras to render; input_env (He, We, 3): the
+        input views' map (``light_cue_input: known`` needs it: :meth:`reconstruct`). Denoising cameras default to
         the first ``den_views`` input cameras. Returns per light (linear premultiplied RGB (Vo, H, W, 3),
         alpha (Vo, H, W, 1)); the DDIM noise is seeded per light index from ``seed``."""
         H, W = images.shape[1:3]
         if den_c2w is None:
             den_c2w, den_intr = c2w[: self.cfg.den_views], intr[: self.cfg.den_views]
-        t_geo, _, gauss, keep, _, pixels = self.reconstruct(images, alpha, c2w, intr)
+        t_geo, _, gauss, keep, _, pixels = self.reconstruct(images, alpha, c2w, intr, input_env)
         out = []
         for i, env in enumerate(envs):
             g = torch.Generator(device=images.device).manual_seed(seed + i)

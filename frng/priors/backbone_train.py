@@ -142,7 +142,7 @@ def step_loss(
     with autocast(device, tcfg.bf16):
         t_geo, raw, _, normals = model.encode_geometry(rgb_in[None], a_in[None], c2w_in[None], intr_in[None])
     raw = raw[0].float()
-    pixels = model.pixel_inputs(rgb_in, a_in, normals[0] if cfg.light_cue else None)
+    pixels = model.pixel_inputs(rgb_in, a_in, normals[0] if cfg.light_cue else None, obj.envs[light_a].to(device))
     gauss = model.gaussians(raw, c2w_in, intr_in)
     keep = a_in.reshape(-1) >= 0.5
 

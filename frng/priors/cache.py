@@ -162,7 +162,7 @@ def make_backbone_cache(
         v = views.select(range(V))
         names[V] = v.names
         rgb, a, c2w, intr = (x.to(device) for x in (v.rgb, v.alpha, v.c2w, v.intr))
-        recon = model.reconstruct(rgb, a, c2w, intr)
+        recon = model.reconstruct(rgb, a, c2w, intr, envs[light_in].to(device))
         t_geo, _, gauss, keep, _, pixels = recon
         p = f"v{V}."
         tensors.update({p + k: t for k, t in geometry_entry(model, recon, a, c2w, intr).items()})

@@ -154,7 +154,7 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
         return torch.Generator(device=dev).manual_seed(seed)
 
     with torch.no_grad(), amp:
-        t_geo_s, recon = median_time(lambda: backbone.reconstruct(rgb, alpha, c2w, intr), dev, R)
+        t_geo_s, recon = median_time(lambda: backbone.reconstruct(rgb, alpha, c2w, intr, env_in), dev, R)
         t_geo, _, gauss, keep, _, pixels = recon
         t_app_s, (sh_in, t_app) = median_time(
             lambda: backbone.denoise(
