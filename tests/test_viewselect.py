@@ -87,7 +87,7 @@ def test_backbone_and_cache_agree_on_what_is_rendered():
     for on in (False, True):
         torch.manual_seed(0)
         m = bb.build(dict(tiny, den_views=2, view_select=on)).eval()
-        recon = m.reconstruct(imgs, alpha, c2w, intr)
+        recon = m.reconstruct(imgs, alpha, c2w, intr, torch.ones(8, 16, 3))  # input light (light_cue_input: known)
         entries[on] = (recon.keep, geometry_entry(m, recon, alpha, c2w, intr))
     fg = alpha.reshape(-1) >= 0.5
     keep_off, off = entries[False]
