@@ -344,7 +344,8 @@ class RelitLRMBackbone(nn.Module):
         backbone is not told the input light, as RelitLRM is not): per object, a degree-2 SH irradiance fitted by
         least squares to the linear colours of the foreground pixels that have a hull normal, as if the object had
         one constant albedo (its scale cancels in the ratio). pixels (B, V, H, W, 7) from :meth:`pixel_inputs` ->
-        log r_in (B, V, H, W, 3) in :meth:`light_ratio`'s units (ratio 1 where there is no normal, or too few pixels to fit)."""
+        log r_in (B, V, H, W, 3) in :meth:`light_ratio`'s units (ratio 1 where there is no normal, or too few
+        pixels to fit)."""
         from frng.envmap import SH_IRRADIANCE_BANDS
         from frng.render.sh import sh_basis
 
