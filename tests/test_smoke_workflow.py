@@ -145,7 +145,10 @@ def test_bench_heldout_scores_equal_the_pipeline(smoke_run, tmp_path):
     )
     assert r.returncode == 0, _tail(r.stdout + r.stderr)
     assert "again - full: psnr +0.0000 [+0.0000, +0.0000]" in r.stdout, r.stdout
+    assert "PSNR by target light" in r.stdout, r.stdout
     rows = pd.read_csv(out)
+    # each row's light_base is its map's name without the rotation suffix ("{base}_r{k}")
+    assert (rows["light"].str.rsplit("_r", n=1).str[0] == rows["light_base"]).all(), rows[["light", "light_base"]]
     mine = rows[(rows["model"] == "full") & (rows["decoder"] == "full")]
     pipeline = pd.read_csv(results / "metrics" / "relight_per_image.csv")
     m = mine.merge(pipeline[pipeline["run"] == "full"], on=["object", "light", "view"], suffixes=("", "_pipeline"))

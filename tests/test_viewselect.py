@@ -99,3 +99,35 @@ def test_backbone_and_cache_agree_on_what_is_rendered():
     assert torch.equal(on["opacities"][~dropped], off["opacities"][~dropped])
     for k in ("means", "opacities", "src"):
         assert torch.equal(on["back_" + k], off["back_" + k]), k
+
+
+def test_training_renders_the_inference_geometry_with_gradients():
+    """``RelitLRMBackbone.inference_geometry`` (what ``reconstruct`` renders, and with
+    ``backbone.train.inference_geometry`` what the loss renders): on the plane seen frontally and obliquely the
+    oblique view's dominated layer leaves ``keep``, the shapes become surfels (not the learned near-points), and a
+    loss on the result reaches the means and opacities (the surfels' planes carry no gradient)."""
+    from frng.gaussians import Gaussians
+    from frng.priors import backbone as bb
+    from frng.priors.surfels import pixel_surfels
+
+    size = 32
+    means, keep, c2w, intr = _rig([89.0, 30.0], [0.0, 0.0], size)
+    N = means.shape[0]
+    means = means.clone().requires_grad_(True)
+    opac = torch.full((N,), 0.5, requires_grad=True)
+    quats = torch.tensor([1.0, 0.0, 0.0, 0.0]).expand(N, 4)
+    g = Gaussians(means, quats, torch.full((N, 3), 0.002), opac, torch.zeros(N, 3))
+    tiny = {"width": 32, "heads": 2, "geo_depth": 1, "app_depth": 1, "env_height": 8, "sh_degree": 1, "patch": 8}
+    m = bb.build(dict(tiny, den_views=2))
+    assert m.cfg.surfels and m.cfg.view_select
+    out, kept = m.inference_geometry(g, keep, c2w, intr)
+    assert (kept <= keep).all() and int((keep & ~kept)[size * size :].sum()) > 0  # the oblique view loses a layer
+    assert torch.equal(kept[: size * size], keep[: size * size])  # the frontal view keeps its own
+    ref = pixel_surfels(g, keep, c2w, intr)
+    assert torch.allclose(out.scales, ref.scales) and not torch.allclose(out.scales, g.scales)
+    (out.means[kept].sum() + out.scales[kept].sum() + out.opacities[kept].sum()).backward()
+    assert means.grad is not None and means.grad[kept].abs().sum() > 0
+    assert opac.grad is not None and torch.equal(opac.grad[kept], torch.ones(int(kept.sum())))
+    off = bb.build(dict(tiny, den_views=2, surfels=False, view_select=False))
+    same, same_keep = off.inference_geometry(g, keep, c2w, intr)
+    assert same is g and same_keep is keep

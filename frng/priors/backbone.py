@@ -517,6 +517,25 @@ class RelitLRMBackbone(nn.Module):
                 x = self.schedule.ddim_step(x, x0, t, ts[i + 1])
         return sh[0].float(), t_app
 
+    def inference_geometry(
+        self, gauss: Gaussians, keep: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor
+    ) -> tuple[Gaussians, torch.Tensor]:
+        """What :meth:`reconstruct` renders of the per-pixel Gaussians (N = V*H*W; keep (N,) bool: the foreground
+        pixels'; c2w (V, 4, 4), intr (V, 4)): with ``surfels`` their pixels' surfels (:mod:`frng.priors.surfels`),
+        with ``view_select`` keep less the layers another view sees more squarely (:mod:`frng.priors.viewselect`).
+        Both read the normals of the Gaussians' depth maps, taken without gradient (training with
+        ``backbone.train.inference_geometry`` moves the means, not the surfels' planes). Returns (gaussians, keep)."""
+        if not (self.cfg.surfels or self.cfg.view_select):
+            return gauss, keep
+        with torch.no_grad():
+            depth_n = grid_normals(gauss.means.detach(), keep, c2w)
+        if self.cfg.surfels:
+            gauss = pixel_surfels(gauss, keep, c2w, intr, depth_n)
+        if self.cfg.view_select:  # one layer per surface: the most frontal view's
+            with torch.no_grad():
+                keep = frontal_keep(gauss.means.detach(), keep, c2w, intr, depth_n)
+        return gauss, keep
+
     @torch.no_grad()
     def reconstruct(
         self,
@@ -530,15 +549,7 @@ class RelitLRMBackbone(nn.Module):
         (V, H, W, 1), c2w (V, 4, 4), intr (V, 4); input_env (He, We, 3): the input views' HDR map, required by
         ``light_cue_input: known`` (ignored otherwise). See :class:`BackboneGeometry` for what comes back."""
         t_geo, raw, prior, normals = self.encode_geometry(images[None], alpha[None], c2w[None], intr[None])
-        gauss = self.gaussians(raw[0], c2w, intr)
-        keep = alpha.reshape(-1) >= 0.5
-        # training renders the learned shapes; inference renders their pixels' surfels (frng.priors.surfels)
-        # the surfels' planes and the view selection read the same normals of the Gaussians' depth maps
-        depth_n = grid_normals(gauss.means, keep, c2w) if self.cfg.surfels or self.cfg.view_select else None
-        if self.cfg.surfels:
-            gauss = pixel_surfels(gauss, keep, c2w, intr, depth_n)
-        if self.cfg.view_select:  # one layer per surface: the most frontal view's (frng.priors.viewselect)
-            keep = frontal_keep(gauss.means, keep, c2w, intr, depth_n)
+        gauss, keep = self.inference_geometry(self.gaussians(raw[0], c2w, intr), alpha.reshape(-1) >= 0.5, c2w, intr)
         return BackboneGeometry(
             t_geo,
             raw[0],

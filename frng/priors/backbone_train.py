@@ -64,6 +64,7 @@ class BackboneTrainConfig:
     perceptual_after: int
     perceptual_net: str
     supervision_views: int
+    inference_geometry: bool
     bf16: bool
     checkpoint_every: int
 
@@ -145,6 +146,8 @@ def step_loss(
     pixels = model.pixel_inputs(rgb_in, a_in, normals[0] if cfg.light_cue else None, obj.envs[light_a].to(device))
     gauss = model.gaussians(raw, c2w_in, intr_in)
     keep = a_in.reshape(-1) >= 0.5
+    if tcfg.inference_geometry:  # render what inference renders: surfels, one layer per surface
+        gauss, keep = model.inference_geometry(gauss, keep, c2w_in, intr_in)
 
     t = torch.randint(0, model.schedule.steps, (1,), device=device)
     x0 = to_diffusion_space(den.rgb.to(device))[None]

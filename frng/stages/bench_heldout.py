@@ -18,7 +18,7 @@ What it does per test object (``catalog.plan(config).split("test")``, or ``--obj
 
 Prints, per model: PSNR / SSIM / LPIPS, the base's PSNR, the light sensitivity, the PSNR per material class and
 per band of the target view's elevation (views from below see what the rig's cameras, at 0 and 45 degrees, never
-do); and every model after the first against the first: the paired difference with its 95% bootstrap interval
+do) and per target light (the map's base name: a test studio or sky over its rotations); and every model after the first against the first: the paired difference with its 95% bootstrap interval
 over objects (:func:`frng.report.stats.paired`). ``--out`` writes the per-image rows (CSV).
 
 ``--at inputs`` scores the models at their own V INPUT views instead (:func:`score_inputs`): re-rendered under the
@@ -205,6 +205,12 @@ def summary(df, names: list[str]) -> str:
         lines.append(
             "PSNR by target-view elevation (degrees; mean, images):\n" + by.to_string(float_format="{:.2f}".format)
         )
+    if "light_base" in full and full["light_base"].notna().any():
+        by = full.groupby(["light_base", "model"])["psnr"].agg(["mean", "count"]).unstack("model")
+        lines.append(
+            "PSNR by target light (the map's base name, over its rotations; mean, images):\n"
+            + by.to_string(float_format="{:.2f}".format)
+        )
     ref = full[full["model"] == names[0]]
     for name in names[1:]:
         other = full[full["model"] == name]
@@ -271,7 +277,14 @@ def run(args: argparse.Namespace) -> int:
         views = [c["name"] for c in meta["views"]["targets"]]
         elevation = {c["name"]: c["elevation_deg"] for c in meta["views"]["targets"]}
         for r in score_object(obj, loaded, lights, views, config.seed, spp, proto, bg):
-            rows.append(r | {"class": meta["material_class"], "elevation_deg": elevation[r["view"]]})
+            rows.append(
+                r
+                | {
+                    "class": meta["material_class"],
+                    "elevation_deg": elevation[r["view"]],
+                    "light_base": plan.envmap(r["light"]).base,
+                }
+            )
     df = pd.DataFrame(rows)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
