@@ -567,7 +567,8 @@ class AssetRenderer:
     ``decoder.safetensors``, and the rasterizer / shading settings of ``asset.json``'s ``render`` (the schema's
     defaults when an asset has none, e.g. one written by ``frng relight`` before it recorded them). Shading as the
     model's: with a cosine decoder and ``shading.diffuse: sh`` the Lambertian base in closed form (degree-2 SH
-    irradiance) plus the Monte-Carlo residual, plus the prefiltered specular base when ``decoder.specular``.
+    irradiance) plus the Monte-Carlo residual, plus the specular base when ``decoder.specular`` (prefiltered, or
+    a GGX lobe inside the Monte-Carlo pass with ``shading.specular_model: ggx``).
     The light samples are seeded like :meth:`FRNG.light_samples` (a ``generator``'s first draw, else 0), so the
     same asset, light, views and seed give the model's images. Decoding runs in float32 unless ``bf16`` (CUDA).
     """
@@ -649,7 +650,7 @@ class AssetRenderer:
     ) -> torch.Tensor:
         """Deferred shading under an equirect map (He, We, 3) -> RGBA (V, H, W, 4), linear, premultiplied."""
         from frng import envmap
-        from frng.render.prefilter import specular_at_cameras
+        from frng.render.prefilter import specular_at_cameras, with_ggx_specular
         from frng.render.shading import deferred_shade, lambert_sh
 
         maps, alpha, c2w, intr = raster
@@ -660,8 +661,9 @@ class AssetRenderer:
         samples = envmap.sample(envmap.importance_sampler(env.detach().to(self.device)), spp, sc.sampling, seed)
         with torch.no_grad(), torch.autocast(maps.device.type, dtype=torch.bfloat16, enabled=self.bf16):
             if self.decoder.cosine and sc.diffuse == "sh":
+                ggx = self.specular and sc.specular_model == "ggx"
                 rgb = deferred_shade(
-                    self.decoder.residual,
+                    with_ggx_specular(self.decoder.residual, sc.specular_param) if ggx else self.decoder.residual,
                     [maps],
                     alpha,
                     c2w,
@@ -675,7 +677,7 @@ class AssetRenderer:
                 rgb = rgb.float() + lambert_sh(
                     maps, alpha, envmap.sh_project(env.detach().float().cpu()).float(), sc.alpha_eps
                 )
-                if self.specular:
+                if self.specular and not ggx:
                     rgb = rgb + specular_at_cameras(maps, alpha, c2w, intr, env, sc.alpha_eps, sc.specular_param)
                 if self.decoder.attenuation:
                     rgb = rgb.clamp_min(0.0)

@@ -118,8 +118,43 @@ def test_saved_shading_records_keep_the_behaviour_they_were_trained_with():
     """A model or asset saved before ``specular_param`` / ``normal_blur`` existed renders as it was trained
     (softplus k_s, no normal filtering); a record that names them, or none at all, reads as written / the schema."""
     today = ShadingConfig.from_dict({})
-    old = {k: v for k, v in today.__dict__.items() if k not in ("specular_param", "normal_blur")}
+    old = {k: v for k, v in today.__dict__.items() if k not in ("specular_param", "normal_blur", "specular_model")}
     legacy = ShadingConfig.from_saved(old)
-    assert (legacy.specular_param, legacy.normal_blur) == ("softplus", 0.0)
+    assert (legacy.specular_param, legacy.normal_blur, legacy.specular_model) == ("softplus", 0.0, "prefiltered")
+    assert today.specular_model == "ggx"
     assert ShadingConfig.from_saved(dict(today.__dict__)) == today
     assert ShadingConfig.from_saved({}) == today
+
+
+def test_ggx_specular_base_is_the_residual_plus_a_cook_torrance_lobe():
+    """``shading.specular_model: ggx``: the reflectance the residual's Monte-Carlo pass integrates is the residual
+    plus GGX's specular lobe with F0 = k_s and the level as roughness; at f = 0 a faint dielectric (F0 0.02,
+    roughness 0.5) whose lobe peaks at the mirror direction and grows with k_s; an unknown model is an error."""
+    from frng.render.prefilter import with_ggx_specular
+    from frng.render.shading import ggx_reflectance
+
+    def residual(f, wo, wi):
+        return torch.full((f.shape[0], wi.shape[0], 3), 0.1)
+
+    f = torch.zeros(2, 16)
+    f[:, 2] = 1.0  # normal +z
+    f[1, 6:9] = 0.5  # a stronger specular colour
+    wo = torch.nn.functional.normalize(torch.tensor([[0.6, 0.0, 0.8], [0.6, 0.0, 0.8]]), dim=-1)
+    mirror = torch.tensor([-0.6, 0.0, 0.8])
+    wi = torch.nn.functional.normalize(
+        torch.stack([mirror, torch.tensor([0.6, 0.0, 0.8]), torch.tensor([0.0, 0.0, 1.0])]), dim=-1
+    )
+    out = with_ggx_specular(residual, "linear")(f, wo, wi)
+    assert out.shape == (2, 3, 3)
+    ks, level = specular_params(f, 2, "linear")
+    assert torch.allclose(level, torch.full((2,), 0.5))
+    spec = ggx_reflectance(ks, level[:, None], torch.ones(2, 1), f[:, :3], wo, wi, diffuse=False)
+    assert torch.allclose(out - 0.1, spec, atol=1e-6)
+    assert (out[:, 0] > out[:, 1]).all()  # the mirror direction gets the most
+    assert (out[1] > out[0]).all()  # more k_s, more specular
+    try:
+        ShadingConfig.from_dict({"specular_model": "phong"})
+    except ValueError as e:
+        assert "specular_model" in str(e)
+    else:
+        raise AssertionError("an unknown specular model must be an error")

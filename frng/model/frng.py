@@ -637,9 +637,13 @@ class FRNG(nn.Module):
         amp = sc.bf16_infer and not torch.is_grad_enabled() and self.cfg.head == "neural" and bf16_ok(maps.device)
         with torch.autocast(maps.device.type, dtype=torch.bfloat16, enabled=amp):
             if self.cfg.head == "neural" and self.decoder.cosine and sc.diffuse == "sh":
-                # Lambertian base in closed form (SH irradiance), Monte Carlo only for the MLP's residual
+                # Lambertian base in closed form (SH irradiance), Monte Carlo only for the MLP's residual (and the
+                # GGX specular base with shading.specular_model: ggx)
+                from frng.render.prefilter import with_ggx_specular
+
+                ggx = self.cfg.decoder_specular and sc.specular_model == "ggx"
                 rgb = deferred_shade(
-                    self.decoder.residual,
+                    with_ggx_specular(self.decoder.residual, sc.specular_param) if ggx else self.decoder.residual,
                     [maps],
                     alpha,
                     c2w,
@@ -653,7 +657,7 @@ class FRNG(nn.Module):
                 rgb = rgb.float() + lambert_sh(
                     maps, alpha, envmap.sh_project(env.detach().float().cpu()).float(), sc.alpha_eps
                 )
-                if self.cfg.decoder_specular:  # closed-form highlights: the prefiltered map at the mirror direction
+                if self.cfg.decoder_specular and not ggx:  # closed form: the prefiltered map at the mirror direction
                     rgb = rgb + self.specular(maps, alpha, c2w, intr, env)
                 if self.decoder.attenuation:  # the attenuated share is a Monte-Carlo estimate: it can overshoot
                     rgb = rgb.clamp_min(0.0)

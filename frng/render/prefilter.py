@@ -1,4 +1,6 @@
-"""Prefiltered environment maps: the closed-form specular base of the cosine decoder (``shading.decoder_specular``).
+"""Prefiltered environment maps: the closed-form specular base of the cosine decoder (``shading.decoder_specular``),
+and its other model, a GGX lobe estimated by Monte Carlo with the decoder's residual (:func:`with_ggx_specular`,
+``shading.specular_model: ggx``).
 
 The cosine decoder's Lambertian base (:func:`frng.render.shading.lambert_sh`) relights the diffuse part of every
 surface without Monte-Carlo noise; a glossy surface's highlight is the environment seen in the mirror direction,
@@ -38,7 +40,7 @@ import torch
 import torch.nn.functional as F
 
 from frng import envmap
-from frng.render.shading import SPECULAR_PARAMS
+from frng.render.shading import GGX_MIN_ROUGHNESS, SPECULAR_PARAMS, face_forward, ggx_reflectance
 
 KAPPAS = (400.0, 100.0, 25.0, 6.0)  # lobe sharpness per level: ~3, 6, 11, 23 degrees (1 / sqrt(kappa) rad)
 PREFILTER_HEIGHT = 32  # maps are area-averaged to 32 x 64 before convolving (texel ~5.6 degrees)
@@ -135,6 +137,29 @@ def specular_params(f: torch.Tensor, levels: int, param: str = "linear") -> tupl
     raise ValueError(f"shading.specular_param must be one of {SPECULAR_PARAMS}, got {param!r}")
 
 
+def with_ggx_specular(residual, param: str = "linear"):
+    """The cosine decoder's Monte-Carlo reflectance with the specular base as a GGX lobe (``shading.specular_model:
+    ggx``): ``reflectance(features (P, C >= 10), wo (P, 3), wi (K, 3)) -> (P, K, 3)`` = ``residual(features, wo,
+    wi)`` + the Cook-Torrance specular lobe x cosine (:func:`frng.render.shading.ggx_reflectance`, specular only)
+    with F0 = k_s (features 6:9, :func:`specular_params` under ``param``, clamped to [0, 1]), roughness = the level
+    of :func:`specular_params` with two levels, in [0, 1] (>= ``GGX_MIN_ROUGHNESS``; 0.5 at f_9 = 0) and the normal
+    of features 0:3 turned to face the camera (:func:`frng.render.shading.face_forward`, as the Cook-Torrance
+    ablation's). Unlike the prefiltered lookup it sees the light samples, so it keeps Fresnel, shadowing-masking and
+    the lobe's shape; it costs one more term in the residual's Monte-Carlo pass. Measured (README "Results"):
+    +0.09 dB [0.04, 0.14] over the prefiltered base, training seeds 0 and 1."""
+
+    def reflectance(features: torch.Tensor, wo: torch.Tensor, wi: torch.Tensor) -> torch.Tensor:
+        out = residual(features, wo, wi)
+        f = features.float()
+        ks, level = specular_params(f, 2, param)
+        rough = level[:, None].clamp(GGX_MIN_ROUGHNESS, 1.0)
+        n = face_forward(f[:, :3], wo.float())
+        spec = ggx_reflectance(ks.clamp(0.0, 1.0), rough, torch.ones_like(rough), n, wo.float(), wi.float(), False)
+        return out + spec.to(out.dtype)
+
+    return reflectance
+
+
 def specular_base(
     maps: torch.Tensor,
     alpha: torch.Tensor,
@@ -198,4 +223,5 @@ __all__ = [
     "specular_base",
     "specular_params",
     "vmf_lobe_mean",
+    "with_ggx_specular",
 ]

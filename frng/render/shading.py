@@ -32,8 +32,9 @@ from frng.sections import TypedConfig, config_section, register, section
 
 DIFFUSE_MODES = ("sh", "mc")
 SPECULAR_PARAMS = ("linear", "softplus")  # frng.render.prefilter.specular_params (that module imports this one)
+SPECULAR_MODELS = ("prefiltered", "ggx")  # frng.render.prefilter: specular_at_cameras / with_ggx_specular
 # Shading keys that came after models were saved -> the behaviour those models were trained with
-SAVED_DEFAULTS = {"normal_blur": 0.0, "specular_param": "softplus"}
+SAVED_DEFAULTS = {"normal_blur": 0.0, "specular_param": "softplus", "specular_model": "prefiltered"}
 
 # Cook-Torrance parameter ranges of the no-neural ablation (:func:`frng.model.materialformer.decode_pbr` maps its
 # logits into them, :func:`ggx_shade` clamps blended maps to them). Bounded so that no parameter can switch a lit
@@ -69,6 +70,7 @@ class ShadingConfig:
     bf16_infer: bool
     normal_blur: float
     specular_param: str
+    specular_model: str
 
     def __post_init__(self):
         if self.spp_grad > self.spp_train:
@@ -77,6 +79,8 @@ class ShadingConfig:
             raise ValueError(f"shading.diffuse must be one of {DIFFUSE_MODES}, got {self.diffuse!r}")
         if self.specular_param not in SPECULAR_PARAMS:
             raise ValueError(f"shading.specular_param must be one of {SPECULAR_PARAMS}, got {self.specular_param!r}")
+        if self.specular_model not in SPECULAR_MODELS:
+            raise ValueError(f"shading.specular_model must be one of {SPECULAR_MODELS}, got {self.specular_model!r}")
 
     @classmethod
     def from_dict(cls, d: dict) -> ShadingConfig:
