@@ -650,7 +650,7 @@ class AssetRenderer:
     ) -> torch.Tensor:
         """Deferred shading under an equirect map (He, We, 3) -> RGBA (V, H, W, 4), linear, premultiplied."""
         from frng import envmap
-        from frng.render.prefilter import specular_at_cameras, with_ggx_specular
+        from frng.render.prefilter import specular_at_cameras, specular_split
         from frng.render.shading import deferred_shade, lambert_sh
 
         maps, alpha, c2w, intr = raster
@@ -661,9 +661,9 @@ class AssetRenderer:
         samples = envmap.sample(envmap.importance_sampler(env.detach().to(self.device)), spp, sc.sampling, seed)
         with torch.no_grad(), torch.autocast(maps.device.type, dtype=torch.bfloat16, enabled=self.bf16):
             if self.decoder.cosine and sc.diffuse == "sh":
-                ggx = self.specular and sc.specular_model == "ggx"
+                reflectance, prefiltered = specular_split(self.decoder.residual, sc, self.specular)
                 rgb = deferred_shade(
-                    with_ggx_specular(self.decoder.residual, sc.specular_param) if ggx else self.decoder.residual,
+                    reflectance,
                     [maps],
                     alpha,
                     c2w,
@@ -677,7 +677,7 @@ class AssetRenderer:
                 rgb = rgb.float() + lambert_sh(
                     maps, alpha, envmap.sh_project(env.detach().float().cpu()).float(), sc.alpha_eps
                 )
-                if self.specular and not ggx:
+                if prefiltered:
                     rgb = rgb + specular_at_cameras(maps, alpha, c2w, intr, env, sc.alpha_eps, sc.specular_param)
                 if self.decoder.attenuation:
                     rgb = rgb.clamp_min(0.0)

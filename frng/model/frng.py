@@ -639,11 +639,11 @@ class FRNG(nn.Module):
             if self.cfg.head == "neural" and self.decoder.cosine and sc.diffuse == "sh":
                 # Lambertian base in closed form (SH irradiance), Monte Carlo only for the MLP's residual (and the
                 # GGX specular base with shading.specular_model: ggx)
-                from frng.render.prefilter import with_ggx_specular
+                from frng.render.prefilter import specular_split
 
-                ggx = self.cfg.decoder_specular and sc.specular_model == "ggx"
+                reflectance, prefiltered = specular_split(self.decoder.residual, sc, self.cfg.decoder_specular)
                 rgb = deferred_shade(
-                    with_ggx_specular(self.decoder.residual, sc.specular_param) if ggx else self.decoder.residual,
+                    reflectance,
                     [maps],
                     alpha,
                     c2w,
@@ -657,7 +657,7 @@ class FRNG(nn.Module):
                 rgb = rgb.float() + lambert_sh(
                     maps, alpha, envmap.sh_project(env.detach().float().cpu()).float(), sc.alpha_eps
                 )
-                if self.cfg.decoder_specular and not ggx:  # closed form: the prefiltered map at the mirror direction
+                if prefiltered:  # closed-form highlights: the prefiltered map at the mirror direction
                     rgb = rgb + self.specular(maps, alpha, c2w, intr, env)
                 if self.decoder.attenuation:  # the attenuated share is a Monte-Carlo estimate: it can overshoot
                     rgb = rgb.clamp_min(0.0)

@@ -527,14 +527,12 @@ class RelitLRMBackbone(nn.Module):
         ``backbone.train.inference_geometry`` moves the means, not the surfels' planes). Returns (gaussians, keep)."""
         if not (self.cfg.surfels or self.cfg.view_select):
             return gauss, keep
-        with torch.no_grad():
-            depth_n = grid_normals(gauss.means.detach(), keep, c2w)
+        with torch.no_grad():  # surfels keep the means: the selection reads the same points either way
+            depth_n = grid_normals(gauss.means, keep, c2w)
+            rendered = frontal_keep(gauss.means, keep, c2w, intr, depth_n) if self.cfg.view_select else keep
         if self.cfg.surfels:
             gauss = pixel_surfels(gauss, keep, c2w, intr, depth_n)
-        if self.cfg.view_select:  # one layer per surface: the most frontal view's
-            with torch.no_grad():
-                keep = frontal_keep(gauss.means.detach(), keep, c2w, intr, depth_n)
-        return gauss, keep
+        return gauss, rendered
 
     @torch.no_grad()
     def reconstruct(

@@ -160,6 +160,16 @@ def with_ggx_specular(residual, param: str = "linear"):
     return reflectance
 
 
+def specular_split(residual, shading, specular: bool):
+    """Where the cosine decoder's specular base goes under ``shading.specular_model`` (``shading``: a
+    :class:`frng.render.shading.ShadingConfig`; ``specular``: the decoder has a base, ``shading.decoder_specular``).
+    Returns (the reflectance the Monte-Carlo pass integrates: ``residual``, or :func:`with_ggx_specular` of it,
+    whether the closed-form prefiltered base (:func:`specular_at_cameras`) is added after that pass)."""
+    if specular and shading.specular_model == "ggx":
+        return with_ggx_specular(residual, shading.specular_param), False
+    return residual, specular
+
+
 def specular_base(
     maps: torch.Tensor,
     alpha: torch.Tensor,
@@ -222,6 +232,7 @@ __all__ = [
     "specular_at_cameras",
     "specular_base",
     "specular_params",
+    "specular_split",
     "vmf_lobe_mean",
     "with_ggx_specular",
 ]

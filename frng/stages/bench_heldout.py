@@ -18,8 +18,9 @@ What it does per test object (``catalog.plan(config).split("test")``, or ``--obj
 
 Prints, per model: PSNR / SSIM / LPIPS, the base's PSNR, the light sensitivity, the PSNR per material class and
 per band of the target view's elevation (views from below see what the rig's cameras, at 0 and 45 degrees, never
-do) and per target light (the map's base name: a test studio or sky over its rotations); and every model after the first against the first: the paired difference with its 95% bootstrap interval
-over objects (:func:`frng.report.stats.paired`). ``--out`` writes the per-image rows (CSV).
+do) and per target light (the map's base name: a test studio or sky over its rotations); and every model after
+the first against the first: the paired difference with its 95% bootstrap interval over objects
+(:func:`frng.report.stats.paired`). ``--out`` writes the per-image rows (CSV).
 
 ``--at inputs`` scores the models at their own V INPUT views instead (:func:`score_inputs`): re-rendered under the
 input light (the reconstruction) and under every other input light the object was photographed in (relighting
@@ -276,15 +277,14 @@ def run(args: argparse.Namespace) -> int:
         lights = list(meta["target_lights"])
         views = [c["name"] for c in meta["views"]["targets"]]
         elevation = {c["name"]: c["elevation_deg"] for c in meta["views"]["targets"]}
+        base = {light: plan.envmap(light).base for light in lights}
         for r in score_object(obj, loaded, lights, views, config.seed, spp, proto, bg):
-            rows.append(
-                r
-                | {
-                    "class": meta["material_class"],
-                    "elevation_deg": elevation[r["view"]],
-                    "light_base": plan.envmap(r["light"]).base,
-                }
-            )
+            extra = {
+                "class": meta["material_class"],
+                "elevation_deg": elevation[r["view"]],
+                "light_base": base[r["light"]],
+            }
+            rows.append(r | extra)
     df = pd.DataFrame(rows)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
