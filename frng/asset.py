@@ -650,8 +650,7 @@ class AssetRenderer:
     ) -> torch.Tensor:
         """Deferred shading under an equirect map (He, We, 3) -> RGBA (V, H, W, 4), linear, premultiplied."""
         from frng import envmap
-        from frng.render.prefilter import specular_at_cameras, specular_split
-        from frng.render.shading import deferred_shade, lambert_sh
+        from frng.render.shading import shade_decoder
 
         maps, alpha, c2w, intr = raster
         sc = self.shading
@@ -660,40 +659,7 @@ class AssetRenderer:
         seed = 0 if generator is None else int(torch.randint(0, 2**31 - 1, (1,), generator=generator))
         samples = envmap.sample(envmap.importance_sampler(env.detach().to(self.device)), spp, sc.sampling, seed)
         with torch.no_grad(), torch.autocast(maps.device.type, dtype=torch.bfloat16, enabled=self.bf16):
-            if self.decoder.cosine and sc.diffuse == "sh":
-                reflectance, prefiltered = specular_split(self.decoder.residual, sc, self.specular)
-                rgb = deferred_shade(
-                    reflectance,
-                    [maps],
-                    alpha,
-                    c2w,
-                    intr,
-                    samples,
-                    None,
-                    sc.alpha_eps,
-                    chunk=sc.chunk_pixels,
-                    chunk_pairs=sc.chunk_pairs,
-                )
-                rgb = rgb.float() + lambert_sh(
-                    maps, alpha, envmap.sh_project(env.detach().float().cpu()).float(), sc.alpha_eps
-                )
-                if prefiltered:
-                    rgb = rgb + specular_at_cameras(maps, alpha, c2w, intr, env, sc.alpha_eps, sc.specular_param)
-                if self.decoder.attenuation:
-                    rgb = rgb.clamp_min(0.0)
-            else:
-                rgb = deferred_shade(
-                    self.decoder,
-                    [maps],
-                    alpha,
-                    c2w,
-                    intr,
-                    samples,
-                    None,
-                    sc.alpha_eps,
-                    chunk=sc.chunk_pixels,
-                    chunk_pairs=sc.chunk_pairs,
-                )
+            rgb = shade_decoder(self.decoder, maps, alpha, c2w, intr, env, samples, sc, self.specular)
         return torch.cat([rgb.float(), alpha], -1)
 
     def render(

@@ -56,9 +56,8 @@ from frng.render.shading import (
     GGX_NORMAL,
     NeuralDecoder,
     ShadingConfig,
-    deferred_shade,
     ggx_shade,
-    lambert_sh,
+    shade_decoder,
     smooth_normals,
 )
 from frng.sections import TypedConfig, register, section, section_dict
@@ -636,43 +635,9 @@ class FRNG(nn.Module):
         # bf16 decoding at inference only (shading.bf16_infer; ~2x on AMX CPUs and GPUs, ~1e-3 relative error)
         amp = sc.bf16_infer and not torch.is_grad_enabled() and self.cfg.head == "neural" and bf16_ok(maps.device)
         with torch.autocast(maps.device.type, dtype=torch.bfloat16, enabled=amp):
-            if self.cfg.head == "neural" and self.decoder.cosine and sc.diffuse == "sh":
-                # Lambertian base in closed form (SH irradiance), Monte Carlo only for the MLP's residual (and the
-                # GGX specular base with shading.specular_model: ggx)
-                from frng.render.prefilter import specular_split
-
-                reflectance, prefiltered = specular_split(self.decoder.residual, sc, self.cfg.decoder_specular)
-                rgb = deferred_shade(
-                    reflectance,
-                    [maps],
-                    alpha,
-                    c2w,
-                    intr,
-                    samples,
-                    spp_grad,
-                    sc.alpha_eps,
-                    chunk=sc.chunk_pixels,
-                    chunk_pairs=sc.chunk_pairs,
-                )
-                rgb = rgb.float() + lambert_sh(
-                    maps, alpha, envmap.sh_project(env.detach().float().cpu()).float(), sc.alpha_eps
-                )
-                if prefiltered:  # closed-form highlights: the prefiltered map at the mirror direction
-                    rgb = rgb + self.specular(maps, alpha, c2w, intr, env)
-                if self.decoder.attenuation:  # the attenuated share is a Monte-Carlo estimate: it can overshoot
-                    rgb = rgb.clamp_min(0.0)
-            elif self.cfg.head == "neural":
-                rgb = deferred_shade(
-                    self.decoder,
-                    [maps],
-                    alpha,
-                    c2w,
-                    intr,
-                    samples,
-                    spp_grad,
-                    sc.alpha_eps,
-                    chunk=sc.chunk_pixels,
-                    chunk_pairs=sc.chunk_pairs,
+            if self.cfg.head == "neural":
+                rgb = shade_decoder(
+                    self.decoder, maps, alpha, c2w, intr, env, samples, sc, self.cfg.decoder_specular, spp_grad
                 )
             else:  # GGX (diffuse lobe in closed form with diffuse 'sh'; normals facing the camera, bounded params)
                 rgb = ggx_shade(
@@ -689,16 +654,6 @@ class FRNG(nn.Module):
                     chunk_pairs=sc.chunk_pairs,
                 )
         return torch.cat([rgb.float(), alpha], -1)
-
-    def specular(
-        self, maps: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, env: torch.Tensor
-    ) -> torch.Tensor:
-        """The specular base (Vt, H, W, 3) of rasterized features under an env map (He, We, 3)
-        (:func:`frng.render.prefilter.specular_at_cameras`)."""
-        from frng.render.prefilter import specular_at_cameras
-
-        sc = self.shading_cfg
-        return specular_at_cameras(maps, alpha, c2w, intr, env, sc.alpha_eps, sc.specular_param)
 
     def set_inference_shading(self, shading: ShadingConfig) -> FRNG:
         """Take the inference-time settings (``chunk_pixels``, ``chunk_pairs``, ``bf16_infer``, ``sampling``) from
