@@ -6,7 +6,7 @@ import numpy as np
 import torch
 
 from frng import camera
-from frng.priors.multiview import depth_normals, geometry_cues, hull_distance, ray_sphere
+from frng.priors.multiview import depth_normals, geometry_cues, hull_distance, inside_silhouettes, ray_sphere
 
 R_SPHERE = 0.6
 DIST = 2.6
@@ -122,3 +122,19 @@ def test_back_completion_fills_what_few_views_miss():
     n_src = means[back["src"]] / R_SPHERE
     n_back = mirror_normals(n_src, back["dirs"])
     assert ((n_back * back["dirs"]).sum(-1) > 0).all() and torch.allclose(n_back.norm(dim=-1), torch.ones(M))
+
+
+def test_inside_silhouettes_is_the_visual_hull():
+    _, alpha, c2w, intr, _, _ = _sphere_views()
+    g = torch.Generator().manual_seed(0)
+    dirs = torch.nn.functional.normalize(torch.randn(500, 3, generator=g), dim=-1)
+    on_surface = dirs * R_SPHERE * 0.98
+    assert inside_silhouettes(on_surface, alpha, c2w, intr).all()  # every point of the object is in every mask
+    assert inside_silhouettes(torch.zeros(1, 3), alpha[..., 0], c2w, intr).all()  # (V, H, W) masks too
+    off = dirs * R_SPHERE * 1.5  # a haze around the object: outside some view's silhouette
+    assert not inside_silhouettes(off, alpha, c2w, intr).any()
+    # a point just outside the mask passes with the 1-pixel tolerance only
+    footprint = DIST / intr[0, 0].item()  # one pixel at the sphere's distance, world units
+    edge = torch.tensor([[0.0, 0.0, R_SPHERE + 0.7 * footprint]])  # beside the level views' silhouettes
+    assert inside_silhouettes(edge, alpha, c2w, intr, dilate_px=2).all()
+    assert not inside_silhouettes(edge, alpha, c2w, intr, dilate_px=0).all()

@@ -366,3 +366,27 @@ def test_alpha_loss_counts_faint_stray_coverage():
     assert float(alpha_loss(tgt, tgt)) == 0.0
     assert float(alpha_loss(halo, tgt)) == pytest.approx(0.01)
     assert float(l2_loss(halo, tgt, (1.0, 1.0, 1.0), pixels="target")[0]) == 0.0
+
+
+def test_fine_gaussians_stay_inside_the_silhouettes(frng_smoke):
+    """frng.fine_in_hull: the fine Gaussians a reconstruction keeps all project onto every input view's (dilated)
+    silhouette; without it the untrained fine detokenizer puts some off the object (the haze of the renders)."""
+    from frng.model.train import build_model
+    from frng.priors.multiview import inside_silhouettes
+
+    _, config = frng_smoke
+    res = Path(config["results"])
+    model, _ = build_model(_sections(config), "full", res / "backbone" / "model.pt", "cpu")
+    assert model.cfg.fine_in_hull  # the default
+    obj = _objects(config)[0]
+    c2w, intr, alpha = obj.views["c2w"].float(), obj.views["intr"].float(), obj.images[..., 3]
+
+    def fine_means(rec):
+        return rec.gaussians.means[rec.num_coarse : rec.material.shape[0]]
+
+    with torch.no_grad():
+        kept = fine_means(model.reconstruct(obj.views, 0, obj.priors, obj.images, True, input_env=obj.env_in))
+        model.cfg.fine_in_hull = False
+        every = fine_means(model.reconstruct(obj.views, 0, obj.priors, obj.images, True, input_env=obj.env_in))
+    assert len(kept) > 0 and inside_silhouettes(kept, alpha, c2w, intr).all()
+    assert len(every) > len(kept) and not inside_silhouettes(every, alpha, c2w, intr).all()

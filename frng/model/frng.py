@@ -64,6 +64,8 @@ from frng.sections import TypedConfig, register, section, section_dict
 from frng.variants import canonical_for, variant
 
 MODEL_KIND = "frng"
+# FRNGConfig keys added after models were saved without them: the value that reproduces what those models did
+SAVED_DEFAULTS = {"fine_in_hull": False}
 
 
 @register("frng")
@@ -83,6 +85,7 @@ class FRNGSection:
     feature_dim: int
     pixel_head: int
     back_completion: bool
+    fine_in_hull: bool
     saliency: SaliencyConfig
 
 
@@ -114,12 +117,19 @@ class FRNGConfig:
     decoder_attenuation: bool  # the decoder may also darken its Lambertian base (shading.decoder_attenuation)
     back_completion: bool  # Gaussians on the hull's unseen far side, copied from their pixels (frng.back_completion)
     decoder_specular: bool  # closed-form prefiltered specular base, features 6:10 (shading.decoder_specular)
+    fine_in_hull: bool  # fine Gaussians only inside every input view's silhouette (frng.fine_in_hull)
 
     @classmethod
     def from_dict(cls, d: dict) -> FRNGConfig:
         """Strict (:func:`frng.sections.section`): a model file's ``config`` with a key this code does not know, or
         without one it needs, is an error naming it."""
         return section(cls, d)
+
+    @classmethod
+    def from_saved(cls, d: dict) -> FRNGConfig:
+        """A model file's ``config``: keys added after it was saved take :data:`SAVED_DEFAULTS` (what the model was
+        trained with), then :meth:`from_dict`."""
+        return cls.from_dict({**SAVED_DEFAULTS, **dict(d)})
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -370,7 +380,7 @@ class FRNG(nn.Module):
             kind = state.get("kind") if isinstance(state, dict) else type(state).__name__
             raise ValueError(f"{path}: not an F-RNG model file (kind {kind!r})")
         model = cls(
-            FRNGConfig.from_dict(state["config"]),
+            FRNGConfig.from_saved(state["config"]),
             RasterConfig.from_dict(state.get("raster", {})),
             ShadingConfig.from_saved(state.get("shading", {})),
         )
@@ -481,6 +491,10 @@ class FRNG(nn.Module):
         if self.fine is not None:
             fine = self.fine(t_geo, patch_idx, c2w, intr, t_prior, bv.get("raw_prior"))
             keep_f = fine_keep_mask(fine.uv, images[..., 3])
+            if self.cfg.fine_in_hull:  # off the object: they rendered as a haze around the silhouette
+                from frng.priors.multiview import inside_silhouettes  # lazy: importing frng.priors loads every prior
+
+                keep_f = keep_f & inside_silhouettes(fine.gaussians.means.detach(), images[..., 3], c2w, intr)
             geo_seq = to_sequence(t_geo, fine.t_geo)
             app_seq = torch.cat([to_sequence(a, self.fine.interpolate(a, patch_idx)) for a in apps])
             prior_seq = None if t_prior is None else to_sequence(t_prior, fine.t_prior)
@@ -758,6 +772,7 @@ def variant_config(
         decoder_attenuation=sh.decoder_cosine and sh.decoder_attenuation,
         back_completion=f.back_completion,
         decoder_specular=sh.decoder_cosine and sh.decoder_specular,
+        fine_in_hull=f.fine_in_hull,
     )
     loss = sections.loss
     ind = LightIndependenceConfig(

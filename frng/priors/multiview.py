@@ -86,6 +86,29 @@ def project_rays(o: torch.Tensor, d: torch.Tensor, t: torch.Tensor, c2w: torch.T
     return h[..., :2] / zs[..., None], z
 
 
+def inside_silhouettes(
+    points: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, dilate_px: int = 1
+) -> torch.Tensor:
+    """Which points lie inside the visual hull of the input views: in front of every camera and projected onto a
+    foreground pixel (alpha > 0.5, the mask dilated by ``dilate_px`` pixels for the masks' own edge error) of every
+    view. A point outside one view's silhouette cannot be on the object.
+
+    points (N, 3) world; alpha (V, H, W) or (V, H, W, 1) masks; c2w (V, 4, 4); intr (V, 4). Returns (N,) bool."""
+    a = alpha[..., 0] if alpha.dim() == 4 else alpha
+    V, H, W = a.shape
+    assert points.dim() == 2 and points.shape[-1] == 3, points.shape
+    assert c2w.shape == (V, 4, 4) and intr.shape == (V, 4), (c2w.shape, intr.shape, a.shape)
+    fg = (a > 0.5).float()[:, None]
+    if dilate_px > 0:
+        fg = F.max_pool2d(fg, 2 * dilate_px + 1, stride=1, padding=dilate_px)
+    fg = fg[:, 0] > 0.5
+    uv, z = camera.project(points.float(), c2w.float(), intr.float())  # (V, N, 2), (V, N)
+    col, row = uv[..., 0].floor().long(), uv[..., 1].floor().long()
+    inside = (col >= 0) & (col < W) & (row >= 0) & (row < H) & (z > 0)
+    v = torch.arange(V, device=points.device)[:, None].expand_as(col)
+    return (inside & fg[v, row.clamp(0, H - 1), col.clamp(0, W - 1)]).all(dim=0)
+
+
 def sweep_samples(c2w: torch.Tensor, intr: torch.Tensor, height: int, width: int, bins: int, radius: float):
     """Sample distances (V, H, W, K) inside the bounding sphere and the ray origins/directions (V, H, W, 3)."""
     o, d = camera.pixel_rays(c2w, intr, height, width)
