@@ -650,7 +650,7 @@ class AssetRenderer:
     ) -> torch.Tensor:
         """Deferred shading under an equirect map (He, We, 3) -> RGBA (V, H, W, 4), linear, premultiplied."""
         from frng import envmap
-        from frng.render.shading import shade_decoder
+        from frng.render.decoder import shade_decoder
 
         maps, alpha, c2w, intr = raster
         sc = self.shading

@@ -50,6 +50,7 @@ from frng.model.materialformer import (
 from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, select_top_k
 from frng.model.tokenizers import PriorTokenizer, stack_priors
 from frng.render import RasterConfig, rasterize
+from frng.render.decoder import shade_decoder
 from frng.render.shading import (
     COSINE_NORMAL,
     GGX_MIN_ALBEDO,
@@ -57,7 +58,6 @@ from frng.render.shading import (
     NeuralDecoder,
     ShadingConfig,
     ggx_shade,
-    shade_decoder,
     smooth_normals,
 )
 from frng.sections import TypedConfig, register, section, section_dict
