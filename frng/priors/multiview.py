@@ -95,18 +95,16 @@ def inside_silhouettes(
 
     points (N, 3) world; alpha (V, H, W) or (V, H, W, 1) masks; c2w (V, 4, 4); intr (V, 4). Returns (N,) bool."""
     a = alpha[..., 0] if alpha.dim() == 4 else alpha
-    V, H, W = a.shape
+    V = a.shape[0]
     assert points.dim() == 2 and points.shape[-1] == 3, points.shape
     assert c2w.shape == (V, 4, 4) and intr.shape == (V, 4), (c2w.shape, intr.shape, a.shape)
     fg = (a > 0.5).float()[:, None]
     if dilate_px > 0:
         fg = F.max_pool2d(fg, 2 * dilate_px + 1, stride=1, padding=dilate_px)
-    fg = fg[:, 0] > 0.5
+    fg = fg.permute(0, 2, 3, 1)  # (V, H, W, 1)
     uv, z = camera.project(points.float(), c2w.float(), intr.float())  # (V, N, 2), (V, N)
-    col, row = uv[..., 0].floor().long(), uv[..., 1].floor().long()
-    inside = (col >= 0) & (col < W) & (row >= 0) & (row < H) & (z > 0)
-    v = torch.arange(V, device=points.device)[:, None].expand_as(col)
-    return (inside & fg[v, row.clamp(0, H - 1), col.clamp(0, W - 1)]).all(dim=0)
+    on_fg = sample_image(fg, uv, mode="nearest")[..., 0] > 0.5  # (V, N); 0 outside the image
+    return (on_fg & (z > 0)).all(dim=0)
 
 
 def sweep_samples(c2w: torch.Tensor, intr: torch.Tensor, height: int, width: int, bins: int, radius: float):

@@ -41,7 +41,7 @@ def shade_decoder(
     (He, We, 3) linear equirect, samples: its light samples. Returns RGB (V, H, W, 3), premultiplied over black."""
     assert maps.shape[:3] == alpha.shape[:3] and alpha.shape[-1] == 1, (maps.shape, alpha.shape)
     assert c2w.shape == (maps.shape[0], 4, 4) and intrinsics.shape == (maps.shape[0], 4), (c2w.shape, intrinsics.shape)
-    closed_form = getattr(decoder, "cosine", False) and cfg.diffuse == "sh"
+    closed_form = decoder.cosine and cfg.diffuse == "sh"
     reflectance, prefiltered = decoder, False
     if closed_form:
         reflectance, prefiltered = specular_split(decoder.residual, cfg, specular)
