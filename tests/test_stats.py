@@ -1,4 +1,4 @@
-"""frng.report.stats.paired_bootstrap: hand-checkable cases of the paired bootstrap over objects."""
+"""frng.report.stats.paired_bootstrap: hand-checkable cases of the paired bootstrap over objects (and seeds)."""
 
 import numpy as np
 import pandas as pd
@@ -54,3 +54,36 @@ def test_paired_matches_on_keys_and_nan_pairs_are_dropped():
     assert r.images == 2 and r.objects == 1 and r.diff == pytest.approx(2.0)
     with pytest.raises(ValueError, match="lengths differ"):
         paired_bootstrap([1.0], [1.0, 2.0], ["o"])
+
+
+def test_one_seed_as_a_row_is_the_object_bootstrap():
+    rng = np.random.default_rng(2)
+    ids = np.repeat(np.arange(6), 4)
+    a, b = rng.normal(18, 1, len(ids)), rng.normal(17.5, 1, len(ids))
+    assert paired_bootstrap(a[None], b[None], ids) == paired_bootstrap(a, b, ids)
+
+
+def test_training_seeds_are_resampled_with_the_objects():
+    # two seeds of a, shifted +1 and +3 over b on every image of every object: the seed mean is +2; the object
+    # draws cannot move it, the seed draws give {+1, +1} (p 1/4), mixed +2 (p 1/2), {+3, +3} (p 1/4)
+    b = np.array([18.0, 19.5, 17.2, 20.1, 16.0, 15.0])
+    ids = ["a", "a", "b", "b", "c", "c"]
+    r = paired_bootstrap(np.stack([b + 1.0, b + 3.0]), b, ids, n=4000)
+    assert r.diff == pytest.approx(2.0) and r.lo == pytest.approx(1.0) and r.hi == pytest.approx(3.0)
+    assert r.better == 3 and r.objects == 3 and r.images == 6
+    # the object-only interval of the seed means would claim [2, 2]
+    assert paired_bootstrap(b + 2.0, b, ids).hi == pytest.approx(2.0)
+    # a NaN on any seed drops that image
+    a = np.stack([b + 1.0, b + 3.0])
+    a[1, 0] = np.nan
+    assert paired_bootstrap(a, b, ids).images == 5
+
+
+def test_paired_takes_one_frame_per_seed():
+    keys = {"object": ["o", "o", "p"], "light": ["l1", "l2", "l1"], "view": ["v", "v", "v"]}
+    ref = pd.DataFrame({**keys, "psnr": [18.0, 19.0, 17.0]})
+    s0 = ref.assign(psnr=ref["psnr"] + 0.5)
+    s1 = ref.iloc[::-1].assign(psnr=ref["psnr"].iloc[::-1] + 1.5).iloc[:2]  # has only o/l2 and p/l1
+    r = paired([s0, s1], ref, "psnr")
+    assert r.images == 2 and r.diff == pytest.approx(1.0)  # images every seed has; mean of +0.5 and +1.5
+    assert r.lo == pytest.approx(0.5) and r.hi == pytest.approx(1.5)

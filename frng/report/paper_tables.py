@@ -34,8 +34,10 @@ over the same images) with its 95% bootstrap interval over test objects (:func:`
 Training seeds (``train.seeds``, :mod:`frng.variants`): ``vs_backbone`` and ``ablation`` average each image over
 the seeds of every trained row (``full``, ``full@s1``, ...) before anything else, and add ``seeds``,
 ``seed_spread_psnr`` (max - min over seeds of the row's mean PSNR) and ``seed_spread_dpsnr`` (max - min over seeds
-of the row's mean PSNR difference to its reference, seed by seed where the reference has that seed). ``views``,
-``k``, ``ladder`` and ``lambertian`` use the models' own seed (the plain run names) only.
+of the row's mean PSNR difference to its reference, seed by seed where the reference has that seed). Their
+intervals resample the training seeds as well as the objects (:func:`frng.report.stats.paired_bootstrap` with one
+frame per seed, :func:`seed_parts`), so they contain the spread between training runs. ``views``, ``k``,
+``ladder`` and ``lambertian`` use the models' own seed (the plain run names) only.
 """
 
 from __future__ import annotations
@@ -60,8 +62,8 @@ GROUND_TRUTH = "ground-truth"  # frng.stages.evaluate.GROUND_TRUTH (the stage im
 IMAGE_KEYS = ("object", "light", "view")
 DIFF_NOTE = (
     "Δ = the row minus its reference row over the same images, with a 95% paired bootstrap interval over "
-    "test objects (2000 resamples); 'objects higher PSNR' counts objects whose mean PSNR is above the "
-    "reference's."
+    "test objects (2000 resamples; where a row has several training seeds, the seeds are resampled too); "
+    "'objects higher PSNR' counts objects whose mean PSNR is above the reference's."
 )
 
 
@@ -121,9 +123,16 @@ def seed_mean(df: pd.DataFrame, run: str) -> pd.DataFrame:
     return out[[c for c in df.columns if c in out.columns]]
 
 
-def diff_to(rows: pd.DataFrame, ref: pd.DataFrame) -> dict:
+def seed_parts(df: pd.DataFrame, run: str, select=lambda d: d) -> list[pd.DataFrame]:
+    """Per-image rows of ``run`` and of each of its training-seed repeats, one frame per seed (narrowed by
+    ``select``, empty ones left out): what :func:`diff_to` bootstraps over seeds as well as objects."""
+    return [p for p in (select(d) for d in seed_runs(df, run).values()) if len(p)]
+
+
+def diff_to(rows, ref) -> dict:
     """The paired-difference columns (:func:`frng.report.tables.diff_columns`) of ``rows`` minus ``ref``, matched
-    on object, light and view (:func:`frng.report.stats.paired`)."""
+    on object, light and view (:func:`frng.report.stats.paired`). Either may be a list of per-seed frames
+    (:func:`seed_parts`): the interval then also resamples the training seeds."""
     out = {}
     for m in T.DIFF_METRICS:
         r = S.paired(rows, ref, m, IMAGE_KEYS)
@@ -204,7 +213,8 @@ def vs_backbone_table(df: pd.DataFrame, timings: list[dict]) -> tuple[pd.DataFra
                 "lpips": sub["lpips"].mean(),
             }
             if method == "F-RNG":
-                row |= diff_to(sub, pick(bb)) | seed_columns(df, "full", BACKBONE, pick)
+                row |= diff_to(seed_parts(df, "full", pick), seed_parts(df, BACKBONE, pick))
+                row |= seed_columns(df, "full", BACKBONE, pick)
             rows.append(row)
     out = pd.DataFrame(rows)
     ms = {
@@ -218,7 +228,6 @@ def vs_backbone_table(df: pd.DataFrame, timings: list[dict]) -> tuple[pd.DataFra
 def ablation_table(df: pd.DataFrame) -> pd.DataFrame:
     """Each variant of :data:`BASE_VARIANTS` averaged over its training seeds; differences to the full model."""
     present = [v for v in BASE_VARIANTS if len(ablation_rows(df)[lambda d, v=v: d["variant"] == v])]
-    full = seed_mean(df, "full")
     rows = []
     for v in present:
         sub = seed_mean(df, v)
@@ -231,10 +240,14 @@ def ablation_table(df: pd.DataFrame) -> pd.DataFrame:
             "lpips": sub["lpips"].mean(),
         }
         if v != "full":
-            row |= diff_to(sub, full)
+            row |= diff_to(seed_parts(df, v, _at_rig), seed_parts(df, "full", _at_rig))
         row |= seed_columns(df, v, None if v == "full" else "full")
         rows.append(row)
     return _ordered(pd.DataFrame(rows), "ablation")
+
+
+def _at_rig(d: pd.DataFrame) -> pd.DataFrame:
+    return d[d["views"] == RIG_VIEWS]
 
 
 def _ordered(out: pd.DataFrame, table: str) -> pd.DataFrame:
