@@ -20,7 +20,10 @@ Prints, per model: PSNR / SSIM / LPIPS, the base's PSNR, the light sensitivity, 
 per band of the target view's elevation (views from below see what the rig's cameras, at 0 and 45 degrees, never
 do) and per target light (the map's base name: a test studio or sky over its rotations); and every model after
 the first against the first: the paired difference with its 95% bootstrap interval over objects
-(:func:`frng.report.stats.paired`). ``--out`` writes the per-image rows (CSV).
+(:func:`frng.report.stats.paired`). Models named ``NAME@sS`` are training seeds of ``NAME`` (the pipeline's
+naming, :func:`seed_groups`): they are compared as one model, averaged over its seeds, with the interval resampling
+the seeds too (the two-level bootstrap of :mod:`frng.report.stats`, as the pipeline's ``vs_backbone`` and
+``ablation`` tables). ``--out`` writes the per-image rows (CSV).
 
 ``--at inputs`` scores the models at their own V INPUT views instead (:func:`score_inputs`): re-rendered under the
 input light (the reconstruction) and under every other input light the object was photographed in (relighting
@@ -37,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from frng import config as frng_config
-from frng.variants import RIG_VIEWS
+from frng.variants import RIG_VIEWS, split_seed
 
 AT = ("targets", "inputs")  # --at: where the models are scored
 ELEVATION_BANDS = (-90.0, -30.0, 0.0, 30.0, 90.0)  # degrees; the summary's target-view elevation bands
@@ -49,7 +52,20 @@ def _model_arg(text: str) -> tuple[str, Path]:
         raise argparse.ArgumentTypeError(
             f"--model takes NAME=PATH (e.g. full=results/models/full/model.pt), got {text!r}"
         )
+    try:
+        split_seed(name)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"--model {text!r}: {e}") from None
     return name, Path(path)
+
+
+def seed_groups(names: list[str]) -> dict[str, list[str]]:
+    """Model names grouped as training seeds of one model by the pipeline's naming (``x`` and ``x@s1`` are two seeds
+    of ``x``; :func:`frng.variants.split_seed`), in the order given: {group: [names]}."""
+    groups: dict[str, list[str]] = {}
+    for n in names:
+        groups.setdefault(split_seed(n)[0], []).append(n)
+    return groups
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -59,8 +75,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         type=_model_arg,
         action="append",
         metavar="NAME=PATH",
-        help="a trained F-RNG model.pt under a name; repeat to compare (the first is the reference). "
-        "Default: full={results}/models/full/model.pt",
+        help="a trained F-RNG model.pt under a name; repeat to compare (the first is the reference). Names "
+        "NAME@sS are training seeds of NAME (e.g. full=... full@s1=...): their scores are averaged and the "
+        "comparisons resample the seeds as well as the objects. Default: full={results}/models/full/model.pt",
     )
     parser.add_argument("--objects", nargs="+", metavar="OBJ", help="test objects (default: the config's test split)")
     parser.add_argument(
@@ -212,17 +229,26 @@ def summary(df, names: list[str]) -> str:
             "PSNR by target light (the map's base name, over its rotations; mean, images):\n"
             + by.to_string(float_format="{:.2f}".format)
         )
-    ref = full[full["model"] == names[0]]
-    for name in names[1:]:
-        other = full[full["model"] == name]
-        keys = ("object", "light", "view")
+    groups = seed_groups(names)
+    frames = {g: [full[full["model"] == n] for n in members] for g, members in groups.items()}
+    for g, members in groups.items():
+        if len(members) > 1:
+            means = ", ".join(f"{n} {f['psnr'].mean():.4f}" for n, f in zip(members, frames[g]))
+            spread = np.ptp([f["psnr"].mean() for f in frames[g]])
+            lines.append(f"{g}: {len(members)} training seeds, PSNR {means} (spread {spread:.4f})")
+    (ref_group, ref), *others = frames.items()
+    keys = ("object", "light", "view")
+    for g, other in others:
         parts = []
         for metric in ("psnr", "ssim", "lpips"):
             p = paired(other, ref, metric, keys=keys)
             parts.append(f"{metric} {p.diff:+.4f} [{p.lo:+.4f}, {p.hi:+.4f}]")
         p = paired(other, ref, "psnr", keys=keys)
+        over = f"{p.objects} objects" + (
+            f" and the training seeds ({len(other)} vs {len(ref)})" if len(other) > 1 or len(ref) > 1 else ""
+        )
         lines.append(
-            f"{name} - {names[0]}: " + ", ".join(parts) + f" (95% bootstrap over {p.objects} objects; PSNR better on "
+            f"{g} - {ref_group}: " + ", ".join(parts) + f" (95% bootstrap over {over}; PSNR better on "
             f"{p.better} of {p.objects})"
         )
     return "\n".join(lines)
