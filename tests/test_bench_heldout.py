@@ -53,4 +53,7 @@ def test_seeds_are_averaged_and_resampled_in_the_comparison():
     # no seeds: the object bootstrap of before, and no seed lines
     plain = summary(df[df["model"].isin(["full", "y"])], ["full", "y"])
     assert "y - full: psnr +0.5000 [+0.5000, +0.5000]" in plain and "training seeds" not in plain
+    # a lone seed keeps its own name
+    lone = summary(df[df["model"].isin(["full", "x@s1"])], ["full", "x@s1"])
+    assert "x@s1 - full: psnr +1.4000" in lone, lone
     assert np.isfinite(df["psnr"]).all()

@@ -229,7 +229,8 @@ def summary(df, names: list[str]) -> str:
             "PSNR by target light (the map's base name, over its rotations; mean, images):\n"
             + by.to_string(float_format="{:.2f}".format)
         )
-    groups = seed_groups(names)
+    groups = seed_groups(names)  # a one-seed group keeps its model's own name
+    groups = {g if len(m) > 1 else m[0]: m for g, m in groups.items()}
     frames = {g: [full[full["model"] == n] for n in members] for g, members in groups.items()}
     for g, members in groups.items():
         if len(members) > 1:
