@@ -26,6 +26,47 @@ def venv_bin(name: str) -> str:
 
 
 @pytest.fixture(scope="session")
+def smoke_pipeline(tmp_path_factory) -> Path:
+    """The results folder of one finished smoke-tier run: ``snakemake`` on config/smoke.yaml (every rule, the local
+    profile, 2 cores), once per test session, shared by the modules that need trained smoke models
+    (tests/test_smoke_workflow.py checks it; tests/test_reconstruct.py and tests/test_benchmarks_workflow.py build
+    on it). Read it; to run more rules, copy it first (:func:`copy_results`)."""
+    pytest.importorskip("bpy")
+    import subprocess
+
+    results = tmp_path_factory.mktemp("smoke_e2e") / "results"
+    r = subprocess.run(
+        [
+            venv_bin("snakemake"),
+            "--snakefile",
+            str(ROOT / "workflow" / "Snakefile"),
+            "--configfile",
+            str(ROOT / "config" / "smoke.yaml"),
+            "--profile",
+            str(ROOT / "profiles" / "local"),
+            "--config",
+            f"results={results}",
+            "--cores",
+            "2",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=1500,
+    )
+    assert r.returncode == 0, (r.stdout + r.stderr)[-4000:]
+    return results
+
+
+def copy_results(results: Path, dest: Path) -> Path:
+    """A copy of a results folder (timestamps kept, so Snakemake finds its outputs up to date) at ``dest``."""
+    import shutil
+
+    shutil.copytree(results, dest, symlinks=True)
+    return dest
+
+
+@pytest.fixture(scope="session")
 def smoke_dataset(tmp_path_factory):
     """The smoke tier's curated dataset (env maps + every object), built once per test session with Blender.
 

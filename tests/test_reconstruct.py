@@ -5,8 +5,8 @@ metrics) within 0.5 dB with the known input light; with the estimated light the 
 photos"). Then the command line from a folder of PNGs to a turntable GIF.
 
 The trained smoke tier comes from ``FRNG_SMOKE_RESULTS`` (a finished smoke results folder, e.g. what
-``make smoke`` wrote) when set, else Snakemake trains it into a temporary folder (needs Blender's ``bpy``; ~4 min on
-the 2-core machine)."""
+``make smoke`` wrote) when set, else the test session's smoke run (``conftest.smoke_pipeline``: needs Blender's
+``bpy``; ~3.5 min on the 2-core machine, shared with tests/test_smoke_workflow.py)."""
 
 from __future__ import annotations
 
@@ -17,8 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
-from conftest import ROOT, venv_bin
+from conftest import ROOT
 
 from frng.typedconfig import typed
 
@@ -26,46 +25,15 @@ TOLERANCE_DB = 0.5
 
 
 @pytest.fixture(scope="module")
-def smoke(tmp_path_factory):
+def smoke(request):
     """(config, test object id) of a smoke results folder with the full model, the priors and the relit test
     objects."""
     from frng import config as frng_config
     from frng.data import catalog
-    from frng.layout import Layout
-    from frng.typedconfig import typed
 
     given = os.environ.get("FRNG_SMOKE_RESULTS")
-    if given:
-        config = typed(frng_config.load(Path(given) / "config.yaml"))
-    else:
-        pytest.importorskip("bpy")
-        d = tmp_path_factory.mktemp("recon_smoke")
-        cfg = yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text())
-        cfg["results"] = str(d / "results")
-        (d / "smoke.yaml").write_text(yaml.safe_dump(cfg))
-        config = typed(frng_config.load(d / "smoke.yaml"))
-        L = Layout(config.results)
-        targets = [L.model("full")] + [L.relight_timing(o) for o in catalog.plan(config).split("test")]
-        r = subprocess.run(
-            [
-                venv_bin("snakemake"),
-                "--snakefile",
-                "workflow/Snakefile",
-                "--profile",
-                str(ROOT / "profiles" / "local"),
-                "--configfile",
-                str(d / "smoke.yaml"),
-                "--cores",
-                "2",
-                *targets,
-            ],
-            cwd=ROOT,
-            capture_output=True,
-            text=True,
-            timeout=1800,
-        )
-        assert r.returncode == 0, (r.stdout + r.stderr)[-3000:]
-        config = typed(frng_config.load(Path(config.results) / "config.yaml"))
+    results = Path(given) if given else request.getfixturevalue("smoke_pipeline")  # conftest: the session's run
+    config = typed(frng_config.load(results / "config.yaml"))
     oid = catalog.plan(config).split("test")[0]
     return config, oid
 

@@ -23,29 +23,11 @@ def _tail(text: str, n: int = 4000) -> str:
 
 
 @pytest.fixture(scope="module")
-def smoke_run(tmp_path_factory):
-    pytest.importorskip("bpy")
-    results = tmp_path_factory.mktemp("smoke_e2e") / "results"
-    r = subprocess.run(
-        [
-            SNAKEMAKE,
-            *SMOKE,
-            "--profile",
-            str(ROOT / "profiles" / "local"),
-            "--config",
-            f"results={results}",
-            "--cores",
-            "2",
-        ],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=1500,
-    )
-    assert r.returncode == 0, _tail(r.stdout + r.stderr)
+def smoke_run(smoke_pipeline):
+    """(results folder, config) of the session's smoke run (conftest.smoke_pipeline)."""
     from frng import config as frng_config
 
-    return results, frng_config.load(results / "config.yaml")
+    return smoke_pipeline, frng_config.load(smoke_pipeline / "config.yaml")
 
 
 def test_every_target_and_table(smoke_run):
