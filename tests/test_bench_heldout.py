@@ -57,3 +57,10 @@ def test_seeds_are_averaged_and_resampled_in_the_comparison():
     lone = summary(df[df["model"].isin(["full", "x@s1"])], ["full", "x@s1"])
     assert "x@s1 - full: psnr +1.4000" in lone, lone
     assert np.isfinite(df["psnr"]).all()
+
+
+def test_validation_objects_are_every_fifth_of_the_sorted_training_split():
+    from frng.stages.bench_heldout import validation_objects
+
+    train = [f"obj_{i:04d}" for i in range(12, 0, -1)] + ["libero_mug"]
+    assert validation_objects(train) == ["libero_mug", "obj_0005", "obj_0010"]

@@ -2,7 +2,8 @@
 two CPU cores -- the loop for experiments on the model (train a variant with ``frng train --out``, score it here
 beside the full model), without relighting folders, the 13-model ``relight`` rule or ``evaluate``.
 
-What it does per test object (``catalog.plan(config).split("test")``, or ``--objects``) and model:
+What it does per test object (``catalog.plan(config).split("test")``; ``--split val``: every fifth training object,
+:func:`validation_objects`, for choices that must not look at the test objects; or ``--objects``) and model:
 
 1. reads the object's CACHED backbone tokens and IDM priors (``{results}/backbone/cache``, ``{results}/idm/priors``,
    what the pipeline's cache rules wrote for the test split; :func:`frng.model.train.load_objects`, the training
@@ -43,6 +44,8 @@ from frng import config as frng_config
 from frng.variants import RIG_VIEWS, split_seed
 
 AT = ("targets", "inputs")  # --at: where the models are scored
+SPLITS = ("test", "val")  # --split: the test split, or the validation objects (validation_objects)
+VAL_EVERY = 5  # the validation objects: every fifth of the sorted training split
 ELEVATION_BANDS = (-90.0, -30.0, 0.0, 30.0, 90.0)  # degrees; the summary's target-view elevation bands
 
 
@@ -68,6 +71,12 @@ def seed_groups(names: list[str]) -> dict[str, list[str]]:
     return groups
 
 
+def validation_objects(train: list[str]) -> list[str]:
+    """Every :data:`VAL_EVERY`-th object of the sorted training split (25 of the default tier's 122): the
+    validation set of the README's scratch studies, for choosing between variants without the test objects."""
+    return sorted(train)[::VAL_EVERY]
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)
     parser.add_argument(
@@ -79,7 +88,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "NAME@sS are training seeds of NAME (e.g. full=... full@s1=...): their scores are averaged and the "
         "comparisons resample the seeds as well as the objects. Default: full={results}/models/full/model.pt",
     )
-    parser.add_argument("--objects", nargs="+", metavar="OBJ", help="test objects (default: the config's test split)")
+    parser.add_argument("--objects", nargs="+", metavar="OBJ", help="objects to score (default: the --split's objects)")
+    parser.add_argument(
+        "--split",
+        choices=SPLITS,
+        default=SPLITS[0],
+        help="test: the config's test split (default); val: every fifth object of the sorted training split, to "
+        "choose between variants without looking at the test objects (the models trained on them; their caches "
+        f"hold the rig's {RIG_VIEWS} views only)",
+    )
     parser.add_argument(
         "--views", type=int, default=RIG_VIEWS, help=f"input views (default {RIG_VIEWS}; cached counts)"
     )
@@ -277,7 +294,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"frng bench heldout: error: model {name}: {path} does not exist", file=sys.stderr)
             return 2
     plan = catalog.plan(config)
-    objects = args.objects or plan.split("test")
+    objects = args.objects or (plan.split("test") if args.split == "test" else validation_objects(plan.split("train")))
     unknown = [o for o in objects if o not in plan.object_ids]
     if unknown:
         print(f"frng bench heldout: error: not objects of this config: {unknown}", file=sys.stderr)
@@ -287,7 +304,8 @@ def run(args: argparse.Namespace) -> int:
     uses_priors = any(m.cfg.uses_priors for m in loaded.values())
     spp = int(config.shading.spp_infer)
     print(
-        f"# frng bench heldout: {len(objects)} objects, {args.views} views, at the {args.at[:-1]} views, "
+        f"# frng bench heldout: {len(objects)} objects"
+        f"{'' if args.objects else f' ({args.split})'}, {args.views} views, at the {args.at[:-1]} views, "
         f"protocol {config.eval.protocol}, "
         f"threads {torch.get_num_threads()}",
         flush=True,
@@ -295,7 +313,11 @@ def run(args: argparse.Namespace) -> int:
     rows = []
     proto, bg = config.eval.protocol, config.eval.background
     for oid in tqdm(objects, desc="heldout", file=sys.stderr):
-        (obj,) = load_objects(config.results, config.idm.kind, [oid], L.backbone_model(), uses_priors, args.views)
+        try:
+            (obj,) = load_objects(config.results, config.idm.kind, [oid], L.backbone_model(), uses_priors, args.views)
+        except KeyError as e:  # a cache without that view count (training objects hold the rig's only)
+            print(f"frng bench heldout: error: {oid}: {e.args[0]}", file=sys.stderr)
+            return 2
         meta = read_json(L.object_meta(oid))
         if args.at == "inputs":
             for r in score_inputs(obj, loaded, config.results, config.seed, spp, proto, bg):
