@@ -123,10 +123,11 @@ def seed_mean(df: pd.DataFrame, run: str) -> pd.DataFrame:
     return out[[c for c in df.columns if c in out.columns]]
 
 
-def seed_parts(df: pd.DataFrame, run: str, select=lambda d: d) -> list[pd.DataFrame]:
-    """Per-image rows of ``run`` and of each of its training-seed repeats, one frame per seed (narrowed by
-    ``select``, empty ones left out): what :func:`diff_to` bootstraps over seeds as well as objects."""
-    return [p for p in (select(d) for d in seed_runs(df, run).values()) if len(p)]
+def seed_parts(df: pd.DataFrame, run: str, select=lambda d: d) -> dict[str, pd.DataFrame]:
+    """{run name: per-image rows} of ``run`` and of each of its training-seed repeats, narrowed by ``select``, empty
+    ones left out: what :func:`seed_columns` spreads and :func:`diff_to` bootstraps over seeds as well as objects."""
+    parts = {r: select(d) for r, d in seed_runs(df, run).items()}
+    return {r: d for r, d in parts.items() if len(d)}
 
 
 def diff_to(rows, ref) -> dict:
@@ -145,8 +146,7 @@ def diff_to(rows, ref) -> dict:
 def seed_columns(df: pd.DataFrame, run: str, ref_run: str | None, select=lambda d: d) -> dict:
     """``seeds``, ``seed_spread_psnr``, ``seed_spread_dpsnr`` of ``run`` (see the module docstring); ``select``
     narrows each seed's rows (e.g. to one dataset)."""
-    parts = {r: select(d) for r, d in seed_runs(df, run).items()}
-    parts = {r: d for r, d in parts.items() if len(d)}
+    parts = seed_parts(df, run, select)
     if not parts:
         return {"seeds": np.nan, "seed_spread_psnr": np.nan, "seed_spread_dpsnr": np.nan}
     means = [d["psnr"].mean() for d in parts.values()]
@@ -213,7 +213,7 @@ def vs_backbone_table(df: pd.DataFrame, timings: list[dict]) -> tuple[pd.DataFra
                 "lpips": sub["lpips"].mean(),
             }
             if method == "F-RNG":
-                row |= diff_to(seed_parts(df, "full", pick), seed_parts(df, BACKBONE, pick))
+                row |= diff_to([*seed_parts(df, "full", pick).values()], [*seed_parts(df, BACKBONE, pick).values()])
                 row |= seed_columns(df, "full", BACKBONE, pick)
             rows.append(row)
     out = pd.DataFrame(rows)
@@ -240,7 +240,7 @@ def ablation_table(df: pd.DataFrame) -> pd.DataFrame:
             "lpips": sub["lpips"].mean(),
         }
         if v != "full":
-            row |= diff_to(seed_parts(df, v, _at_rig), seed_parts(df, "full", _at_rig))
+            row |= diff_to([*seed_parts(df, v, _at_rig).values()], [*seed_parts(df, "full", _at_rig).values()])
         row |= seed_columns(df, v, None if v == "full" else "full")
         rows.append(row)
     return _ordered(pd.DataFrame(rows), "ablation")

@@ -68,20 +68,19 @@ def paired_bootstrap(a, b, object_ids, n: int = N_BOOT, seed: int = SEED, level:
     d = a.mean(0) - b.mean(0)
     objects, inv = np.unique(ids, return_inverse=True)
     counts = np.bincount(inv, minlength=len(objects)).astype(np.float64)
+    sums = np.bincount(inv, weights=d, minlength=len(objects))  # per object, of the seed means' difference
     rng = np.random.default_rng(seed)
     draw = rng.integers(0, len(objects), size=(int(n), len(objects)))
     if len(a) == len(b) == 1:  # one model per side: the object bootstrap
-        sums = np.bincount(inv, weights=d, minlength=len(objects))
         boot = sums[draw].sum(axis=1) / counts[draw].sum(axis=1)
     else:  # per resample, each side's seeds drawn with replacement and averaged, then the objects drawn
         per_seed = [np.stack([np.bincount(inv, weights=r, minlength=len(objects)) for r in x]) for x in (a, b)]
         seed_mean = [s[rng.integers(0, len(s), size=(int(n), len(s)))].mean(axis=1) for s in per_seed]  # (n, O)
-        sums = seed_mean[0] - seed_mean[1]
-        boot = np.take_along_axis(sums, draw, axis=1).sum(axis=1) / counts[draw].sum(axis=1)
+        drawn = seed_mean[0] - seed_mean[1]
+        boot = np.take_along_axis(drawn, draw, axis=1).sum(axis=1) / counts[draw].sum(axis=1)
     q = (1.0 - level) / 2.0
     lo, hi = np.quantile(boot, [q, 1.0 - q])
-    per_obj = np.bincount(inv, weights=d, minlength=len(objects)) / counts
-    return PairedDiff(float(d.mean()), float(lo), float(hi), int((per_obj > 0).sum()), len(objects), len(d))
+    return PairedDiff(float(d.mean()), float(lo), float(hi), int((sums > 0).sum()), len(objects), len(d))
 
 
 def paired(df_a, df_b, metric: str, keys=("object", "light", "view"), **kw) -> PairedDiff:

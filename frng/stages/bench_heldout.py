@@ -257,11 +257,9 @@ def summary(df, names: list[str]) -> str:
     (ref_group, ref), *others = frames.items()
     keys = ("object", "light", "view")
     for g, other in others:
-        parts = []
-        for metric in ("psnr", "ssim", "lpips"):
-            p = paired(other, ref, metric, keys=keys)
-            parts.append(f"{metric} {p.diff:+.4f} [{p.lo:+.4f}, {p.hi:+.4f}]")
-        p = paired(other, ref, "psnr", keys=keys)
+        d = {metric: paired(other, ref, metric, keys=keys) for metric in ("psnr", "ssim", "lpips")}
+        parts = [f"{m} {r.diff:+.4f} [{r.lo:+.4f}, {r.hi:+.4f}]" for m, r in d.items()]
+        p = d["psnr"]
         over = f"{p.objects} objects" + (
             f" and the training seeds ({len(other)} vs {len(ref)})" if len(other) > 1 or len(ref) > 1 else ""
         )
