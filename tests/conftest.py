@@ -6,6 +6,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT.parent / "shared"
+# snakemake arguments of the smoke tier (the workflow and config/smoke.yaml)
+SMOKE_ARGS = ["--snakefile", str(ROOT / "workflow" / "Snakefile"), "--configfile", str(ROOT / "config" / "smoke.yaml")]
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
 
@@ -38,10 +40,7 @@ def smoke_pipeline(tmp_path_factory) -> Path:
     r = subprocess.run(
         [
             venv_bin("snakemake"),
-            "--snakefile",
-            str(ROOT / "workflow" / "Snakefile"),
-            "--configfile",
-            str(ROOT / "config" / "smoke.yaml"),
+            *SMOKE_ARGS,
             "--profile",
             str(ROOT / "profiles" / "local"),
             "--config",

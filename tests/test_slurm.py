@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import SMOKE_ARGS as SMOKE
 from slurm_cluster import Cluster, Unavailable, ensure_installed
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -144,8 +145,6 @@ def test_interrupted_run_resumes(cluster, tmp_path):
 
 
 # --- the real workflow ---------------------------------------------------------------------------------------
-
-SMOKE = ["--snakefile", str(ROOT / "workflow" / "Snakefile"), "--configfile", str(ROOT / "config" / "smoke.yaml")]
 
 
 def _smoke_plans(results: Path) -> tuple[bool, str]:

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import ROOT, venv_bin
+from conftest import SMOKE_ARGS as SMOKE
 
-ROOT = Path(__file__).resolve().parent.parent
-SNAKEMAKE = str(Path(sys.executable).parent / "snakemake")
-SMOKE = ["--snakefile", str(ROOT / "workflow" / "Snakefile"), "--configfile", str(ROOT / "config" / "smoke.yaml")]
+SNAKEMAKE = venv_bin("snakemake")
 
 
 def _tail(text: str, n: int = 4000) -> str:
