@@ -14,17 +14,16 @@ from __future__ import annotations
 
 import re
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
+from conftest import ROOT, venv_bin
 
 from frng import config as frng_config
 from frng import digests as frng_digests
 
-ROOT = Path(__file__).resolve().parent.parent
-SNAKEMAKE = str(Path(sys.executable).parent / "snakemake")
+SNAKEMAKE = venv_bin("snakemake")
 PAPER = ROOT / "config" / "paper.yaml"
 PLAN_LIMIT_S = 20
 
