@@ -12,7 +12,7 @@ SNAKEMAKE := $(VENV)/bin/snakemake --snakefile workflow/Snakefile --profile prof
 # message for these names neither).
 CHECK = $(PY) -m frng config --check
 
-.PHONY: reproduce test setup smoke dry-run lint format bench clean-results
+.PHONY: reproduce reproduce-hires test setup smoke dry-run lint format bench clean-results
 
 setup: $(STAMP)
 
@@ -28,6 +28,11 @@ $(STAMP): requirements.lock requirements.txt pyproject.toml
 reproduce: $(STAMP)
 	@$(CHECK) $(CONFIG)
 	$(SNAKEMAKE) --configfile $(CONFIG) --cores $(CORES)
+
+# the default tier at 96 px (config/hires.yaml merged over $(CONFIG); outputs in results/hires/): ~131 min, README
+reproduce-hires: $(STAMP)
+	@$(CHECK) $(CONFIG)
+	$(SNAKEMAKE) --configfile $(CONFIG) config/hires.yaml --cores $(CORES)
 
 test: $(STAMP)
 	$(PY) -m pytest -q --durations=15 tests  # the 15 slowest tests, for keeping CI well under 30 min

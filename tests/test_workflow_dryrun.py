@@ -101,3 +101,17 @@ def test_too_few_test_lights_is_a_plan_error():
     cfg = frng_config.load(ROOT / "config/smoke.yaml", {"render": {"target_lights": 5}})
     with pytest.raises(catalog.CatalogError, match="target_lights=5"):
         catalog.plan(cfg)
+
+
+def test_hires_overlay_plans_the_default_dag_at_96_px(tmp_path):
+    """config/hires.yaml (`make reproduce-hires`) merged over config/config.yaml: a valid config that differs from the
+    default tier only in its results folder, the resolution and the backbone's steps, and plans the same jobs."""
+    base = frng_config.load(ROOT / "config/config.yaml")
+    hires = frng_config.load(ROOT / "config/config.yaml", overrides=frng_config.read_yaml(ROOT / "config/hires.yaml"))
+    changed = {k for k, v in frng_config.flatten(hires).items() if frng_config.flatten(base).get(k) != v}
+    assert changed == {"results", "render.resolution", "backbone.train.steps"}
+    assert hires["render"]["resolution"] == 96 and hires["results"] != base["results"]
+    plain = dry_run("config/config.yaml", tmp_path / "a")
+    overlay = dry_run("config/config.yaml", tmp_path / "b", "--configfile", "config/config.yaml", "config/hires.yaml")
+    assert plain.returncode == 0 and overlay.returncode == 0, (plain.stderr + overlay.stderr)[-3000:]
+    assert job_counts(overlay.stdout + overlay.stderr) == job_counts(plain.stdout + plain.stderr)
