@@ -25,14 +25,11 @@ $(STAMP): requirements.lock requirements.txt pyproject.toml
 	$(PY) -m pip install -q --no-deps --no-build-isolation -e .
 	touch $(STAMP)
 
-reproduce: $(STAMP)
+# reproduce-hires: the default tier at 96 px (config/hires.yaml merged over $(CONFIG); outputs in results/hires/)
+reproduce-hires: OVERLAY = config/hires.yaml
+reproduce reproduce-hires: $(STAMP)
 	@$(CHECK) $(CONFIG)
-	$(SNAKEMAKE) --configfile $(CONFIG) --cores $(CORES)
-
-# the default tier at 96 px (config/hires.yaml merged over $(CONFIG); outputs in results/hires/): ~131 min, README
-reproduce-hires: $(STAMP)
-	@$(CHECK) $(CONFIG)
-	$(SNAKEMAKE) --configfile $(CONFIG) config/hires.yaml --cores $(CORES)
+	$(SNAKEMAKE) --configfile $(CONFIG) $(OVERLAY) --cores $(CORES)
 
 test: $(STAMP)
 	$(PY) -m pytest -q --durations=15 tests  # the 15 slowest tests, for keeping CI well under 30 min

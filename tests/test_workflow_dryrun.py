@@ -14,12 +14,13 @@ from frng.data import catalog
 
 
 def dry_run(configfile, results, *extra):
+    """``configfile``: one path, or a list merged in order (an overlay after its base)."""
     cmd = [
         venv_bin("snakemake"),
         "--snakefile",
         "workflow/Snakefile",
         "--configfile",
-        configfile,
+        *([configfile] if isinstance(configfile, str) else configfile),
         "--config",
         f"results={results}",
         "-n",
@@ -108,10 +109,11 @@ def test_hires_overlay_plans_the_default_dag_at_96_px(tmp_path):
     default tier only in its results folder, the resolution and the backbone's steps, and plans the same jobs."""
     base = frng_config.load(ROOT / "config/config.yaml")
     hires = frng_config.load(ROOT / "config/config.yaml", overrides=frng_config.read_yaml(ROOT / "config/hires.yaml"))
-    changed = {k for k, v in frng_config.flatten(hires).items() if frng_config.flatten(base).get(k) != v}
+    flat_base = frng_config.flatten(base)
+    changed = {k for k, v in frng_config.flatten(hires).items() if flat_base.get(k) != v}
     assert changed == {"results", "render.resolution", "backbone.train.steps"}
     assert hires["render"]["resolution"] == 96 and hires["results"] != base["results"]
     plain = dry_run("config/config.yaml", tmp_path / "a")
-    overlay = dry_run("config/config.yaml", tmp_path / "b", "--configfile", "config/config.yaml", "config/hires.yaml")
+    overlay = dry_run(["config/config.yaml", "config/hires.yaml"], tmp_path / "b")
     assert plain.returncode == 0 and overlay.returncode == 0, (plain.stderr + overlay.stderr)[-3000:]
     assert job_counts(overlay.stdout + overlay.stderr) == job_counts(plain.stdout + plain.stderr)
