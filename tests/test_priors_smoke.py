@@ -129,6 +129,30 @@ def test_priors_beat_trivial_baselines(smoke):
     assert sum(r["normal_deg"] for r in learned) < sum(r["normal_deg"] for r in const)
 
 
+def test_backbone_cue_cache_changes_nothing(smoke, tmp_path, monkeypatch):
+    """Keeping the rig views' multi-view cues between steps (CueCache) gives the same weights, bit for bit, as
+    computing them every step, and the cache is used."""
+    from frng.priors import backbone_train as bt
+    from frng.priors.dataset import load_split
+
+    _, config = smoke
+    objs = load_split(config["results"], plan(config).split("train"))
+    made = []
+
+    class Spy(bt.CueCache):
+        def __init__(self):
+            super().__init__()
+            made.append(self)
+
+    monkeypatch.setattr(bt, "CueCache", Spy)
+    kept = bt.train(*_bb(config), objs, tmp_path / "kept", steps=10)
+    fresh = bt.train(*_bb(config), objs, tmp_path / "fresh", steps=10, cue_cache=False)
+    assert len(made) == 1 and made[0].hits > 0 and made[0].bytes > 0
+    a = torch.load(kept, weights_only=False)["state_dict"]
+    b = torch.load(fresh, weights_only=False)["state_dict"]
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
 def test_backbone_overfits_one_object(smoke):
     """The backbone's learned part can fit one object: the same training sample (fixed light, views, timestep and
     noise) every step, its L2 falls well below where the multi-view prior alone starts."""

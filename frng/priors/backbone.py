@@ -239,11 +239,20 @@ class RelitLRMBackbone(nn.Module):
             normals.append((rot @ cues["normal"][..., None])[..., 0] * cues["hit"])
         return torch.stack(feats), torch.stack(raws), torch.stack(normals)
 
-    def encode_geometry(self, images: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor):
+    def encode_geometry(
+        self,
+        images: torch.Tensor,
+        alpha: torch.Tensor,
+        c2w: torch.Tensor,
+        intr: torch.Tensor,
+        cues: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
+    ):
         """Input views -> geometry tokens and raw per-pixel Gaussian parameters.
 
         images: (B, V, H, W, 3) linear premultiplied RGB; alpha (B, V, H, W, 1); c2w: (B, V, 4, 4); intr: (B, V, 4).
-        Returns T_geo (B, V, h, w, D), raw (B, V, H, W, 9), the multi-view prior's part of raw
+        cues: what :meth:`prior_raw` returns for these inputs, when the caller kept it from an earlier call (the
+        backbone's training reuses the rig views' cues, :class:`frng.priors.backbone_train.CueCache`); None:
+        computed here. Returns T_geo (B, V, h, w, D), raw (B, V, H, W, 9), the multi-view prior's part of raw
         (B, V, H, W, 9; zeros with ``cues: false``), so that ``raw - prior`` is what the GeoDetokenizer added, and
         the world-frame hull normals (B, V, H, W, 3; zeros with ``cues: false``) the light cue reads.
         """
@@ -251,7 +260,8 @@ class RelitLRMBackbone(nn.Module):
         x = self._view_input(to_diffusion_space(images), c2w, intr)
         normals = None
         if self.cfg.cues:
-            cue_feats, prior, normals = self.prior_raw(images, alpha, c2w, intr)
+            cue_feats, prior, normals = self.prior_raw(images, alpha, c2w, intr) if cues is None else cues
+            assert prior.shape == (*images.shape[:-1], 9), (prior.shape, images.shape)
             x = torch.cat([x, 2.0 * alpha.to(x.dtype) - 1.0, cue_feats.to(x.dtype)], dim=-1)
         tok = self.input_tokenizer(x)  # (B, V, h, w, D)
         B, V, h, w, D = tok.shape

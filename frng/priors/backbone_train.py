@@ -115,6 +115,41 @@ def sample_views(obj: PriorObject, rng: random.Random) -> tuple[str, list[int]]:
     return light, sorted(rng.sample(range(n), k))
 
 
+CUE_CACHE_BYTES = 2 * 1024**3  # the rig views' cues of 122 objects x 2 input lights at 96 px: ~1 GB
+
+
+class CueCache:
+    """The multi-view cues (:meth:`frng.priors.backbone.RelitLRMBackbone.prior_raw`) of each object's rig views
+    under each input light, kept from their first use for the rest of the training run.
+
+    Half the training samples take exactly the rig views (:func:`sample_views`), and the cues are a fixed function
+    of those views' images, masks and cameras (no weights, no randomness): the plane sweep behind them (V^2 H W K
+    bilinear reads) took 0.45 s of a 0.95 s step on the default tier's data at 96 px on one CPU thread (cProfile;
+    synthetic: ``frng bench cues``). A kept
+    entry is the tensor a recomputation would give, so training is bit-identical with or without this cache
+    (tests/test_priors_smoke.py). Other view subsets (random, rarely repeated) are computed every time. At most
+    ``max_bytes`` are kept; later entries beyond that are computed every time too."""
+
+    def __init__(self, max_bytes: int = CUE_CACHE_BYTES):
+        self.max_bytes = max_bytes
+        self.bytes = 0
+        self.hits = 0
+        self._entries: dict[tuple[str, str], tuple[torch.Tensor, ...]] = {}
+
+    def get(self, key: tuple[str, str], compute) -> tuple[torch.Tensor, ...]:
+        """The kept cues of ``key`` = (object id, input light), else ``compute()`` (kept while under the budget)."""
+        kept = self._entries.get(key)
+        if kept is not None:
+            self.hits += 1
+            return kept
+        value = compute()
+        size = sum(t.numel() * t.element_size() for t in value)
+        if self.bytes + size <= self.max_bytes:
+            self._entries[key] = value
+            self.bytes += size
+        return value
+
+
 def step_loss(
     model: bb.RelitLRMBackbone,
     obj: PriorObject,
@@ -123,8 +158,10 @@ def step_loss(
     rng: random.Random,
     device: torch.device,
     perceptual=None,
+    cues: CueCache | None = None,
 ) -> dict[str, torch.Tensor]:
-    """Losses of one training sample (see the module docstring)."""
+    """Losses of one training sample (see the module docstring); ``cues``: where the rig views' multi-view cues are
+    kept between steps (None: computed every step)."""
     cfg = model.cfg
     light_a, idx = sample_views(obj, rng)
     inp = obj.inputs[light_a].select(idx)
@@ -141,7 +178,12 @@ def step_loss(
     c2w_in, intr_in = inp.c2w.to(device), inp.intr.to(device)
     H, W = rgb_in.shape[1:3]
     with autocast(device, tcfg.bf16):
-        t_geo, raw, _, normals = model.encode_geometry(rgb_in[None], a_in[None], c2w_in[None], intr_in[None])
+        kept = None
+        if cues is not None and cfg.cues and idx == list(range(min(obj.rig_views, len(obj.inputs[light_a])))):
+            kept = cues.get(
+                (obj.id, light_a), lambda: model.prior_raw(rgb_in[None], a_in[None], c2w_in[None], intr_in[None])
+            )
+        t_geo, raw, _, normals = model.encode_geometry(rgb_in[None], a_in[None], c2w_in[None], intr_in[None], kept)
     raw = raw[0].float()
     pixels = model.pixel_inputs(rgb_in, a_in, normals[0] if cfg.light_cue else None, obj.envs[light_a].to(device))
     gauss = model.gaussians(raw, c2w_in, intr_in)
@@ -192,12 +234,14 @@ def train(
     out: Path,
     steps: int | None = None,
     stop_after: int | None = None,
+    cue_cache: bool = True,
 ) -> Path:
     """Train (or resume, :func:`frng.training.fit`) the backbone on ``objects`` (training split only); returns the
     model path.
 
     ``stop_after``: stop (after checkpointing) once this many steps have run in this call -- for tests of
-    resumption. ``steps`` overrides ``backbone.train.steps``. ``backbone``: the config's ``backbone`` section;
+    resumption. ``cue_cache``: keep the rig views' multi-view cues between steps (:class:`CueCache`; the same
+    weights either way, False only for the test that checks so). ``steps`` overrides ``backbone.train.steps``. ``backbone``: the config's ``backbone`` section;
     ``patch_size``, ``device``: its ``model.patch_size`` and ``device``; ``seed``: the models' seed
     (``train_seed``, else ``seed``)."""
     tr.check_training_split(objects, "backbone-train")
@@ -228,11 +272,13 @@ def train(
             autocast_bf16=tcfg.bf16 and device.type == "cpu" and bf16_ok(device),
         ).to(device)
 
+    cues = CueCache() if cue_cache else None
+
     def step_fn(step: int) -> dict[str, float]:
         acc: dict[str, float] = {}
         for _ in range(tcfg.batch):
             obj = objects[rng.randrange(len(objects))]
-            losses = step_loss(model, obj, tcfg, step, rng, device, perceptual)
+            losses = step_loss(model, obj, tcfg, step, rng, device, perceptual, cues)
             (losses["total"] / tcfg.batch).backward()
             for k, v in losses.items():
                 acc[k] = acc.get(k, 0.0) + float(v.detach()) / tcfg.batch

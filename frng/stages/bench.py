@@ -16,6 +16,7 @@ BENCHES: dict[str, tuple[str, str]] = {
         "frng.stages.bench_relight",
         "F-RNG vs backbone relighting/reconstruction time at each config's model sizes",
     ),
+    "cues": ("frng.stages.bench_cues", "the backbone's multi-view geometry cues (visual-hull sweep) per call and size"),
     "perceptual": ("frng.stages.bench_perceptual", "training perceptual loss (LPIPS-alex / -vgg) fwd+bwd cost"),
     "heldout": (
         "frng.stages.bench_heldout",
