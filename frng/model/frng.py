@@ -453,6 +453,7 @@ class FRNG(nn.Module):
         images: torch.Tensor = None,
         keep_tokens: bool = False,
         input_env: torch.Tensor | None = None,
+        pixel_maps: list[torch.Tensor] | None = None,
     ) -> Reconstruction | list[Reconstruction]:
         """Build the relightable asset of one object.
 
@@ -466,7 +467,8 @@ class FRNG(nn.Module):
         material payload for L_ind. input_env: (He, We, 3) the input light's HDR map (required with the pixel head,
         ``pixel_head > 0``: see :func:`pixel_map`). With a list of lights, ``images`` and ``input_env`` may also be
         lists (one per light: the same views photographed under another light, for L_ind); saliency, salient
-        patches and the fine keep mask always come from the first.
+        patches and the fine keep mask always come from the first. pixel_maps: what :meth:`pixel_maps` returns for
+        these inputs, when the caller kept it (training); None: computed here.
         """
         dev = self.device
         lights = [light] if isinstance(light, int) else list(light)
@@ -508,22 +510,14 @@ class FRNG(nn.Module):
         g_coarse, g_fine = split_sequence(g_mat.float(), V, h, w)
         pix_b = [None] * B
         if self.pixel_head is not None:  # per-Gaussian pixel inputs, same order as the kept Gaussians below
-            if any(e is None for e in envs_b):
-                raise ValueError(
-                    "F-RNG with a pixel head needs the input light's env map: reconstruct(..., input_env=)"
-                )
-            from frng.priors.surfels import grid_normals  # lazy: importing frng.priors loads every prior
-
-            normals = grid_normals(bv["means"], keep_c, c2w)
-            pri = priors if self.cfg.uses_priors else None
+            maps = self.pixel_maps(bv, images_b, envs_b, priors) if pixel_maps is None else pixel_maps
             for b in range(B):
-                if b > 0 and images_b[b] is images_b[0] and envs_b[b] is envs_b[0]:
+                if b > 0 and maps[b] is maps[0]:
                     pix_b[b] = pix_b[0]
                     continue
-                pix_map = pixel_map(images_b[b], pri, V, normals, envs_b[b])
-                pix = [pix_map.reshape(-1, pix_map.shape[-1])[keep_c]]
+                pix = [maps[b].reshape(-1, maps[b].shape[-1])[keep_c]]
                 if fine is not None:
-                    pix.append(sample_pixels(pix_map, fine.uv).reshape(-1, pix_map.shape[-1])[keep_f])
+                    pix.append(sample_pixels(maps[b], fine.uv).reshape(-1, maps[b].shape[-1])[keep_f])
                 pix_b[b] = torch.cat(pix)
         back = self._back_completion(bv, keep_c)
         out = []
@@ -563,6 +557,28 @@ class FRNG(nn.Module):
                 )
             )
         return out[0] if isinstance(light, int) else out
+
+    def pixel_maps(self, backbone_views: dict, images: list, input_env: list, priors=None) -> list[torch.Tensor]:
+        """The pixel head's per-pixel inputs (:func:`pixel_map`, (V, H, W, C) each) of one object, one per light of
+        :meth:`reconstruct` (``images`` and ``input_env`` as its lists; a light photographed with the same images
+        and env map as the first gets the first's tensor itself). A fixed function of the data: training computes it
+        once per object (:class:`frng.memo.TensorMemo`) and hands it to :meth:`reconstruct`."""
+        if any(e is None for e in input_env):
+            raise ValueError("F-RNG with a pixel head needs the input light's env map: reconstruct(..., input_env=)")
+        from frng.priors.surfels import grid_normals  # lazy: importing frng.priors loads every prior
+
+        dev = self.device
+        bv = {k: backbone_views[k].to(dev) for k in ("means", "keep", "c2w")}
+        V = bv["c2w"].shape[0]
+        normals = grid_normals(bv["means"], bv["keep"].bool(), bv["c2w"].float())
+        pri = priors if self.cfg.uses_priors else None
+        maps = []
+        for b, (im, env) in enumerate(zip(images, input_env)):
+            if b > 0 and im is images[0] and env is input_env[0]:
+                maps.append(maps[0])
+            else:
+                maps.append(pixel_map(im.to(dev).float(), pri, V, normals, env))
+        return maps
 
     def _back_completion(self, bv: dict, keep_c: torch.Tensor) -> dict | None:
         """The cache entry's far-side copies (``back_*``, :func:`frng.priors.multiview.back_gaussians`) of kept

@@ -49,6 +49,7 @@ from frng import training as tr
 from frng.device import autocast, bf16_ok
 from frng.hashing import data_digest, file_sha256
 from frng.layout import Layout
+from frng.memo import TensorMemo
 from frng.model.frng import FRNG, ModelSections, variant_config
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
 from frng.sections import TypedConfig, config_section, register
@@ -236,10 +237,19 @@ class StepLoss(nn.Module):
     """One training step's loss over a list of objects; a module so DDP can wrap it (its forward is the step)."""
 
     def __init__(
-        self, model: FRNG, ind: LightIndependenceConfig, tcfg: TrainConfig, perceptual: nn.Module | None, bf16: bool
+        self,
+        model: FRNG,
+        ind: LightIndependenceConfig,
+        tcfg: TrainConfig,
+        perceptual: nn.Module | None,
+        bf16: bool,
+        pixel_maps: TensorMemo | None = None,
     ):
         super().__init__()
         self.model, self.ind, self.tcfg, self.bf16 = model, ind, tcfg, bf16
+        # the pixel head's per-pixel maps of each object (a fixed function of its data), made once per run: 4-5 %
+        # of a step at 96 px (bit-identical either way, tests/test_train_frng.py)
+        self.pixel_maps = pixel_maps
         self.perceptual = perceptual  # frozen (no parameters require grad)
         w = tcfg.loss
         self.lambda_1, self.lambda_per, self.lambda_alpha = w.lambda_1, w.lambda_per, w.lambda_alpha
@@ -262,7 +272,17 @@ class StepLoss(nn.Module):
             if len(lights) > 1 and self.ind.pixels and obj.alt_images is not None:
                 images, envs = [obj.images, obj.alt_images], [obj.env_in, obj.alt_env]
             with autocast(dev, self.bf16):
-                recs = m.reconstruct(obj.views, lights, obj.priors, images, keep_tokens=True, input_env=envs)
+                maps = None
+                if m.pixel_head is not None and self.pixel_maps is not None:
+                    im_b = list(images) if isinstance(images, list) else [images] * len(lights)
+                    env_b = list(envs) if isinstance(envs, list) else [envs] * len(lights)
+                    maps = self.pixel_maps.get(
+                        (obj.id, len(lights), isinstance(images, list)),
+                        lambda o=obj, i=im_b, e=env_b: m.pixel_maps(o.views, i, e, o.priors),
+                    )
+                recs = m.reconstruct(
+                    obj.views, lights, obj.priors, images, keep_tokens=True, input_env=envs, pixel_maps=maps
+                )
             _, env, c2w, K, rgba = obj.targets[ti]
             vi = torch.as_tensor(vidx)
             tgt = rgba[vi].to(dev)
@@ -336,10 +356,12 @@ def train(
     steps: int | None = None,
     stop_after: int | None = None,
     objects: list[TrainObject] | None = None,
+    pixel_memo: bool = True,
 ) -> Path:
     """Train (or resume) one variant; returns ``out/model.pt`` (or the checkpoint when stopped by ``stop_after``,
     which tests use to simulate an interruption). ``sections``: the model's config sections, ``tcfg``: the config's
-    ``train`` section."""
+    ``train`` section. ``pixel_memo``: keep each object's pixel maps between steps (the same weights either way;
+    False only for the test that checks so)."""
     variant = canonical_for(variant, sections.frng.top_k_percent)
     backbone_path = Path(backbone_path or Layout(job.results).backbone_model())
     total = steps or tcfg.steps_for(variant)
@@ -363,7 +385,7 @@ def train(
             srgb=True,
             autocast_bf16=tcfg.bf16 and device.type == "cpu" and bf16_ok(device),
         ).to(device)
-    step_loss = StepLoss(model, ind, tcfg, perceptual, tcfg.bf16)
+    step_loss = StepLoss(model, ind, tcfg, perceptual, tcfg.bf16, TensorMemo() if pixel_memo else None)
     ddp = distributed.wrap(step_loss, info, find_unused_parameters=True)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=tcfg.lr, betas=(0.9, 0.99), weight_decay=tcfg.weight_decay)

@@ -40,6 +40,7 @@ from frng import checkpoint, io
 from frng import training as tr
 from frng.device import autocast, bf16_ok, resolve_device
 from frng.hashing import data_digest
+from frng.memo import TensorMemo
 from frng.priors import backbone as bb
 from frng.priors.dataset import PriorObject, Views
 from frng.priors.diffusion import to_diffusion_space
@@ -115,39 +116,15 @@ def sample_views(obj: PriorObject, rng: random.Random) -> tuple[str, list[int]]:
     return light, sorted(rng.sample(range(n), k))
 
 
-CUE_CACHE_BYTES = 2 * 1024**3  # the rig views' cues of 122 objects x 2 input lights at 96 px: ~1 GB
-
-
-class CueCache:
+class CueCache(TensorMemo):
     """The multi-view cues (:meth:`frng.priors.backbone.RelitLRMBackbone.prior_raw`) of each object's rig views
-    under each input light, kept from their first use for the rest of the training run.
+    under each input light, keyed (object id, input light), kept from their first use for the rest of the run.
 
     Half the training samples take exactly the rig views (:func:`sample_views`), and the cues are a fixed function
-    of those views' images, masks and cameras (no weights, no randomness): the plane sweep behind them (V^2 H W K
-    bilinear reads) took 0.45 s of a 0.95 s step on the default tier's data at 96 px on one CPU thread (cProfile;
-    synthetic: ``frng bench cues``). A kept
-    entry is the tensor a recomputation would give, so training is bit-identical with or without this cache
-    (tests/test_priors_smoke.py). Other view subsets (random, rarely repeated) are computed every time. At most
-    ``max_bytes`` are kept; later entries beyond that are computed every time too."""
-
-    def __init__(self, max_bytes: int = CUE_CACHE_BYTES):
-        self.max_bytes = max_bytes
-        self.bytes = 0
-        self.hits = 0
-        self._entries: dict[tuple[str, str], tuple[torch.Tensor, ...]] = {}
-
-    def get(self, key: tuple[str, str], compute) -> tuple[torch.Tensor, ...]:
-        """The kept cues of ``key`` = (object id, input light), else ``compute()`` (kept while under the budget)."""
-        kept = self._entries.get(key)
-        if kept is not None:
-            self.hits += 1
-            return kept
-        value = compute()
-        size = sum(t.numel() * t.element_size() for t in value)
-        if self.bytes + size <= self.max_bytes:
-            self._entries[key] = value
-            self.bytes += size
-        return value
+    of those views' images, masks and cameras: the plane sweep behind them (V^2 H W K bilinear reads) took 0.45 s of
+    a 0.95 s step on the default tier's data at 96 px on one CPU thread (cProfile; synthetic: ``frng bench
+    cues``); the rig views' cues of 122 objects x 2 input lights are ~1 GB at 96 px. Other view subsets (random,
+    rarely repeated) are computed every time."""
 
 
 def step_loss(
