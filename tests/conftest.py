@@ -111,3 +111,26 @@ def smoke_results(smoke_dataset, folder: Path, **overrides) -> tuple[Path, dict]
     path = folder / "smoke.yaml"
     path.write_text(yaml.safe_dump(cfg))
     return path, frng_config.load(path)
+
+
+def record_instances(monkeypatch, module, name: str) -> list:
+    """Replace the class ``module.<name>`` by a subclass that records every instance made; returns that list."""
+    made = []
+    base = getattr(module, name)
+
+    class Recorded(base):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            made.append(self)
+
+    monkeypatch.setattr(module, name, Recorded)
+    return made
+
+
+def assert_same_weights(a: Path, b: Path) -> None:
+    """Two saved models (``{"state_dict": ...}`` files) hold the same weights, bit for bit."""
+    import torch
+
+    sa = torch.load(a, weights_only=False)["state_dict"]
+    sb = torch.load(b, weights_only=False)["state_dict"]
+    assert sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa), (a, b)

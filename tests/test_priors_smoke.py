@@ -132,25 +132,18 @@ def test_priors_beat_trivial_baselines(smoke):
 def test_backbone_cue_cache_changes_nothing(smoke, tmp_path, monkeypatch):
     """Keeping the rig views' multi-view cues between steps (CueCache) gives the same weights, bit for bit, as
     computing them every step, and the cache is used."""
+    from conftest import assert_same_weights, record_instances
+
     from frng.priors import backbone_train as bt
     from frng.priors.dataset import load_split
 
     _, config = smoke
     objs = load_split(config["results"], plan(config).split("train"))
-    made = []
-
-    class Spy(bt.CueCache):
-        def __init__(self):
-            super().__init__()
-            made.append(self)
-
-    monkeypatch.setattr(bt, "CueCache", Spy)
+    made = record_instances(monkeypatch, bt, "CueCache")
     kept = bt.train(*_bb(config), objs, tmp_path / "kept", steps=10)
     fresh = bt.train(*_bb(config), objs, tmp_path / "fresh", steps=10, cue_cache=False)
     assert len(made) == 1 and made[0].hits > 0 and made[0].bytes > 0
-    a = torch.load(kept, weights_only=False)["state_dict"]
-    b = torch.load(fresh, weights_only=False)["state_dict"]
-    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    assert_same_weights(kept, fresh)
 
 
 def test_backbone_overfits_one_object(smoke):

@@ -207,24 +207,17 @@ def test_no_idm_never_reads_priors(frng_smoke, tmp_path, monkeypatch):
 def test_pixel_memo_changes_nothing(frng_smoke, tmp_path, monkeypatch):
     """Keeping each object's pixel maps between steps (frng.memo.TensorMemo) gives the same weights, bit for bit, as
     making them every step, and the memo is used."""
+    from conftest import assert_same_weights, record_instances
+
     from frng.model import train as train_mod
 
     _, config = frng_smoke
     objs = _objects(config, alt_light=True)  # both image sets (L_ind on the second input light's pixels)
-    made = []
-
-    class Spy(train_mod.TensorMemo):
-        def __init__(self):
-            super().__init__()
-            made.append(self)
-
-    monkeypatch.setattr(train_mod, "TensorMemo", Spy)
+    made = record_instances(monkeypatch, train_mod, "TensorMemo")
     kept = _train(config, "full", tmp_path / "kept", steps=6, objects=objs)
     fresh = _train(config, "full", tmp_path / "fresh", steps=6, objects=objs, pixel_memo=False)
     assert len(made) == 1 and made[0].hits > 0 and made[0].bytes > 0
-    a = torch.load(kept, weights_only=False)["state_dict"]
-    b = torch.load(fresh, weights_only=False)["state_dict"]
-    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    assert_same_weights(kept, fresh)
 
 
 STEPS = 80  # the smoke tier's 20 steps only start the descent
