@@ -121,10 +121,10 @@ class CueCache(TensorMemo):
     under each input light, keyed (object id, input light), kept from their first use for the rest of the run.
 
     Half the training samples take exactly the rig views (:func:`sample_views`), and the cues are a fixed function
-    of those views' images, masks and cameras: the plane sweep behind them (V^2 H W K bilinear reads) took 0.45 s of
-    a 0.95 s step on the default tier's data at 96 px on one CPU thread (cProfile; synthetic: ``frng bench
-    cues``); the rig views' cues of 122 objects x 2 input lights are ~1 GB at 96 px. Other view subsets (random,
-    rarely repeated) are computed every time."""
+    of those views' images, masks and cameras: the plane sweep behind them (V^2 H W K bilinear reads) took 0.39-0.41
+    s of a 0.95 s step on the default tier's data at 96 px on one CPU thread (synthetic: ``frng bench cues``); the
+    rig views' cues of 122 objects x 2 input lights are ~1 GB at 96 px. Other view subsets (random, rarely
+    repeated) are computed every time. README "Performance (training)"."""
 
 
 def step_loss(
@@ -218,9 +218,9 @@ def train(
 
     ``stop_after``: stop (after checkpointing) once this many steps have run in this call -- for tests of
     resumption. ``cue_cache``: keep the rig views' multi-view cues between steps (:class:`CueCache`; the same
-    weights either way, False only for the test that checks so). ``steps`` overrides ``backbone.train.steps``. ``backbone``: the config's ``backbone`` section;
-    ``patch_size``, ``device``: its ``model.patch_size`` and ``device``; ``seed``: the models' seed
-    (``train_seed``, else ``seed``)."""
+    weights either way, False only for the test that checks so). ``steps`` overrides ``backbone.train.steps``.
+    ``backbone``: the config's ``backbone`` section; ``patch_size``, ``device``: its ``model.patch_size`` and
+    ``device``; ``seed``: the models' seed (``train_seed``, else ``seed``)."""
     tr.check_training_split(objects, "backbone-train")
     tcfg = backbone.train
     total = steps or tcfg.steps
