@@ -52,6 +52,7 @@ STAGES_WITHOUT_RULE = {
     "frng.stages.bench_render": "`frng bench render` (frng.stages.bench.BENCHES), run by hand",
     "frng.stages.bench_relight": "`frng bench relight` (frng.stages.bench.BENCHES), run by hand",
     "frng.stages.bench_perceptual": "`frng bench perceptual` (frng.stages.bench.BENCHES), run by hand",
+    "frng.stages.bench_cues": "`frng bench cues` (frng.stages.bench.BENCHES), run by hand",
     "frng.stages.bench_heldout": "`frng bench heldout` (frng.stages.bench.BENCHES), run by hand on a finished run",
     "frng.stages.export_benchmark": "writes curated objects in the public benchmarks' layouts, run by hand and by "
     "tests/test_benchmarks.py (nothing downstream in the workflow reads it)",
