@@ -12,7 +12,7 @@ SNAKEMAKE := $(VENV)/bin/snakemake --snakefile workflow/Snakefile --profile prof
 # message for these names neither).
 CHECK = $(PY) -m frng config --check
 
-.PHONY: reproduce reproduce-hires test setup smoke dry-run lint format bench clean-results
+.PHONY: reproduce seeds test setup smoke dry-run lint format bench clean-results
 
 setup: $(STAMP)
 
@@ -25,11 +25,14 @@ $(STAMP): requirements.lock requirements.txt pyproject.toml
 	$(PY) -m pip install -q --no-deps --no-build-isolation -e .
 	touch $(STAMP)
 
-# reproduce-hires: the default tier at 96 px (config/hires.yaml merged over $(CONFIG); outputs in results/hires/)
-reproduce-hires: OVERLAY = config/hires.yaml
-reproduce reproduce-hires: $(STAMP)
+# seeds: `make reproduce` plus training seed 1 of the full model and the ablations (config/seeds.yaml merged over
+# $(CONFIG), same results folder: what reproduce made is reused, its recorded config replaced) and tables over both
+# seeds; a later `make reproduce` asks for overwrite_config=true to go back to one seed
+seeds: OVERLAY = config/seeds.yaml
+seeds: REPLACE = --config overwrite_config=true
+reproduce seeds: $(STAMP)
 	@$(CHECK) $(CONFIG)
-	$(SNAKEMAKE) --configfile $(CONFIG) $(OVERLAY) --cores $(CORES)
+	$(SNAKEMAKE) --configfile $(CONFIG) $(OVERLAY) --cores $(CORES) $(REPLACE)
 
 test: $(STAMP)
 	$(PY) -m pytest -q --durations=15 tests  # the 15 slowest tests, for keeping CI well under 30 min

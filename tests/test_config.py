@@ -11,7 +11,7 @@ from frng import config as cfg
 @pytest.mark.parametrize("name", ["config.yaml", "smoke.yaml", "paper.yaml"])
 def test_shipped_configs_validate(root, name):
     c = cfg.load(root / "config" / name)
-    assert c["model"]["patch_size"] == 8
+    assert c["model"]["patch_size"] == (12 if name == "config.yaml" else 8)  # default tier: 96 px, 8 x 8 tokens
     assert c["render"]["resolution"] % c["model"]["patch_size"] == 0
 
 

@@ -104,16 +104,17 @@ def test_too_few_test_lights_is_a_plan_error():
         catalog.plan(cfg)
 
 
-def test_hires_overlay_plans_the_default_dag_at_96_px(tmp_path):
-    """config/hires.yaml (`make reproduce-hires`) merged over config/config.yaml: a valid config that differs from the
-    default tier only in its results folder, the resolution and the backbone's steps, and plans the same jobs."""
+def test_seeds_overlay_adds_the_second_seed_to_the_default_dag(tmp_path):
+    """config/seeds.yaml (`make seeds`) merged over config/config.yaml: a valid config that differs from the default
+    tier only in train.seeds, and plans its jobs plus seed 1 of the full model and each ablation."""
     base = frng_config.load(ROOT / "config/config.yaml")
-    hires = frng_config.load(ROOT / "config/config.yaml", overrides=frng_config.read_yaml(ROOT / "config/hires.yaml"))
+    seeds = frng_config.load(ROOT / "config/config.yaml", overrides=frng_config.read_yaml(ROOT / "config/seeds.yaml"))
     flat_base = frng_config.flatten(base)
-    changed = {k for k, v in frng_config.flatten(hires).items() if flat_base.get(k) != v}
-    assert changed == {"results", "render.resolution", "backbone.train.steps"}
-    assert hires["render"]["resolution"] == 96 and hires["results"] != base["results"]
+    changed = {k for k, v in frng_config.flatten(seeds).items() if flat_base.get(k) != v}
+    assert changed == {"train.seeds"} and seeds["results"] == base["results"]
     plain = dry_run("config/config.yaml", tmp_path / "a")
-    overlay = dry_run(["config/config.yaml", "config/hires.yaml"], tmp_path / "b")
+    overlay = dry_run(["config/config.yaml", "config/seeds.yaml"], tmp_path / "b")
     assert plain.returncode == 0 and overlay.returncode == 0, (plain.stderr + overlay.stderr)[-3000:]
-    assert job_counts(overlay.stdout + overlay.stderr) == job_counts(plain.stdout + plain.stderr)
+    a, b = job_counts(plain.stdout + plain.stderr), job_counts(overlay.stdout + overlay.stderr)
+    added = {k: b[k] - a.get(k, 0) for k in b if b[k] != a.get(k, 0)}
+    assert added == {"train": 5, "relight_seed": a["relight"], "total": 5 + a["relight"]}, (a, b)
