@@ -31,7 +31,7 @@ $(STAMP): requirements.lock requirements.txt pyproject.toml
 seeds: OVERLAY = config/seeds.yaml
 seeds: REPLACE = --config overwrite_config=true
 reproduce seeds: $(STAMP)
-	@$(CHECK) $(CONFIG)
+	@$(CHECK) $(CONFIG) $(OVERLAY)
 	$(SNAKEMAKE) --configfile $(CONFIG) $(OVERLAY) --cores $(CORES) $(REPLACE)
 
 test: $(STAMP)

@@ -163,6 +163,15 @@ def load(path: Path | str, overrides: dict | None = None) -> dict:
     return validate(config)
 
 
+def load_overlaid(path: Path | str, *overlays: Path | str) -> dict:
+    """Read a YAML config with overlay YAMLs merged over it in order (:func:`merge`, as Snakemake's ``--configfile
+    PATH OVERLAY ...``; ``make seeds``: config/config.yaml + config/seeds.yaml), validate, fill defaults."""
+    overrides: dict = {}
+    for overlay in overlays:
+        overrides = merge(overrides, read_yaml(overlay))
+    return load(path, overrides)
+
+
 def merge(base: dict, override: dict) -> dict:
     """Recursive dict merge (override wins); returns a new dict."""
     out = copy.deepcopy(base)

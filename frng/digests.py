@@ -40,7 +40,10 @@ ENVMAP_PLAN_KEYS: tuple[str, ...] = ("seed", "envmaps")
 _IDM_NOT_TRAINED = ("!idm.kind", "!idm.diffusion_renderer_dir", "!idm.normal_space", "!idm.depth_invert")
 
 # frng/relight.py: the runs (frng.*, idm.kind, render.extra_input_views, train.seeds), resolution check, build_idm,
-# shading.spp_infer + inference shading, seeds, device; RELIGHT_KEYS adds the split check's dataset plan
+# shading.spp_infer + inference shading, seeds, device; RELIGHT_KEYS adds the split check's dataset plan. The rule
+# `relight` relights the main group only (frng.variants.MAIN_GROUP: the models' seed and the backbone), whose runs do
+# not depend on the other training seeds: it leaves train.seeds out, so that `make seeds` (train.seeds [0] -> [0, 1])
+# adds the relight_seed jobs without rerunning the first seed's 21 relight jobs (their outputs were identical).
 RELIGHT_MODEL_KEYS: tuple[str, ...] = (
     "device",
     "render.resolution",
@@ -55,6 +58,7 @@ RELIGHT_MODEL_KEYS: tuple[str, ...] = (
     "train_seed",
 )
 RELIGHT_KEYS: tuple[str, ...] = (*PLAN_KEYS, *RELIGHT_MODEL_KEYS)
+RELIGHT_MAIN_KEYS: tuple[str, ...] = tuple(k for k in RELIGHT_KEYS if k != "train.seeds")
 
 RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     # frng/data/envmaps.py: the env-map plan, envmaps.width/normalize, Blender threads of the sky bakes
@@ -116,7 +120,7 @@ RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     ),
     # a copy of the full model: which K-sweep entry is the full model
     "model_alias": ("frng.top_k_percent",),
-    "relight": RELIGHT_KEYS,
+    "relight": RELIGHT_MAIN_KEYS,
     # the other training seeds' runs (rules/relight.smk): what `relight` reads
     "relight_seed": RELIGHT_KEYS,
     # frng/stages/evaluate.py: eval.protocol/background and the planned runs (frng/variants.py: the variants, the

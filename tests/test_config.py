@@ -187,3 +187,25 @@ def test_corrupt_record_is_replaced_only_on_overwrite(tmp_path, root):
         cfg.record(c, path)
     assert cfg.record(c, path, overwrite=True) == "replaced"
     assert cfg.read_recorded(path) == c
+
+
+def test_cli_config_merges_overlays_and_names_them(tmp_path, root, capsys):
+    """`frng config PATH OVERLAY`: what `make seeds` checks before snakemake merges the same files."""
+    from frng.cli import main
+
+    base = tmp_path / "base.yaml"
+    base.write_text(yaml.safe_dump(_base(root)))
+    good, bad = tmp_path / "seeds.yaml", tmp_path / "bad.yaml"
+    good.write_text(yaml.safe_dump({"train": {"seeds": [0, 1]}}))
+    bad.write_text(yaml.safe_dump({"train": {"seeds": [1, 1]}}))
+    with pytest.raises(SystemExit) as e:
+        main(["config", "--json", str(base), str(good)])
+    assert e.value.code == 0
+    import json
+
+    assert json.loads(capsys.readouterr().out)["train"]["seeds"] == [0, 1]
+    assert cfg.load_overlaid(base, good)["train"]["seeds"] == [0, 1]
+    with pytest.raises(SystemExit) as e:
+        main(["config", "--check", str(base), str(bad)])
+    out = capsys.readouterr().out
+    assert e.value.code == 1 and f"{base} + {bad}" in out and "train.seeds" in out, out

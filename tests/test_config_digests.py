@@ -23,7 +23,7 @@ from conftest import ROOT, venv_bin
 from frng import config as frng_config
 from frng import digests as frng_digests
 from frng.batches import DEFAULT_BATCH_OBJECTS, batches, rule_family
-from frng.variants import trained_variants
+from frng.variants import seeded_bases, trained_variants
 
 # -- the digest --------------------------------------------------------------------------------------------------
 
@@ -124,6 +124,8 @@ CASES = [
     ("train.steps", 21, AFTER_TRAIN),
     ("frng.hidden", 32, AFTER_TRAIN),
     ("shading.spp_infer", 64, {"relight", "evaluate", "tables", "figures"}),  # inference only: no retraining
+    # a second training seed (`make seeds`): its models and their relighting, not the first seed's `relight` jobs
+    ("train.seeds", [0, 1], {"train", "relight_seed", "evaluate", "tables", "figures"}),
     ("eval.protocol", "plain", {"evaluate", "tables", "figures"}),
     ("tier", "custom", {"tables"}),
 ]
@@ -219,6 +221,8 @@ def test_an_edit_reruns_its_rules_and_what_follows_only(folder, key, value, expe
         assert jobs["backbone_cache"] == n_batches and jobs["train"] == len(trained_variants(cfg))
     if key == "idm.train.steps":  # every variant but no-idm, which reads no IDM prior
         assert jobs["idm_priors"] == n_batches and jobs["train"] == len(trained_variants(cfg)) - 1
+    if key == "train.seeds":  # full and each ablation once more, relit per test object; no `relight` job
+        assert jobs["train"] == len(seeded_bases(cfg)) and jobs["relight_seed"] == n_test
 
 
 # -- the digests travel with the results folder (issue 24, item 2) -----------------------------------------------

@@ -106,7 +106,7 @@ def test_lambertian_base_run_needs_the_cosine_decoder():
 def test_tier_seeds():
     default = frng_config.load(ROOT / "config" / "config.yaml")
     assert default["train"]["seeds"] == [0] and V.extra_seeds(default) == []
-    seeds = frng_config.load(ROOT / "config/config.yaml", overrides=frng_config.read_yaml(ROOT / "config/seeds.yaml"))
+    seeds = frng_config.load_overlaid(ROOT / "config/config.yaml", ROOT / "config/seeds.yaml")
     assert seeds["train"]["seeds"] == [0, 1] and V.extra_seeds(seeds) == [1]  # `make seeds`
     for tier in ("smoke.yaml", "paper.yaml"):
         assert V.extra_seeds(frng_config.load(ROOT / "config" / tier)) == [], tier

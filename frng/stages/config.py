@@ -1,4 +1,5 @@
-"""``frng config PATH``: validate a config file and print it with the schema's defaults filled in (``--json``;
+"""``frng config PATH [OVERLAY ...]``: validate a config file (with overlays merged over it in order, as Snakemake's
+``--configfile PATH OVERLAY ...`` merges them) and print it with the schema's defaults filled in (``--json``;
 ``--check``: print nothing when it is valid). Run by make before snakemake; no rule runs it."""
 
 from __future__ import annotations
@@ -6,20 +7,27 @@ from __future__ import annotations
 import argparse
 import json
 
-from frng.config import ConfigError, dump, load
+from frng.config import ConfigError, dump, load_overlaid
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("path", help="config YAML to validate")
+    parser.add_argument(
+        "overlays",
+        nargs="*",
+        metavar="OVERLAY",
+        help="config YAMLs merged over PATH in order (make seeds: config/seeds.yaml)",
+    )
     parser.add_argument("--json", action="store_true", help="print the filled-in config as JSON")
     parser.add_argument("--check", action="store_true", help="validate only: print nothing when the config is valid")
 
 
 def run(args: argparse.Namespace) -> int:
     try:
-        config = load(args.path)
+        config = load_overlaid(args.path, *args.overlays)
     except ConfigError as e:
-        where = "" if str(e).startswith("config file") else f"{args.path}: "  # file-level errors name it already
+        named = " + ".join([args.path, *args.overlays])
+        where = "" if str(e).startswith("config file") else f"{named}: "  # file-level errors name it already
         print(f"invalid config: {where}{e}")
         return 1
     if not args.check:
