@@ -16,6 +16,15 @@ def paper_rig(views: int = 6, distance: float = 2.6) -> np.ndarray:
     return np.stack([camera.look_at(camera.spherical_to_cartesian(a, e, distance)) for a, e in poses[:views]])
 
 
+def rig_rays(size: int, views: int = 6, fov_deg: float = 50.0, distance: float = 2.6, dtype=torch.float32):
+    """The paper rig's cameras (:func:`paper_rig`) at ``size`` x ``size`` pixels and their pixel rays: c2w (V, 4, 4),
+    intrinsics (V, 4), origins and unit directions (V, size, size, 3) each."""
+    c2w = torch.tensor(paper_rig(views, distance), dtype=dtype)
+    K = torch.tensor(camera.intrinsics_from_fov(fov_deg, size, size), dtype=dtype).expand(views, 4).contiguous()
+    o, d = camera.pixel_rays(c2w, K, size, size)
+    return c2w, K, o, d
+
+
 def pixel_aligned_scene(
     size: int,
     views: int = 6,
@@ -36,9 +45,7 @@ def pixel_aligned_scene(
     intrinsics (V, 4) for N = views * size^2.
     """
     g = torch.Generator().manual_seed(seed)
-    c2w = torch.tensor(paper_rig(views, distance), dtype=dtype)
-    K = torch.tensor(camera.intrinsics_from_fov(fov_deg, size, size), dtype=dtype).expand(views, 4).contiguous()
-    o, d = camera.pixel_rays(c2w, K, size, size)
+    c2w, K, o, d = rig_rays(size, views, fov_deg, distance, dtype)
     o, d = o.reshape(-1, 3), d.reshape(-1, 3)
     b = (o * d).sum(-1)
     disc = b * b - ((o * o).sum(-1) - radius**2)

@@ -30,16 +30,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def sphere_views(size: int, views: int, radius: float = 0.8, fov_deg: float = 50.0, distance: float = 2.6):
     """(rgb (V, H, W, 3), alpha (V, H, W, 1), c2w (V, 4, 4), intr (V, 4)) of a sphere of ``radius`` seen by the
     rig: alpha 1 where a pixel's ray hits it, rgb a fixed random colour per pixel there (premultiplied)."""
-    from frng import camera
     from frng.priors.multiview import ray_sphere
-    from frng.render.scenes import paper_rig
+    from frng.render.scenes import rig_rays
 
-    c2w = torch.tensor(paper_rig(views, distance), dtype=torch.float32)
-    intr = torch.tensor(camera.intrinsics_from_fov(fov_deg, size, size), dtype=torch.float32).expand(views, 4)
-    o, d = camera.pixel_rays(c2w, intr.contiguous(), size, size)
+    c2w, intr, o, d = rig_rays(size, views, fov_deg, distance)
     alpha = ray_sphere(o, d, radius)[2].float()[..., None]
     rgb = torch.rand(views, size, size, 3, generator=torch.Generator().manual_seed(0)) * alpha
-    return rgb, alpha, c2w, intr.contiguous()
+    return rgb, alpha, c2w, intr
 
 
 def run(args: argparse.Namespace) -> int:
