@@ -1,6 +1,7 @@
 """Config validation: the shipped configs pass; bad ones fail naming the key."""
 
 import copy
+import json
 
 import pytest
 import yaml
@@ -201,8 +202,6 @@ def test_cli_config_merges_overlays_and_names_them(tmp_path, root, capsys):
     with pytest.raises(SystemExit) as e:
         main(["config", "--json", str(base), str(good)])
     assert e.value.code == 0
-    import json
-
     assert json.loads(capsys.readouterr().out)["train"]["seeds"] == [0, 1]
     assert cfg.load_overlaid(base, good)["train"]["seeds"] == [0, 1]
     with pytest.raises(SystemExit) as e:
