@@ -299,17 +299,13 @@ def relight_object(
             nd = backbone.cfg.den_views
             with torch.no_grad():
                 with Timer(device) as t_rec:
-                    t_geo, _, gauss, keep, _, pixels = backbone.reconstruct(
-                        rgb, a, c2w, intr, obj.envs[light_in].to(device)
-                    )
+                    recon = backbone.reconstruct(rgb, a, c2w, intr, obj.envs[light_in].to(device))
                 for light in lights:
                     g = torch.Generator(device=device).manual_seed(catalog.derive_seed(job.seed, "relight", oid, light))
                     with Timer(device) as t_l:
-                        sh, _ = backbone.denoise(
-                            t_geo, gauss, keep, envs[light][None], c2w[:nd], intr[:nd], H, W, generator=g, pixels=pixels
+                        rgba = backbone.relight_one(
+                            recon, envs[light], c2w[:nd], intr[:nd], t_c2w, t_intr, H, W, generator=g
                         )
-                        out, out_a, _ = backbone.render(gauss, sh, t_c2w, t_intr, H, W, keep)
-                        rgba = torch.cat([out.clamp(0.0, 1.0) ** 2.2, out_a], -1)
                     per_light_ms.append(1000.0 * t_l.s / len(t_names))
                     _write_images(folder, light, t_names, rgba)
             rec_s = t_rec.s

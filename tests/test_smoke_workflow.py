@@ -151,6 +151,59 @@ def test_bench_heldout_scores_equal_the_pipeline(smoke_run, tmp_path):
         np.testing.assert_allclose(mc["psnr_other_light"], mc["psnr_cross"], rtol=0, atol=1e-5)
 
 
+def test_bench_backbone_scores_equal_the_pipeline(smoke_run, tmp_path):
+    """``frng bench backbone`` gives the pipeline's backbone scores image by image (relight stage's DDIM seeds) and
+    its light-sensitivity PSNRs equal the cross-light CSV's; the inference settings change the renders: the head's
+    output zeroed, the cue at the G-buffer's or the Gaussians' normals and a guidance scale each give other scores,
+    compared with paired rows."""
+    results, config = smoke_run
+    model = results / "backbone" / "model.pt"
+    out = tmp_path / "backbone.csv"
+    r = subprocess.run(
+        [
+            str(Path(sys.executable).parent / "frng"),
+            "bench",
+            "backbone",
+            "--config",
+            str(results / "config.yaml"),
+            "--model",
+            f"backbone={model}",
+            "--model",
+            f"zero={model},head=zero",
+            "--model",
+            f"oracle={model},normals=gbuffer,guidance=2",
+            "--model",
+            f"depth={model},normals=depth",
+            "--out",
+            str(out),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert r.returncode == 0, _tail(r.stdout + r.stderr)
+    assert "zero - backbone: psnr" in r.stdout and "light_sensitivity" in r.stdout, r.stdout
+    rows = pd.read_csv(out)
+    mine = rows[rows["model"] == "backbone"]
+    pipeline = pd.read_csv(results / "metrics" / "relight_per_image.csv")
+    m = mine.merge(pipeline[pipeline["run"] == "backbone"], on=["object", "light", "view"], suffixes=("", "_pipeline"))
+    assert len(m) == len(mine) == (pipeline["run"] == "backbone").sum() > 0
+    for metric in ("psnr", "ssim", "lpips"):
+        np.testing.assert_allclose(m[metric], m[f"{metric}_pipeline"], rtol=0, atol=1e-5, err_msg=metric)
+    if config["render"]["target_lights"] > 1:
+        cross = pd.read_csv(results / "metrics" / "relight_cross_light.csv")
+        mc = mine.merge(cross[cross["run"] == "backbone"], on=["object", "light", "view"], suffixes=("", "_cross"))
+        assert len(mc) == len(mine)
+        np.testing.assert_allclose(mc["psnr_other_light"], mc["psnr_cross"], rtol=0, atol=1e-5)
+    keys = ["object", "light", "view"]
+    ref = mine.set_index(keys)["psnr"]
+    for name in ("zero", "oracle", "depth"):
+        other = rows[rows["model"] == name].set_index(keys)["psnr"].reindex(ref.index)
+        assert other.notna().all() and np.isfinite(other).all(), name
+        assert (other - ref).abs().max() > 1e-4, f"{name}: the setting changed nothing"
+
+
 def test_bench_heldout_at_the_input_views(smoke_run, tmp_path):
     """``frng bench heldout --at inputs`` re-renders each test object's own input views under every input light it
     was photographed in: one row per model, decoder, input light and view, the input light's rows the

@@ -568,6 +568,43 @@ class RelitLRMBackbone(nn.Module):
         )
 
     @torch.no_grad()
+    def relight_one(
+        self,
+        recon: BackboneGeometry,
+        env: torch.Tensor,
+        den_c2w: torch.Tensor,
+        den_intr: torch.Tensor,
+        out_c2w: torch.Tensor,
+        out_intr: torch.Tensor,
+        height: int,
+        width: int,
+        generator: torch.Generator | None = None,
+        guidance: float | None = None,
+    ) -> torch.Tensor:
+        """The baseline relighting of one reconstructed object (:meth:`reconstruct`) under one light: a full DDIM
+        pass (:meth:`denoise`) at the denoising cameras den_c2w (Vd, 4, 4), den_intr (Vd, 4), then rendering out_c2w
+        (Vo, 4, 4), out_intr (Vo, 4). env (He, We, 3) HDR; guidance None: ``backbone.guidance``. Returns linear
+        premultiplied RGBA (Vo, H, W, 4) (the relight stage's images; ``frng bench backbone`` scores the same)."""
+        assert env.dim() == 3 and env.shape[-1] == 3, env.shape
+        assert den_c2w.shape[1:] == (4, 4) and den_intr.shape == (den_c2w.shape[0], 4), (den_c2w.shape, den_intr.shape)
+        assert out_c2w.shape[1:] == (4, 4) and out_intr.shape == (out_c2w.shape[0], 4), (out_c2w.shape, out_intr.shape)
+        sh, _ = self.denoise(
+            recon.t_geo,
+            recon.gaussians,
+            recon.keep,
+            env[None],
+            den_c2w,
+            den_intr,
+            height,
+            width,
+            guidance=guidance,
+            generator=generator,
+            pixels=recon.pixels,
+        )
+        rgb, a, _ = self.render(recon.gaussians, sh, out_c2w, out_intr, height, width, recon.keep)
+        return torch.cat([rgb.clamp(0.0, 1.0) ** 2.2, a], -1)
+
+    @torch.no_grad()
     def relight(
         self,
         images: torch.Tensor,
@@ -592,13 +629,12 @@ class RelitLRMBackbone(nn.Module):
         H, W = images.shape[1:3]
         if den_c2w is None:
             den_c2w, den_intr = c2w[: self.cfg.den_views], intr[: self.cfg.den_views]
-        t_geo, _, gauss, keep, _, pixels = self.reconstruct(images, alpha, c2w, intr, input_env)
+        recon = self.reconstruct(images, alpha, c2w, intr, input_env)
         out = []
         for i, env in enumerate(envs):
             g = torch.Generator(device=images.device).manual_seed(seed + i)
-            sh, _ = self.denoise(t_geo, gauss, keep, env[None], den_c2w, den_intr, H, W, generator=g, pixels=pixels)
-            rgb, a, _ = self.render(gauss, sh, out_c2w, out_intr, H, W, keep)
-            out.append((rgb.clamp(0.0, 1.0) ** 2.2, a))
+            rgba = self.relight_one(recon, env, den_c2w, den_intr, out_c2w, out_intr, H, W, generator=g)
+            out.append((rgba[..., :3], rgba[..., 3:]))
         return out
 
 

@@ -22,6 +22,10 @@ BENCHES: dict[str, tuple[str, str]] = {
         "frng.stages.bench_heldout",
         "held-out relighting quality of trained F-RNG models from the cached tokens (experiments; paired CIs)",
     ),
+    "backbone": (
+        "frng.stages.bench_backbone",
+        "held-out relighting quality and light sensitivity of trained backbones under inference settings (paired CIs)",
+    ),
 }
 
 
