@@ -100,6 +100,22 @@ def test_figures_asset_and_report(smoke_run):
     assert not re.findall(r'<(?:script|link|img)[^>]*(?:src|href)="https?://', html)
 
 
+def _assert_pipeline_scores(mine: pd.DataFrame, results: Path, config: dict, run: str) -> None:
+    """A benchmark's per-image rows ``mine`` equal the pipeline's rows of ``run`` (relight_per_image.csv) and its
+    ``psnr_other_light`` the cross-light CSV's, image by image: equal up to float rounding (the bench and the relight
+    jobs run in other processes and thread counts, which moves a PSNR in the 7th digit: 2e-7 dB measured)."""
+    pipeline = pd.read_csv(results / "metrics" / "relight_per_image.csv")
+    m = mine.merge(pipeline[pipeline["run"] == run], on=["object", "light", "view"], suffixes=("", "_pipeline"))
+    assert len(m) == len(mine) == (pipeline["run"] == run).sum() > 0
+    for metric in ("psnr", "ssim", "lpips"):
+        np.testing.assert_allclose(m[metric], m[f"{metric}_pipeline"], rtol=0, atol=1e-5, err_msg=metric)
+    if config["render"]["target_lights"] > 1:
+        cross = pd.read_csv(results / "metrics" / "relight_cross_light.csv")
+        mc = mine.merge(cross[cross["run"] == run], on=["object", "light", "view"], suffixes=("", "_cross"))
+        assert len(mc) == len(mine)
+        np.testing.assert_allclose(mc["psnr_other_light"], mc["psnr_cross"], rtol=0, atol=1e-5)
+
+
 def test_bench_heldout_scores_equal_the_pipeline(smoke_run, tmp_path):
     """``frng bench heldout`` (cached tokens, no relight folders) gives the pipeline's scores of the full run, image
     by image, and its light-sensitivity PSNRs equal the cross-light CSV's; a second model name gets a paired row."""
@@ -132,23 +148,13 @@ def test_bench_heldout_scores_equal_the_pipeline(smoke_run, tmp_path):
     # each row's light_base is its map's name without the rotation suffix ("{base}_r{k}")
     assert (rows["light"].str.rsplit("_r", n=1).str[0] == rows["light_base"]).all(), rows[["light", "light_base"]]
     mine = rows[(rows["model"] == "full") & (rows["decoder"] == "full")]
-    pipeline = pd.read_csv(results / "metrics" / "relight_per_image.csv")
-    m = mine.merge(pipeline[pipeline["run"] == "full"], on=["object", "light", "view"], suffixes=("", "_pipeline"))
-    assert len(m) == len(mine) == (pipeline["run"] == "full").sum() > 0
-    # equal up to float rounding: the bench and the relight jobs run in other processes (thread counts), which moves
-    # a PSNR in the 7th digit (2e-7 dB measured)
-    for metric in ("psnr", "ssim", "lpips"):
-        np.testing.assert_allclose(m[metric], m[f"{metric}_pipeline"], rtol=0, atol=1e-5, err_msg=metric)
+    _assert_pipeline_scores(mine, results, config, "full")
     base = rows[(rows["model"] == "full") & (rows["decoder"] == "base")]
+    pipeline = pd.read_csv(results / "metrics" / "relight_per_image.csv")
     p_base = pipeline[pipeline["run"] == "full-base"]
     if len(p_base):
         mb = base.merge(p_base, on=["object", "light", "view"], suffixes=("", "_pipeline"))
         np.testing.assert_allclose(mb["psnr"], mb["psnr_pipeline"], rtol=0, atol=1e-5)
-    if config["render"]["target_lights"] > 1:
-        cross = pd.read_csv(results / "metrics" / "relight_cross_light.csv")
-        mc = mine.merge(cross[cross["run"] == "full"], on=["object", "light", "view"], suffixes=("", "_cross"))
-        assert len(mc) == len(mine)
-        np.testing.assert_allclose(mc["psnr_other_light"], mc["psnr_cross"], rtol=0, atol=1e-5)
 
 
 def test_bench_backbone_scores_equal_the_pipeline(smoke_run, tmp_path):
@@ -186,16 +192,7 @@ def test_bench_backbone_scores_equal_the_pipeline(smoke_run, tmp_path):
     assert "zero - backbone: psnr" in r.stdout and "light_sensitivity" in r.stdout, r.stdout
     rows = pd.read_csv(out)
     mine = rows[rows["model"] == "backbone"]
-    pipeline = pd.read_csv(results / "metrics" / "relight_per_image.csv")
-    m = mine.merge(pipeline[pipeline["run"] == "backbone"], on=["object", "light", "view"], suffixes=("", "_pipeline"))
-    assert len(m) == len(mine) == (pipeline["run"] == "backbone").sum() > 0
-    for metric in ("psnr", "ssim", "lpips"):
-        np.testing.assert_allclose(m[metric], m[f"{metric}_pipeline"], rtol=0, atol=1e-5, err_msg=metric)
-    if config["render"]["target_lights"] > 1:
-        cross = pd.read_csv(results / "metrics" / "relight_cross_light.csv")
-        mc = mine.merge(cross[cross["run"] == "backbone"], on=["object", "light", "view"], suffixes=("", "_cross"))
-        assert len(mc) == len(mine)
-        np.testing.assert_allclose(mc["psnr_other_light"], mc["psnr_cross"], rtol=0, atol=1e-5)
+    _assert_pipeline_scores(mine, results, config, "backbone")
     keys = ["object", "light", "view"]
     ref = mine.set_index(keys)["psnr"]
     for name in ("zero", "oracle", "depth"):

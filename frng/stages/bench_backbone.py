@@ -3,7 +3,8 @@ target light, under inference settings the pipeline does not vary -- the loop fo
 (train a backbone with ``frng backbone-train --out``, or change how it is run, and score it here beside the
 pipeline's), without relighting folders or the ``relight`` rule.
 
-Per test object (``--split val``: the validation objects of ``frng bench heldout``; or ``--objects``) and model:
+Per test object (``--split val``: the validation objects of ``frng bench heldout``, which the backbone trained on,
+target views included; or ``--objects``) and model:
 
 1. reconstructs the object from its rig's input views under its first input light, as the ``relight`` stage does
    (:meth:`frng.priors.backbone.RelitLRMBackbone.reconstruct`, told the input light);
@@ -37,7 +38,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from frng import config as frng_config
-from frng.stages.bench_heldout import SPLITS, summary, validation_objects
+from frng.stages.bench_heldout import add_output_arguments, add_split_arguments, selected_objects, summary
 from frng.variants import split_seed
 
 if TYPE_CHECKING:  # torch is imported when a benchmark runs, not by `frng bench --help`
@@ -80,16 +81,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "head=learned|zero (see the module doc); repeat to compare (the first is the reference). Default: "
         "backbone={results}/backbone/model.pt",
     )
-    parser.add_argument("--objects", nargs="+", metavar="OBJ", help="objects to score (default: the --split's objects)")
-    parser.add_argument(
-        "--split",
-        choices=SPLITS,
-        default=SPLITS[0],
-        help="test: the config's test split (default); val: every fifth object of the sorted training split "
-        "(scored at their target views, which no training step saw)",
+    add_split_arguments(
+        parser,
+        "test: the config's test split (default); val: every fifth object of the sorted training split (the "
+        "backbone trained on them, their target views included: how well it fits, not how it generalises)",
     )
-    parser.add_argument("--out", help="write the per-image rows to this CSV")
-    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
+    add_output_arguments(parser)
 
 
 def relit(obj, backbone, settings: BackboneSettings, seed: int, device) -> dict:
@@ -181,10 +178,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"frng bench backbone: error: model {name}: {path} does not exist", file=sys.stderr)
             return 2
     plan = catalog.plan(config)
-    objects = args.objects or (plan.split("test") if args.split == "test" else validation_objects(plan.split("train")))
-    unknown = [o for o in objects if o not in plan.object_ids]
-    if unknown:
-        print(f"frng bench backbone: error: not objects of this config: {unknown}", file=sys.stderr)
+    objects = selected_objects(plan, args, "backbone")
+    if objects is None:
         return 2
     device = torch.device("cpu")
     backbones = {}

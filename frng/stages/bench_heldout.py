@@ -77,6 +77,29 @@ def validation_objects(train: list[str]) -> list[str]:
     return sorted(train)[::VAL_EVERY]
 
 
+def add_split_arguments(parser: argparse.ArgumentParser, split_help: str) -> None:
+    """``--objects`` and ``--split`` (what :func:`selected_objects` reads), shared by the held-out benchmarks."""
+    parser.add_argument("--objects", nargs="+", metavar="OBJ", help="objects to score (default: the --split's objects)")
+    parser.add_argument("--split", choices=SPLITS, default=SPLITS[0], help=split_help)
+
+
+def add_output_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--out`` (the per-image rows' CSV) and ``--threads``, shared by the held-out benchmarks."""
+    parser.add_argument("--out", help="write the per-image rows to this CSV")
+    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
+
+
+def selected_objects(plan, args: argparse.Namespace, bench: str) -> list[str] | None:
+    """The objects ``--objects`` / ``--split`` select in the dataset plan (:class:`frng.data.catalog.Catalog`); None
+    after printing an error naming the objects that are not the config's (``bench``: the benchmark's name)."""
+    objects = args.objects or (plan.split("test") if args.split == "test" else validation_objects(plan.split("train")))
+    unknown = [o for o in objects if o not in plan.object_ids]
+    if unknown:
+        print(f"frng bench {bench}: error: not objects of this config: {unknown}", file=sys.stderr)
+        return None
+    return objects
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)
     parser.add_argument(
@@ -88,12 +111,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "NAME@sS are training seeds of NAME (e.g. full=... full@s1=...): their scores are averaged and the "
         "comparisons resample the seeds as well as the objects. Default: full={results}/models/full/model.pt",
     )
-    parser.add_argument("--objects", nargs="+", metavar="OBJ", help="objects to score (default: the --split's objects)")
-    parser.add_argument(
-        "--split",
-        choices=SPLITS,
-        default=SPLITS[0],
-        help="test: the config's test split (default); val: every fifth object of the sorted training split, to "
+    add_split_arguments(
+        parser,
+        "test: the config's test split (default); val: every fifth object of the sorted training split, to "
         "choose between variants without looking at the test objects (the models trained on them; their caches "
         f"hold the rig's {RIG_VIEWS} views only)",
     )
@@ -107,8 +127,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="score at the target views under the target lights (default), or re-render the model's own input "
         "views under the input light and the object's other input lights",
     )
-    parser.add_argument("--out", help="write the per-image rows to this CSV")
-    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
+    add_output_arguments(parser)
 
 
 def relit(obj, model, c2w, intr, envs: dict, seed: int, spp: int) -> dict:
@@ -292,10 +311,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"frng bench heldout: error: model {name}: {path} does not exist", file=sys.stderr)
             return 2
     plan = catalog.plan(config)
-    objects = args.objects or (plan.split("test") if args.split == "test" else validation_objects(plan.split("train")))
-    unknown = [o for o in objects if o not in plan.object_ids]
-    if unknown:
-        print(f"frng bench heldout: error: not objects of this config: {unknown}", file=sys.stderr)
+    objects = selected_objects(plan, args, "heldout")
+    if objects is None:
         return 2
     dev = torch.device("cpu")
     loaded = {n: FRNG.load(p, dev).set_inference_shading(config.shading) for n, p in models.items()}
