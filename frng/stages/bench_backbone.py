@@ -15,14 +15,8 @@ target views included; or ``--objects``) and model:
    sensitivity, PSNR with the right light minus PSNR with another (the ladder's s-rows).
 
 A model is ``NAME=PATH`` with optional inference settings after commas (``--model g2=results/backbone/model.pt,
-guidance=2``):
-
-- ``guidance=G``: classifier-free guidance scale of the denoiser (default: the model's ``backbone.guidance``);
-- ``normals=hull|gbuffer|depth``: where the light cue reads its normals: the visual hull's (the model's own,
-  default), the renderer's G-buffer (ground truth: an oracle), or the finite-difference normals of the backbone's
-  per-pixel Gaussians (:func:`frng.priors.surfels.grid_normals`);
-- ``head=learned|zero``: ``zero`` drops everything the per-pixel head learned (its SH and gain output set to 0):
-  the render is then the input colour times the closed-form light cue alone.
+guidance=2,normals=gbuffer,head=zero``): the denoiser's guidance scale, where the light cue reads its normals, and
+whether the per-pixel head's learned output is kept (:mod:`frng.priors.backbone_settings`).
 
 The report is ``frng bench heldout``'s (:func:`frng.stages.bench_heldout.summary`): per model PSNR / SSIM / LPIPS, the
 light sensitivity, PSNR per material class, target-view elevation and target light, and every model after the first
