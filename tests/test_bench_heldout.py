@@ -64,3 +64,29 @@ def test_validation_objects_are_every_fifth_of_the_sorted_training_split():
 
     train = [f"obj_{i:04d}" for i in range(12, 0, -1)] + ["libero_mug"]
     assert validation_objects(train) == ["libero_mug", "obj_0005", "obj_0010"]
+
+
+def test_selected_objects_names_what_is_wrong(tmp_path, capsys):
+    """Repeated model names, a missing model file and objects outside the config are errors naming them; otherwise
+    the --split's (or --objects') objects."""
+    from frng.stages.bench_heldout import selected_objects
+
+    class Plan:
+        object_ids = ["a", "b", "c", "t"]
+
+        def split(self, name):
+            return {"train": ["a", "b", "c"], "test": ["t"]}[name]
+
+    model = tmp_path / "model.pt"
+    model.write_bytes(b"")
+    args = argparse.Namespace(objects=None, split="test")
+    assert selected_objects(Plan(), args, [("x", model)], "heldout") == ["t"]
+    assert selected_objects(Plan(), argparse.Namespace(objects=None, split="val"), [], "heldout") == ["a"]
+    for models, objects, message in [
+        ([("x", model), ("x", model)], None, "model names repeat: ['x', 'x']"),
+        ([("x", tmp_path / "none.pt")], None, f"model x: {tmp_path / 'none.pt'} does not exist"),
+        ([("x", model)], ["t", "zz"], "not objects of this config: ['zz']"),
+    ]:
+        out = selected_objects(Plan(), argparse.Namespace(objects=objects, split="test"), models, "backbone")
+        assert out is None
+        assert f"frng bench backbone: error: {message}" in capsys.readouterr().err

@@ -163,16 +163,8 @@ def run(args: argparse.Namespace) -> int:
     config = typed(frng_config.load(args.config))
     L = Layout(config.results)
     models = args.model or [("backbone", Path(L.backbone_model()), BackboneSettings())]
-    names = [name for name, _, _ in models]
-    if len(set(names)) != len(names):
-        print(f"frng bench backbone: error: model names repeat: {names}", file=sys.stderr)
-        return 2
-    for name, path, _ in models:
-        if not path.exists():
-            print(f"frng bench backbone: error: model {name}: {path} does not exist", file=sys.stderr)
-            return 2
     plan = catalog.plan(config)
-    objects = selected_objects(plan, args, "backbone")
+    objects = selected_objects(plan, args, [(name, path) for name, path, _ in models], "backbone")
     if objects is None:
         return 2
     device = torch.device("cpu")
@@ -214,5 +206,5 @@ def run(args: argparse.Namespace) -> int:
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         df.to_csv(args.out, index=False)
-    print(summary(df, names))
+    print(summary(df, [name for name, _, _ in models]))
     return 0 if np.isfinite(df["psnr"]).all() else 1

@@ -89,14 +89,24 @@ def add_output_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
 
 
-def selected_objects(plan, args: argparse.Namespace, bench: str) -> list[str] | None:
-    """The objects ``--objects`` / ``--split`` select in the dataset plan (:class:`frng.data.catalog.Catalog`); None
-    after printing an error naming the objects that are not the config's (``bench``: the benchmark's name)."""
+def selected_objects(plan, args: argparse.Namespace, models: list[tuple[str, Path]], bench: str) -> list[str] | None:
+    """The objects ``--objects`` / ``--split`` select in the dataset plan (:class:`frng.data.catalog.Catalog`),
+    after checking the ``models`` (name, model file) to score: None after printing an error (``frng bench {bench}:
+    error: ...``) that names a repeated model name, a missing model file or the objects that are not the config's."""
+
+    def error(text: str) -> None:
+        print(f"frng bench {bench}: error: {text}", file=sys.stderr)
+
+    names = [name for name, _ in models]
+    if len(set(names)) != len(names):
+        return error(f"model names repeat: {names}")
+    for name, path in models:
+        if not Path(path).exists():
+            return error(f"model {name}: {path} does not exist")
     objects = args.objects or (plan.split("test") if args.split == "test" else validation_objects(plan.split("train")))
     unknown = [o for o in objects if o not in plan.object_ids]
     if unknown:
-        print(f"frng bench {bench}: error: not objects of this config: {unknown}", file=sys.stderr)
-        return None
+        return error(f"not objects of this config: {unknown}")
     return objects
 
 
@@ -305,15 +315,12 @@ def run(args: argparse.Namespace) -> int:
         torch.set_num_threads(args.threads)
     config = typed(frng_config.load(args.config))
     L = Layout(config.results)
-    models = dict(args.model or [("full", Path(TrainingFolder(Path(L.models_dir()) / "full").model()))])
-    for name, path in models.items():
-        if not path.exists():
-            print(f"frng bench heldout: error: model {name}: {path} does not exist", file=sys.stderr)
-            return 2
+    given = args.model or [("full", Path(TrainingFolder(Path(L.models_dir()) / "full").model()))]
     plan = catalog.plan(config)
-    objects = selected_objects(plan, args, "heldout")
+    objects = selected_objects(plan, args, given, "heldout")
     if objects is None:
         return 2
+    models = dict(given)
     dev = torch.device("cpu")
     loaded = {n: FRNG.load(p, dev).set_inference_shading(config.shading) for n, p in models.items()}
     uses_priors = any(m.cfg.uses_priors for m in loaded.values())
