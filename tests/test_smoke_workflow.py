@@ -100,6 +100,19 @@ def test_figures_asset_and_report(smoke_run):
     assert not re.findall(r'<(?:script|link|img)[^>]*(?:src|href)="https?://', html)
 
 
+def _frng_bench(*args: str) -> subprocess.CompletedProcess:
+    """``frng bench ARGS`` in the repository, output captured; asserts it succeeded (the output's tail if not)."""
+    r = subprocess.run(
+        [str(Path(sys.executable).parent / "frng"), "bench", *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert r.returncode == 0, _tail(r.stdout + r.stderr)
+    return r
+
+
 def _assert_pipeline_scores(mine: pd.DataFrame, results: Path, config: dict, run: str) -> None:
     """A benchmark's per-image rows ``mine`` equal the pipeline's rows of ``run`` (relight_per_image.csv) and its
     ``psnr_other_light`` the cross-light CSV's, image by image: equal up to float rounding (the bench and the relight
@@ -122,26 +135,17 @@ def test_bench_heldout_scores_equal_the_pipeline(smoke_run, tmp_path):
     results, config = smoke_run
     model = results / "models" / "full" / "model.pt"
     out = tmp_path / "heldout.csv"
-    r = subprocess.run(
-        [
-            str(Path(sys.executable).parent / "frng"),
-            "bench",
-            "heldout",
-            "--config",
-            str(results / "config.yaml"),
-            "--model",
-            f"full={model}",
-            "--model",
-            f"again={model}",
-            "--out",
-            str(out),
-        ],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=600,
+    r = _frng_bench(
+        "heldout",
+        "--config",
+        str(results / "config.yaml"),
+        "--model",
+        f"full={model}",
+        "--model",
+        f"again={model}",
+        "--out",
+        str(out),
     )
-    assert r.returncode == 0, _tail(r.stdout + r.stderr)
     assert "again - full: psnr +0.0000 [+0.0000, +0.0000]" in r.stdout, r.stdout
     assert "PSNR by target light" in r.stdout, r.stdout
     rows = pd.read_csv(out)
@@ -165,30 +169,21 @@ def test_bench_backbone_scores_equal_the_pipeline(smoke_run, tmp_path):
     results, config = smoke_run
     model = results / "backbone" / "model.pt"
     out = tmp_path / "backbone.csv"
-    r = subprocess.run(
-        [
-            str(Path(sys.executable).parent / "frng"),
-            "bench",
-            "backbone",
-            "--config",
-            str(results / "config.yaml"),
-            "--model",
-            f"backbone={model}",
-            "--model",
-            f"zero={model},head=zero",
-            "--model",
-            f"oracle={model},normals=gbuffer,guidance=2",
-            "--model",
-            f"depth={model},normals=depth",
-            "--out",
-            str(out),
-        ],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=600,
+    r = _frng_bench(
+        "backbone",
+        "--config",
+        str(results / "config.yaml"),
+        "--model",
+        f"backbone={model}",
+        "--model",
+        f"zero={model},head=zero",
+        "--model",
+        f"oracle={model},normals=gbuffer,guidance=2",
+        "--model",
+        f"depth={model},normals=depth",
+        "--out",
+        str(out),
     )
-    assert r.returncode == 0, _tail(r.stdout + r.stderr)
     assert "zero - backbone: psnr" in r.stdout and "light_sensitivity" in r.stdout, r.stdout
     rows = pd.read_csv(out)
     mine = rows[rows["model"] == "backbone"]
@@ -209,13 +204,9 @@ def test_bench_heldout_at_the_input_views(smoke_run, tmp_path):
     from frng.data.dataset import open_object
 
     results, config = smoke_run
-    frng_bin = str(Path(sys.executable).parent / "frng")
-    common = ["bench", "heldout", "--config", str(results / "config.yaml")]
+    common = ["heldout", "--config", str(results / "config.yaml")]
     out = tmp_path / "inputs.csv"
-    r = subprocess.run(
-        [frng_bin, *common, "--at", "inputs", "--out", str(out)], cwd=ROOT, capture_output=True, text=True, timeout=600
-    )
-    assert r.returncode == 0, _tail(r.stdout + r.stderr)
+    r = _frng_bench(*common, "--at", "inputs", "--out", str(out))
     assert "at the input views" in r.stdout and "psnr[reconstruction]" in r.stdout, r.stdout
     rows = pd.read_csv(out)
     for oid, d in rows.groupby("object"):
@@ -228,10 +219,7 @@ def test_bench_heldout_at_the_input_views(smoke_run, tmp_path):
         assert set(d.loc[d["light"] != lights[0], "case"]) <= {"relight"}
     assert np.isfinite(rows["psnr"]).all() and (rows["psnr"] < 60).all() and rows["psnr_other_light"].isna().all()
     targets = tmp_path / "targets.csv"
-    r = subprocess.run(
-        [frng_bin, *common, "--out", str(targets)], cwd=ROOT, capture_output=True, text=True, timeout=600
-    )
-    assert r.returncode == 0, _tail(r.stdout + r.stderr)
+    r = _frng_bench(*common, "--out", str(targets))
     assert "PSNR by target-view elevation" in r.stdout, r.stdout
     t = pd.read_csv(targets)
     assert t["elevation_deg"].between(-90, 90).all()
