@@ -32,25 +32,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from frng import config as frng_config
-from frng.stages.bench_heldout import add_output_arguments, add_split_arguments, selected_objects, summary
-from frng.variants import split_seed
+from frng.stages.bench_heldout import add_bench_arguments, named_path, selected_objects, summary
 
 if TYPE_CHECKING:  # torch is imported when a benchmark runs, not by `frng bench --help`
     from frng.priors.backbone_settings import BackboneSettings
 
 
 def _model_arg(text: str) -> tuple[str, Path, BackboneSettings]:
-    name, sep, rest = text.partition("=")
-    if not sep or not name or not rest:
-        raise argparse.ArgumentTypeError(
-            f"--model takes NAME=PATH[,key=value...] (e.g. backbone=results/backbone/model.pt,guidance=2), got {text!r}"
-        )
-    try:
-        split_seed(name)  # NAME@sS: a training seed of NAME, as bench heldout reads it
-    except ValueError as e:
-        raise argparse.ArgumentTypeError(f"--model {text!r}: {e}") from None
     from frng.priors.backbone_settings import BackboneSettings
 
+    name, rest = named_path(text, "backbone=results/backbone/model.pt,guidance=2")
     path, *pairs = rest.split(",")
     settings = {}
     for pair in pairs:
@@ -65,22 +56,16 @@ def _model_arg(text: str) -> tuple[str, Path, BackboneSettings]:
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    frng_config.add_config_argument(parser)
-    parser.add_argument(
-        "--model",
-        type=_model_arg,
-        action="append",
-        metavar="NAME=PATH[,key=value...]",
-        help="a trained backbone model.pt under a name, with optional settings guidance=G, normals=hull|gbuffer|depth, "
+    add_bench_arguments(
+        parser,
+        _model_arg,
+        "NAME=PATH[,key=value...]",
+        "a trained backbone model.pt under a name, with optional settings guidance=G, normals=hull|gbuffer|depth, "
         "head=learned|zero (see the module doc); repeat to compare (the first is the reference). Default: "
         "backbone={results}/backbone/model.pt",
-    )
-    add_split_arguments(
-        parser,
         "test: the config's test split (default); val: every fifth object of the sorted training split (the "
         "backbone trained on them, their target views included: how well it fits, not how it generalises)",
     )
-    add_output_arguments(parser)
 
 
 def relit(obj, backbone, settings: BackboneSettings, seed: int, device) -> dict:

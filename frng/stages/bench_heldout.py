@@ -49,16 +49,21 @@ VAL_EVERY = 5  # the validation objects: every fifth of the sorted training spli
 ELEVATION_BANDS = (-90.0, -30.0, 0.0, 30.0, 90.0)  # degrees; the summary's target-view elevation bands
 
 
-def _model_arg(text: str) -> tuple[str, Path]:
-    name, sep, path = text.partition("=")
-    if not sep or not name or not path:
-        raise argparse.ArgumentTypeError(
-            f"--model takes NAME=PATH (e.g. full=results/models/full/model.pt), got {text!r}"
-        )
+def named_path(text: str, example: str) -> tuple[str, str]:
+    """``--model NAME=REST`` -> (NAME, REST), NAME checked as the pipeline's names are (``NAME@sS``: a training seed
+    of NAME, :func:`frng.variants.split_seed`); argparse errors naming the argument (``example``: a valid one)."""
+    name, sep, rest = text.partition("=")
+    if not sep or not name or not rest:
+        raise argparse.ArgumentTypeError(f"--model takes NAME=PATH (e.g. {example}), got {text!r}")
     try:
         split_seed(name)
     except ValueError as e:
         raise argparse.ArgumentTypeError(f"--model {text!r}: {e}") from None
+    return name, rest
+
+
+def _model_arg(text: str) -> tuple[str, Path]:
+    name, path = named_path(text, "full=results/models/full/model.pt")
     return name, Path(path)
 
 
@@ -77,14 +82,16 @@ def validation_objects(train: list[str]) -> list[str]:
     return sorted(train)[::VAL_EVERY]
 
 
-def add_split_arguments(parser: argparse.ArgumentParser, split_help: str) -> None:
-    """``--objects`` and ``--split`` (what :func:`selected_objects` reads), shared by the held-out benchmarks."""
+def add_bench_arguments(
+    parser: argparse.ArgumentParser, model_arg, model_metavar: str, model_help: str, split_help: str
+):
+    """The held-out benchmarks' common arguments: ``--config``, ``--model`` (repeatable, parsed by ``model_arg``),
+    ``--objects`` / ``--split`` (what :func:`selected_objects` reads), ``--out`` (the per-image rows' CSV) and
+    ``--threads``."""
+    frng_config.add_config_argument(parser)
+    parser.add_argument("--model", type=model_arg, action="append", metavar=model_metavar, help=model_help)
     parser.add_argument("--objects", nargs="+", metavar="OBJ", help="objects to score (default: the --split's objects)")
     parser.add_argument("--split", choices=SPLITS, default=SPLITS[0], help=split_help)
-
-
-def add_output_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--out`` (the per-image rows' CSV) and ``--threads``, shared by the held-out benchmarks."""
     parser.add_argument("--out", help="write the per-image rows to this CSV")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
 
@@ -111,18 +118,13 @@ def selected_objects(plan, args: argparse.Namespace, models: list[tuple[str, Pat
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    frng_config.add_config_argument(parser)
-    parser.add_argument(
-        "--model",
-        type=_model_arg,
-        action="append",
-        metavar="NAME=PATH",
-        help="a trained F-RNG model.pt under a name; repeat to compare (the first is the reference). Names "
+    add_bench_arguments(
+        parser,
+        _model_arg,
+        "NAME=PATH",
+        "a trained F-RNG model.pt under a name; repeat to compare (the first is the reference). Names "
         "NAME@sS are training seeds of NAME (e.g. full=... full@s1=...): their scores are averaged and the "
         "comparisons resample the seeds as well as the objects. Default: full={results}/models/full/model.pt",
-    )
-    add_split_arguments(
-        parser,
         "test: the config's test split (default); val: every fifth object of the sorted training split, to "
         "choose between variants without looking at the test objects (the models trained on them; their caches "
         f"hold the rig's {RIG_VIEWS} views only)",
@@ -137,7 +139,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="score at the target views under the target lights (default), or re-render the model's own input "
         "views under the input light and the object's other input lights",
     )
-    add_output_arguments(parser)
 
 
 def relit(obj, model, c2w, intr, envs: dict, seed: int, spp: int) -> dict:
