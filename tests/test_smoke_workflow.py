@@ -67,6 +67,14 @@ def test_every_target_and_table(smoke_run):
         assert {"s1", "s2", "s3"} <= set(by.index)
     timing = pd.read_csv(results / "tables" / "timing.csv")
     assert (timing["relight_ms_per_image"] > 0).all()
+    # each trained model's train.json names its training seed (the models' seed; {variant}@s{seed} runs their own)
+    from frng import io
+    from frng.variants import model_seed, split_seed
+
+    for folder in (results / "models").iterdir():
+        if (folder / "train.json").exists() and not folder.is_symlink():
+            seed = split_seed(folder.name)[1]
+            assert io.read_json(folder / "train.json")["seed"] == (model_seed(config) if seed is None else seed), folder
 
 
 def test_figures_asset_and_report(smoke_run):

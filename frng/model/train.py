@@ -31,7 +31,7 @@ The frozen backbone is loaded once, only to copy its GeoDetokenizer into the Fin
 architecture); it is never run and gets no gradient. Outputs in ``--out`` (default ``{results}/models/{variant}``):
 ``model.pt`` (:meth:`FRNG.save`), ``checkpoint.pt`` (resume: rerunning the same command continues an unfinished
 run of the same config and data, :func:`frng.training.fit`), ``loss.csv``, ``loss.png``, ``train.json`` (steps,
-wall time, device, step time). Seeds are fixed
+training seed, wall time, device, step time). Seeds are fixed
 (``frng.training.train_seed``: ``train_seed``, else ``seed``); AdamW with linear warm-up + cosine decay; bf16 autocast for the networks (``train.bf16``).
 """
 
@@ -422,6 +422,7 @@ def train(
     def summary(run: tr.FitRun) -> dict:
         return {
             "variant": variant,
+            "seed": job.seed,  # the training seed (a {variant}@s{seed} run's seed; its variant is the base name)
             "steps": total,
             "wall_s": round(run.wall_s, 1),
             "device": str(device),
