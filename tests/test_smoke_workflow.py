@@ -31,9 +31,10 @@ def smoke_run(smoke_pipeline):
 
 
 def test_every_target_and_table(smoke_run):
+    from frng import io
     from frng.data import catalog
     from frng.report.tables import TABLE_COLUMNS
-    from frng.variants import BASE_VARIANTS, runs
+    from frng.variants import BASE_VARIANTS, model_seed, runs, split_seed
 
     results, config = smoke_run
     for name, cols in TABLE_COLUMNS.items():
@@ -68,9 +69,6 @@ def test_every_target_and_table(smoke_run):
     timing = pd.read_csv(results / "tables" / "timing.csv")
     assert (timing["relight_ms_per_image"] > 0).all()
     # each trained model's train.json names its training seed (the models' seed; {variant}@s{seed} runs their own)
-    from frng import io
-    from frng.variants import model_seed, split_seed
-
     for folder in (results / "models").iterdir():
         if (folder / "train.json").exists() and not folder.is_symlink():
             seed = split_seed(folder.name)[1]
