@@ -65,7 +65,7 @@ RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     "envmaps": (*ENVMAP_PLAN_KEYS, "render.threads"),
     # frng/data/curate.py: render.* (rig, Cycles, fur) and envmaps.width; the object's own plan entry (its split,
     # mesh, material, seed and lights) is the rule's `spec` param, so adding an object reruns no other curation
-    "curate": ("render", "envmaps.width"),
+    "curate": ("render", "!render.dense_views", "envmaps.width"),
     # frng/data/preview.py: the plan's object ids
     "dataset_preview": PLAN_KEYS,
     # frng/priors/backbone_train.py: the training split, architecture + backbone.train, patch size, the models'

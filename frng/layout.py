@@ -11,6 +11,7 @@ writes ``L.object_meta()`` for ``{results}/objects/{obj}/meta.json`` and a stage
     .lock                                         held by the snakemake running on the folder (rules/common.smk)
     envmaps/index.json, envmaps/{env}.exr         prepared environment maps (rule envmaps)
     objects/{obj}/meta.json, inputs/, targets/, gbuffer/   curated objects (rule curate)
+    baselines/views/{obj}/meta.json, dense/, targets/     the baselines' extra views (rule curate_baselines)
     previews/{obj}.png                            contact sheets (rule dataset_preview)
     backbone/model.pt, loss.csv, loss.png         the frozen backbone (rule backbone_train)
     backbone/cache/{obj}.safetensors, train_set.json    its token caches (rules backbone_cache, training_set_caches)
@@ -155,6 +156,15 @@ class Layout(_Folder):
 
     def object_gbuffer(self, obj: str, view: str) -> str:
         return ObjectFolder(self.object_dir(obj)).gbuffer(view)
+
+    def baseline_views_dir(self, obj: str = "{obj}") -> str:
+        """The baselines' extra curated views of one object (an :class:`ObjectFolder`: ``meta.json``, the dense views
+        ``dense/{light}/{view}.exr`` and the target views under the input light ``targets/{light}/{view}.exr``;
+        rule curate_baselines)."""
+        return self._p("baselines", "views", obj)
+
+    def baseline_views_meta(self, obj: str = "{obj}") -> str:
+        return ObjectFolder(self.baseline_views_dir(obj)).meta()
 
     def previews_dir(self) -> str:
         return self._p("previews")

@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+from frng.baselines.plan import BaselinesConfig
 from frng.data.catalog import (
     EnvmapsConfig,
     LiberoConfig,
@@ -57,6 +58,7 @@ class Config:
     frng: FRNGSection
     train: TrainConfig
     benchmarks: tuple  # imported benchmark folders (frng/benchmarks; rules/benchmarks.smk)
+    baselines: BaselinesConfig  # Tables 2-3 and the views table (frng/baselines)
 
     @property
     def model_seed(self) -> int:
@@ -70,6 +72,7 @@ class Config:
 
 SECTION_CLASSES: tuple[type, ...] = (
     Config,
+    BaselinesConfig,
     EnvmapsConfig,
     SkiesConfig,
     StudioConfig,

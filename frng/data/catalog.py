@@ -123,6 +123,7 @@ class RenderConfig:
     fov_deg: float
     threads: int
     fur_strands: int
+    dense_views: int  # the per-scene baselines' dense views (frng.baselines.plan.dense_views; 0: none)
 
 
 @register("objects")

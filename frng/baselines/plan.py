@@ -1,0 +1,122 @@
+"""Planning of the baselines (torch-free: the rule files import it): the ``baselines`` config section, the test
+objects the per-scene baselines run on, the dense views on a sphere and their spread subsets, the run names.
+
+Run names (folders under ``{results}/relight/``, :class:`frng.layout.RelightFolder`):
+
+- ``{method}-v{n}``: per-scene ``method`` (``3dgs`` | ``gsir``) fitted on ``n`` of the object's dense views
+  (:func:`dense_subset`); relit under every target light (``gsir``) and re-rendered under the input light at the
+  target views (novel-view synthesis, both methods);
+- ``idm-reshade``: the image-based baseline;
+- ``ext-{name}``: another method's outputs read from files (``baselines.external``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from frng.data.rig import View, make_view
+from frng.sections import register
+
+PER_SCENE_METHODS = ("3dgs", "gsir")
+IMAGE_BASED_RUN = "idm-reshade"
+DENSE_KIND = "dense"  # ObjectFolder.image kind of the dense views
+TARGETS_KIND = "targets"  # ... and of the target views under the input light (the image-based methods' input)
+
+
+@register("baselines")
+@dataclass(frozen=True)
+class BaselinesConfig:
+    """The config's ``baselines`` section (defaults and descriptions: config/schema.yaml)."""
+
+    objects_per_class: int | None
+    view_counts: tuple[int, ...]
+    methods: tuple[str, ...]
+    image_based: bool
+    external: tuple  # plain mappings {name, path, encoding, family}
+
+
+def per_scene_run(method: str, views: int) -> str:
+    """The run name of per-scene ``method`` fitted on ``views`` dense views."""
+    if method not in PER_SCENE_METHODS:
+        raise ValueError(f"unknown per-scene baseline {method!r} (known: {', '.join(PER_SCENE_METHODS)})")
+    return f"{method}-v{int(views)}"
+
+
+def external_run(name: str) -> str:
+    return f"ext-{name}"
+
+
+def _section(config: Mapping) -> Mapping:
+    return config.get("baselines") or {}
+
+
+def baseline_objects(config: Mapping, test_objects: list[tuple[str, str]]) -> list[str]:
+    """The test objects the per-scene baselines run on: the first ``baselines.objects_per_class`` of each material
+    class in the test split's order (``test_objects``: (id, class) pairs, class from the plan: diffuse / specular /
+    fur / own), in that order; every test object when it is null. None when ``render.dense_views`` is 0."""
+    if int(config["render"].get("dense_views", 0) or 0) == 0:
+        return []
+    per_class = _section(config).get("objects_per_class")
+    if per_class is None:
+        return [oid for oid, _ in test_objects]
+    taken: dict[str, int] = {}
+    out = []
+    for oid, cls in test_objects:
+        if taken.get(cls, 0) < int(per_class):
+            taken[cls] = taken.get(cls, 0) + 1
+            out.append(oid)
+    return out
+
+
+def per_scene_runs(config: Mapping) -> list[str]:
+    """Every per-scene run name the config asks for (methods x view counts); none without dense views."""
+    if int(config["render"].get("dense_views", 0) or 0) == 0:
+        return []
+    sec = _section(config)
+    methods = sec.get("methods", list(PER_SCENE_METHODS))
+    counts = sec.get("view_counts", [6])
+    return [per_scene_run(m, n) for m in methods for n in counts]
+
+
+def check_view_counts(config: Mapping) -> None:
+    """Each ``baselines.view_counts`` entry fits in ``render.dense_views`` (a one-line ValueError naming the key)."""
+    dense = int(config["render"].get("dense_views", 0) or 0)
+    if dense == 0:
+        return
+    for n in _section(config).get("view_counts", [6]):
+        if int(n) > dense:
+            raise ValueError(f"baselines.view_counts: {n} views asked, render.dense_views is {dense}")
+
+
+def dense_views(count: int, distance: float, fov_deg: float, resolution: int) -> list[View]:
+    """``count`` views on a Fibonacci lattice of the sphere (names ``d000 ..``, kind ``dense``), all looking at the
+    origin from ``distance``: the dense capture of the per-scene methods (GS-IR / R3DG / TensoIR use 100 views on a
+    (hemi)sphere). Deterministic: no seed. The lattice's poles are avoided (z in (-1, 1) at half steps), so no
+    camera looks straight along the up axis."""
+    golden = math.pi * (3.0 - math.sqrt(5.0))
+    views = []
+    for i in range(int(count)):
+        z = 1.0 - (2.0 * i + 1.0) / count
+        az = math.degrees((i * golden) % (2.0 * math.pi))
+        el = math.degrees(math.asin(z))
+        views.append(make_view(f"d{i:03d}", DENSE_KIND, az, el, distance, fov_deg, resolution))
+    return views
+
+
+def dense_subset(views: list[View], n: int) -> list[View]:
+    """The first ``n`` views of a farthest-point order of ``views`` (camera centres) starting from the first: spread
+    subsets, nested (the 6 views are among the 12, which are among the 24 ...), the same for every method."""
+    if not 1 <= n <= len(views):
+        raise ValueError(f"dense_subset: {n} views asked of {len(views)}")
+    centres = np.array([np.asarray(v.c2w, dtype=np.float64)[:3, 3] for v in views])
+    order = [0]
+    dist = np.linalg.norm(centres - centres[0], axis=1)
+    while len(order) < n:
+        nxt = int(np.argmax(dist))
+        order.append(nxt)
+        dist = np.minimum(dist, np.linalg.norm(centres - centres[nxt], axis=1))
+    return [views[i] for i in order]
