@@ -46,11 +46,16 @@ def import_scene(
     oid: str | None = None,
     **options,
 ) -> Path:
-    """Read a benchmark folder and write it into ``{results}/objects/{id}``; returns that folder."""
+    """Read a benchmark folder and write it into ``{results}/objects/{id}``; returns that folder. ``options``: the
+    layout's reader options (``allow_outside=True``: read files the scene's files name outside its folder)."""
     from frng.benchmarks.common import write_object
+    from frng.confine import UntrustedInputError
 
-    scene = module(layout).read(path, **{k: v for k, v in options.items() if v is not None})
-    return write_object(scene, results, resolution, envmap_width, extra_inputs, max_targets, oid)
+    try:
+        scene = module(layout).read(path, **{k: v for k, v in options.items() if v is not None and v is not False})
+        return write_object(scene, results, resolution, envmap_width, extra_inputs, max_targets, oid)
+    except UntrustedInputError as e:  # a path outside the folder, a non-finite camera, a bad name: one line
+        raise BenchmarkError(str(e)) from None
 
 
 def export_object(layout: str, results: str | Path, oid: str, out: str | Path, scene: str | None = None) -> Path:

@@ -30,9 +30,12 @@ its files map to that, citing the official loader. :func:`write_object` then con
 - **Lights**: each map resized to ``envmaps.width`` and written to ``{results}/envmaps/{light}.exr`` (where
   :mod:`frng.relight` reads every light), light names prefixed by the object id.
 
-Nothing half-imported looks complete: the object is written to ``objects/.tmp-{id}-*`` and renamed into place
-once everything is written (``meta.json`` last); any bad input raises :class:`BenchmarkError` with one line naming
-the file, before anything is written.
+Nothing half-imported looks complete: the object is written to ``objects/.tmp-{id}-*`` (its lights too, in a
+``.envmaps/`` folder there) and moved into place once everything is written (``meta.json`` last): the lights first,
+the previous ones kept aside until the object folder is swapped in, so a failed re-import (a full disk) leaves the
+previous import whole, lights included. Any bad input raises :class:`BenchmarkError` with one line naming the file,
+before anything is written. Names from the files (light and scene names) are sanitised to ``[a-z0-9_-]``
+(:func:`frng.confine.safe_id`) before they become file names; cameras and intrinsics must be finite.
 """
 
 from __future__ import annotations
@@ -45,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from frng import envmap, io
+from frng import confine, envmap, io
 from frng.benchmarks.plan import BenchmarkError, object_id  # noqa: F401
 from frng.layout import Layout, ObjectFolder
 
@@ -359,12 +362,16 @@ def write_object(
     object folder. See the module docstring for every conversion."""
     from frng.benchmarks.plan import scene_name
 
-    oid = oid or object_id(scene.layout, scene_name(scene.layout, scene.path))
+    oid = confine.check_id(oid or object_id(scene.layout, scene_name(scene.layout, scene.path)), "object id")
     L = Layout(results)
     same_size(scene.train)
     same_size(scene.test)
     if not scene.test:
         raise BenchmarkError(f"{scene.path}: no test views found")
+    for v in scene.train + scene.test:  # NaN/inf cameras would pass as "every mask is empty" or NaN intrinsics
+        confine.finite(v.c2w, source=v.source, field="camera-to-world", shape=(4, 4))
+        confine.finite(v.K[:2], source=v.source, field="focal length", positive=True)
+        confine.finite(v.K[2:], source=v.source, field="principal point")
     T = normalisation(scene)
     for v in scene.train + scene.test:
         v.c2w = transform_camera(v.c2w, T)
@@ -372,7 +379,9 @@ def write_object(
     rig = select_rig([v.c2w for v in scene.train], extra_inputs)
     keep = list(dict.fromkeys(v.name for v in scene.test))[:max_targets] if max_targets else None
     tests = [v for v in scene.test if keep is None or v.name in keep]
-    light_name = {name: f"{oid}_{name}" for name in scene.lights}
+    light_name = {name: f"{oid}_{confine.safe_id(name, source=scene.path, field='light')}" for name in scene.lights}
+    if len(set(light_name.values())) != len(light_name):
+        raise BenchmarkError(f"{scene.path}: light names {sorted(scene.lights)} are not distinct once sanitised")
     in_light = light_name[scene.input_light]
     target_lights = list(dict.fromkeys(light_name[v.light] for v in tests))
 
@@ -380,7 +389,7 @@ def write_object(
     objects.mkdir(parents=True, exist_ok=True)
     final = objects / oid
     stage = io.temp_dir(f".tmp-{oid}-", objects)
-    written_maps: list[Path] = []
+    staged_maps: list[tuple[Path, Path]] = []  # (staged, final)
     try:
         F = ObjectFolder(stage)
         views_in, views_tgt = [], []
@@ -420,8 +429,9 @@ def write_object(
                 "scale": 1.0,
                 "file": os.path.relpath(path, results),
             }
-            envmap.write(path, world)
-            written_maps.append(path)
+            staged = stage / ".envmaps" / path.name
+            envmap.write(staged, world)
+            staged_maps.append((staged, path))
         meta = {
             "id": oid,
             "split": "test",
@@ -452,15 +462,47 @@ def write_object(
             },
         }
         io.write_json(F.meta(), meta)
-        if final.exists():
-            shutil.rmtree(final)
-        os.replace(stage, final)
+        _commit(stage, final, staged_maps)
     except BaseException:
         shutil.rmtree(stage, ignore_errors=True)
-        for p in written_maps:
-            p.unlink(missing_ok=True)
         raise
     return final
+
+
+def _commit(stage: Path, final: Path, maps: list[tuple[Path, Path]]) -> None:
+    """Move the staged lights into the envmaps folder and the staged object folder to ``final`` (renames only, no
+    new bytes: nothing to fail on a full disk); the previous maps and folder are kept aside until both are in place
+    and put back if a rename fails."""
+    aside = io.temp_dir(f".old-{final.name}-", final.parent)
+    moved: list[tuple[Path, Path | None]] = []  # (final map, its previous version aside or None)
+    try:
+        for k, (staged, path) in enumerate(maps):
+            path.parent.mkdir(parents=True, exist_ok=True)
+            old = None
+            if path.exists():
+                old = aside / f"{k}{path.suffix}"
+                os.replace(path, old)
+            moved.append((path, old))
+            os.replace(staged, path)
+        if (stage / ".envmaps").exists():
+            shutil.rmtree(stage / ".envmaps")
+        if final.exists():
+            os.replace(final, aside / "object")
+        try:
+            os.replace(stage, final)
+        except BaseException:
+            if (aside / "object").exists():
+                os.replace(aside / "object", final)
+            raise
+    except BaseException:
+        for path, old in reversed(moved):
+            if old is not None:
+                os.replace(old, path)
+            else:
+                path.unlink(missing_ok=True)
+        raise
+    finally:
+        shutil.rmtree(aside, ignore_errors=True)
 
 
 def _camera(name: str, kind: str, v: View, K: np.ndarray, res: int) -> dict:

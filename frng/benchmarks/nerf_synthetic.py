@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from frng import camera, envmap, io
+from frng import camera, confine, envmap, io
 from frng.benchmarks.common import (
     BenchmarkError,
     Curated,
@@ -44,20 +44,35 @@ PROTOCOL = "nerf-synthetic"
 LIGHT = "scene"
 
 
-def read_split(root: Path, split: str, light: str = LIGHT) -> list[View]:
+def read_split(root: Path, split: str, light: str = LIGHT, allow_outside: bool = False) -> list[View]:
+    """The views of ``transforms_{split}.json``; every ``file_path`` must name a file inside ``root`` (symlinks
+    resolved; :func:`frng.confine.member`) unless ``allow_outside``; cameras and the field of view finite."""
     path = root / f"transforms_{split}.json"
     meta = read_json(path)
-    if "camera_angle_x" not in meta or "frames" not in meta:
+    if not isinstance(meta, dict) or "camera_angle_x" not in meta or "frames" not in meta:
         raise BenchmarkError(f"{path}: missing 'camera_angle_x' or 'frames' (NeRF-synthetic transforms.json)")
+    if not isinstance(meta["frames"], list):
+        raise BenchmarkError(f"{path}: field 'frames' must be a list, got {type(meta['frames']).__name__}")
+    angle = confine.angle(meta["camera_angle_x"], source=path, field="camera_angle_x")
     views = []
     for i, fr in enumerate(meta["frames"]):
-        if "file_path" not in fr or "transform_matrix" not in fr:
+        if not isinstance(fr, dict) or "file_path" not in fr or "transform_matrix" not in fr:
             raise BenchmarkError(f"{path}: frame {i} lacks 'file_path' or 'transform_matrix'")
-        png = root / (fr["file_path"].removeprefix("./") + ".png")
+        fp = fr["file_path"]
+        if not isinstance(fp, str):
+            raise BenchmarkError(f"{path}: field 'frames[{i}].file_path' must be a string, got {fp!r}")
+        png = confine.member(
+            root,
+            fp.removeprefix("./"),
+            source=path,
+            field=f"frames[{i}].file_path",
+            suffix=".png",
+            allow_outside=allow_outside,
+        )
         rgb, a = read_srgba_png(png)
         w = rgb.shape[1]
-        focal = 0.5 * w / np.tan(0.5 * float(meta["camera_angle_x"]))
-        m = np.asarray(fr["transform_matrix"], dtype=np.float64)
+        focal = 0.5 * w / np.tan(0.5 * angle)
+        m = confine.finite(fr["transform_matrix"], source=path, field=f"frames[{i}].transform_matrix")
         if m.shape != (4, 4):
             raise BenchmarkError(f"{path}: frame {i} transform_matrix is not 4x4")
         views.append(
@@ -74,11 +89,13 @@ def read_split(root: Path, split: str, light: str = LIGHT) -> list[View]:
     return views
 
 
-def read(path: str | Path, envmap_file: str | Path | None = None, split: str = "test") -> Scene:
+def read(
+    path: str | Path, envmap_file: str | Path | None = None, split: str = "test", allow_outside: bool = False
+) -> Scene:
     root = need(Path(path), "NeRF-synthetic scene folder")
     need(root / "transforms_train.json", "transforms_train.json (NeRF-synthetic layout)")
-    train = read_split(root, "train")
-    test = read_split(root, split)
+    train = read_split(root, "train", allow_outside=allow_outside)
+    test = read_split(root, split, allow_outside=allow_outside)
     notes = {}
     default = root.parent / "envmaps" / f"{root.name}.exr"
     if envmap_file is None and default.exists():

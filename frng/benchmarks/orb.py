@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from frng import camera, envmap, io
+from frng import camera, confine, envmap, io
 from frng.benchmarks.common import (
     BenchmarkError,
     Curated,
@@ -108,16 +108,29 @@ def world_map_to_camera(world: np.ndarray, c2w_gl: np.ndarray, height: int | Non
 
 def _frames(path: Path) -> dict:
     meta = read_json(path)
-    if "frames" not in meta:
+    if not isinstance(meta, dict) or "frames" not in meta:
         raise BenchmarkError(f"{path}: missing 'frames' (Stanford-ORB transforms json)")
+    if not isinstance(meta["frames"], list) or not all(isinstance(fr, dict) for fr in meta["frames"]):
+        raise BenchmarkError(f"{path}: field 'frames' must be a list of objects")
     return meta
 
 
-def _view(root: Path, fr: dict, angle: float, light: str, where: Path, i: int) -> View:
+def _file_path(fr: dict, where: Path, i: int) -> str:
+    fp = fr.get("file_path")
+    if not isinstance(fp, str) or not fp:
+        raise BenchmarkError(f"{where}: field 'frames[{i}].file_path' must be a non-empty string, got {fp!r}")
+    return fp
+
+
+def _view(root: Path, fr: dict, angle: float, light: str, where: Path, i: int, allow_outside: bool = False) -> View:
+    """One frame; its image and mask must lie inside ``root`` (symlinks resolved) unless ``allow_outside``."""
     if "file_path" not in fr or "transform_matrix" not in fr:
         raise BenchmarkError(f"{where}: frame {i} lacks 'file_path' or 'transform_matrix'")
-    fp = fr["file_path"].removeprefix("./")
-    exr, png = root / (fp + ".exr"), root / (fp + ".png")
+    fp = _file_path(fr, where, i).removeprefix("./")
+    field = f"frames[{i}].file_path"
+    check = dict(source=where, field=field, allow_outside=allow_outside)
+    exr = confine.member(root, fp, suffix=".exr", **check)
+    png = confine.member(root, fp, suffix=".png", **check)
     if exr.exists():
         rgb, _ = read_exr_rgb(exr)
         src = exr
@@ -125,10 +138,11 @@ def _view(root: Path, fr: dict, angle: float, light: str, where: Path, i: int) -
         rgb, src = io.srgb_decode(read_png(png)[..., :3]), png
     else:
         raise BenchmarkError(f"{exr}: missing image (Stanford-ORB frame {fp})")
-    mask = read_mask_png(root / (str(Path(fp).parent) + "_mask") / (Path(fp).name + ".png"))
+    mask_path = root / (str(Path(fp).parent) + "_mask") / (Path(fp).name + ".png")
+    mask = read_mask_png(confine.inside(mask_path, root, **check))
     w = rgb.shape[1]
     focal = 0.5 * w / math.tan(0.5 * angle)
-    c2w_gl = np.asarray(fr["transform_matrix"], dtype=np.float64)
+    c2w_gl = confine.finite(fr["transform_matrix"], source=where, field=f"frames[{i}].transform_matrix", shape=(4, 4))
     v = View(
         name=f"{Path(fp).name}",
         c2w=camera.c2w_from_blender(c2w_gl),
@@ -142,28 +156,38 @@ def _view(root: Path, fr: dict, angle: float, light: str, where: Path, i: int) -
     return v
 
 
-def read(path: str | Path, ground_truth: str | Path | None = None, envmap_height: int | None = None) -> Scene:
+def read(
+    path: str | Path,
+    ground_truth: str | Path | None = None,
+    envmap_height: int | None = None,
+    allow_outside: bool = False,
+) -> Scene:
+    """The scene ``path`` (``blender_HDR/{scene}``). Every file a transforms json names must lie inside its scene
+    folder, a ``scene_name`` must be a sibling scene folder's plain name, and the ground-truth maps inside
+    ``ground_truth`` (symlinks resolved; :mod:`frng.confine`) unless ``allow_outside``."""
     root = need(Path(path), "Stanford-ORB scene folder (blender_HDR/{scene})")
     scene = root.name
     gt_root = Path(ground_truth) if ground_truth else root.parent.parent / "ground_truth"
     tr_path = need(root / "transforms_train.json", "transforms_train.json (Stanford-ORB layout)")
     train_meta = _frames(tr_path)
-    angle = float(train_meta.get("camera_angle_x", 0) or 0)
-    if not angle:
+    if not train_meta.get("camera_angle_x"):
         raise BenchmarkError(f"{tr_path}: missing 'camera_angle_x'")
-    train = [_view(root, fr, angle, scene, tr_path, i) for i, fr in enumerate(train_meta["frames"])]
+    angle = confine.angle(train_meta["camera_angle_x"], source=tr_path, field="camera_angle_x")
+    train = [_view(root, fr, angle, scene, tr_path, i, allow_outside) for i, fr in enumerate(train_meta["frames"])]
     te_path = need(root / "transforms_test.json", "transforms_test.json (Stanford-ORB layout)")
     test_meta = _frames(te_path)
     if not test_meta["frames"]:
         raise BenchmarkError(f"{te_path}: no frames (the input light is read from the first test view's map)")
-    fr0 = test_meta["frames"][0]
-    lights = {
-        scene: camera_map_to_world(
-            read_map(gt_root / scene / "env_map" / (Path(fr0["file_path"]).name + ".exr")),
-            np.asarray(fr0["transform_matrix"]),
-            envmap_height,
-        )
-    }
+
+    def gt_map(sname: str, fr: dict, where: Path, i: int) -> np.ndarray:
+        p = gt_root / sname / "env_map" / (Path(_file_path(fr, where, i)).name + ".exr")
+        p = confine.inside(p, gt_root, source=where, field=f"frames[{i}].file_path", allow_outside=allow_outside)
+        if "transform_matrix" not in fr:
+            raise BenchmarkError(f"{where}: frame {i} lacks 'file_path' or 'transform_matrix'")
+        c2w = confine.finite(fr["transform_matrix"], source=where, field=f"frames[{i}].transform_matrix", shape=(4, 4))
+        return camera_map_to_world(read_map(p), c2w, envmap_height)
+
+    lights = {scene: gt_map(scene, test_meta["frames"][0], te_path, 0)}
     nv_path = need(root / "transforms_novel.json", "transforms_novel.json (Stanford-ORB relighting targets)")
     novel = _frames(nv_path)
     test = []
@@ -171,15 +195,14 @@ def read(path: str | Path, ground_truth: str | Path | None = None, envmap_height
         sname = fr.get("scene_name")
         if not sname:
             raise BenchmarkError(f"{nv_path}: frame {i} lacks 'scene_name'")
-        a = float(fr.get("camera_angle_x", angle))
-        v = _view(root.parent / sname, fr, a, sname, nv_path, i)
+        sname = confine.plain_name(sname, source=nv_path, field=f"frames[{i}].scene_name")
+        a = confine.angle(fr.get("camera_angle_x", angle), source=nv_path, field=f"frames[{i}].camera_angle_x")
+        if not allow_outside:  # the sibling scene folder itself (a symlink out of blender_HDR/)
+            confine.inside(root.parent / sname, root.parent, source=nv_path, field=f"frames[{i}].scene_name")
+        v = _view(root.parent / sname, fr, a, sname, nv_path, i, allow_outside)
         v.name = f"{sname}/{v.name}"
         if sname not in lights:
-            lights[sname] = camera_map_to_world(
-                read_map(gt_root / sname / "env_map" / (Path(fr["file_path"]).name + ".exr")),
-                np.asarray(fr["transform_matrix"]),
-                envmap_height,
-            )
+            lights[sname] = gt_map(sname, fr, nv_path, i)
         test.append(v)
     return Scene(
         layout=LAYOUT,

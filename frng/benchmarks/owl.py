@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from frng import io
+from frng import confine, io
 from frng.benchmarks.common import (
     BenchmarkError,
     Curated,
@@ -63,6 +63,9 @@ def read_camera(path: Path) -> tuple[np.ndarray, np.ndarray, int, int]:
         raise BenchmarkError(f"{path}: not a numeric OWL camera file ({e})") from e
     if p.shape != (8, 3):
         raise BenchmarkError(f"{path}: expected 8 rows of 3 numbers (K, R, t, width height channels), got {p.shape}")
+    confine.finite(p, source=path, field="camera")
+    if not (p[7, :2] > 0).all() or not (np.linalg.det(p[3:6]) != 0):
+        raise BenchmarkError(f"{path}: camera has a size <= 0 or a singular rotation")
     K, R, t, (w, h, _) = p[:3], p[3:6], p[6], p[7].astype(int)
     w2c = np.eye(4)
     w2c[:3, :3], w2c[:3, 3] = R, t
@@ -72,9 +75,10 @@ def read_camera(path: Path) -> tuple[np.ndarray, np.ndarray, int, int]:
 def read_scalar(path: Path) -> float:
     need(path)
     try:
-        return float(np.loadtxt(path).reshape(-1)[0])
+        x = float(np.loadtxt(path).reshape(-1)[0])
     except (ValueError, IndexError) as e:
         raise BenchmarkError(f"{path}: expected one number") from e
+    return float(confine.finite(x, source=path, field="value", minimum=-64, maximum=64))
 
 
 def read_matrix(path: Path) -> np.ndarray:
@@ -83,7 +87,7 @@ def read_matrix(path: Path) -> np.ndarray:
         m = np.loadtxt(path).reshape(4, 4)
     except ValueError as e:
         raise BenchmarkError(f"{path}: expected a 4x4 matrix") from e
-    return m
+    return confine.finite(m, source=path, field="matrix")
 
 
 def untonemap(img: np.ndarray, exposure: float) -> np.ndarray:
@@ -116,8 +120,13 @@ def _ids(folder: Path, prefix: str) -> list[str]:
     return sorted(m.group(1) for f in folder.iterdir() if (m := pat.match(f.name)))
 
 
-def read(path: str | Path, envmap_height: int | None = None) -> Scene:
+def read(path: str | Path, envmap_height: int | None = None, allow_outside: bool = False) -> Scene:
+    """The test folder ``path``; its files must resolve inside it (a symlink out is refused unless
+    ``allow_outside``)."""
     root = need(Path(path), "OWL test folder (dataset/{object}/test)")
+    if not allow_outside and root.is_dir():
+        for f in sorted(root.rglob("*")):
+            confine.inside(f, root)
     inputs = need(root / "inputs", "inputs/ folder (OWL layout)")
     e_in = read_scalar(inputs / "exposure.txt")
     ids = _ids(inputs, "image_")

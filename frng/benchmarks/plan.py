@@ -47,6 +47,7 @@ IMPORT_OPTIONS = {
     "lights": "--lights",
     "ground_truth": "--ground-truth",
     "envmap_file": "--envmap",
+    "allow_outside": "--allow-outside",
 }
 """``benchmarks[].options`` key -> its ``frng import`` flag."""
 
@@ -59,6 +60,9 @@ def import_flags(entry: dict) -> str:
     for key, value in (entry.get("options") or {}).items():
         if key not in IMPORT_OPTIONS:
             raise BenchmarkError(f"benchmarks: {entry['id']}: unknown option {key!r} ({', '.join(IMPORT_OPTIONS)})")
+        if key == "allow_outside":  # a switch: present when true
+            flags += [IMPORT_OPTIONS[key]] if value is True else []
+            continue
         values = value if isinstance(value, list) else [value]
         flags.append(IMPORT_OPTIONS[key] + " " + " ".join(shlex.quote(str(v)) for v in values))
     return " ".join(flags)

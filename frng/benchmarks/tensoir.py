@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from frng import camera, io
+from frng import camera, confine, io
 from frng.benchmarks.common import (
     BenchmarkError,
     Curated,
@@ -55,8 +55,11 @@ _RGBA = re.compile(r"^rgba_(.+)\.png$")
 
 
 def parse_metadata(path: Path) -> tuple[np.ndarray, np.ndarray, int, int]:
-    """metadata.json -> (OpenCV c2w (4, 4), K (fx, fy, cx, cy), width, height)."""
+    """metadata.json -> (OpenCV c2w (4, 4), K (fx, fy, cx, cy), width, height); every number checked (finite,
+    sizes positive integers, the field of view in (0, pi))."""
     meta = read_json(path)
+    if not isinstance(meta, dict):
+        raise BenchmarkError(f"{path}: not a JSON object (TensoIR metadata.json)")
     for key in ("imw", "imh", "cam_angle_x", "cam_transform_mat"):
         if key not in meta:
             raise BenchmarkError(f"{path}: missing key {key!r} (TensoIR metadata.json)")
@@ -64,8 +67,13 @@ def parse_metadata(path: Path) -> tuple[np.ndarray, np.ndarray, int, int]:
         m = np.array([float(x) for x in str(meta["cam_transform_mat"]).split(",")]).reshape(4, 4)
     except ValueError as e:
         raise BenchmarkError(f"{path}: cam_transform_mat is not 16 comma-separated floats") from e
+    confine.finite(m, source=path, field="cam_transform_mat")
+    for key in ("imw", "imh"):
+        if isinstance(meta[key], bool) or not isinstance(meta[key], int) or not 0 < meta[key] <= 1 << 16:
+            raise BenchmarkError(f"{path}: field {key!r} must be a positive integer, got {meta[key]!r}")
     w, h = int(meta["imw"]), int(meta["imh"])
-    focal = 0.5 * w / np.tan(0.5 * float(meta["cam_angle_x"]))
+    angle = confine.angle(meta["cam_angle_x"], source=path, field="cam_angle_x")
+    focal = 0.5 * w / np.tan(0.5 * angle)
     return camera.c2w_from_blender(m), np.array([focal, focal, w / 2.0, h / 2.0]), w, h
 
 
@@ -73,9 +81,14 @@ def _lights_in(folder: Path) -> list[str]:
     return sorted(m.group(1) for f in folder.iterdir() if (m := _RGBA.match(f.name)))
 
 
-def _view(folder: Path, light: str, file_light: str | None = None) -> View:
-    c2w, K, w, h = parse_metadata(folder / "metadata.json")
+def _view(
+    folder: Path, light: str, file_light: str | None = None, root: Path | None = None, allow_outside=False
+) -> View:
     png = folder / (f"rgba_{file_light}.png" if file_light else "rgba.png")
+    if root is not None:  # a symlink out of the scene folder
+        for f in (folder / "metadata.json", png):
+            confine.inside(f, root, allow_outside=allow_outside)
+    c2w, K, w, h = parse_metadata(folder / "metadata.json")
     rgb, a = read_srgba_png(png)
     if rgb.shape[:2] != (h, w):
         raise BenchmarkError(f"{png}: image is {rgb.shape[1]}x{rgb.shape[0]}, its metadata.json says {w}x{h}")
@@ -83,8 +96,14 @@ def _view(folder: Path, light: str, file_light: str | None = None) -> View:
 
 
 def read(
-    path: str | Path, envmaps: str | Path | None = None, input_light: str | None = None, lights: list[str] | None = None
+    path: str | Path,
+    envmaps: str | Path | None = None,
+    input_light: str | None = None,
+    lights: list[str] | None = None,
+    allow_outside: bool = False,
 ) -> Scene:
+    """The scene folder ``path``; its files must resolve inside it (a symlink out is refused unless
+    ``allow_outside``); the light probes are read from ``envmaps`` (default: found beside the scene)."""
     root = need(Path(path), "TensoIR scene folder")
     if not root.is_dir():
         raise BenchmarkError(f"{root}: not a folder (expected a TensoIR scene with train_*/ and test_*/ folders)")
@@ -109,10 +128,10 @@ def read(
     train_file_light = input_light if input_light in common else None
     if train_file_light is None and not (train_dirs[0] / "rgba.png").exists():
         raise BenchmarkError(f"{train_dirs[0] / f'rgba_{input_light}.png'}: missing training image")
-    train = [_view(d, input_light, train_file_light) for d in train_dirs]
+    train = [_view(d, input_light, train_file_light, root, allow_outside) for d in train_dirs]
     found = _lights_in(test_dirs[0])
     targets = [l for l in (lights or found) if l != input_light] or [input_light]
-    test = [_view(d, l, l) for l in targets for d in test_dirs]
+    test = [_view(d, l, l, root, allow_outside) for l in targets for d in test_dirs]
     # maps
     if envmaps is None:
         cands = [root.parent / "light_probes", root.parent / "envmaps", root / "light_probes"]

@@ -40,6 +40,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
         dest="envmap_file",
         help="nerf-synthetic: the light (default ../envmaps/{scene}.exr, else constant white)",
     )
+    parser.add_argument(
+        "--allow-outside",
+        action="store_true",
+        help="read files the scene's files name outside the scene folder (absolute or ../ paths, symlinks out); "
+        "refused by default (docs/reliability.md)",
+    )
 
 
 OPTIONS = {
@@ -52,9 +58,17 @@ OPTIONS = {
 
 def run(args: argparse.Namespace) -> int:
     from frng.benchmarks import BenchmarkError, import_scene
+    from frng.confine import UntrustedInputError, check_id
 
     config = typed(frng_config.load(args.config))
     opts = {k: getattr(args, k) for k in OPTIONS[args.layout]}
+    opts["allow_outside"] = bool(getattr(args, "allow_outside", False))
+    if args.id is not None:
+        try:
+            check_id(args.id)
+        except UntrustedInputError as e:
+            print(f"frng import: error: {e}")
+            return 2
     if args.id and "-" not in args.id:
         print(
             f"frng import: error: --id {args.id!r} must contain a hyphen (imported ids are kept apart from "
