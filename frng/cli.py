@@ -23,6 +23,10 @@ STAGES: dict[str, tuple[str, str]] = {
     "config": ("frng.stages.config", "validate a config file and print it with defaults filled in"),
     "envmaps": ("frng.stages.envmaps", "collect, bake and rotate the environment maps (train/test split)"),
     "curate": ("frng.stages.curate", "render one object's views x lights + G-buffers with Blender Cycles"),
+    "curate-baselines": (
+        "frng.stages.curate_baselines",
+        "render one test object's target views under its input light (+ dense views) for the baselines",
+    ),
     "dataset-preview": (
         "frng.stages.dataset_preview",
         "PNG contact sheet per curated object (views x lights + G-buffers)",
@@ -38,6 +42,7 @@ STAGES: dict[str, tuple[str, str]] = {
     "evaluate": ("frng.stages.evaluate", "per-image PSNR/SSIM/LPIPS of every relit image (configured protocol)"),
     "tables": ("frng.stages.tables", "the paper's tables (vs backbone, ablation, #views, K, timing)"),
     "figures": ("frng.stages.figures", "comparison grids, ablation grid, saliency maps, loss curves"),
+    "results-page": ("frng.stages.results_page", "docs/results.md, the README's results block: from a results folder"),
     "import": (
         "frng.stages.import_benchmark",
         "a public benchmark scene (tensoir, orb, owl, nerf-synthetic) into the dataset contract",

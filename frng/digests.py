@@ -66,6 +66,9 @@ RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     # frng/data/curate.py: render.* (rig, Cycles, fur) and envmaps.width; the object's own plan entry (its split,
     # mesh, material, seed and lights) is the rule's `spec` param, so adding an object reruns no other curation
     "curate": ("render", "!render.dense_views", "envmaps.width"),
+    # frng/baselines/curate.py: the object's curation settings (render.*, envmaps.width), the plan (its lights,
+    # split, material; which test objects get dense views: baselines.objects_per_class)
+    "curate_baselines": (*PLAN_KEYS, "render", "envmaps.width", "baselines.objects_per_class"),
     # frng/data/preview.py: the plan's object ids
     "dataset_preview": PLAN_KEYS,
     # frng/priors/backbone_train.py: the training split, architecture + backbone.train, patch size, the models'

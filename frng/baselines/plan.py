@@ -72,6 +72,12 @@ def baseline_objects(config: Mapping, test_objects: list[tuple[str, str]]) -> li
     return out
 
 
+def test_objects(catalog) -> list[tuple[str, str]]:
+    """(id, planned material class) of the test split of a dataset plan (:func:`frng.data.catalog.plan`), in its
+    order: what :func:`baseline_objects` picks from."""
+    return [(o.id, o.material) for o in catalog.objects if o.split == "test"]
+
+
 def per_scene_runs(config: Mapping) -> list[str]:
     """Every per-scene run name the config asks for (methods x view counts); none without dense views."""
     if int(config["render"].get("dense_views", 0) or 0) == 0:

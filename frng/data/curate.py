@@ -137,6 +137,68 @@ def check_envmaps(spec: catalog.ObjectSpec, env_dir: Path) -> dict[str, dict]:
     return out
 
 
+def object_scene(plan: catalog.Catalog, objaverse: catalog.ObjaverseConfig, render: catalog.RenderConfig, spec, log):
+    """Inside Blender: a new scene holding object ``spec`` (:class:`frng.data.catalog.ObjectSpec`) with its mesh and
+    material exactly as every curation of it builds them (the shape and material draws seeded by ``spec.seed``),
+    a camera and the G-buffer passes. Returns ``(scene, camera, material record, shape record, licence,
+    Objaverse provenance or None)``. Used by :func:`curate` and :func:`curate_baselines`, so the baselines' extra
+    views show the very object of the dataset."""
+    from frng.blender import materials, objects
+    from frng.blender import scene as bscene
+
+    _, shape_rng, mat_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(spec.seed).spawn(3))
+    scene = bscene.new_scene(render.resolution, render.spp, render.threads, spec.seed)
+    bscene.enable_gbuffer_passes(scene)
+    cam = bscene.add_camera(scene, render.fov_deg)
+    own = spec.material == catalog.OWN
+    mat = {"class": catalog.OWN} if own else materials.sample(mat_rng, spec.material, render.fur_strands)
+    radius = 1.0 - mat["hair"]["length"] if "hair" in mat else 1.0  # fur stays inside the unit sphere
+    pybullet_dir = catalog.pybullet_data_dir() if spec.source == "pybullet" else None
+    mesh_path = catalog.objaverse_glb(objaverse, spec.mesh, lambda: plan) if spec.source == "objaverse" else None
+    licence, provenance = spec.licence, None
+    if mesh_path is not None:
+        ann = catalog.objaverse_glb_annotation(objaverse, spec.mesh, mesh_path) or {}
+        provenance = {"uid": spec.mesh, "file": str(mesh_path)} | {
+            k: ann[k] for k in ("name", "license", "viewerUrl", "uri") if k in ann
+        }
+        if ann.get("license"):
+            licence = f"{ann['license']} (Objaverse 1.0 / Sketchfab: {ann.get('viewerUrl', spec.mesh)})"
+    try:
+        obj, shape = objects.load(spec, shape_rng, pybullet_dir, radius, keep_materials=own, path=mesh_path)
+    except objects.MeshError as e:
+        raise CurationError(str(e)) from e
+    if own:
+        asset = objects.mesh_path(spec, pybullet_dir, mesh_path)
+        mat = materials.adopt(obj, [asset if asset.is_dir() else asset.parent])
+        for fix in mat["textures_relinked"]:
+            log(f"[{spec.id}] texture {fix['from']} does not load; using {fix['to']} (found in the asset's folder)")
+        for bad in mat["unsupported"]:
+            log(
+                f"[{spec.id}] material slot {bad['slot']} ({bad['material']}): the G-buffer cannot describe "
+                f"{', '.join(bad['reasons'])}"
+            )
+    else:
+        materials.apply(obj, mat, spec.seed)
+    return scene, cam, mat, shape, licence, provenance
+
+
+def render_view(scene, cam, raw: Path, view: rig.View, spec, what: str) -> tuple[dict[str, np.ndarray], float]:
+    """Inside Blender: render ``view`` of object ``spec`` into ``raw`` and read its passes back; returns
+    ``(passes, seconds)``. A render with NaN/Inf pixels or nothing covered is a :class:`CurationError` naming the
+    object and ``what`` (``{kind}/{light}/{view}``)."""
+    from frng.blender import scene as bscene
+
+    bscene.set_camera_pose(cam, view.c2w)
+    dt = bscene.render_to(scene, raw)
+    passes = bscene.read_passes(raw)
+    rgba = passes["rgba"]
+    if not np.isfinite(rgba).all():
+        raise CurationError(f"object {spec.id}: {what} has NaN/Inf pixels")
+    if rgba[..., 3].max() <= 0.0:
+        raise CurationError(f"object {spec.id} ({spec.source}:{spec.mesh}): {what} rendered empty (all alpha 0)")
+    return passes, dt
+
+
 def curate(
     plan: catalog.Catalog,
     objaverse: catalog.ObjaverseConfig,
@@ -157,12 +219,11 @@ def curate(
     import bpy  # noqa: F401  (fail early, clearly, if bpy is missing)
 
     guard = guard or NoGuard()
-    from frng.blender import materials, objects, world
-    from frng.blender import scene as bscene
+    from frng.blender import world
 
     spec = plan.object(oid)
     lights = check_envmaps(spec, env_dir)
-    rig_rng, shape_rng, mat_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(spec.seed).spawn(3))
+    rig_rng = np.random.default_rng(np.random.SeedSequence(spec.seed).spawn(3)[0])
     inputs, targets = rig.object_views(rig_rng, render)
 
     out_root.mkdir(parents=True, exist_ok=True)
@@ -180,38 +241,8 @@ def curate(
         guard.paths.append(scratch)
     t_start = time.perf_counter()
     try:
-        scene = bscene.new_scene(render.resolution, render.spp, render.threads, spec.seed)
-        bscene.enable_gbuffer_passes(scene)
-        cam = bscene.add_camera(scene, render.fov_deg)
+        scene, cam, mat, shape, licence, provenance = object_scene(plan, objaverse, render, spec, log)
         own = spec.material == catalog.OWN
-        mat = {"class": catalog.OWN} if own else materials.sample(mat_rng, spec.material, render.fur_strands)
-        radius = 1.0 - mat["hair"]["length"] if "hair" in mat else 1.0  # fur stays inside the unit sphere
-        pybullet_dir = catalog.pybullet_data_dir() if spec.source == "pybullet" else None
-        mesh_path = catalog.objaverse_glb(objaverse, spec.mesh, lambda: plan) if spec.source == "objaverse" else None
-        licence, provenance = spec.licence, None
-        if mesh_path is not None:
-            ann = catalog.objaverse_glb_annotation(objaverse, spec.mesh, mesh_path) or {}
-            provenance = {"uid": spec.mesh, "file": str(mesh_path)} | {
-                k: ann[k] for k in ("name", "license", "viewerUrl", "uri") if k in ann
-            }
-            if ann.get("license"):
-                licence = f"{ann['license']} (Objaverse 1.0 / Sketchfab: {ann.get('viewerUrl', spec.mesh)})"
-        try:
-            obj, shape = objects.load(spec, shape_rng, pybullet_dir, radius, keep_materials=own, path=mesh_path)
-        except objects.MeshError as e:
-            raise CurationError(str(e)) from e
-        if own:
-            asset = objects.mesh_path(spec, pybullet_dir, mesh_path)
-            mat = materials.adopt(obj, [asset if asset.is_dir() else asset.parent])
-            for fix in mat["textures_relinked"]:
-                log(f"[{oid}] texture {fix['from']} does not load; using {fix['to']} (found in the asset's folder)")
-            for bad in mat["unsupported"]:
-                log(
-                    f"[{oid}] material slot {bad['slot']} ({bad['material']}): the G-buffer cannot describe "
-                    f"{', '.join(bad['reasons'])}"
-                )
-        else:
-            materials.apply(obj, mat, spec.seed)
         log(
             f"[{oid}] {spec.source}:{spec.mesh} material={spec.material} split={spec.split} "
             f"{shape['vertices']} verts; {len(inputs)} input views x {len(spec.input_lights)} lights, "
@@ -235,17 +266,8 @@ def curate(
                     sample_map_resolution=max(64, envmaps.width),
                 )
                 for view in views:
-                    bscene.set_camera_pose(cam, view.c2w)
-                    dt = bscene.render_to(scene, raw)
-                    passes = bscene.read_passes(raw)
+                    passes, dt = render_view(scene, cam, raw, view, spec, f"{kind}/{light}/{view.name}")
                     rgba = passes["rgba"]
-                    if not np.isfinite(rgba).all():
-                        raise CurationError(f"object {oid}: {kind}/{light}/{view.name} has NaN/Inf pixels")
-                    if rgba[..., 3].max() <= 0.0:
-                        raise CurationError(
-                            f"object {oid} ({spec.source}:{spec.mesh}): {kind}/{light}/{view.name} "
-                            "rendered empty (all alpha 0)"
-                        )
                     with guard.lock:
                         io.write_exr(staged.image(kind, light, view.name), rgba, ["R", "G", "B", "A"])
                         if view.name not in done_gbuffer:

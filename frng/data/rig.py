@@ -48,6 +48,20 @@ class View:
             "height": self.height,
         }
 
+    @classmethod
+    def from_dict(cls, d: dict) -> View:
+        """The view a :meth:`to_dict` record (a meta.json ``views`` entry) describes."""
+        return cls(
+            str(d["name"]),
+            str(d["kind"]),
+            float(d["azimuth_deg"]),
+            float(d["elevation_deg"]),
+            np.asarray(d["c2w"], dtype=np.float64).reshape(4, 4),
+            np.asarray(d["intrinsics"], dtype=np.float64).reshape(4),
+            int(d["width"]),
+            int(d["height"]),
+        )
+
 
 def make_view(
     name: str, kind: str, azimuth_deg: float, elevation_deg: float, distance: float, fov_deg: float, resolution: int
