@@ -70,7 +70,7 @@ from pathlib import Path
 
 import numpy as np
 
-from frng import camera, envmap, io
+from frng import camera, confine, envmap, io
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".exr")
 MIN_VIEWS, MAX_VIEWS = 2, 10
@@ -105,17 +105,35 @@ class Photo:
 # -- images -----------------------------------------------------------------------------------------------
 
 
-def image_files(folder: Path, what: str = "images") -> list[Path]:
+def image_files(folder: Path, what: str = "images", allow_outside: bool = True) -> list[Path]:
+    """The image files of ``folder`` (sorted); unless ``allow_outside``, one that is a symlink out of the folder is
+    a :class:`CaptureError` (:func:`frng.confine.inside`)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise CaptureError(f"{folder}: {what} folder does not exist")
-    return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTS)
+    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTS)
+    if not allow_outside:
+        for p in files:
+            try:
+                confine.inside(p, folder)
+            except confine.OutsideError as e:
+                raise CaptureError(str(e)) from None
+    return files
+
+
+def _check_size(path: Path) -> None:
+    """Before decoding: the content is the format the name says and the pixel count is bounded."""
+    try:
+        confine.check_image_size(path)
+    except confine.UntrustedInputError as e:
+        raise CaptureError(str(e)) from None
 
 
 def read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     """A PNG/JPEG (sRGB, straight alpha) or EXR (linear, premultiplied) -> (linear premultiplied RGB, alpha|None).
     Greyscale is expanded; an alpha that is 1 everywhere counts as none."""
     path = Path(path)
+    _check_size(path)
     if path.suffix.lower() == ".exr":
         try:
             ch = io.read_exr_channels(path)
@@ -135,7 +153,8 @@ def read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
         try:
             img = np.asarray(iio.imread(path))
         except Exception as e:  # imageio raises many kinds
-            raise CaptureError(f"{path}: cannot read image ({e})") from e
+            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            raise CaptureError(f"{path}: cannot read image ({first[:200]})") from None
         scale = 65535.0 if img.dtype == np.uint16 else 255.0 if img.dtype == np.uint8 else 1.0
         img = img.astype(np.float32) / scale
         if img.ndim == 2:
@@ -169,12 +188,14 @@ def parse_grid(text: str | None) -> tuple[int, int] | None:
     return r, c
 
 
-def load_images(source: str | Path, grid: tuple[int, int] | None = None) -> list[Photo]:
+def load_images(source: str | Path, grid: tuple[int, int] | None = None, allow_outside: bool = True) -> list[Photo]:
     """The photos of a capture: every image file of a folder (sorted by name), or with ``grid`` the tiles of one
-    image (a file, or a folder holding exactly one). Checks the count (2-10) and that the aspect ratios agree."""
+    image (a file, or a folder holding exactly one). Checks the count (2-10) and that the aspect ratios agree.
+    ``allow_outside=False``: a symlink out of the folder is refused (``frng reconstruct`` without
+    ``--allow-outside``)."""
     source = Path(source)
     if grid is not None:
-        files = [source] if source.is_file() else image_files(source)
+        files = [source] if source.is_file() else image_files(source, allow_outside=allow_outside)
         if len(files) != 1:
             raise CaptureError(f"{source}: --grid splits one image; the folder holds {len(files)} image files")
         rgb, a = read_image(files[0])
@@ -195,7 +216,7 @@ def load_images(source: str | Path, grid: tuple[int, int] | None = None) -> list
     else:
         if source.is_file():
             raise CaptureError(f"{source}: --images takes a folder of images (or one grid image with --grid)")
-        files = image_files(source)
+        files = image_files(source, allow_outside=allow_outside)
         photos = []
         for f in files:
             rgb, a = read_image(f)
@@ -223,6 +244,7 @@ def load_images(source: str | Path, grid: tuple[int, int] | None = None) -> list
 
 
 def _read_mask(path: Path) -> np.ndarray:
+    _check_size(path)
     if path.suffix.lower() == ".exr":
         ch = io.read_exr_channels(path)
         m = ch.get("A", ch.get("Y", ch.get("R")))
@@ -234,7 +256,8 @@ def _read_mask(path: Path) -> np.ndarray:
     try:
         img = np.asarray(iio.imread(path))
     except Exception as e:
-        raise CaptureError(f"{path}: cannot read mask ({e})") from e
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise CaptureError(f"{path}: cannot read mask ({first[:200]})") from None
     scale = 65535.0 if img.dtype == np.uint16 else 255.0 if img.dtype == np.uint8 else 1.0
     img = img.astype(np.float32) / scale
     if img.ndim == 3:
@@ -280,12 +303,16 @@ def key_background(photo: Photo) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def make_masks(
-    photos: list[Photo], masks: str | Path | None = None, grid: tuple[int, int] | None = None
+    photos: list[Photo],
+    masks: str | Path | None = None,
+    grid: tuple[int, int] | None = None,
+    allow_outside: bool = True,
 ) -> list[Photo]:
     """Give every photo a mask (module docstring: --masks, alpha, keyed background); RGB becomes premultiplied.
-    With ``grid``, a mask folder holding one image is split like the grid image."""
+    With ``grid``, a mask folder holding one image is split like the grid image. ``allow_outside=False``: a mask
+    that is a symlink out of its folder is refused."""
     if masks is not None:
-        files = image_files(Path(masks), "masks")
+        files = image_files(Path(masks), "masks", allow_outside)
         by_stem = {f.stem: f for f in files}
         tiles = None
         if grid is not None and len(files) == 1:
@@ -576,9 +603,11 @@ def prepare(
     rig: str | None = None,
     grid: tuple[int, int] | None = None,
     framing: str = "auto",
+    allow_outside: bool = True,
 ) -> Capture:
-    """Photos -> :class:`Capture` (module docstring). ``cameras`` (a file) or ``rig`` (``"paper"``, the default)."""
-    photos = make_masks(load_images(images, grid), masks, grid)
+    """Photos -> :class:`Capture` (module docstring). ``cameras`` (a file) or ``rig`` (``"paper"``, the default).
+    ``allow_outside=False``: photos and masks that are symlinks out of their folders are refused."""
+    photos = make_masks(load_images(images, grid, allow_outside), masks, grid, allow_outside)
     res = int(resolution)
     names = [p.name for p in photos]
     info: dict = {
@@ -738,6 +767,8 @@ def reconstruct(
     name: str | None = None,
     device: str | None = None,
     light_colour: str = LIGHT_COLOUR,
+    force: bool = False,
+    allow_outside: bool = False,
 ) -> dict:
     """Photos -> an asset folder ``out`` (:mod:`frng.asset`, plus ``input_light.exr`` and ``contact_sheet.png``).
 
@@ -745,7 +776,12 @@ def reconstruct(
     ``model``: the F-RNG model file (default ``{results}/models/full/model.pt``). The backbone and the IDM are the
     config's (``{results}/backbone/model.pt``, the configured IDM). ``name``: the object id (default: the images
     folder's name); with ``light`` the light's name is the map's stem. Returns the asset's ``capture`` record.
-    Everything is checked (images, masks, cameras, light map, model files) before anything is loaded or written."""
+    Everything is checked (images, masks, cameras, light map, model files) before anything is loaded or written.
+
+    ``out`` is written through :func:`frng.confine.staged_output`: a non-empty folder that is not a previous asset
+    (of ``frng reconstruct``) is refused unless ``force``, which replaces only the asset's files and keeps the
+    others; a failure leaves the previous ``out`` whole. ``allow_outside``: read photos and masks that are symlinks
+    out of their folders."""
     import torch
 
     from frng.asset import RIG_KEY, render_settings, save_asset
@@ -755,6 +791,10 @@ def reconstruct(
 
     cfg = config
     rc = cfg.render
+    try:
+        confine.check_output(out, "reconstruct", force, recognise=is_asset_folder)
+    except confine.OutputError as e:
+        raise CaptureError(str(e)) from None
     cap = prepare(
         images,
         resolution=rc.resolution,
@@ -765,7 +805,16 @@ def reconstruct(
         rig=rig,
         grid=grid,
         framing=framing,
+        allow_outside=allow_outside,
     )
+    if float(np.max(cap.rgb, initial=0.0)) < 1.0 / 4096:  # an asset lit by an all-zero light, else
+        import sys
+
+        print(
+            f"warning: {images}: every photo is black inside its mask (max linear value "
+            f"{float(np.max(cap.rgb, initial=0.0)):.2g}); the light estimate and the asset will be black",
+            file=sys.stderr,
+        )
     env_given = read_light(light) if light is not None else None
     L = Layout(cfg.results)
     model = Path(model) if model is not None else Path(TrainingFolder(L.model_dir("full")).model())
@@ -847,19 +896,32 @@ def reconstruct(
     from frng.gaussians import Gaussians
 
     gauss = Gaussians(*(t.detach().float().cpu() for t in (g.means, g.quats, g.scales, g.opacities)), feats)
-    save_asset(
-        out,
-        gauss,
-        feats,
-        net.decoder.state_dict(),
-        meta,
-        preview_rgb=preview,
-        extra_files={
-            "input_light.exr": lambda p: envmap.write(p, env),
-            "contact_sheet.png": lambda p: io.write_png(p, sheet),
-        },
-    )
+    try:
+        with confine.staged_output(out, "reconstruct", force, recognise=is_asset_folder) as stage:
+            save_asset(
+                stage,
+                gauss,
+                feats,
+                net.decoder.state_dict(),
+                meta,
+                preview_rgb=preview,
+                extra_files={
+                    "input_light.exr": lambda p: envmap.write(p, env),
+                    "contact_sheet.png": lambda p: io.write_png(p, sheet),
+                },
+            )
+    except confine.OutputError as e:
+        raise CaptureError(str(e)) from None
     return record
+
+
+def is_asset_folder(folder: Path) -> bool:
+    """Whether ``folder`` holds an asset (its ``asset.json`` says ``frng-asset``): a previous ``frng reconstruct``
+    output written before output folders carried a manifest."""
+    try:
+        return io.read_json(Path(folder) / "asset.json").get("format") == "frng-asset"
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 # -- measurement: a capture of a curated test object against `frng relight` -----------------------------------
@@ -971,7 +1033,7 @@ def measure(config, oid: str, work: str | Path, views: int = 6, settings=None) -
         if settings is not None and setting not in settings:
             continue
         asset = work / setting.replace("/", "_")
-        reconstruct(images, asset, cfg, name=oid, **kw)
+        reconstruct(images, asset, cfg, name=oid, allow_outside=True, **kw)  # exr/: symlinks into the results
         r = AssetRenderer(asset)
         R = _rot_z(rot)
         c2w = torch.tensor(np.einsum("ij,vjk->vik", R, tc2w), dtype=torch.float32)

@@ -31,6 +31,10 @@ class EnvMapError(ValueError):
     """An environment map is missing, unreadable or not a 2:1 equirect RGB image; names the file."""
 
 
+MAX_RADIANCE = 1e7  # a map with a larger value is refused (read): its light sums overflow float32 in rendering
+MAX_PIXELS = 8192 * 16384  # a map with more pixels is refused before it is decoded (1.6 GB as float32 RGB)
+
+
 def uv_to_dir(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     """Equirect (u, v) in [0, 1) -> unit world direction (..., 3)."""
     phi = math.pi * (1.0 - 2.0 * u)
@@ -77,24 +81,42 @@ def check_shape(image: np.ndarray, name: str = "environment map") -> None:
 
 
 def read(path: str | Path) -> np.ndarray:
-    """Read an equirect map (EXR, or Radiance HDR) as linear float32 (H, W, 3), negatives clamped to 0."""
+    """Read an equirect map (EXR, or Radiance HDR) as linear float32 (H, W, 3), negatives clamped to 0.
+
+    Refused with one line naming the file: a missing, truncated or mislabelled file, a map of more than
+    :data:`MAX_PIXELS` pixels (checked from the header, before decoding), a non-2:1 map, NaN/inf, or a value above
+    :data:`MAX_RADIANCE`."""
+    from frng import confine
+
     path = Path(path)
     if not path.exists():
         raise EnvMapError(f"{path}: environment map does not exist")
     try:
+        if path.suffix.lower() not in (".exr", ".hdr"):
+            raise EnvMapError(f"{path}: unsupported environment map format (use .exr or .hdr)")
+        confine.check_image_size(path, MAX_PIXELS)
         if path.suffix.lower() == ".exr":
             img = io.read_exr(path, ["R", "G", "B"])
-        elif path.suffix.lower() == ".hdr":
+        else:
             import imageio.v3 as iio
 
-            img = np.asarray(iio.imread(path), dtype=np.float32)[..., :3]
-        else:
-            raise EnvMapError(f"{path}: unsupported environment map format (use .exr or .hdr)")
-    except io.ImageError as e:
+            try:
+                img = np.asarray(iio.imread(path), dtype=np.float32)[..., :3]
+            except Exception as e:  # noqa: BLE001 -- a truncated .hdr: SyntaxError, ValueError, OSError ...
+                first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+                raise EnvMapError(
+                    f"{path}: cannot read Radiance HDR: truncated or corrupt ({type(e).__name__}: {first[:200]})"
+                ) from None
+    except (io.ImageError, confine.UntrustedInputError) as e:
         raise EnvMapError(str(e)) from e
     check_shape(img, str(path))
     if not np.all(np.isfinite(img)):
         raise EnvMapError(f"{path}: environment map contains NaN or Inf")
+    if img.size and float(img.max()) > MAX_RADIANCE:
+        raise EnvMapError(
+            f"{path}: environment map has a value of {float(img.max()):.3g}, above the limit "
+            f"{MAX_RADIANCE:g} (frng.envmap.MAX_RADIANCE; scale the map down)"
+        )
     return np.maximum(img, 0.0).astype(np.float32)
 
 

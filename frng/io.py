@@ -10,6 +10,7 @@ killed job never leaves a file that looks complete.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import tempfile
@@ -69,6 +70,10 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         # writers that replace the file (safetensors creates its own, 0600 whatever the umask) lose the mode
         os.chmod(tmp, 0o666 & ~current_umask())
         os.replace(tmp, path)
+    except OSError as e:  # a full disk names the file it was writing (the bare errno names none)
+        if e.errno == errno.ENOSPC and not str(e.strerror or "").startswith(f"{path}:"):
+            raise write_failure(path, e) from e
+        raise
     finally:
         if tmp.exists():
             tmp.unlink()

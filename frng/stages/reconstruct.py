@@ -46,6 +46,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="OBJ",
         help="instead: write curated object OBJ's input views as PNGs (+ cameras.json, light.exr)",
     )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="replace a non-empty --out that is not a previous asset (only the asset's files are replaced; "
+        "other files there are kept)",
+    )
+    parser.add_argument(
+        "--allow-outside",
+        action="store_true",
+        help="read photos and masks that are symlinks out of their folders (refused by default)",
+    )
     parser.add_argument("--views", type=int, default=6, help="with --export-object: how many input views")
     parser.add_argument(
         "--measure",
@@ -126,6 +137,8 @@ def run(args: argparse.Namespace) -> int:
             name=args.name,
             device=args.device,
             light_colour=args.light_colour,
+            force=args.force,
+            allow_outside=args.allow_outside,
         )
     except (CaptureError, AssetError) as e:
         print(f"frng reconstruct: error: {e}")

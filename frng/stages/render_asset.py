@@ -6,7 +6,10 @@ the CPU or CUDA.
 Cameras: ``--cameras FILE`` (the formats of :func:`frng.capture.read_cameras`, taken as they are, in the asset's
 world), or ``--turntable N`` (default 24 when no file): N views around world Z at ``--elevation`` degrees, at the
 training rig's distance and field of view recorded in the asset (``--distance``, ``--fov`` override), looking at the
-origin. Writes per view ``{view}.exr`` (linear premultiplied RGBA) and ``{view}.png`` (sRGB, straight alpha),
+origin. Bounded before anything is allocated: image sides up to :data:`MAX_RESOLUTION`, at most :data:`MAX_VIEWS`
+views and :data:`MAX_SPP` light samples (one line otherwise). ``--out`` is written through
+:func:`frng.confine.staged_output` (a non-empty folder that is not a previous render-asset output is refused
+unless ``--force``; a failure leaves the previous output whole). Writes per view ``{view}.exr`` (linear premultiplied RGBA) and ``{view}.png`` (sRGB, straight alpha),
 ``cameras.json``, and for a turntable ``turntable.gif`` (imageio, Pillow writer; frames composited over white and
 upscaled by an integer nearest-neighbour factor to at least :data:`VIDEO_MIN_SIZE` px; ``--video mp4`` uses the
 imageio-ffmpeg plugin, pinned in requirements.lock (its own static FFmpeg binary, H.264); a clear error where neither
@@ -21,6 +24,9 @@ from pathlib import Path
 import numpy as np
 
 VIDEO_MIN_SIZE = 128  # turntable video frames are upscaled (nearest neighbour, integer factor) to at least this
+MAX_RESOLUTION = 2048  # the largest image side rendered (--resolution or a camera file's sizes): memory grows with it
+MAX_VIEWS = 1000  # the most views one call renders (--turntable N or a camera file)
+MAX_SPP = 4096  # the most light samples per pixel (--spp, or the asset's shading.spp_infer)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -39,6 +45,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="cpu", help="cpu, cuda or auto")
     parser.add_argument("--video", choices=["gif", "mp4", "none"], default="gif", help="turntable video format")
     parser.add_argument("--fps", type=float, default=12.0, help="turntable frames per second")
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="replace a non-empty --out that is not a previous render-asset output (only its files; others kept)",
+    )
 
 
 def turntable(n: int, elevation: float, distance: float, fov: float, res: int) -> list[dict]:
@@ -89,11 +100,24 @@ def check_video(kind: str) -> None:
 def render(args: argparse.Namespace) -> dict:
     import torch
 
-    from frng import io
+    from frng import confine
     from frng.asset import AssetRenderer
     from frng.capture import CaptureError, read_cameras, read_light
 
-    env = read_light(args.env)  # 2:1, finite: or one line naming the file
+    try:
+        confine.check_output(args.out, "render-asset", args.force, recognise=lambda d: (d / "cameras.json").exists())
+    except confine.OutputError as e:
+        raise CaptureError(str(e)) from None
+    if args.resolution is not None and not 1 <= args.resolution <= MAX_RESOLUTION:
+        raise CaptureError(f"--resolution {args.resolution}: must be 1..{MAX_RESOLUTION} (MAX_RESOLUTION)")
+    if args.spp is not None and not 1 <= args.spp <= MAX_SPP:
+        raise CaptureError(f"--spp {args.spp}: must be 1..{MAX_SPP} (MAX_SPP)")
+    if not (np.isfinite(args.fps) and args.fps > 0) or not np.isfinite(args.elevation):
+        raise CaptureError("--fps must be > 0 and --elevation finite")
+    for flag, v in (("--distance", args.distance), ("--fov", args.fov)):
+        if v is not None and not (np.isfinite(v) and v > 0 and (flag != "--fov" or v < 180)):
+            raise CaptureError(f"{flag} {v}: must be a finite number > 0" + (" and < 180" if flag == "--fov" else ""))
+    env = read_light(args.env)  # 2:1, finite, bounded: or one line naming the file
     if not args.cameras:
         check_video(args.video)
     device = args.device
@@ -125,8 +149,8 @@ def render(args: argparse.Namespace) -> dict:
             raise CaptureError(f"{args.cameras}: cameras of different image sizes; render them separately")
     else:
         n = args.turntable or 24
-        if n < 1:
-            raise CaptureError("--turntable N: N must be >= 1")
+        if not 1 <= n <= MAX_VIEWS:
+            raise CaptureError(f"--turntable N: N must be 1..{MAX_VIEWS}")
         cams = turntable(
             n,
             args.elevation,
@@ -134,8 +158,32 @@ def render(args: argparse.Namespace) -> dict:
             args.fov or float(rig.get("fov_deg", 40.0)),
             res,
         )
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    W, H = cams[0]["width"], cams[0]["height"]
+    where = args.cameras or "the asset's rig (asset.json 'rig.resolution')"
+    if not (1 <= W <= MAX_RESOLUTION and 1 <= H <= MAX_RESOLUTION):
+        raise CaptureError(
+            f"{where}: image size {W}x{H} is outside 1..{MAX_RESOLUTION} (MAX_RESOLUTION); pass --resolution"
+        )
+    if len(cams) > MAX_VIEWS:
+        raise CaptureError(f"{args.cameras}: {len(cams)} cameras; at most {MAX_VIEWS} per call")
+    spp = args.spp or int(r.shading.spp_infer)
+    if not 1 <= spp <= MAX_SPP:
+        raise CaptureError(
+            f"{Path(args.asset) / 'asset.json'}: field 'render.shading.spp_infer' is {spp}; must be 1..{MAX_SPP}"
+        )
+    with confine.staged_output(
+        args.out, "render-asset", args.force, recognise=lambda d: (d / "cameras.json").exists()
+    ) as out:
+        video = _render_into(out, r, env, cams, args)
+    return {"views": len(cams), "size": [W, H], "device": str(r.device), "video": video}
+
+
+def _render_into(out: Path, r, env: np.ndarray, cams: list[dict], args: argparse.Namespace) -> str | None:
+    """Render ``cams`` into the (staging) folder ``out``; returns the video's final path, or None."""
+    import torch
+
+    from frng import io
+
     W, H = cams[0]["width"], cams[0]["height"]
     c2w = torch.tensor(np.array([c["c2w"] for c in cams]), dtype=torch.float32)
     intr = torch.tensor(np.array([c["intrinsics"] for c in cams]), dtype=torch.float32)
@@ -151,10 +199,10 @@ def render(args: argparse.Namespace) -> dict:
             io.write_png(out / f"{c['name']}.png", np.concatenate([io.srgb_encode(straight), a], -1))
             frames.append((np.clip(io.srgb_encode(io.composite(img)), 0, 1) * 255 + 0.5).astype(np.uint8))
     io.write_json(out / "cameras.json", {"cameras": cams})
-    video = None
     if not args.cameras and args.video != "none":
         video = write_video(out / f"turntable.{args.video}", frames, args.fps)
-    return {"views": len(cams), "size": [W, H], "device": str(r.device), "video": str(video) if video else None}
+        return str(Path(args.out) / video.name)
+    return None
 
 
 def run(args: argparse.Namespace) -> int:
