@@ -1,6 +1,8 @@
 # Evaluation (frng/stages/evaluate.py), the paper's tables and figures (stages frng/stages/{tables,figures}.py, drawn
 # by frng/report/).
 # Tables and figures are wrapped in report(...) for `snakemake --report` (captions in workflow/report/).
+import shlex
+
 from frng.report.tables import TABLE_COLUMNS
 
 TABLE_NAMES = list(TABLE_COLUMNS)  # the paper's five tables + the ladder and its per-class part (frng/report/tables.py)
@@ -13,6 +15,13 @@ _TABLE_CAPTIONS = {
     "ladder": "quality ladder",
     "lambertian": "Lambertian base per material class",
 }
+# The default tier's tables also write the repository's generated results page and the README's results block
+# (frng/report/results_page.py), so that `make reproduce` rewrites them; other tiers write neither.
+RESULTS_PAGE_ARGS = (
+    f"--results-page {shlex.quote(str(ROOT / 'docs' / 'results.md'))} --readme {shlex.quote(str(ROOT / 'README.md'))}"
+    if config.get("tier") == "default"
+    else ""
+)
 
 
 rule evaluate:
@@ -51,6 +60,7 @@ rule tables:
         cross=rules.evaluate.output.cross,
         timing=expand(rules.relight.output.timing, obj=TEST_IDS),
         prior=rules.eval_backbone.output.backbone,
+        ablation_figure=L.figure("ablation.png"),  # shown by the results page
     output:
         *[
             report(
@@ -73,11 +83,12 @@ rule tables:
     params:
         **stage_params("tables"),
         out=lambda wildcards, output: os.path.dirname(output[0]),
+        page=RESULTS_PAGE_ARGS,
     message:
         "The paper's tables: {names}".format(names=", ".join(TABLE_NAMES))
     shell:
         "exec {params.py:q} -m frng tables --config {params.config:q} --metrics {input.per_image:q} --timing {input.timing:q} "
-        "--prior-metrics {input.prior:q} --cross-light {input.cross:q} --out {params.out:q} > {log:q} 2>&1"
+        "--prior-metrics {input.prior:q} --cross-light {input.cross:q} --out {params.out:q} {params.page} > {log:q} 2>&1"
 
 
 rule figures:

@@ -60,6 +60,8 @@ STAGES_WITHOUT_RULE = {
     "frng.stages.reconstruct": "your own photos -> an asset, run by hand (tests/test_reconstruct.py)",
     "frng.stages.render_asset": "renders an asset folder, run by hand (tests/test_reconstruct.py)",
     "frng.stages.config": "`frng config` validates a config file and prints it, run by make before snakemake",
+    "frng.stages.results_page": "regenerates docs/results.md by hand; the rule tables does it through `frng tables "
+    "--results-page` (tests/test_results_page.py)",
 }
 # ``frng`` subcommands whose module is not in frng/stages/, and why
 OUTSIDE_STAGES: dict[str, str] = {}

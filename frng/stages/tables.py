@@ -8,11 +8,13 @@ Which tables, their rows and columns: :mod:`frng.report.paper_tables`; how they 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from frng import config as frng_config
 from frng.layout import Layout
 from frng.report.paper_tables import write_tables
+from frng.report.results_page import ResultsPageError, write_pages
 from frng.typedconfig import typed
 
 
@@ -30,6 +32,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--prior-metrics",
         help="the priors' evaluation CSV for the quality ladder (default {results}/metrics/backbone.csv)",
     )
+    parser.add_argument(
+        "--results-page",
+        metavar="PAGE",
+        help="then write this generated results page (docs/results.md) from the tables, figures and provenance "
+        "(frng.report.results_page; the rule passes it for the default tier)",
+    )
+    parser.add_argument("--readme", help="with --results-page: the README whose results block is rewritten")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -49,4 +58,10 @@ def run(args: argparse.Namespace) -> int:
     )
     for name, paths in out.items():
         print(f"== {name} ({paths['md']})\n{paths['md'].read_text()}")
+    if args.results_page:
+        try:
+            print(write_pages(config.results, args.results_page, args.readme).summary())
+        except ResultsPageError as e:  # names the file
+            print(f"frng tables: error: {e}", file=sys.stderr)
+            return 2
     return 0
