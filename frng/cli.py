@@ -40,6 +40,22 @@ STAGES: dict[str, tuple[str, str]] = {
     "train": ("frng.stages.train", "train one F-RNG variant from the cached priors (training split)"),
     "relight": ("frng.stages.relight", "relight one test object with every F-RNG run and the backbone; timings"),
     "evaluate": ("frng.stages.evaluate", "per-image PSNR/SSIM/LPIPS of every relit image (configured protocol)"),
+    "baseline-image": (
+        "frng.stages.baseline_image",
+        "image-based baseline: each target view's photo decomposed by the IDM and re-shaded under the target lights",
+    ),
+    "baseline-frng-nvs": (
+        "frng.stages.baseline_frng_nvs",
+        "F-RNG's full model rendered under the input light at the target views (the views table's novel views)",
+    ),
+    "baseline-eval": (
+        "frng.stages.baseline_eval",
+        "per-image scores of the baselines, other methods' files and F-RNG (relighting and novel views)",
+    ),
+    "baseline-tables": (
+        "frng.stages.baseline_tables",
+        "the baselines' tables (vs_dense, vs_image_based, views_nvs) and their comparison figures",
+    ),
     "tables": ("frng.stages.tables", "the paper's tables (vs backbone, ablation, #views, K, timing)"),
     "figures": ("frng.stages.figures", "comparison grids, ablation grid, saliency maps, loss curves"),
     "results-page": ("frng.stages.results_page", "docs/results.md, the README's results block: from a results folder"),
@@ -50,6 +66,7 @@ STAGES: dict[str, tuple[str, str]] = {
     "export": ("frng.stages.export_benchmark", "a curated object in a public benchmark's published layout"),
     "reconstruct": ("frng.stages.reconstruct", "your own photos (2-10 views) -> a relightable asset folder"),
     "render-asset": ("frng.stages.render_asset", "render an asset folder under any env map (views, turntable)"),
+    "view": ("frng.stages.view", "interactive relighting viewer of an asset in the browser (127.0.0.1, viser)"),
     "relight-benchmark": ("frng.stages.relight_benchmark", "relight one imported benchmark object (as relight)"),
     "relight-seed": (
         "frng.stages.relight_seed",

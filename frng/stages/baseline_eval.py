@@ -1,0 +1,64 @@
+"""Stage ``frng baseline-eval [--out DIR]`` (rule ``baseline_eval``): every baseline run (per-scene ``3dgs-v{n}`` /
+``gsir-v{n}``, the image-based ``idm-reshade``, other methods' folders ``baselines.external``) and F-RNG's ``full``
+and ``full-nvs`` runs scored per image against the ground truth under the config's ``eval.protocol`` (the protocol of
+``frng evaluate``; :mod:`frng.baselines.scoring`). Writes ``{results}/metrics/baselines_per_image.csv`` and
+``baselines_timing.csv``.
+
+Config keys read: ``results``, ``eval.protocol``, ``eval.background``, ``render.dense_views``, ``baselines.*``
+(objects_per_class, view_counts, methods, image_based, external) and the dataset plan (the test split, each test
+object's planned material class)."""
+
+from __future__ import annotations
+
+import argparse
+
+from frng import config as frng_config
+from frng.typedconfig import typed
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    frng_config.add_config_argument(parser)
+    parser.add_argument("--out", help="metrics folder (default {results}/metrics)")
+    parser.add_argument(
+        "--no-frng-nvs", action="store_true", help="do not score F-RNG's novel views (run full-nvs) in the views table"
+    )
+
+
+def planned(config) -> list:
+    """The runs the config plans (:func:`frng.baselines.scoring.planned_runs` over the dataset plan's test split)."""
+    from frng.baselines import plan as P
+    from frng.baselines.scoring import planned_runs
+    from frng.data import catalog
+
+    cat = catalog.plan(config)
+    tests = P.test_objects(cat)
+    per_scene = P.baseline_objects(config.to_dict(), tests)
+    image = config.baselines.image_based
+    # as rules/baselines.smk's BASELINE_VIEW_IDS: every test object when the image-based baseline runs (and there are
+    # per-scene objects), else the per-scene objects
+    view_objects = [oid for oid, _ in tests] if image and per_scene else per_scene
+    return planned_runs(config, [oid for oid, _ in tests], per_scene, view_objects)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from frng import metrics as M
+    from frng.baselines.external import ExternalError
+    from frng.baselines.scoring import ScoringError, score
+    from frng.layout import Layout
+
+    config = typed(frng_config.load(args.config))
+    out = Path(args.out or Layout(config.results).metrics_dir())
+    runs = planned(config)
+    if args.no_frng_nvs:
+        runs = [r for r in runs if r.run != "full-nvs"]
+    try:
+        per_image, timing = score(config.results, runs, config.eval.protocol, config.eval.background, out)
+    except (ScoringError, ExternalError) as e:
+        print(f"frng baseline-eval: error: {e}")
+        return 2
+    df = M.read_csv(per_image)
+    print(f"baseline-eval ({config.eval.protocol} protocol): wrote {per_image} and {timing}")
+    print(df.groupby(["task", "run"], sort=False)[["psnr", "ssim", "lpips"]].mean().to_string())
+    return 0
