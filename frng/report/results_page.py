@@ -326,7 +326,7 @@ def block_text(tables: Sequence[Table], prov: Provenance, page: Path, readme: Pa
     if "ablation.png" in figures:
         lines += [
             "",
-            f"Figure: [the ablation grid]({_link(figures['ablation.png'], readme)}), {FIGURES['ablation.png'].lower()}.",
+            f"Figure: [the ablation grid]({_link(figures['ablation.png'], readme)}): {FIGURES['ablation.png']}.",
         ]
     lines.append(END)
     return "\n".join(lines)
@@ -349,9 +349,10 @@ def readme_block(text: str, readme: Path | str = "README.md") -> str:
 
 
 def changelog_line(tables: Sequence[Table], prov: Provenance) -> str:
-    """A row of ``CHANGELOG.md``'s reproduction table for the run: date, commit, tier, minutes, headline numbers."""
+    """A row of ``CHANGELOG.md``'s table for the run: date, commit, tier, minutes, the headline (PSNR of each method, F-RNG
+    minus the backbone)."""
     head = headline(tables)
-    psnr = ", ".join(f"{r[0]} {r[1].strip('*')} dB" for r in head.rows)
+    psnr = " / ".join(r[1].strip("*") for r in head.rows)
     frng = next((r for r in head.rows if r[4]), None)
     delta = f"; ΔPSNR {frng[4]}, ΔLPIPS {frng[5]}" if frng else ""
     return f"| {prov.date} | `{prov.commit}` | {prov.tier} | {_minutes(prov)} | {psnr}{delta} | [results](docs/results.md) |"
