@@ -64,6 +64,10 @@ STAGES: dict[str, tuple[str, str]] = {
         "a public benchmark scene (tensoir, orb, owl, nerf-synthetic) into the dataset contract",
     ),
     "export": ("frng.stages.export_benchmark", "a curated object in a public benchmark's published layout"),
+    "export-image-inputs": (
+        "frng.stages.export_image_inputs",
+        "the inputs of image-based relighting methods (photo under the input light, mask, camera, target maps)",
+    ),
     "reconstruct": ("frng.stages.reconstruct", "your own photos (2-10 views) -> a relightable asset folder"),
     "render-asset": ("frng.stages.render_asset", "render an asset folder under any env map (views, turntable)"),
     "view": ("frng.stages.view", "interactive relighting viewer of an asset in the browser (127.0.0.1, viser)"),

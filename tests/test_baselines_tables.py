@@ -352,3 +352,45 @@ def test_reshade_under_the_input_light_reproduces_the_photo(tmp_path):
         IB.reshade_object(job, oid, tmp_path / "other", gbuffer="oracle")
     assert not (tmp_path / "other").exists()
     assert math.isfinite(info["relight_ms_per_image"])
+
+
+def test_camera_frame_map_follows_neural_gaffers_convention():
+    """The camera's viewing direction lands on the map's +Y (u = 0.25, horizon), its up on +Z (top)."""
+    from frng.baselines.export_inputs import camera_frame_map
+
+    c2w = np.asarray(make_view("t", "target", 70.0, 25.0, 2.5, 40.0, RES).c2w)
+    d = envmap.pixel_directions(32, 64).numpy()
+    for axis, want in ((c2w[:3, 2], np.array([0.0, 1.0, 0.0])), (-c2w[:3, 1], np.array([0.0, 0.0, 1.0]))):
+        world = np.repeat(np.exp(60.0 * (d @ axis - 1.0))[..., None], 3, -1).astype(np.float32)
+        cam = camera_frame_map(world, c2w)
+        r, c = np.unravel_index(np.argmax(cam[..., 0]), cam.shape[:2])
+        assert float(d[r, c] @ want) > 0.99, (axis, d[r, c])
+
+
+def test_export_image_inputs(tmp_path):
+    from frng.baselines.export_inputs import export
+
+    R = tmp_path / "results"
+    L = Layout(R)
+    oid, views = "obj_e", _view_dicts()
+    envmap.write(L.envmap("l0"), _env(0).astype(np.float32))
+    io.write_json(
+        L.object_meta(oid),
+        {"id": oid, "target_lights": ["l0"], "lights": {"l0": {"file": "envmaps/l0.exr"}}, "views": {"targets": views}},
+    )
+    io.write_json(L.baseline_views_meta(oid), {"id": oid, "light": "lin", "views": {"dense": [], "targets": views}})
+    for k, v in enumerate(views):
+        _write(ObjectFolder(L.baseline_views_dir(oid)).image("targets", "lin", v["name"]), _gt(k))
+    index = export(R, [oid], tmp_path / "out")
+    assert io.read_json(index)["objects"][oid] == {"views": VIEWS, "lights": ["l0"]}
+    d = tmp_path / "out" / oid / "t0"
+    png = io.read_png(d / "image.png")
+    gt = _gt(0)
+    assert png.shape == (RES, RES, 4) and np.allclose(png[..., 3], gt[..., 3], atol=1 / 255)
+    fg = gt[..., 3] > 0.5
+    assert np.allclose(io.srgb_decode(png[..., :3])[fg], gt[..., :3][fg], atol=0.01)
+    assert np.array_equal(io.read_rgba(d / "image.exr"), gt)
+    cam = io.read_json(d / "camera.json")
+    assert cam["c2w_opencv"] == views[0]["c2w"] and np.asarray(cam["w2c_blender_3x4"]).shape == (3, 4)
+    assert envmap.read(d / "envmaps_camera" / "l0.exr").shape == (16, 32, 3)
+    assert io.read_png(d / "envmaps_camera" / "l0_ldr.png").shape[:2] == (256, 256)
