@@ -346,6 +346,20 @@ def test_reshade_under_the_input_light_reproduces_the_photo(tmp_path):
         # measured: 38.2 / 39.1 dB (t0 / t1) at 256 spp against the 2048-spp photo; 11.8 / 11.3 dB under the other light
         assert p_same > 35.0, p_same
         assert p_other < p_same - 10.0, (p_same, p_other)
+    # the configured (learned) IDM on the single photo: here an untrained one from {results}/idm/model.pt
+    from types import SimpleNamespace
+
+    from frng.priors.idm import IDMConfig, LearnedIDM
+
+    cfg = IDMConfig.from_dict({"patch": 8, "near": 1.0, "far": 4.5, "width": 32, "depth": 1, "heads": 2})
+    io.save_torch({"config": cfg.to_dict(), "state_dict": LearnedIDM(cfg).state_dict()}, L.idm_model())
+    job_idm = IB.ImageJob(str(R), 0, "cpu", shading, SimpleNamespace(kind="learned"), None)
+    info = IB.reshade_object(job_idm, oid, tmp_path / "learned", gbuffer="idm")
+    assert info["gbuffer"] == "IDM (idm.kind learned)"
+    for v in views:
+        img = io.read_rgba(RelightFolder(tmp_path / "learned").image("lother", v["name"]), require_alpha=True)
+        assert np.isfinite(img).all() and np.array_equal(img[..., 3], photos[v["name"]][..., 3])
+        assert img[..., :3][img[..., 3] > 0.5].mean() > 0.0
     # a missing photo is one line naming it, and nothing is written
     Path(ObjectFolder(L.baseline_views_dir(oid)).image("targets", "lin", "t1")).unlink()
     with pytest.raises(io.ImageError, match="t1.exr"):
