@@ -62,6 +62,9 @@ TABLE_TITLES: dict[str, str] = {
     "ladder": "Quality ladder and light sensitivity",
     "lambertian": "Lambertian base per material class",
     "timing": "Timing",
+    "vs_dense": "Per-scene baselines on dense views (the paper's Table 2)",
+    "vs_image_based": "Image-based relighting baselines (the paper's Table 3)",
+    "views_nvs": "Novel views from fewer views",
     "benchmarks": "Public benchmarks",
 }
 """Section titles, in page order; other tables follow in name order under their file name."""
