@@ -329,7 +329,7 @@ def block_text(tables: Sequence[Table], prov: Provenance, page: Path, readme: Pa
     if "ablation.png" in figures:
         lines += [
             "",
-            f"Figure: [the ablation grid]({_link(figures['ablation.png'], readme)}): {FIGURES['ablation.png']}.",
+            f"Figure: [{FIGURES['ablation.png']}]({_link(figures['ablation.png'], readme)}).",
         ]
     lines.append(END)
     return "\n".join(lines)
