@@ -250,3 +250,36 @@ def test_committed_pages_match_a_regeneration(results, tmp_path):
     # the committed page's figures are in the tree
     for link in re.findall(r"\]\((figures/[^)]+)\)", committed):
         assert (ROOT / "docs" / link).is_file(), link
+
+
+def test_the_tables_stage_writes_the_pages_when_told_where(results, tmp_path):
+    """What the rule tables runs for the default tier: `frng tables ... --results-page PAGE --readme README`."""
+    from frng.cli import main
+
+    folder = shutil.copytree(results, tmp_path / "results")
+    config = folder / "config.yaml"
+    config.write_text(yaml.safe_dump({**yaml.safe_load(config.read_text()), "results": str(folder)}))
+    readme = readme_with_block(tmp_path / "README.md")
+    metrics = folder / "metrics"
+    argv = ["tables", "--config", str(config), "--metrics", str(metrics / "relight_per_image.csv")]
+    argv += ["--timing", *map(str, sorted((folder / "relight" / "timing").glob("*.json")))]
+    argv += [
+        "--prior-metrics",
+        str(metrics / "backbone.csv"),
+        "--cross-light",
+        str(metrics / "relight_cross_light.csv"),
+    ]
+    argv += [
+        "--out",
+        str(folder / "tables"),
+        "--results-page",
+        str(tmp_path / "docs" / "results.md"),
+        "--readme",
+        str(readme),
+    ]
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code in (0, None)
+    page = (tmp_path / "docs" / "results.md").read_text()
+    assert "| tier | smoke |" in page and (tmp_path / "docs" / "figures" / "results" / "ablation.png").is_file()
+    assert "F-RNG (ours)" in RP.readme_block(readme.read_text())
