@@ -84,6 +84,21 @@ class ScoredRun:
     tasks: tuple[str, ...]
     objects: tuple[str, ...]
     external: ExternalMethod | None = field(default=None, compare=False)
+    optional: tuple[str, ...] = ()  # objects scored only where the run has them (imported benchmark scenes)
+
+    def present(self, results: str | Path) -> list[str]:
+        """The objects to score: every one of ``objects`` and those of ``optional`` the run has a folder for. An
+        external method: only the objects its folder has (an error when it has none of them)."""
+        if self.external is not None:
+            objs = [o for o in (*self.objects, *self.optional) if self.external.object_dir(o).is_dir()]
+            if not objs:
+                raise ScoringError(
+                    f"{self.external.path}: no object folder of any test object (external method {self.external.name!r},"
+                    " layout {path}/{obj}/{light}/{view}.png|exr)"
+                )
+            return objs
+        L = Layout(results)
+        return [*self.objects, *(o for o in self.optional if Path(L.relight_record(self.run, o)).exists())]
 
 
 def planned_runs(
@@ -92,16 +107,20 @@ def planned_runs(
     per_scene_objects: list[str],
     view_objects: list[str],
     with_frng_nvs: bool = True,
+    benchmark_objects: list[str] = (),
 ) -> list[ScoredRun]:
     """The runs a config asks ``frng baseline-eval`` to score (module docstring): ``test_objects`` (the test
     split), ``per_scene_objects`` (:func:`frng.baselines.plan.baseline_objects`), ``view_objects`` (the objects with
-    baseline views: those of ``curate_baselines``). ``config``: the validated mapping or typed config."""
+    baseline views: those of ``curate_baselines``), ``benchmark_objects`` (imported benchmark scenes: F-RNG's
+    ``full`` and the external methods are scored on those they have). ``config``: the validated mapping or typed
+    config."""
     from frng.baselines.external import methods
     from frng.baselines.plan import per_scene_runs
 
     as_map = config if isinstance(config, dict) else config.to_dict()
     sec = as_map.get("baselines", {})
-    runs = [ScoredRun(FRNG_RUN, "F-RNG", "frng", TRAINED, ("relight",), tuple(test_objects))]
+    bench = tuple(benchmark_objects)
+    runs = [ScoredRun(FRNG_RUN, "F-RNG", "frng", TRAINED, ("relight",), tuple(test_objects), optional=bench)]
     if with_frng_nvs and view_objects and per_scene_objects:
         runs.append(ScoredRun(FRNG_NVS_RUN, "F-RNG", "frng", TRAINED, ("nvs",), tuple(per_scene_objects)))
     for name in per_scene_runs(as_map):
@@ -112,7 +131,7 @@ def planned_runs(
         runs.append(ScoredRun(IMAGE_BASED_RUN, IMAGE_BASED_RUN, "image", TRAINED, ("relight",), tuple(view_objects)))
     for m in methods(as_map):
         tasks = ("relight", "nvs") if m.family == "dense" else ("relight",)
-        runs.append(ScoredRun(m.run, m.name, m.family, FILES, tasks, tuple(test_objects), m))
+        runs.append(ScoredRun(m.run, m.name, m.family, FILES, tasks, tuple(test_objects), m, optional=bench))
     return runs
 
 
@@ -184,18 +203,16 @@ def score_run(results: Path, run: ScoredRun, protocol: str, background, device: 
     """Per-image rows (:data:`COLUMNS` + the protocol's extra columns) of one run over its objects and tasks."""
     results = Path(results)
     rows = []
-    for oid in run.objects:
+    for oid in run.present(results):
         meta = _object_meta(results, oid)
         rec = _record(results, run, oid)
         bench = meta.get("benchmark") if isinstance(meta.get("benchmark"), dict) else {}
-        views = rec.get("views")
+        views = rec.get("views", 1 if run.family == "image" else None)  # image-based: the target view's own photo
         for task in run.tasks:
-            if (
-                task == "nvs"
-                and run.external is not None
-                and not run.external.has_light(oid, _views_meta(results, oid)["light"])
-            ):
-                continue
+            if task == "nvs" and run.external is not None:  # a dense method's novel views, where it gives them
+                has_views = Path(Layout(results).baseline_views_meta(oid)).exists()
+                if not has_views or not run.external.has_light(oid, _views_meta(results, oid)["light"]):
+                    continue
             for light, view, gt_path in pairs(results, run, oid, task):
                 gt = io.read_rgba(gt_path, require_alpha=True)
                 pred = read_prediction(results, run, oid, light, view, gt)
@@ -224,16 +241,17 @@ def timing_rows(results: Path, run: ScoredRun) -> list[dict]:
     the method's user did not record them). F-RNG's ``full``: ``{results}/relight/timing/{obj}.json``."""
     results = Path(results)
     out = []
-    for oid in run.objects:
+    for oid in run.present(results):
         rec = _record(results, run, oid)
         fit, per_image = rec.get("fit_seconds"), rec.get("relight_seconds_per_image")
         if run.run == FRNG_RUN:
             path = Layout(results).relight_timing(oid)
             try:
                 t = io.read_json(path)["F-RNG"]
+                fit, per_image = t["reconstruction_s"], t["relight_ms_per_image"] / 1000.0
             except (FileNotFoundError, ValueError, KeyError) as e:
-                raise ScoringError(f"{path}: cannot read F-RNG's timing ({e})") from e
-            fit, per_image = t["reconstruction_s"], t["relight_ms_per_image"] / 1000.0
+                if oid not in run.optional:
+                    raise ScoringError(f"{path}: cannot read F-RNG's timing ({e})") from e
         out.append(
             {
                 "run": run.run,

@@ -117,6 +117,8 @@ def compare(
     for name, pick in groups(d) if by_group else [("all", lambda x: x)]:
         subs = {r: pick(d[d["run"] == r]) for r in runs}
         subs = {r: s for r, s in subs.items() if len(s)}
+        if runs and not subs:  # a group none of the table's baselines covers (F-RNG alone compares nothing)
+            continue
         covered = pd.concat([s[list(IMAGE_KEYS)] for s in subs.values()]).drop_duplicates() if subs else None
         ref = pick(ref_all)
         if covered is not None:
@@ -218,8 +220,9 @@ def write_tables(per_image: Path, timing_csv: Path, out_dir: Path, tier: str, ba
 
 
 def figure_picks(df: pd.DataFrame, task: str, runs: Sequence[str], max_rows: int = 4) -> list[tuple[str, str, str]]:
-    """(object, light, view) shown in a table's figure: per dataset, the first object every run of the table covers
-    (else the reference's first), its first light and view; at most ``max_rows``."""
+    """(object, light, view) shown in a table's figure: per dataset any of the baselines ``runs[1:]`` covers, the
+    first object every run of ``runs`` (the reference first) covers (else the first scored), its first light and
+    view; at most ``max_rows``."""
     d = df[df["task"] == task]
     picks = []
     for ds in sorted(d["dataset"].astype(str).unique()):
@@ -228,6 +231,8 @@ def figure_picks(df: pd.DataFrame, task: str, runs: Sequence[str], max_rows: int
         for r in runs:
             o = set(dd.loc[dd["run"] == r, "object"])
             objs = o if objs is None else objs & o
+        if len(runs) > 1 and not dd["run"].isin(list(runs[1:])).any():  # only the reference has this dataset
+            continue
         cand = sorted(objs) if objs else sorted(dd["object"].unique())
         if not cand:
             continue

@@ -28,6 +28,7 @@ def planned(config) -> list:
     """The runs the config plans (:func:`frng.baselines.scoring.planned_runs` over the dataset plan's test split)."""
     from frng.baselines import plan as P
     from frng.baselines.scoring import planned_runs
+    from frng.benchmarks.plan import entries
     from frng.data import catalog
 
     cat = catalog.plan(config)
@@ -37,7 +38,8 @@ def planned(config) -> list:
     # as rules/baselines.smk's BASELINE_VIEW_IDS: every test object when the image-based baseline runs (and there are
     # per-scene objects), else the per-scene objects
     view_objects = [oid for oid, _ in tests] if image and per_scene else per_scene
-    return planned_runs(config, [oid for oid, _ in tests], per_scene, view_objects)
+    bench = [e["id"] for e in entries(config.to_dict())]
+    return planned_runs(config, [oid for oid, _ in tests], per_scene, view_objects, benchmark_objects=bench)
 
 
 def run(args: argparse.Namespace) -> int:
