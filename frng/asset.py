@@ -85,6 +85,10 @@ BASE_PROPERTIES = (
     "rot_3",
 )
 REQUIRED_DECODER_KEYS = ("width", "depth", "input_encoding")
+LOG_SCALE_RANGE = (-30.0, 5.0)  # a PLY's log scales outside are refused (exp(5) = 148 object radii)
+MAX_COORDINATE = 1e3  # a PLY's |x|, |y|, |z| above are refused (the object lies in the unit sphere)
+MAX_SPP_INFER = 4096  # asset.json render.shading.spp_infer bound (config/schema.yaml shading.spp_infer)
+MAX_DECODER_SIZE = 4096  # asset.json decoder.width / feature_dim above are refused (bounded memory before building)
 CONVENTIONS = {
     "world": "right-handed, Z up, object normalised into the unit sphere at the origin",
     "units": "world units (object radius 1)",
@@ -368,6 +372,20 @@ def ply_fields_to_gaussians(
             raise AssetError(
                 f"{source}: field {k!r} has {int(bad.sum())} non-finite value(s) (first at row {int(np.argmax(bad))})"
             )
+    for k in ("scale_0", "scale_1", "scale_2"):  # exp(100) overflows float32: the splat would cover everything
+        out = (fields[k] < LOG_SCALE_RANGE[0]) | (fields[k] > LOG_SCALE_RANGE[1])
+        if out.any():
+            i = int(np.argmax(out))
+            raise AssetError(
+                f"{source}: field {k!r} (log scale) is {float(fields[k][i]):g} at row {i}, outside "
+                f"{list(LOG_SCALE_RANGE)} (frng.asset.LOG_SCALE_RANGE; the object lies in the unit sphere)"
+            )
+    for k in ("x", "y", "z"):
+        if len(fields[k]) and float(np.abs(fields[k]).max()) > MAX_COORDINATE:
+            raise AssetError(
+                f"{source}: field {k!r} has a position of {float(np.abs(fields[k]).max()):g}, beyond "
+                f"{MAX_COORDINATE:g} (frng.asset.MAX_COORDINATE; the object lies in the unit sphere)"
+            )
     col = lambda *names: np.stack([np.asarray(fields[k], np.float64) for k in names], axis=1)  # noqa: E731
     t32 = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))  # noqa: E731
     n = len(fields["x"])
@@ -505,6 +523,8 @@ def load_asset(folder: str | os.PathLike) -> tuple[Gaussians, torch.Tensor, dict
         meta = read_json(meta_path)
     except ValueError as e:
         raise AssetError(str(e)) from e
+    if not isinstance(meta, dict):
+        raise AssetError(f"{meta_path}: not a JSON object (a {type(meta).__name__})")
     if meta.get("format") != FORMAT:
         raise AssetError(f"{meta_path}: field 'format' is {meta.get('format')!r}, expected {FORMAT!r}")
     if meta.get("version") != FORMAT_VERSION:
@@ -514,6 +534,18 @@ def load_asset(folder: str | os.PathLike) -> tuple[Gaussians, torch.Tensor, dict
     for k in ("num_gaussians", "feature_dim", "decoder", "object_id"):
         if k not in meta:
             raise AssetError(f"{meta_path}: missing field {k!r}")
+    for k, kind in (("num_gaussians", int), ("feature_dim", int), ("decoder", dict), ("object_id", str)):
+        if not isinstance(meta[k], kind) or isinstance(meta[k], bool):
+            raise AssetError(
+                f"{meta_path}: field {k!r} must be a {kind.__name__}, got {type(meta[k]).__name__} {meta[k]!r:.60}"
+            )
+    if meta["num_gaussians"] < 1:
+        raise AssetError(f"{meta_path}: field 'num_gaussians' is {meta['num_gaussians']}; an asset has >= 1 Gaussian")
+    if not 0 <= meta["feature_dim"] <= MAX_DECODER_SIZE:
+        raise AssetError(f"{meta_path}: field 'feature_dim' is {meta['feature_dim']}; must be 0..{MAX_DECODER_SIZE}")
+    for k in ("render", "rig"):
+        if meta.get(k) is not None and not isinstance(meta[k], dict):
+            raise AssetError(f"{meta_path}: field {k!r} must be an object, got {type(meta[k]).__name__}")
 
     fields = read_ply(ply_path)
     n = len(fields["x"]) if "x" in fields else len(next(iter(fields.values()), []))
@@ -533,7 +565,9 @@ def load_asset(folder: str | os.PathLike) -> tuple[Gaussians, torch.Tensor, dict
     except (SafetensorError, OSError, ValueError) as e:
         raise AssetError(f"{dec_path}: cannot read safetensors ({e})") from e
     for k, v in state.items():
-        if v.is_floating_point() and not torch.isfinite(v).all():
+        if not v.is_floating_point():  # int32 weights load into a float decoder as values of 1e8
+            raise AssetError(f"{dec_path}: tensor {k!r} has dtype {v.dtype}; decoder weights are floating point")
+        if not torch.isfinite(v).all():
             raise AssetError(f"{dec_path}: tensor {k!r} has non-finite values")
     meta["preview_rgb"] = preview
     return gaussians, features, state, meta
@@ -586,6 +620,15 @@ class AssetRenderer:
         missing = [k for k in DECODER_FIELDS if k not in dec]
         if missing:
             raise AssetError(f"{meta_path}: field 'decoder' lacks {missing} (needed to build the decoder)")
+        for k in ("feature_dim", "width", "depth", "dir_freqs"):
+            v = dec[k]
+            low = 1 if k in ("width", "depth") else 0
+            high = {"depth": 64, "dir_freqs": 32}.get(k, MAX_DECODER_SIZE)
+            if isinstance(v, bool) or not isinstance(v, int) or not low <= v <= high:
+                raise AssetError(f"{meta_path}: field 'decoder.{k}' must be an integer in {low}..{high}, got {v!r}")
+        for k in ("cosine", "attenuation"):
+            if not isinstance(dec[k], bool):
+                raise AssetError(f"{meta_path}: field 'decoder.{k}' must be true or false, got {dec[k]!r}")
         if int(dec["feature_dim"]) != features.shape[1]:
             raise AssetError(f"{meta_path}: decoder.feature_dim {dec['feature_dim']} != {features.shape[1]} features")
         self.device = torch.device(device)
@@ -600,7 +643,7 @@ class AssetRenderer:
                 attenuation=bool(dec["attenuation"]),
             )
             self.decoder.load_state_dict(state)
-        except (RuntimeError, ValueError) as e:
+        except (RuntimeError, ValueError, TypeError) as e:
             raise AssetError(
                 f"{self.folder / DECODER_FILE}: does not fit the decoder of {META_FILE} ({str(e).splitlines()[0]})"
             ) from e
@@ -610,8 +653,13 @@ class AssetRenderer:
         try:
             self.raster = RasterConfig.from_dict(dict(settings.get("raster", {})))
             self.shading = ShadingConfig.from_saved(dict(settings.get("shading", {})))
-        except (ValueError, KeyError, TypeError) as e:
+        except (ValueError, KeyError, TypeError, AttributeError) as e:
             raise AssetError(f"{meta_path}: field {RENDER_KEY!r}: {e}") from e
+        spp = self.shading.spp_infer
+        if isinstance(spp, bool) or not isinstance(spp, int) or not 1 <= spp <= MAX_SPP_INFER:
+            raise AssetError(
+                f"{meta_path}: field 'render.shading.spp_infer' must be an integer in 1..{MAX_SPP_INFER}, got {spp!r}"
+            )
         self.gaussians = Gaussians(
             *(t.to(self.device) for t in (g.means, g.quats, g.scales, g.opacities)), features.to(self.device)
         )
