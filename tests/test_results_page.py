@@ -183,7 +183,8 @@ def test_page_and_block_from_a_results_folder(results, tmp_path):
 def test_overrides_state_an_earlier_runs_provenance(results, tmp_path):
     out = RP.write_pages(results, tmp_path / "r.md", repo=tmp_path, overrides={"commit": "abc", "minutes": 72.4})
     page = out.page.read_text()
-    assert "| commit | `abc` |" in page and "| minutes (first job's log to the tables) | 72.4 |" in page
+    stated = " (stated by hand: the results folder did not record it) |"
+    assert "| commit | `abc`" + stated in page and "| minutes (first job's log to the tables) | 72.4" + stated in page
     with pytest.raises(RP.ResultsPageError, match="unknown provenance fields"):
         RP.write_pages(results, tmp_path / "r.md", overrides={"commmit": "abc"})
 
@@ -230,7 +231,7 @@ def test_subcommand_writes_the_pages(results, tmp_path):
             ]
         )
     assert e.value.code in (0, None)
-    assert "| commit | `0123abc` |" in (tmp_path / "docs" / "results.md").read_text()
+    assert "| commit | `0123abc` (stated by hand" in (tmp_path / "docs" / "results.md").read_text()
     assert "F-RNG (ours)" in RP.readme_block(readme.read_text())
 
 

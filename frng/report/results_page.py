@@ -110,6 +110,7 @@ class Provenance:
     machine: str
     minutes: float | None
     test_objects: int | None
+    stated: tuple[str, ...] = ()  # the fields given by hand (an earlier run's), not read from the folder
 
 
 def _cells(line: str) -> list[str]:
@@ -267,6 +268,10 @@ def _minutes(p: Provenance) -> str:
     return "unknown" if p.minutes is None else f"{p.minutes:g}"
 
 
+def _stated(p: Provenance, field: str) -> str:
+    return " (stated by hand: the results folder did not record it)" if field in p.stated else ""
+
+
 def _link(target: Path, page: Path) -> str:
     return Path(os.path.relpath(target, page.parent)).as_posix()
 
@@ -290,11 +295,11 @@ def page_text(tables: Sequence[Table], prov: Provenance, figures: Mapping[str, P
             [":--", ":--"],
             [
                 ["tier", prov.tier],
-                ["commit", f"`{prov.commit}`"],
-                ["date (UTC)", prov.date],
+                ["commit", f"`{prov.commit}`" + _stated(prov, "commit")],
+                ["date (UTC)", prov.date + _stated(prov, "date")],
                 ["config digest", f"`{prov.config_digest}`"],
-                ["machine", prov.machine],
-                ["minutes (first job's log to the tables)", _minutes(prov)],
+                ["machine", prov.machine + _stated(prov, "machine")],
+                ["minutes (first job's log to the tables)", _minutes(prov) + _stated(prov, "minutes")],
                 ["test objects", "unknown" if prov.test_objects is None else str(prov.test_objects)],
             ],
         ),
@@ -397,10 +402,10 @@ def write_pages(
     headline(tables, tables_dir)  # a missing headline is an error before anything is written
     prov = read_provenance(results, repo or page.parent, tables)
     if overrides:
-        unknown = sorted(set(overrides) - set(Provenance.__dataclass_fields__))
+        unknown = sorted(set(overrides) - (set(Provenance.__dataclass_fields__) - {"stated"}))
         if unknown:
             raise ResultsPageError(f"results page: unknown provenance fields {unknown}")
-        prov = replace(prov, **overrides)
+        prov = replace(prov, **overrides, stated=tuple(sorted(overrides)))
     figures_dir = Path(figures_dir) if figures_dir else page.parent / "figures" / "results"
     readme_text = None
     if readme is not None:
