@@ -89,8 +89,11 @@ def test_reference_by_topic_and_history_out_of_the_guide():
     assert rows, "CHANGELOG.md has no reproduction rows"
     for row in rows:  # date | commit | tier | minutes | headline | details
         assert len(row.strip("|").split(" | ")) == 6, row
-    for study in re.findall(r"\((docs/studies/[^)]+\.md)\)", changelog):
+    linked = set(re.findall(r"\((docs/studies/[^)]+\.md)\)", changelog))
+    for study in linked:
         assert (ROOT / study).is_file(), study
+    unlinked = [p.name for p in (docs / "studies").glob("20*.md") if f"docs/studies/{p.name}" not in linked]
+    assert not unlinked, f"studies CHANGELOG.md does not link: {unlinked}"
     assert not (docs / "results-history.md").exists(), "docs/results-history.md moved to docs/studies/"
     # docs/figures holds only what a page shows
     shown = set()
