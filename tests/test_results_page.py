@@ -189,9 +189,31 @@ def test_overrides_state_an_earlier_runs_provenance(results, tmp_path):
         RP.write_pages(results, tmp_path / "r.md", overrides={"commmit": "abc"})
 
 
-def test_the_commit_is_the_checkouts():
-    commit = RP.git_commit(ROOT)
-    assert re.fullmatch(r"[0-9a-f]{12}(\+dirty)?", commit) or commit == "unknown"
+def test_the_commit_is_the_checkouts_and_dirty_only_beyond_the_generated_files(tmp_path):
+    import subprocess
+
+    def git(*args):
+        return subprocess.run(
+            ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-C", str(tmp_path), *args],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+
+    assert RP.git_commit(tmp_path) == "unknown"  # no checkout yet
+    git("init", "-q")
+    (tmp_path / "docs").mkdir()
+    for name in ("README.md", "docs/results.md", "code.py"):
+        (tmp_path / name).write_text("v1\n")
+    git("add", "README.md", "docs/results.md", "code.py")
+    git("commit", "-q", "-m", "one")
+    head = git("rev-parse", "--short=12", "HEAD")
+    assert RP.git_commit(tmp_path / "docs") == head
+    (tmp_path / "README.md").write_text("regenerated\n")
+    (tmp_path / "docs" / "results.md").write_text("regenerated\n")
+    assert RP.git_commit(tmp_path) == head  # the pages it writes do not make the checkout dirty
+    (tmp_path / "code.py").write_text("v2\n")
+    assert RP.git_commit(tmp_path) == head + "+dirty"
 
 
 def test_bad_input_is_one_line_naming_the_file(results, tmp_path):
