@@ -59,6 +59,7 @@ STAGES_WITHOUT_RULE = {
     "tests/test_benchmarks.py (nothing downstream in the workflow reads it)",
     "frng.stages.reconstruct": "your own photos -> an asset, run by hand (tests/test_reconstruct.py)",
     "frng.stages.render_asset": "renders an asset folder, run by hand (tests/test_reconstruct.py)",
+    "frng.stages.view": "the interactive relighting viewer (frng.apps.view), run by hand (tests/test_viewer.py)",
     "frng.stages.config": "`frng config` validates a config file and prints it, run by make before snakemake",
     "frng.stages.results_page": "regenerates docs/results.md by hand; the rule tables does it through `frng tables "
     "--results-page` (tests/test_results_page.py)",

@@ -1,0 +1,742 @@
+"""``frng view``: an interactive relighting viewer in the browser for a relightable asset (:mod:`frng.asset`).
+
+A local web server on ``127.0.0.1`` built on viser (pinned in requirements.txt): the browser shows viser's viewport
+with its orbit / zoom / pan camera; every camera or light change is rendered on the server by the asset's own
+decoder (:class:`frng.asset.AssetRenderer`, the path ``frng render-asset`` renders with; no training code) and sent
+back as the viewport's background image. On a headless machine: ``ssh -L 8080:127.0.0.1:8080 HOST`` and open
+``http://127.0.0.1:8080`` locally.
+
+What a client sees (each browser tab has its own camera and settings):
+
+- the frame, rendered at the browser's aspect ratio with the viewport's vertical field of view (OpenCV camera:
+  viser's ``wxyz``/``position`` are the camera-to-world rotation and centre, world Z up), composited over a dark grey
+  (:data:`BACKGROUND`);
+- progressive quality: while the camera or a slider moves, frames at ``1 / LOW_DIVISOR`` of the resolution and
+  ``1 / LOW_SPP_DIVISOR`` of the light samples; once nothing changed for :data:`REST_S` seconds, the full frame
+  (the resolution's height, the asset's ``shading.spp_infer`` or ``--spp``; the light samples seeded as
+  ``frng render-asset --seed 0``, so a full frame is the image render-asset writes for the same camera and map);
+- a map picker (the tier's test maps, the asset's input light, files given with ``--env``), a rotation slider
+  about world Z (:func:`frng.envmap.rotate_z`) and an exposure slider (EV; scales the object's radiance on screen),
+  the rotated map's thumbnail, and the last frame's quality, size, light samples and time;
+- "Save frame": the current camera and map rendered by ``frng render-asset`` itself (its parser and
+  :func:`frng.stages.render_asset.render`) into ``{out}/frame_NNN/``: ``frame_NNN.exr`` (linear premultiplied RGBA),
+  ``frame_NNN.png`` (sRGB, straight alpha) and ``cameras.json`` (the ``--cameras`` format) as render-asset writes
+  them, ``light.exr`` (the map as rotated), ``display.png`` (the frame as shown: exposure, background) and
+  ``view.json`` (map, rotation, exposure, samples and the render-asset command that renders it again);
+- for a test object (``--object``): its target views and lights; picking one moves the camera to that view, picks
+  its light and shows the ground truth, F-RNG's relit image and the backbone's side by side (the results folder's
+  images, :mod:`frng.layout`).
+
+Everything that can fail on the user's input (the asset, the maps, the config, the port) is checked before the
+server starts, as :class:`ViewError` (or the readers' :class:`~frng.asset.AssetError` /
+:class:`~frng.capture.CaptureError`): one line, nothing left running.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import socket
+import tempfile
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+HOST = "127.0.0.1"
+DEFAULT_PORT = 8080
+REST_S = 0.3  # nothing changed for this long: render the full-quality frame
+LOW_DIVISOR = 2  # while moving: the resolution divided by this
+LOW_SPP_DIVISOR = 4  # while moving: the light samples divided by this (at least 1)
+MIN_LOW_HEIGHT = 16  # ...but frames at least this tall
+BACKGROUND = (0.05, 0.05, 0.05)  # linear RGB behind the object (sRGB ~0.25 grey)
+THUMB_WIDTH = 256  # the map thumbnail's width in the panel
+TILE_MIN = 128  # side-by-side tiles are upscaled (nearest neighbour, integer factor) to at least this
+FALLBACK_RESOLUTION = 64  # frame height when neither the asset's rig nor an object's views give one
+FULL, LOW = "full", "low"  # frame qualities, as the status line names them
+
+
+class ViewError(ValueError):
+    """Bad input to the viewer (option, map, port, results folder); the message names the file or option."""
+
+
+# -- lights -------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Light:
+    """One map of the picker: ``label`` (unique; what the dropdown shows), the equirect ``image`` (He, 2 He, 3)
+    linear float32, and the file it came from."""
+
+    label: str
+    image: np.ndarray = field(repr=False)
+    path: Path
+
+
+def results_of_asset(asset: Path) -> Path | None:
+    """The results folder an asset folder sits in when it is a relighting run's (``{results}/relight/{run}/{obj}/
+    asset``, :meth:`frng.layout.RelightFolder.asset`) and that folder has prepared env maps; else None."""
+    from frng.layout import Layout
+
+    p = Path(asset).resolve()
+    if len(p.parents) < 4 or p.parents[2].name != "relight":
+        return None
+    results = p.parents[3]
+    return results if Path(Layout(results).envmap_index()).exists() else None
+
+
+def collect_lights(
+    asset: Path, results: Path | None, env_files: Sequence[str | Path], object_id: str | None
+) -> list[Light]:
+    """The picker's maps, in order: the files given (``--env``), the asset's input light (``input_light.exr`` of
+    ``frng reconstruct``, else the results' object's first input light), then the results folder's test maps.
+    Raises :class:`~frng.capture.CaptureError` (a map missing, unreadable or not 2:1) or :class:`ViewError`."""
+    from frng import io
+    from frng.capture import read_light
+    from frng.data.envmaps import read_index
+    from frng.envmap import EnvMapError
+    from frng.layout import Layout
+
+    out: list[Light] = []
+
+    def add(label: str, path: Path) -> None:
+        if any(x.path.resolve() == path.resolve() for x in out):
+            return
+        taken = {x.label for x in out}
+        name, k = label, 2
+        while name in taken:
+            name, k = f"{label} ({k})", k + 1
+        out.append(Light(name, read_light(path), path))
+
+    for f in env_files:
+        add(f"{Path(f).stem} · file", Path(f))
+    if (Path(asset) / "input_light.exr").exists():
+        add("input light", Path(asset) / "input_light.exr")
+    if results is not None:
+        L = Layout(results)
+        if object_id is not None and Path(L.object_meta(object_id)).exists():
+            lights = io.read_json(L.object_meta(object_id)).get("input_lights") or []
+            if lights:
+                add(f"{lights[0]} · input light", Path(L.envmap(lights[0])))
+        try:
+            index = read_index(L.envmap_index())
+        except EnvMapError as e:
+            raise ViewError(str(e)) from None
+        for rec in index["maps"]:
+            if rec.get("split") == "test":
+                add(f"{rec['name']} · test map", Path(L.envmap(rec["name"])))
+    if not out:
+        raise ViewError("no environment map to light the asset with: give --env MAP (EXR/HDR, 2:1) or --config C")
+    return out
+
+
+def rotated(light: Light, degrees: float) -> np.ndarray:
+    """The light's map rotated about world Z by ``degrees`` (:func:`frng.envmap.rotate_z`), (He, We, 3)."""
+    from frng import envmap
+
+    return light.image if degrees % 360.0 == 0.0 else envmap.rotate_z(light.image, degrees)
+
+
+def thumbnail(env: np.ndarray, width: int = THUMB_WIDTH) -> np.ndarray:
+    """A display thumbnail of an equirect map (He, We, 3) -> uint8 (width / 2, width, 3): scaled so its 99th
+    luminance percentile is white, sRGB-encoded, resized (nearest neighbour up, area down)."""
+    from frng import envmap, io
+
+    lum = envmap.luminance(env)
+    img = io.srgb_encode(env / max(float(np.percentile(lum, 99)), 1e-6))
+    h, w = img.shape[:2]
+    if w < width:
+        k = max(1, width // w)
+        img = np.repeat(np.repeat(img, k, 0), k, 1)
+    elif w > width:
+        img = envmap.resize(img, width)
+    return (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
+
+
+# -- cameras ------------------------------------------------------------------------------------------------------
+
+
+def quat_to_matrix(wxyz: Sequence[float]) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) -> rotation matrix (3, 3), float64 (normalised first)."""
+    w, x, y, z = np.asarray(wxyz, np.float64) / np.linalg.norm(np.asarray(wxyz, np.float64))
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def frame_size(height: int, aspect: float) -> tuple[int, int]:
+    """(width, height) of a frame ``height`` px tall at the viewport's aspect ratio (width / height)."""
+    height = max(1, int(height))
+    return max(1, round(height * float(aspect))), height
+
+
+def viewport_camera(
+    position: Sequence[float], wxyz: Sequence[float], fov_y: float, width: int, height: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """A viewport camera (viser's: OpenCV axes, ``wxyz`` the camera-to-world rotation, vertical field of view
+    ``fov_y`` in radians) -> (c2w (4, 4), intrinsics (fx, fy, cx, cy) (4,)) for a ``width`` x ``height`` frame,
+    square pixels, centred; float64."""
+    c2w = np.eye(4)
+    c2w[:3, :3] = quat_to_matrix(wxyz)
+    c2w[:3, 3] = np.asarray(position, np.float64)
+    f = 0.5 * height / math.tan(0.5 * float(fov_y))
+    return c2w, np.array([f, f, width / 2.0, height / 2.0])
+
+
+def camera_pose(c2w: np.ndarray, intr: Sequence[float], height: int) -> dict:
+    """An OpenCV camera (c2w (4, 4), intrinsics (4,), image height) as viser sets a viewport: position, look_at
+    (the point on the optical axis nearest the origin, at least 0.1 ahead), up_direction (-y) and vertical fov."""
+    c2w = np.asarray(c2w, np.float64)
+    eye, forward = c2w[:3, 3], c2w[:3, 2]
+    depth = max(float(-eye @ forward), 0.1)
+    return {
+        "position": eye,
+        "look_at": eye + depth * forward,
+        "up_direction": -c2w[:3, 1],
+        "fov": 2.0 * math.atan(0.5 * height / float(intr[1])),
+    }
+
+
+def camera_record(name: str, c2w: np.ndarray, intr: np.ndarray, width: int, height: int) -> dict:
+    """One camera of the ``--cameras`` file format ``frng render-asset`` reads (``frng cameras.json``)."""
+    return {
+        "name": name,
+        "c2w": np.asarray(c2w, np.float64).tolist(),
+        "intrinsics": [float(v) for v in intr],
+        "width": int(width),
+        "height": int(height),
+    }
+
+
+# -- rendering ----------------------------------------------------------------------------------------------------
+
+
+class FrameRenderer:
+    """An asset folder rendered frame by frame: :class:`frng.asset.AssetRenderer`'s ``rasterize`` then ``shade``
+    (what its ``render`` and ``frng render-asset`` do), the light samples seeded as render-asset's ``--seed``; the
+    rasterized feature maps are kept while only the light changes. One frame at a time (a lock)."""
+
+    def __init__(self, asset: str | Path, device: str = "auto"):
+        from frng.asset import AssetRenderer
+        from frng.device import resolve_device
+
+        try:
+            self.device = resolve_device(device)
+        except RuntimeError as e:
+            raise ViewError(f"--device {device}: {e}") from None
+        self.asset = Path(asset)
+        self.renderer = AssetRenderer(self.asset, self.device)
+        self._lock = threading.Lock()
+        self._raster_key: tuple | None = None
+        self._raster: tuple | None = None
+
+    @property
+    def spp(self) -> int:
+        """The asset's light samples per pixel at inference (``shading.spp_infer``)."""
+        return int(self.renderer.shading.spp_infer)
+
+    def frame(
+        self, c2w: np.ndarray, intr: np.ndarray, width: int, height: int, env: np.ndarray, spp: int, seed: int = 0
+    ) -> tuple[np.ndarray, float]:
+        """One frame: c2w (4, 4), intrinsics (4,), env (He, We, 3) linear -> (RGBA (height, width, 4) linear
+        premultiplied float32, seconds it took on the device)."""
+        import torch
+
+        from frng.device import synchronize
+
+        c2w, intr, env = np.asarray(c2w), np.asarray(intr), np.asarray(env, np.float32)
+        assert c2w.shape == (4, 4) and intr.shape == (4,), (c2w.shape, intr.shape)
+        assert env.ndim == 3 and env.shape[2] == 3 and env.shape[1] == 2 * env.shape[0], env.shape
+        key = (c2w.tobytes(), intr.tobytes(), int(width), int(height))
+        with self._lock, torch.no_grad():
+            synchronize(self.device)
+            t0 = time.perf_counter()
+            if key != self._raster_key:
+                self._raster = self.renderer.rasterize(
+                    torch.tensor(c2w[None], dtype=torch.float32),
+                    torch.tensor(intr[None], dtype=torch.float32),
+                    height,
+                    width,
+                )
+                self._raster_key = key
+            g = torch.Generator().manual_seed(int(seed))
+            rgba = self.renderer.shade(self._raster, torch.from_numpy(env), int(spp), g)[0].float().cpu().numpy()
+            synchronize(self.device)
+            return rgba, time.perf_counter() - t0
+
+
+def display(rgba: np.ndarray, exposure_ev: float = 0.0) -> np.ndarray:
+    """A frame as shown: RGBA (H, W, 4) linear premultiplied -> uint8 sRGB (H, W, 3), the object's radiance scaled
+    by 2^exposure_ev, over :data:`BACKGROUND`."""
+    from frng import io
+
+    rgba = np.asarray(rgba, np.float32)
+    assert rgba.ndim == 3 and rgba.shape[2] == 4, rgba.shape
+    a = np.clip(rgba[..., 3:4], 0.0, 1.0)
+    rgb = rgba[..., :3] * (2.0 ** float(exposure_ev)) + (1.0 - a) * np.asarray(BACKGROUND, np.float32)
+    return (io.srgb_encode(rgb) * 255.0 + 0.5).astype(np.uint8)
+
+
+def upscale(img: np.ndarray, at_least: int = TILE_MIN) -> np.ndarray:
+    """Nearest-neighbour upscale of (H, W, C) by the smallest integer factor making its larger side >= at_least."""
+    k = max(1, -(-at_least // max(img.shape[:2])))
+    return np.repeat(np.repeat(img, k, 0), k, 1) if k > 1 else img
+
+
+# -- a test object: its target views and the relit images of the results folder ----------------------------------
+
+
+class TestObject:
+    """A relit test object of a results folder: its target views (cameras), the lights it was relit under, and
+    per (view, light) the ground truth, the full F-RNG run's and the backbone's images (:mod:`frng.layout`)."""
+
+    __test__ = False  # not a pytest class
+
+    def __init__(self, results: str | Path, oid: str):
+        from frng import io
+        from frng.layout import Layout
+        from frng.variants import BACKBONE
+
+        self.layout, self.oid = Layout(results), oid
+        meta_path, rec_path = Path(self.layout.object_meta(oid)), Path(self.layout.relight_record("full", oid))
+        for p, what in ((meta_path, "curated object"), (rec_path, "full run's relighting")):
+            if not p.exists():
+                raise ViewError(f"{p}: missing ({what} of --object {oid}); run the pipeline on that object first")
+        meta, rec = io.read_json(meta_path), io.read_json(rec_path)
+        cams = {c["name"]: c for c in (meta.get("views") or {}).get("targets", [])}
+        self.views = [v for v in rec.get("target_views", []) if v in cams]
+        self.lights = list(rec.get("lights", []))
+        if not self.views or not self.lights:
+            raise ViewError(f"{rec_path}: field 'target_views' or 'lights' names no target view or light")
+        self.cameras = {v: cams[v] for v in self.views}
+        self.runs = {"ground truth": None, "F-RNG": "full", "backbone": BACKBONE}
+        for view in self.views:
+            for light in self.lights:
+                for p in self.paths(view, light).values():
+                    if not Path(p).exists():
+                        raise ViewError(f"{p}: missing (a relit image of --object {oid})")
+
+    def paths(self, view: str, light: str) -> dict[str, str]:
+        """label -> image file of (view, light): ground truth, F-RNG, backbone."""
+        L = self.layout
+        return {
+            label: L.object_image(self.oid, "targets", light, view)
+            if run is None
+            else L.relight_image(run, self.oid, light, view)
+            for label, run in self.runs.items()
+        }
+
+    def targets(self) -> list[tuple[str, str]]:
+        """Every (view, light) pair, views outer."""
+        return [(v, light) for v in self.views for light in self.lights]
+
+    def camera(self, view: str) -> tuple[np.ndarray, np.ndarray, int, int]:
+        """(c2w (4, 4), intrinsics (4,), width, height) of a target view."""
+        c = self.cameras[view]
+        return np.asarray(c["c2w"], np.float64), np.asarray(c["intrinsics"], np.float64), c["width"], c["height"]
+
+    def side_by_side(self, view: str, light: str, exposure_ev: float = 0.0) -> np.ndarray:
+        """Ground truth | F-RNG | backbone at (view, light), as :func:`display` shows frames, 2 px apart, upscaled
+        to :data:`TILE_MIN`: uint8 (H, 3 W + 4, 3)."""
+        from frng import io
+
+        tiles = [upscale(display(io.read_rgba(p), exposure_ev)) for p in self.paths(view, light).values()]
+        gap = np.full((tiles[0].shape[0], 2, 3), 255, np.uint8)
+        return np.concatenate([tiles[0], gap, tiles[1], gap, tiles[2]], axis=1)
+
+
+# -- the server ---------------------------------------------------------------------------------------------------
+
+
+def check_port(port: int, host: str = HOST) -> None:
+    """A :class:`ViewError` when ``host:port`` cannot be listened on (in use, or not a port)."""
+    if not 1 <= int(port) <= 65535:
+        raise ViewError(f"--port {port}: not a TCP port (1-65535)")
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        try:
+            s.bind((host, int(port)))
+        except OSError as e:
+            raise ViewError(
+                f"--port {port}: cannot listen on {host}:{port} ({e.strerror or e}); pick another port"
+            ) from None
+
+
+@dataclass
+class Settings:
+    """What a viewer was opened with: frame height and light samples at full quality, the save folder, the
+    initial camera (c2w, intrinsics, height), the render-asset options a saved frame is rendered with."""
+
+    resolution: int
+    spp: int | None
+    out: Path
+    initial: tuple[np.ndarray, np.ndarray, int]
+    seed: int = 0
+
+
+class Viewer:
+    """The viser server and one :class:`_Session` per browser tab. :meth:`start` listens (checked first),
+    :meth:`stop` ends every thread it started."""
+
+    def __init__(
+        self, frames: FrameRenderer, lights: list[Light], settings: Settings, test_object: TestObject | None = None
+    ):
+        self.frames, self.lights, self.settings, self.test_object = frames, lights, settings, test_object
+        self.by_label = {x.label: x for x in lights}
+        self.server = None
+        self.sessions: dict[int, _Session] = {}
+        self._saves = 0
+        self._save_lock = threading.Lock()
+        self._rotated: dict[tuple[str, float], np.ndarray] = {}
+
+    def start(self, port: int) -> str:
+        """Listen on 127.0.0.1:port; returns the URL. A :class:`ViewError` (nothing left running) when the port is
+        taken."""
+        import viser
+
+        check_port(port)
+        server = viser.ViserServer(host=HOST, port=int(port), label="frng view", verbose=False)
+        if server.get_port() != int(port):  # taken between the check and the bind: viser moved on to another
+            server.stop()
+            raise ViewError(f"--port {port}: cannot listen on {HOST}:{port} (in use); pick another port")
+        self.server = server
+        c2w, intr, height = self.settings.initial
+        pose = camera_pose(c2w, intr, height)
+        server.initial_camera.position = tuple(pose["position"])
+        server.initial_camera.look_at = tuple(pose["look_at"])
+        server.initial_camera.up = tuple(pose["up_direction"])
+        server.initial_camera.fov = pose["fov"]
+        server.on_client_connect(self._connect)
+        server.on_client_disconnect(self._disconnect)
+        return f"http://{HOST}:{port}"
+
+    def warm_up(self) -> float:
+        """Render the first camera's frame once (torch's first calls are several times slower than the next ones),
+        so the first frame a browser gets is timed as every later one; returns the seconds it took."""
+        c2w, intr, height = self.settings.initial
+        w, h = frame_size(self.settings.resolution, 1.0)
+        f = intr[1] * h / height
+        spp = self.settings.spp or self.frames.spp
+        _, s = self.frames.frame(c2w, np.array([f, f, w / 2, h / 2]), w, h, self.lights[0].image, spp)
+        return s
+
+    def stop(self) -> None:
+        for s in list(self.sessions.values()):
+            s.close()
+        if self.server is not None:
+            self.server.stop()
+            self.server = None
+
+    def _connect(self, client) -> None:
+        self.sessions[client.client_id] = _Session(self, client)
+
+    def _disconnect(self, client) -> None:
+        s = self.sessions.pop(client.client_id, None)
+        if s is not None:
+            s.close()
+
+    def env(self, label: str, rotation: float) -> np.ndarray:
+        """The map ``label`` rotated by ``rotation`` degrees (cached)."""
+        key = (label, float(rotation))
+        if key not in self._rotated:
+            if len(self._rotated) > 64:
+                self._rotated.clear()
+            self._rotated[key] = rotated(self.by_label[label], rotation)
+        return self._rotated[key]
+
+    def save(self, c2w: np.ndarray, intr: np.ndarray, width: int, height: int, label: str, rotation: float,
+             exposure: float) -> Path:  # fmt: skip
+        """Render the view with ``frng render-asset`` (its own parser and :func:`~frng.stages.render_asset.render`)
+        into ``{out}/frame_NNN/`` (module docstring); returns that folder."""
+        from frng import envmap, io
+        from frng.stages import render_asset
+
+        st = self.settings
+        with self._save_lock:
+            st.out.mkdir(parents=True, exist_ok=True)
+            while (st.out / f"frame_{self._saves:03d}").exists():
+                self._saves += 1
+            name = f"frame_{self._saves:03d}"
+            self._saves += 1
+        folder = st.out / name
+        with tempfile.TemporaryDirectory(prefix=f".{name}-", dir=st.out) as tmp:
+            cam_file, light_file = Path(tmp) / "camera.json", Path(tmp) / "light.exr"
+            io.write_json(cam_file, {"cameras": [camera_record(name, c2w, intr, width, height)]})
+            envmap.write(light_file, self.env(label, rotation))
+            argv = [str(self.frames.asset), "--env", str(light_file), "--out", str(folder), "--cameras", str(cam_file)]
+            argv += ["--device", str(self.frames.device), "--seed", str(st.seed)]
+            argv += ["--spp", str(st.spp)] if st.spp else []
+            parser = argparse.ArgumentParser(prog="frng render-asset")
+            render_asset.configure(parser)
+            with self.frames._lock:  # one render at a time on the device
+                render_asset.render(parser.parse_args(argv))
+            os.replace(light_file, folder / "light.exr")
+        rerun = ["frng render-asset", str(self.frames.asset), "--env", str(folder / "light.exr"), "--cameras"]
+        rerun += [str(folder / "cameras.json"), "--out", "OUT", "--seed", str(st.seed)]
+        rerun += ["--spp", str(st.spp)] if st.spp else []
+        io.write_png(folder / "display.png", display(io.read_rgba(folder / f"{name}.exr"), exposure))
+        io.write_json(
+            folder / "view.json",
+            {
+                "map": label,
+                "map_file": str(self.by_label[label].path),
+                "rotation_deg": float(rotation),
+                "exposure_ev": float(exposure),
+                "spp": st.spp or self.frames.spp,
+                "seed": st.seed,
+                "device": str(self.frames.device),
+                "command": " ".join(rerun),
+            },
+        )
+        return folder
+
+
+class _Session:
+    """One browser tab: its panel, its camera's state and the thread that renders its frames (low while things
+    move, full once they rest for :data:`REST_S`)."""
+
+    def __init__(self, viewer: Viewer, client):
+        self.viewer, self.client = viewer, client
+        self.changed = time.monotonic()
+        self.wake = threading.Event()
+        self.closed = threading.Event()
+        self.shown: tuple | None = None  # the key of the frame on screen
+        self.last: tuple[tuple, np.ndarray, float] | None = None  # (render key, rgba, seconds)
+        self.count = 0
+        self._build_panel()
+        client.camera.on_update(lambda _cam: self.touch())
+        self.thread = threading.Thread(target=self._loop, name=f"frng-view-{client.client_id}", daemon=True)
+        self.thread.start()
+
+    def _build_panel(self) -> None:
+        v, gui = self.viewer, self.client.gui
+        labels = [x.label for x in v.lights]
+        with gui.add_folder("Light"):
+            self.map = gui.add_dropdown("map", labels, initial_value=labels[0])
+            self.thumb = gui.add_image(thumbnail(v.lights[0].image), label="map (thumbnail)", format="png")
+            self.rotation = gui.add_slider("rotation (deg)", min=-180.0, max=180.0, step=1.0, initial_value=0.0)
+            self.exposure = gui.add_slider("exposure (EV)", min=-4.0, max=4.0, step=0.1, initial_value=0.0)
+        self.status = gui.add_markdown("waiting for the first frame")
+        self.save_button = gui.add_button("Save frame")
+        self.saved = gui.add_markdown("")
+        for h in (self.map, self.rotation, self.exposure):
+            h.on_update(lambda _e: self.light_changed())
+        self.save_button.on_click(lambda _e: self.save())
+        t = v.test_object
+        if t is not None:
+            with gui.add_folder("Test object"):
+                options = ["(free camera)"] + [f"{view} · {light}" for view, light in t.targets()]
+                self.target = gui.add_dropdown("target view · light", options, initial_value=options[0])
+                self.compare = gui.add_image(
+                    np.zeros((TILE_MIN, 3 * TILE_MIN + 4, 3), np.uint8), label="ground truth | F-RNG | backbone",
+                    format="png", visible=False,
+                )  # fmt: skip
+            self.target.on_update(lambda _e: self.target_changed())
+
+    # -- events --
+    def touch(self) -> None:
+        self.changed = time.monotonic()
+        self.wake.set()
+
+    def light_changed(self) -> None:
+        self.thumb.image = thumbnail(self.viewer.env(self.map.value, self.rotation.value))
+        self.touch()
+
+    def target_changed(self) -> None:
+        t = self.viewer.test_object
+        if self.target.value not in {f"{v} · {light}" for v, light in t.targets()}:
+            self.compare.visible = False
+            return
+        view, light = self.target.value.split(" · ", 1)
+        c2w, intr, _, h = t.camera(view)
+        pose = camera_pose(c2w, intr, h)
+        cam = self.client.camera
+        with self.client.atomic():
+            cam.position = pose["position"]
+            cam.look_at = pose["look_at"]
+            cam.up_direction = pose["up_direction"]
+            cam.fov = pose["fov"]
+        label = next((x.label for x in self.viewer.lights if x.label.split(" · ")[0] == light), None)
+        if label is not None:
+            self.rotation.value = 0.0
+            self.map.value = label
+        self.compare.image = t.side_by_side(view, light, self.exposure.value)
+        self.compare.visible = True
+        self.touch()
+
+    def save(self) -> None:
+        self.saved.content = "saving..."
+        try:
+            c2w, intr, w, h, label, rot, ev = self._view(FULL)
+            folder = self.viewer.save(c2w, intr, w, h, label, rot, ev)
+        except Exception as e:  # shown in the panel: the server keeps running
+            self.saved.content = f"save failed: {str(e).splitlines()[0]}"
+            return
+        self.saved.content = f"saved `{folder}` (EXR, PNG, cameras.json)"
+
+    def close(self) -> None:
+        self.closed.set()
+        self.wake.set()
+
+    # -- rendering --
+    def _view(self, quality: str):
+        """(c2w, intr, width, height, map label, rotation, exposure) of the current state at ``quality``."""
+        cam, st = self.client.camera, self.viewer.settings
+        res = st.resolution if quality == FULL else max(MIN_LOW_HEIGHT, st.resolution // LOW_DIVISOR)
+        aspect = cam.image_width / max(cam.image_height, 1) if cam.image_height else 1.0
+        w, h = frame_size(res, aspect)
+        c2w, intr = viewport_camera(cam.position, cam.wxyz, cam.fov, w, h)
+        return c2w, intr, w, h, self.map.value, float(self.rotation.value), float(self.exposure.value)
+
+    def _spp(self, quality: str) -> int:
+        full = self.viewer.settings.spp or self.viewer.frames.spp
+        return full if quality == FULL else max(1, full // LOW_SPP_DIVISOR)
+
+    def _loop(self) -> None:
+        while not self.closed.is_set():
+            moving = time.monotonic() - self.changed < REST_S
+            quality = LOW if moving else FULL
+            try:
+                view = self._view(quality)
+            except (AssertionError, AttributeError):  # no camera message yet
+                view = None
+            if view is not None:
+                key = (quality, view[0].tobytes(), *view[2:], self._spp(quality))
+                if key != self.shown:
+                    try:
+                        self._show(key, view, quality)
+                    except Exception as e:  # a failed frame is reported in the panel, the loop goes on
+                        self.status.content = f"frame failed: {str(e).splitlines()[0]}"
+                        self.shown = key
+            if moving:
+                self.wake.wait(max(0.01, REST_S - (time.monotonic() - self.changed)))
+            else:
+                self.wake.wait(1.0)
+            self.wake.clear()
+
+    def _show(self, key: tuple, view: tuple, quality: str) -> None:
+        c2w, intr, w, h, label, rot, ev = view
+        spp = self._spp(quality)
+        render_key = (key[1], w, h, label, rot, spp)
+        if self.last is not None and self.last[0] == render_key:  # only the exposure changed
+            rgba, seconds = self.last[1], self.last[2]
+        else:
+            rgba, seconds = self.viewer.frames.frame(c2w, intr, w, h, self.viewer.env(label, rot), spp)
+            self.last = (render_key, rgba, seconds)
+        self.client.scene.set_background_image(display(rgba, ev), format="png")
+        self.count += 1
+        self.shown = key
+        self.status.content = (
+            f"**{quality}** frame {self.count}: {w}×{h} px, {spp} spp, **{seconds * 1000:.0f} ms** on "
+            f"{self.viewer.frames.device.type} · {label}"
+        )
+
+
+# -- opening a viewer from the command line's arguments -----------------------------------------------------------
+
+
+def open_viewer(
+    asset: str | None,
+    env: Sequence[str] = (),
+    object_id: str | None = None,
+    config: str | None = None,
+    resolution: int | None = None,
+    spp: int | None = None,
+    device: str = "auto",
+    out: str = "frng-view",
+) -> Viewer:
+    """Check every input and load the asset and the maps (everything that can fail on bad input), without listening
+    yet: a :class:`Viewer` to :meth:`~Viewer.start`. ``asset`` or ``object_id`` (+ ``config``)."""
+    from frng import io
+    from frng.layout import Layout, RelightFolder
+    from frng.stages.render_asset import turntable
+
+    results = None
+    if config is not None:
+        from frng import config as frng_config
+        from frng.typedconfig import typed
+
+        results = Path(typed(frng_config.load(config)).results)
+    test_object = None
+    if object_id is not None:
+        if results is None:
+            raise ViewError("--object needs --config (the pipeline config whose results folder holds the object)")
+        if asset is not None:
+            raise ViewError("give an ASSET folder or --object, not both")
+        test_object = TestObject(results, object_id)
+        asset = RelightFolder(Layout(results).relight_run("full", object_id)).asset()
+    elif asset is None:
+        raise ViewError("give an ASSET folder (asset.json, gaussians.ply, decoder.safetensors) or --object OBJ")
+    if resolution is not None and resolution < 8:
+        raise ViewError(f"--resolution {resolution}: at least 8 px")
+    if spp is not None and spp < 1:
+        raise ViewError(f"--spp {spp}: at least 1")
+    frames = FrameRenderer(asset, device)  # AssetError: missing / malformed asset, one line
+    asset_path = Path(asset)
+    meta = frames.renderer.meta
+    if results is None:
+        results = results_of_asset(asset_path)
+    oid = object_id or str(meta.get("object_id"))
+    lights = collect_lights(asset_path, results, env, oid)
+    # the first camera: the test object's first target view, else the asset's rig as render-asset's turntable
+    obj_meta = Path(Layout(results).object_meta(oid)) if results is not None else None
+    if test_object is not None:
+        c2w, intr, _, h = test_object.camera(test_object.views[0])
+    elif obj_meta is not None and obj_meta.exists() and (io.read_json(obj_meta).get("views") or {}).get("targets"):
+        cam = io.read_json(obj_meta)["views"]["targets"][0]
+        c2w, intr, h = np.asarray(cam["c2w"]), np.asarray(cam["intrinsics"]), int(cam["height"])
+    else:
+        rig = frames.renderer.rig
+        res = int(rig.get("resolution", FALLBACK_RESOLUTION))
+        cam = turntable(1, 20.0, float(rig.get("camera_distance", 4.0)), float(rig.get("fov_deg", 40.0)), res)[0]
+        c2w, intr, h = np.asarray(cam["c2w"]), np.asarray(cam["intrinsics"]), res
+    settings = Settings(
+        resolution=int(resolution or frames.renderer.rig.get("resolution", h)),
+        spp=spp,
+        out=Path(out),
+        initial=(np.asarray(c2w, np.float64), np.asarray(intr, np.float64), int(h)),
+    )
+    return Viewer(frames, lights, settings, test_object)
+
+
+def serve(viewer: Viewer, port: int, stop: threading.Event, log=print) -> None:
+    """Start the viewer on ``port``, print its URL and the SSH tunnel line, serve until ``stop`` is set, stop."""
+    viewer.warm_up()
+    url = viewer.start(port)
+    try:
+        log(
+            f"frng view: {url} ({len(viewer.lights)} maps, {viewer.frames.device.type}, frames "
+            f"{viewer.settings.resolution} px tall); on a remote machine: ssh -L {port}:{HOST}:{port} HOST, then open "
+            f"the URL locally. Ctrl-C stops.",
+        )
+        while not stop.wait(0.5):
+            pass
+    finally:
+        viewer.stop()
+
+
+__all__ = [
+    "FrameRenderer",
+    "Light",
+    "TestObject",
+    "ViewError",
+    "Viewer",
+    "camera_pose",
+    "camera_record",
+    "check_port",
+    "collect_lights",
+    "display",
+    "frame_size",
+    "open_viewer",
+    "quat_to_matrix",
+    "serve",
+    "thumbnail",
+    "viewport_camera",
+]
