@@ -71,7 +71,6 @@ STAGES: dict[str, tuple[str, str]] = {
     "reconstruct": ("frng.stages.reconstruct", "your own photos (2-10 views) -> a relightable asset folder"),
     "render-asset": ("frng.stages.render_asset", "render an asset folder under any env map (views, turntable)"),
     "view": ("frng.stages.view", "interactive relighting viewer of an asset in the browser (127.0.0.1, viser)"),
-    "view": ("frng.stages.view", "interactive relighting viewer of an asset in the browser (127.0.0.1, viser)"),
     "relight-benchmark": ("frng.stages.relight_benchmark", "relight one imported benchmark object (as relight)"),
     "relight-seed": (
         "frng.stages.relight_seed",
