@@ -103,16 +103,57 @@ def write_failure(path: str | os.PathLike, e: BaseException) -> OSError:
     return OSError(errno_ or 5, f"{path}: cannot write ({cause})")
 
 
+_LAST_LOADED: tuple[str, str] | None = None
+
+
+def last_loaded() -> tuple[str, str] | None:
+    """(path, what) of the last file :func:`load_torch` read: the file a following ``load_state_dict`` error is
+    about (``frng.cli.run_stage`` names it)."""
+    return _LAST_LOADED
+
+
+def check_model_file(state, path: str | os.PathLike, what: str) -> None:
+    """A model file (``what`` ends with "model file"): a dict with a ``config`` dict and a ``state_dict`` of floating,
+    finite tensors; else :class:`CorruptFileError` naming the file and the key (integer weights would load into the
+    float model as values of 1e8; NaN weights render NaN)."""
+    import torch
+
+    if not isinstance(state, dict):
+        raise CorruptFileError(f"{path}: not a {what} (it holds a {type(state).__name__}, not a dict)")
+    for key in ("config", "state_dict"):
+        if not isinstance(state.get(key), dict):
+            got = "missing" if key not in state else f"a {type(state[key]).__name__}"
+            raise CorruptFileError(f"{path}: {what}: key {key!r} is {got}, expected a dict")
+    for k, v in state["state_dict"].items():
+        if not isinstance(v, torch.Tensor):
+            raise CorruptFileError(f"{path}: {what}: state_dict entry {k!r} is a {type(v).__name__}, not a tensor")
+        if not v.is_floating_point():
+            raise CorruptFileError(f"{path}: {what}: weight {k!r} has dtype {v.dtype}; weights are floating point")
+        if not torch.isfinite(v).all():
+            raise CorruptFileError(f"{path}: {what}: weight {k!r} has non-finite values (NaN or inf)")
+
+
 def load_torch(path: str | os.PathLike, what: str = "file"):
     """``torch.load`` of a file frng wrote (a model, checkpoint or prior), safely: ``weights_only=True``, so a
     crafted pickle cannot run code (only tensors and plain Python data load). Errors name the file: a missing
     one is FileNotFoundError; a truncated, corrupt or foreign one (or one holding other objects) is
-    :class:`CorruptFileError`."""
+    :class:`CorruptFileError`; so is a model file (``what`` ending in "model file") that is not a dict with a
+    ``config`` and floating, finite weights (:func:`check_model_file`)."""
+    global _LAST_LOADED
+
+    path = Path(path)
+    state = _load_torch(path, what)
+    _LAST_LOADED = (str(path), what)
+    if what.endswith("model file"):
+        check_model_file(state, path, what)
+    return state
+
+
+def _load_torch(path: Path, what: str):
     import pickle
 
     import torch
 
-    path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: {what} does not exist")
     try:
