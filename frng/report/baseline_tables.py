@@ -161,7 +161,8 @@ def nvs_runs(df: pd.DataFrame) -> list[str]:
 def caption(title: str, tier: str, background, sub: pd.DataFrame) -> str:
     proto = sub["protocol"].iloc[0] if len(sub) else "?"
     return (
-        f"{title} Tier {tier}: {sub['object'].nunique()} object(s), {len(sub)} images; {proto} metric protocol "
+        f"{title} Tier {tier}: {sub['object'].nunique()} object(s), {len(sub[list(IMAGE_KEYS)].drop_duplicates())} "
+        f"images; {proto} metric protocol "
         f"(frng/metrics.py), background {list(background)}. Source: 'trained here' = fitted in this pipeline, "
         f"'files' = another method's outputs read from baselines.external. {NOTE}"
     )
