@@ -228,6 +228,11 @@ def reshade_object(job: ImageJob, oid: str, out: Path, gbuffer: str = "idm", dev
 
     if gbuffer not in GBUFFERS:
         raise ImageBaselineError(f"--gbuffer must be one of {GBUFFERS}, got {gbuffer!r}")
+    if gbuffer == "idm" and getattr(job.idm, "kind", None) == "diffusion-renderer":
+        raise ImageBaselineError(
+            "config key 'idm.kind': diffusion-renderer priors are files of the input views (frame order), not of the "
+            "target views this baseline decomposes; use --gbuffer oracle or a learned IDM"
+        )
     inp = read_inputs(job.results, oid)
     dev = resolve_device(device or job.device)
     idm = build_idm(job.idm, job.backbone, job.results, dev) if gbuffer == "idm" else None
