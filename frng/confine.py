@@ -407,6 +407,166 @@ def _exr_size(path: Path) -> tuple[int, int] | None:
     return max(sizes, key=lambda s: s[0] * s[1]) if sizes else None
 
 
+# -- meshes (own assets imported in Blender; pure Python, checked before Blender opens the file) ----------------
+
+_MTL_MAPS = ("map_", "bump", "disp", "decal", "refl", "norm")
+
+
+def mesh_references(path: str | os.PathLike) -> list[tuple[str, str, str]]:
+    """The files a mesh file names, as (file naming it, field, reference as written): an OBJ's ``mtllib`` and, in
+    each of those MTLs, its texture statements (``map_Kd``, ``bump``, ``disp``, ``refl``, ``norm``, ...: every token
+    after the keyword, and the whole remainder, since names may hold spaces); a glTF's (or GLB's JSON chunk's)
+    ``buffers[].uri`` and ``images[].uri`` (``data:`` URIs excluded; URI-decoded). Other formats name none."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    out: list[tuple[str, str, str]] = []
+    if suffix == ".obj":
+        for no, line in enumerate(_text(path).splitlines(), 1):
+            words = line.split(None, 1)
+            if len(words) == 2 and words[0] == "mtllib":
+                for ref in _candidates(words[1]):
+                    out.append((str(path), f"line {no} mtllib", ref))
+                    mtl = path.parent / ref
+                    if is_inside(mtl, path.parent) and mtl.is_file():
+                        out += _mtl_references(mtl)
+    elif suffix in (".gltf", ".glb"):
+        doc = _gltf_json(path)
+        for key in ("buffers", "images"):
+            for i, item in enumerate(doc.get(key) or []):
+                uri = item.get("uri") if isinstance(item, dict) else None
+                if isinstance(uri, str) and not uri.startswith("data:"):
+                    from urllib.parse import unquote
+
+                    out.append((str(path), f"{key}[{i}].uri", unquote(uri)))
+    return out
+
+
+def _text(path: Path) -> str:
+    return path.read_bytes().decode("utf-8", "replace")
+
+
+def _candidates(rest: str) -> list[str]:
+    rest = rest.strip()
+    tokens = rest.split()
+    return list(dict.fromkeys([rest, *tokens])) if rest else []
+
+
+def _mtl_references(mtl: Path) -> list[tuple[str, str, str]]:
+    out = []
+    for no, line in enumerate(_text(mtl).splitlines(), 1):
+        words = line.split(None, 1)
+        if len(words) == 2 and words[0].lower().startswith(_MTL_MAPS):
+            out += [(str(mtl), f"line {no} {words[0]}", ref) for ref in _candidates(words[1])]
+    return out
+
+
+def _gltf_json(path: Path) -> dict:
+    data = path.read_bytes()
+    try:
+        if path.suffix.lower() == ".glb":
+            if len(data) < 20 or data[:4] != b"glTF":
+                return {}
+            n = int.from_bytes(data[12:16], "little")
+            if data[16:20] != b"JSON":
+                return {}
+            doc = json.loads(data[20 : 20 + n])
+        else:
+            doc = json.loads(data)
+    except ValueError:
+        return {}  # not JSON: the importer names the file
+    return doc if isinstance(doc, dict) else {}
+
+
+def check_mesh_references(
+    path: str | os.PathLike, root: str | os.PathLike | None = None, allow_outside: bool = False
+) -> None:
+    """Every existing file the mesh ``path`` names (:func:`mesh_references`) must resolve inside ``root`` (default: the
+    mesh's folder), symlinks resolved; else an :class:`OutsideError` naming the file and the field. Relative
+    references are taken from the naming file's folder (the OBJ's, the MTL's, the glTF's), as the importers do. A
+    reference to a file that does not exist (an author's absolute path) reads nothing and passes: the importer skips
+    it and :func:`frng.blender.materials.adopt` looks for it inside the asset's folders."""
+    if allow_outside:
+        return
+    path = Path(path)
+    root = Path(root) if root is not None else path.parent
+    for naming, field, ref in mesh_references(path):
+        target = Path(naming).parent / ref
+        if not is_inside(target, root) and target.exists():  # a missing one reads nothing (the importer skips it)
+            raise OutsideError(
+                f"{naming}: {field} names {ref!r}, which is outside the asset folder {root.resolve()} "
+                f"(resolves to {target.resolve()}); copy the file into the asset's folder"
+            )
+
+
+def gltf_nonfinite_position(path: str | os.PathLike) -> str | None:
+    """Where a glTF/GLB's ``POSITION`` accessors hold a NaN/inf (``"meshes[0].primitives[0] POSITION vertex 3"``),
+    else None (Blender's importer turns them into 0 silently). Float VEC3 accessors in the GLB's BIN chunk, a
+    ``data:`` URI or a file beside it are read; others are left to the check after import."""
+    import base64
+
+    path = Path(path)
+    data = path.read_bytes() if path.suffix.lower() == ".glb" else b""
+    doc = _gltf_json(path)
+    bins: dict[int, bytes] = {}
+
+    def buffer(i: int) -> bytes | None:
+        if i in bins:
+            return bins[i]
+        bufs = doc.get("buffers") or []
+        if not 0 <= i < len(bufs) or not isinstance(bufs[i], dict):
+            return None
+        uri = bufs[i].get("uri")
+        raw = None
+        if uri is None and data:  # the GLB's BIN chunk
+            n = int.from_bytes(data[12:16], "little")
+            off = 20 + n
+            if len(data) >= off + 8 and data[off + 4 : off + 8] == b"BIN\0":
+                m = int.from_bytes(data[off : off + 4], "little")
+                raw = data[off + 8 : off + 8 + m]
+        elif isinstance(uri, str) and uri.startswith("data:") and "," in uri:
+            try:
+                raw = base64.b64decode(uri.split(",", 1)[1])
+            except ValueError:
+                raw = None
+        elif isinstance(uri, str):
+            from urllib.parse import unquote
+
+            f = path.parent / unquote(uri)
+            raw = f.read_bytes() if is_inside(f, path.parent) and f.is_file() else None
+        bins[i] = raw
+        return raw
+
+    try:
+        accessors, views = doc.get("accessors") or [], doc.get("bufferViews") or []
+        for mi, mesh in enumerate(doc.get("meshes") or []):
+            for pi, prim in enumerate(mesh.get("primitives") or []):
+                ai = (prim.get("attributes") or {}).get("POSITION")
+                if not isinstance(ai, int) or not 0 <= ai < len(accessors):
+                    continue
+                acc = accessors[ai]
+                if acc.get("componentType") != 5126 or acc.get("type") != "VEC3" or "bufferView" not in acc:
+                    continue
+                view = views[acc["bufferView"]]
+                raw = buffer(int(view.get("buffer", 0)))
+                if raw is None:
+                    continue
+                count = int(acc.get("count", 0))
+                stride = int(view.get("byteStride") or 12)
+                start = int(view.get("byteOffset", 0)) + int(acc.get("byteOffset", 0))
+                if count <= 0 or start + stride * (count - 1) + 12 > len(raw):
+                    continue
+                rows = np.lib.stride_tricks.as_strided(
+                    np.frombuffer(raw, dtype=np.uint8, offset=start), shape=(count, 12), strides=(stride, 1)
+                )
+                xyz = np.ascontiguousarray(rows).view("<f4").reshape(count, 3)
+                bad = ~np.isfinite(xyz).all(axis=1)
+                if bad.any():
+                    return f"meshes[{mi}].primitives[{pi}] POSITION vertex {int(np.argmax(bad))}"
+    except (TypeError, ValueError, KeyError, IndexError, AttributeError):
+        return None  # a malformed file: the importer names it
+    return None
+
+
 __all__ = [
     "ALLOW_OUTSIDE_HINT",
     "MANIFEST",
@@ -418,6 +578,9 @@ __all__ = [
     "angle",
     "check_id",
     "check_image_size",
+    "check_mesh_references",
+    "gltf_nonfinite_position",
+    "mesh_references",
     "check_output",
     "check_weights",
     "finite",

@@ -254,18 +254,29 @@ def nonfinite_vertex(path: str | Path) -> str | None:
     return _nonfinite_ply(data)
 
 
-def import_file(path: str | Path, keep_materials: bool = False) -> bpy.types.Object:
+def import_file(path: str | Path, keep_materials: bool = False, root: str | Path | None = None) -> bpy.types.Object:
     """Import OBJ/PLY/STL/glTF/GLB as ONE mesh object with transforms applied, coordinates as in the file.
 
     (glTF: the importer's Y-up -> Z-up conversion is undone so that all formats behave alike.)
     ``keep_materials``: keep the file's own materials (OBJ + MTL, glTF PBR; see
     :func:`frng.blender.materials.adopt`), else the object comes without materials.
+    Before Blender opens it, every file the mesh names (``mtllib``, an MTL's ``map_Kd`` ..., a glTF buffer or image
+    URI) must lie inside ``root`` (default: the mesh's folder; symlinks resolved), else a :class:`MeshError` naming
+    the file and the field (:func:`frng.confine.check_mesh_references`); and a glTF's positions must be finite.
     """
+    from frng import confine
+
     path = Path(path)
     if not path.is_file():
         raise MeshError(f"{path}: mesh file does not exist")
     suffix = path.suffix.lower()
+    try:
+        confine.check_mesh_references(path, root)
+    except confine.OutsideError as e:
+        raise MeshError(str(e)) from None
     bad = nonfinite_vertex(path)
+    if bad is None and suffix in (".gltf", ".glb"):
+        bad = confine.gltf_nonfinite_position(path)
     if bad is not None:
         raise MeshError(f"{path}: non-finite vertex coordinate (NaN/inf) at {bad}")
     before = set(bpy.context.scene.objects)
@@ -519,13 +530,14 @@ def load(
             if spec.source == "libero":  # an object folder: its visual OBJs, joined
                 from frng.data.catalog import libero_meshes
 
-                parts = [import_file(f, keep_materials) for f in libero_meshes(path)]
+                parts = [import_file(f, keep_materials, root=path) for f in libero_meshes(path)]
                 if len(parts) > 1:
                     _select_only(parts)
                     bpy.ops.object.join()
                 obj = bpy.context.view_layer.objects.active if len(parts) > 1 else parts[0]
             else:
-                obj = import_file(path, keep_materials)
+                # the package's own meshes share textures across its folders (torus/*.mtl: ../cube.png)
+                obj = import_file(path, keep_materials, root=pybullet_dir if spec.source == "pybullet" else None)
         except MeshError as e:
             raise MeshError(f"object {spec.id}: {e}") from e
         pre = np.diag(list(spec.prescale) + [1.0])

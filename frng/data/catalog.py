@@ -319,7 +319,18 @@ def libero_objects(families) -> list[Path]:
 
 
 def _cached_glb(root: Path, uid: str) -> Path | None:
+    """The cache's GLB of ``uid`` (32 hex digits, else a :class:`CatalogError`: uids also come from cached
+    annotations), or None; one that resolves outside the cache (a symlink out) is a :class:`CatalogError`."""
+    from frng import confine
+
+    if not isinstance(uid, str) or not re.fullmatch(r"[0-9a-f]{32}", uid):
+        raise CatalogError(f"objects.objaverse: {uid!r} is not an Objaverse uid (32 hex digits)")
     hits = sorted((root / "glbs").glob(f"*/{uid}.glb"))
+    if hits and not confine.is_inside(hits[0], root):
+        raise CatalogError(
+            f"{hits[0]}: resolves to {hits[0].resolve()}, outside the Objaverse cache {root.resolve()} "
+            f"(a symlink out of the cache); replace it with the file"
+        )
     return hits[0] if hits else None
 
 
