@@ -358,7 +358,10 @@ def _data_colourspace(bsdf, nt) -> list[str]:
 def find_texture(ref: str, search_dirs) -> Path | None:
     """Where a texture reference that does not load (``ref``: the path the file names, often one from the author's
     machine, or a file shipped under another image format) can be found: in each of ``search_dirs`` (in order), the
-    same base name, then the same stem with any of :data:`IMAGE_SUFFIXES`. None when nothing matches."""
+    same base name, then the same stem with any of :data:`IMAGE_SUFFIXES`. None when nothing matches. A candidate
+    that resolves outside its folder (a symlink out; :func:`frng.confine.is_inside`) is not taken."""
+    from frng.confine import is_inside
+
     name = ref.replace("\\", "/").rsplit("/", 1)[-1]
     if not name:
         return None
@@ -366,7 +369,7 @@ def find_texture(ref: str, search_dirs) -> Path | None:
     for d in search_dirs:
         d = Path(d)
         for cand in [d / name, *(d / f"{stem}{suffix}" for suffix in IMAGE_SUFFIXES)]:
-            if cand.is_file():
+            if cand.is_file() and is_inside(cand, d):
                 return cand
     return None
 
