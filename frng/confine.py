@@ -200,7 +200,12 @@ def _files(folder: Path) -> list[str]:
 
 @contextlib.contextmanager
 def staged_output(
-    out: str | os.PathLike, command: str, force: bool = False, recognise=None, manifest: bool = True
+    out: str | os.PathLike,
+    command: str,
+    force: bool = False,
+    recognise=None,
+    manifest: bool = True,
+    merge: bool = False,
 ) -> Iterator[Path]:
     """Yield an empty staging folder beside ``out``; when the block succeeds it becomes ``out`` (see the module
     docstring); when it fails (an exception, a full disk) the staging folder is removed and ``out`` is as it was.
@@ -208,7 +213,9 @@ def staged_output(
     ``out`` is checked first (:func:`check_output`). On success the staged files are recorded in :data:`MANIFEST`
     (unless ``manifest`` is False) and swapped in: a previous ``out`` is moved aside, the staged folder renamed to
     ``out``, and every entry of the previous folder that the command did not write (not in its manifest; with
-    ``force`` on a foreign folder, everything) and that the new output does not replace is moved back in."""
+    ``force`` on a foreign folder, everything) and that the new output does not replace is moved back in.
+    ``merge``: the previous output's own files are kept too where not replaced (outputs that add up, e.g. several
+    exported objects in one folder); the manifest then lists both."""
     from frng.io import temp_dir
 
     out = Path(out)
@@ -221,22 +228,25 @@ def staged_output(
         if manifest:
             from frng.io import write_json
 
+            if merge and (old := read_manifest(out)) is not None:
+                written = sorted(set(written) | {str(f) for f in old["files"]})
             write_json(stage / MANIFEST, {"command": command, "files": written})
-        swap_in(stage, out)
+        swap_in(stage, out, merge)
     finally:
         if stage.exists():
             shutil.rmtree(stage, ignore_errors=True)
 
 
-def swap_in(stage: Path, out: Path) -> None:
-    """Rename ``stage`` to ``out``; a previous ``out`` keeps the entries its command did not write (:func:`staged_output`)."""
+def swap_in(stage: Path, out: Path, merge: bool = False) -> None:
+    """Rename ``stage`` to ``out``; a previous ``out`` keeps the entries its command did not write (all entries not
+    replaced, with ``merge``; :func:`staged_output`)."""
     from frng.io import temp_dir
 
     if not out.exists():
         os.replace(stage, out)
         return
     old_m = read_manifest(out)
-    prev = set(old_m["files"]) if old_m else set()
+    prev = set(old_m["files"]) if old_m and not merge else set()
     aside = temp_dir(f".old-{out.name}-", out.parent)
     old = aside / out.name
     os.replace(out, old)

@@ -394,13 +394,19 @@ def read_png(path: str | os.PathLike) -> np.ndarray:
     """Read a PNG as float32 [0, 1] (H, W, C), values as stored (no decoding)."""
     import imageio.v3 as iio
 
+    from frng.confine import UntrustedInputError, check_image_size
+
     path = Path(path)
     if not path.exists():
         raise ImageError(f"{path}: file does not exist")
     try:
+        check_image_size(path)  # a PNG, of a bounded size: checked from its header before decoding
         img = iio.imread(path)
+    except UntrustedInputError as e:
+        raise ImageError(str(e)) from None
     except Exception as e:
-        raise ImageError(f"{path}: cannot read PNG ({e})") from e
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise ImageError(f"{path}: cannot read PNG ({first[:300]})") from e
     scale = 65535.0 if img.dtype == np.uint16 else 255.0
     return img.astype(np.float32) / scale
 

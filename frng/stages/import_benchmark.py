@@ -57,6 +57,7 @@ OPTIONS = {
 
 
 def run(args: argparse.Namespace) -> int:
+    from frng import cli
     from frng.benchmarks import BenchmarkError, import_scene
     from frng.confine import UntrustedInputError, check_id
 
@@ -67,6 +68,8 @@ def run(args: argparse.Namespace) -> int:
         try:
             check_id(args.id)
         except UntrustedInputError as e:
+            if cli.DEBUG:  # `frng --debug`: the traceback
+                raise
             print(f"frng import: error: {e}")
             return 2
     if args.id and "-" not in args.id:
@@ -88,6 +91,8 @@ def run(args: argparse.Namespace) -> int:
             **opts,
         )
     except BenchmarkError as e:
+        if cli.DEBUG:  # `frng --debug`: the traceback
+            raise
         print(f"frng import: error: {e}")
         return 2
     meta = Layout(args.results or config.results).object_meta(Path(folder).name)

@@ -110,6 +110,7 @@ def measure_table(config, oids: list[str], out: Path) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from frng import cli
     from frng.asset import AssetError
     from frng.capture import CaptureError, export_object, parse_grid, reconstruct
 
@@ -141,6 +142,8 @@ def run(args: argparse.Namespace) -> int:
             allow_outside=args.allow_outside,
         )
     except (CaptureError, AssetError) as e:
+        if cli.DEBUG:  # `frng --debug`: the traceback
+            raise
         print(f"frng reconstruct: error: {e}")
         return 2
     light = record["light"]

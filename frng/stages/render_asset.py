@@ -206,12 +206,15 @@ def _render_into(out: Path, r, env: np.ndarray, cams: list[dict], args: argparse
 
 
 def run(args: argparse.Namespace) -> int:
+    from frng import cli
     from frng.asset import AssetError
     from frng.capture import CaptureError
 
     try:
         info = render(args)
     except (CaptureError, AssetError) as e:
+        if cli.DEBUG:  # `frng --debug`: the traceback
+            raise
         print(f"frng render-asset: error: {e}")
         return 2
     print(
