@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import errno
 import importlib
+import os
 import sys
 
 # name -> (module, one-line help). Order is the pipeline order.
@@ -39,6 +40,10 @@ STAGES: dict[str, tuple[str, str]] = {
     "eval-backbone": ("frng.stages.eval_backbone", "backbone NVS/relighting and IDM accuracy vs trivial baselines"),
     "train": ("frng.stages.train", "train one F-RNG variant from the cached priors (training split)"),
     "relight": ("frng.stages.relight", "relight one test object with every F-RNG run and the backbone; timings"),
+    "baseline-fit": (
+        "frng.stages.baseline_fit",
+        "fit one per-scene baseline (3dgs / gsir) on an object's dense views; its novel views and relit images",
+    ),
     "evaluate": ("frng.stages.evaluate", "per-image PSNR/SSIM/LPIPS of every relit image (configured protocol)"),
     "baseline-image": (
         "frng.stages.baseline_image",
@@ -120,7 +125,12 @@ def stage_parser(name: str) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> None:
-    argv = canonical(list(sys.argv[1:] if argv is None else argv))
+    global DEBUG
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if "--debug" in argv:  # global: `frng --debug STAGE ...` or anywhere among a stage's arguments
+        DEBUG = True
+        argv = [a for a in argv if a != "--debug"]
+    argv = canonical(argv)
     if not argv or argv[0] in ("-h", "--help") or argv[0] not in STAGES:
         parser = _top_parser()
         parser.add_argument("stage", choices=list(STAGES), help="pipeline stage")
@@ -137,20 +147,57 @@ def main(argv: list[str] | None = None) -> None:
 # OS errors that mean "no permission" (read-only results folder, read-only file system): one line.
 _UNWRITABLE = {errno.EACCES, errno.EPERM, errno.EROFS}
 
+DEBUG = bool(os.environ.get("FRNG_DEBUG"))  # `frng --debug ...` (or FRNG_DEBUG=1): tracebacks instead of one line
+_HINT = " (run with --debug for the traceback)"
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e).strip()
+    return text.splitlines()[0] if text else type(e).__name__
+
 
 def run_stage(name: str, run, args: argparse.Namespace) -> int:
     """Run one stage; a bad config file, a permission error (read-only results folder), a corrupt intermediate file,
-    a bad image or a full disk ends in one line on stderr naming the file (exit 2), not a traceback. Other errors
-    propagate."""
+    a bad image, a bad file from outside (frng.confine), a model file that does not fit its architecture or a full
+    disk ends in one line on stderr naming the file (exit 2), not a traceback; so does any other ValueError or
+    KeyError a loader raises (its first line, with a hint). Under ``--debug`` every error propagates with its
+    traceback. Other errors propagate."""
     from frng.config import ConfigError
     from frng.io import CorruptFileError, ImageError
 
     try:
         return int(run(args) or 0)
     except (ConfigError, CorruptFileError, ImageError) as e:  # each names its file and the cause
+        if DEBUG:
+            raise
         print(f"frng {name}: error: {e}", file=sys.stderr)
         return 2
+    except RuntimeError as e:  # torch's load_state_dict: a model file of another architecture
+        if DEBUG or not str(e).startswith("Error(s) in loading state_dict"):
+            raise
+        from frng.io import last_loaded
+
+        detail = next((ln.strip() for ln in str(e).splitlines()[1:] if ln.strip()), _first_line(e))
+        path, what = last_loaded() or ("a model file", "model file")
+        print(f"frng {name}: error: {path}: {what} does not fit its architecture ({detail[:300]})", file=sys.stderr)
+        return 2
+    except MemoryError as e:
+        if DEBUG:
+            raise
+        print(f"frng {name}: error: out of memory ({_first_line(e)[:300]}){_HINT}", file=sys.stderr)
+        return 2
+    except (ValueError, KeyError) as e:  # a loader's own error (names its file), or a field it did not expect
+        if DEBUG:
+            raise
+        what = f"missing key {e}" if isinstance(e, KeyError) else _first_line(e)
+        print(f"frng {name}: error: {what[:500]}{_HINT}", file=sys.stderr)
+        return 2
     except OSError as e:
+        if DEBUG:
+            raise
+        if isinstance(e, FileNotFoundError) and e.errno is None:  # raised with a message naming the file
+            print(f"frng {name}: error: {_first_line(e)}", file=sys.stderr)
+            return 2
         if e.errno == errno.ENOSPC and e.filename is None:  # frng.io.write_failure: the message names the file
             print(f"frng {name}: error: {e.strerror or e}", file=sys.stderr)
             return 2

@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+from frng.baselines.fit_settings import FitSettings
 from frng.baselines.plan import BaselinesConfig
 from frng.data.catalog import (
     EnvmapsConfig,
@@ -73,6 +74,7 @@ class Config:
 SECTION_CLASSES: tuple[type, ...] = (
     Config,
     BaselinesConfig,
+    FitSettings,
     EnvmapsConfig,
     SkiesConfig,
     StudioConfig,

@@ -18,11 +18,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from frng.baselines.fit_settings import FitSettings
 from frng.data.rig import View, make_view
 from frng.sections import register
 
 PER_SCENE_METHODS = ("3dgs", "gsir")
 IMAGE_BASED_RUN = "idm-reshade"
+FRNG_RUN = "full"  # the F-RNG run the baselines are compared with (rule relight)
+FRNG_NVS_RUN = "full-nvs"  # its novel views under the input light (rule baseline_frng_nvs)
 DENSE_KIND = "dense"  # ObjectFolder.image kind of the dense views
 TARGETS_KIND = "targets"  # ... and of the target views under the input light (the image-based methods' input)
 
@@ -37,6 +40,7 @@ class BaselinesConfig:
     methods: tuple[str, ...]
     image_based: bool
     external: tuple  # plain mappings {name, path, encoding, family}
+    fit: FitSettings  # the per-scene fits' budget and schedule (frng.baselines.fit_settings)
 
 
 def per_scene_run(method: str, views: int) -> str:
