@@ -351,7 +351,8 @@ _MAGIC = {
     ".jpg": (b"\xff\xd8\xff",),
     ".jpeg": (b"\xff\xd8\xff",),
     ".exr": (b"\x76\x2f\x31\x01",),
-    ".hdr": (b"#?RADIANCE", b"#?RGBE"),
+    # imageio reads an .hdr by its content; frng.benchmarks.common.write_hdr (imageio) writes float TIFF bytes
+    ".hdr": (b"#?RADIANCE", b"#?RGBE", b"II*\x00", b"MM\x00*"),
 }
 
 
@@ -371,7 +372,9 @@ def check_image_size(path: str | os.PathLike, max_pixels: int = MAX_IMAGE_PIXELS
     if not any(head.startswith(m) for m in _MAGIC[suffix]):
         raise UntrustedInputError(f"{path}: not a {suffix[1:].upper()} file (its first bytes are {head[:8]!r})")
     size = None
-    if suffix in (".png", ".jpg", ".jpeg"):
+    if head[:4] in (b"II*\x00", b"MM\x00*"):
+        size = _tiff_size(path)
+    elif suffix in (".png", ".jpg", ".jpeg"):
         from PIL import Image
 
         try:
@@ -379,7 +382,7 @@ def check_image_size(path: str | os.PathLike, max_pixels: int = MAX_IMAGE_PIXELS
                 size = im.size
         except Exception as e:  # noqa: BLE001 -- PIL raises many kinds for a corrupt header
             raise UntrustedInputError(f"{path}: cannot read the image header ({type(e).__name__}: {e})") from None
-    elif suffix == ".hdr":
+    elif suffix == ".hdr":  # Radiance
         size = _hdr_size(path)
     elif suffix == ".exr":
         size = _exr_size(path)
@@ -401,6 +404,17 @@ def _hdr_size(path: Path) -> tuple[int, int] | None:
             if m:
                 return int(m.group(4)), int(m.group(2))
     raise UntrustedInputError(f"{path}: truncated or corrupt Radiance HDR (no resolution line in its header)")
+
+
+def _tiff_size(path: Path) -> tuple[int, int] | None:
+    try:
+        import tifffile
+
+        with tifffile.TiffFile(path) as t:
+            shape = t.pages[0].shape
+        return int(shape[1]), int(shape[0])
+    except Exception:  # noqa: BLE001 -- the reader names a corrupt file
+        return None
 
 
 def _exr_size(path: Path) -> tuple[int, int] | None:
