@@ -103,7 +103,7 @@ class Page:
 
         return self.driver.find_element(By.TAG_NAME, "body").text
 
-    def wait_text(self, *needles: str, after: int = 0, timeout: float = 120.0, settle: float = 1.5) -> str:
+    def wait_text(self, *needles: str, after: int = 0, timeout: float = 120.0, settle: float = 1.0) -> str:
         """Wait until the status line reads a full frame numbered above ``after`` with every needle, unchanged for
         ``settle`` seconds (the camera at rest: no newer frame on its way); returns it."""
         t0, seen, since = time.monotonic(), None, 0.0
@@ -156,6 +156,16 @@ class Page:
 
         next(b for b in self.driver.find_elements(By.TAG_NAME, "button") if b.text == text).click()
 
+    def images(self) -> list:
+        """The panel's images (the map thumbnail, a test object's side by side)."""
+        from selenium.webdriver.common.by import By
+
+        return [
+            i
+            for i in self.driver.find_elements(By.TAG_NAME, "img")
+            if (i.get_attribute("src") or "").startswith("blob:")
+        ]
+
     def close(self) -> None:
         self.driver.quit()
 
@@ -177,6 +187,13 @@ def _wait_listening(proc: subprocess.Popen, port: int, log: Path, timeout: float
                     return
         time.sleep(0.2)
     raise AssertionError(f"viewer not listening after {timeout} s: {log.read_text()[-2000:]}")
+
+
+def _wait_file(path: Path, timeout: float = 60.0) -> None:
+    t0 = time.monotonic()
+    while not path.exists():
+        assert time.monotonic() - t0 < timeout, f"{path} not written after {timeout} s"
+        time.sleep(0.2)
 
 
 def _canvas_compare(shot: np.ndarray, frame_rgb: np.ndarray, keep: np.ndarray) -> float:
@@ -206,7 +223,7 @@ def test_viewer_in_a_browser(smoke_asset, browser_paths, tmp_path):
     proc = _start(
         [asset, "--env", other_file, "--port", port, "--out", out, "--device", "cpu", "--resolution", RESOLUTION], log
     )
-    page = None
+    page = cli_proc = None
     try:
         _wait_listening(proc, port, log)
         page = Page(f"http://127.0.0.1:{port}", tmp_path / "profile")
@@ -218,9 +235,7 @@ def test_viewer_in_a_browser(smoke_asset, browser_paths, tmp_path):
         keep[:, W - 360 :] = False  # the panel
         keep[:180, :340] = False  # the software-WebGL notice
         page.click("Save frame")
-        t0 = time.monotonic()
-        while not (out / "frame_000" / "view.json").exists() and time.monotonic() - t0 < 60:
-            time.sleep(0.2)
+        _wait_file(out / "frame_000" / "view.json")
         saved0 = io.read_json(out / "frame_000" / "cameras.json")["cameras"][0]
         assert (saved0["height"], saved0["width"]) == (RESOLUTION, round(RESOLUTION * W / H)), (saved0, W, H)
 
@@ -253,17 +268,37 @@ def test_viewer_in_a_browser(smoke_asset, browser_paths, tmp_path):
         page.wait_text(f"{test_maps[0]} · test map", after=n)
         shot1 = page.screenshot()
         page.click("Save frame")
-        t0 = time.monotonic()
-        while not (out / "frame_001" / "view.json").exists() and time.monotonic() - t0 < 60:
-            time.sleep(0.2)
+        _wait_file(out / "frame_001" / "view.json")
         saved1 = io.read_json(out / "frame_001" / "cameras.json")["cameras"][0]
         assert {**saved1, "name": ""} == {**saved0, "name": ""}  # the camera did not move
-        ref = tmp_path / "ref"
-        r = _frng(
-            "render-asset", asset, "--env", Layout(results).envmap(test_maps[0]), "--cameras",
-            out / "frame_001" / "cameras.json", "--out", ref, "--device", "cpu",
+        ref = tmp_path / "ref"  # render-asset on the command line, while the page goes on
+        cli_proc = subprocess.Popen(
+            [sys.executable, "-m", "frng", "render-asset", str(asset), "--env", Layout(results).envmap(test_maps[0]),
+             "--cameras", str(out / "frame_001" / "cameras.json"), "--out", str(ref), "--device", "cpu"],
+            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
         )  # fmt: skip
-        assert r.returncode == 0, r.stdout + r.stderr
+
+        # a relit test object's asset: picking a target view and light moves the camera there, picks the light and
+        # shows the ground truth, F-RNG and the backbone side by side
+        oid = asset.parent.name
+        rec = io.read_json(Layout(results).relight_record("full", oid))
+        target, light = rec["target_views"][0], rec["lights"][-1]
+        cam = next(c for c in io.read_json(Layout(results).object_meta(oid))["views"]["targets"] if c["name"] == target)
+        n = int(page.wait_text(after=0).split()[2].rstrip(":"))
+        page.pick("(free camera)", f"{target} · {light}")
+        page.wait_text(light, after=n)
+        page.click("Save frame")
+        _wait_file(out / "frame_002" / "view.json")
+        saved2 = io.read_json(out / "frame_002" / "cameras.json")["cameras"][0]
+        np.testing.assert_allclose(saved2["c2w"], cam["c2w"], atol=2e-3)
+        fov = lambda c: c["intrinsics"][1] / c["height"]  # noqa: E731
+        assert abs(fov(saved2) / fov(cam) - 1) < 1e-3, (saved2, cam)
+        assert io.read_json(out / "frame_002" / "view.json")["map"].startswith(f"{light} · ")
+        shown = [i for i in page.images() if i.is_displayed() and i.rect["width"] > 3 * i.rect["height"] > 0]
+        assert len(shown) == 1, [i.rect for i in page.images()]  # the side-by-side strip (the thumbnail is 2:1)
+
+        cli_out = cli_proc.communicate(timeout=300)[0]
+        assert cli_proc.returncode == 0, cli_out
         cli = io.read_rgba(ref / "frame_001.exr")
         saved = io.read_rgba(out / "frame_001" / "frame_001.exr")
         psnr_saved = _psnr(np.clip(saved, 0, 1), np.clip(cli, 0, 1))
@@ -282,7 +317,11 @@ def test_viewer_in_a_browser(smoke_asset, browser_paths, tmp_path):
         assert np.abs(shot1.astype(int) - shot0.astype(int))[keep].mean() > 0.5
         view = io.read_json(out / "frame_001" / "view.json")
         assert view["map"] == f"{test_maps[0]} · test map" and view["rotation_deg"] == 0.0
+
     finally:
+        if cli_proc is not None and cli_proc.poll() is None:
+            cli_proc.kill()
+            cli_proc.wait()
         if page is not None:
             page.close()
         proc.terminate()

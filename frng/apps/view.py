@@ -23,9 +23,9 @@ What a client sees (each browser tab has its own camera and settings):
   ``frame_NNN.png`` (sRGB, straight alpha) and ``cameras.json`` (the ``--cameras`` format) as render-asset writes
   them, ``light.exr`` (the map as rotated), ``display.png`` (the frame as shown: exposure, background) and
   ``view.json`` (map, rotation, exposure, samples and the render-asset command that renders it again);
-- for a test object (``--object``): its target views and lights; picking one moves the camera to that view, picks
-  its light and shows the ground truth, F-RNG's relit image and the backbone's side by side (the results folder's
-  images, :mod:`frng.layout`).
+- for a relit test object (``--object``, or an ASSET that is a results folder's ``relight/full/{obj}/asset``): its
+  target views and lights; picking one moves the camera to that view, picks its light and shows the ground truth,
+  F-RNG's relit image and the backbone's side by side (the results folder's images, :mod:`frng.layout`).
 
 Everything that can fail on the user's input (the asset, the maps, the config, the port) is checked before the
 server starts, as :class:`ViewError` (or the readers' :class:`~frng.asset.AssetError` /
@@ -684,6 +684,13 @@ def open_viewer(
     if results is None:
         results = results_of_asset(asset_path)
     oid = object_id or str(meta.get("object_id"))
+    if test_object is None and results is not None:  # a relit test object's asset: its images side by side too
+        same = Path(RelightFolder(Layout(results).relight_run("full", oid)).asset()).resolve() == asset_path.resolve()
+        if same and Path(Layout(results).relight_record("full", oid)).exists():
+            try:
+                test_object = TestObject(results, oid)
+            except ViewError:
+                test_object = None
     lights = collect_lights(asset_path, results, env, oid)
     # the first camera: the test object's first target view, else the asset's rig as render-asset's turntable
     obj_meta = Path(Layout(results).object_meta(oid)) if results is not None else None
