@@ -35,6 +35,7 @@ server starts, as :class:`ViewError` (or the readers' :class:`~frng.asset.AssetE
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import socket
@@ -43,6 +44,7 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from io import StringIO
 from pathlib import Path
 
 import numpy as np
@@ -402,9 +404,11 @@ class Viewer:
         import viser
 
         check_port(port)
-        server = viser.ViserServer(host=HOST, port=int(port), label="frng view", verbose=False)
+        with contextlib.redirect_stdout(StringIO()):  # viser's banner: serve() prints one line instead
+            server = viser.ViserServer(host=HOST, port=int(port), label="frng view", verbose=False)
         if server.get_port() != int(port):  # taken between the check and the bind: viser moved on to another
-            server.stop()
+            with contextlib.redirect_stdout(StringIO()):
+                server.stop()
             raise ViewError(f"--port {port}: cannot listen on {HOST}:{port} (in use); pick another port")
         self.server = server
         c2w, intr, height = self.settings.initial
@@ -431,7 +435,8 @@ class Viewer:
         for s in list(self.sessions.values()):
             s.close()
         if self.server is not None:
-            self.server.stop()
+            with contextlib.redirect_stdout(StringIO()):  # viser's "Server stopped"
+                self.server.stop()
             self.server = None
 
     def _connect(self, client) -> None:
@@ -713,6 +718,27 @@ def open_viewer(
     return Viewer(frames, lights, settings, test_object)
 
 
+def measure(viewer: Viewer, repeats: int = 5, aspect: float = 16 / 9) -> dict:
+    """Frame times without a browser: the first camera's frame at full and at low quality (as a viewport of
+    ``aspect`` shows them), the median of ``repeats`` renders after a warm-up each (:func:`frng.device.median_time`);
+    ``frng view ASSET --measure N``."""
+    from frng.device import median_time
+
+    c2w, intr, height = viewer.settings.initial
+    spp_full = viewer.settings.spp or viewer.frames.spp
+    out = {"device": viewer.frames.device.type, "repeats": int(repeats)}
+    for quality, res, spp in (
+        (FULL, viewer.settings.resolution, spp_full),
+        (LOW, max(MIN_LOW_HEIGHT, viewer.settings.resolution // LOW_DIVISOR), max(1, spp_full // LOW_SPP_DIVISOR)),
+    ):
+        w, h = frame_size(res, aspect)
+        f = float(intr[1]) * h / height
+        cam = (c2w, np.array([f, f, w / 2, h / 2]), w, h, viewer.lights[0].image, spp)
+        seconds, _ = median_time(lambda cam=cam: viewer.frames.frame(*cam), viewer.frames.device, repeats)
+        out[quality] = {"width": w, "height": h, "spp": spp, "ms": seconds * 1000.0}
+    return out
+
+
 def serve(viewer: Viewer, port: int, stop: threading.Event, log=print) -> None:
     """Start the viewer on ``port``, print its URL and the SSH tunnel line, serve until ``stop`` is set, stop."""
     viewer.warm_up()
@@ -741,6 +767,7 @@ __all__ = [
     "collect_lights",
     "display",
     "frame_size",
+    "measure",
     "open_viewer",
     "quat_to_matrix",
     "serve",

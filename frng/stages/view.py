@@ -33,10 +33,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--spp", type=int, help="light samples at full quality (default: the asset's spp_infer)")
     parser.add_argument("--device", default="auto", help="auto (CUDA when available), cuda or cpu")
     parser.add_argument("--out", default="frng-view", help="folder 'Save frame' writes frame_NNN/ into")
+    parser.add_argument(
+        "--measure",
+        type=int,
+        metavar="N",
+        help="instead of serving: print the median time of N full- and low-quality frames (16:9) and exit",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
-    from frng.apps.view import ViewError, open_viewer, serve
+    from frng.apps.view import ViewError, measure, open_viewer, serve
     from frng.asset import AssetError
     from frng.capture import CaptureError
     from frng.sections import ConfigError
@@ -46,6 +52,16 @@ def run(args: argparse.Namespace) -> int:
         viewer = open_viewer(
             args.asset, args.env, args.object, args.config, args.resolution, args.spp, args.device, args.out
         )
+        if args.measure is not None:
+            if args.measure < 1:
+                raise ViewError(f"--measure {args.measure}: at least 1")
+            m = measure(viewer, args.measure)
+            for q in ("full", "low"):
+                f = m[q]
+                print(
+                    f"{q}: {f['width']}x{f['height']} px, {f['spp']} spp: {f['ms']:.0f} ms per frame on {m['device']}"
+                )
+            return 0
         signal.signal(signal.SIGTERM, lambda *_: stop.set())
         serve(viewer, args.port, stop, log=lambda m: print(m, flush=True))
     except (ViewError, AssetError, CaptureError, ConfigError, FileNotFoundError) as e:
