@@ -335,3 +335,11 @@ def test_objaverse_glb_symlinked_out_of_the_cache(tmp_path):
         _cached_glb(tmp_path / "cache", uid)
     with pytest.raises(CatalogError, match="not an Objaverse uid"):
         _cached_glb(tmp_path / "cache", "../../sentinel/notes")
+
+
+def test_allow_outside_from_the_config():
+    """``benchmarks[].options.allow_outside: true`` is the import's --allow-outside (rules/benchmarks.smk)."""
+    from frng.benchmarks.plan import import_flags
+
+    assert import_flags({"id": "orb-a", "options": {"allow_outside": True}}) == "--allow-outside"
+    assert import_flags({"id": "orb-a", "options": {"allow_outside": False}}) == ""
