@@ -93,6 +93,7 @@ class Page:
         ).split():
             opts.add_argument(a)
         opts.add_argument(f"--window-size={WINDOW[0]},{WINDOW[1]}")
+        opts.add_argument("--force-device-scale-factor=1")
         opts.add_argument(f"--user-data-dir={profile}")
         self.driver = webdriver.Chrome(service=Service(str(CHROMEDRIVER)), options=opts)
         self.driver.set_page_load_timeout(60)
@@ -337,6 +338,7 @@ def test_bad_input_one_line_nothing_left_running(smoke_asset, tmp_path, capsys):
     """A missing or malformed asset, a map that is not 2:1, a port in use: one line on stderr naming the file or
     option, exit status 2, no thread of the viewer left running (in-process: the stage's run), and for the port a
     ``frng view`` process that exits by itself."""
+    import signal
     import threading
 
     from frng import cli, io
@@ -359,7 +361,7 @@ def test_bad_input_one_line_nothing_left_running(smoke_asset, tmp_path, capsys):
             "not 2:1": ([asset, "--env", wide], "wide.exr"),
             "port in use": ([asset, "--port", port], f"--port {port}"),
         }
-        threads = set(threading.enumerate())
+        threads, sigterm = set(threading.enumerate()), signal.getsignal(signal.SIGTERM)
         for what, (args, names) in cases.items():
             parsed = cli.stage_parser("view").parse_args([*map(str, args), "--device", "cpu"])
             rc = parsed._run(parsed)
@@ -367,5 +369,32 @@ def test_bad_input_one_line_nothing_left_running(smoke_asset, tmp_path, capsys):
             assert rc == 2 and len(lines) == 1 and names in lines[0], (what, lines)
             assert lines[0].startswith("frng view: error: "), (what, lines)
             assert not [t for t in set(threading.enumerate()) - threads if t.is_alive()], what
+            assert signal.getsignal(signal.SIGTERM) == sigterm, what
         r = _frng("view", asset, "--port", port, "--device", "cpu")
         assert r.returncode == 2 and r.stderr.strip() == lines[0] and not r.stdout.strip(), (r.stdout, r.stderr)
+
+
+def test_viewport_camera_is_visers_and_frngs():
+    """A viewport pose as viser reports it (wxyz of the camera-to-world rotation, position, vertical fov) is the
+    OpenCV camera frng renders with, and :func:`camera_pose` (how the viewer moves a viewport to a target view) is
+    its inverse."""
+    import viser.transforms as vtf
+
+    from frng import camera
+    from frng.apps.view import camera_pose, frame_size, quat_to_matrix, viewport_camera
+
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        eye = camera.spherical_to_cartesian(rng.uniform(0, 360), rng.uniform(-60, 60), rng.uniform(2, 5))
+        c2w = camera.look_at(eye)
+        W, H = frame_size(96, rng.uniform(0.5, 2.0))
+        intr = camera.intrinsics_from_fov(rng.uniform(20, 60) * H / W, W, H)  # any focal length, square pixels
+        wxyz = vtf.SO3.from_matrix(c2w[:3, :3]).wxyz
+        np.testing.assert_allclose(quat_to_matrix(wxyz), c2w[:3, :3], atol=1e-9)
+        pose = camera_pose(c2w, intr, H)
+        c2w2, intr2 = viewport_camera(pose["position"], wxyz, pose["fov"], W, H)
+        np.testing.assert_allclose(c2w2, c2w, atol=1e-9)
+        np.testing.assert_allclose(intr2, intr, rtol=1e-9)
+        np.testing.assert_allclose(pose["up_direction"], -c2w[:3, 1], atol=1e-12)
+        forward = (pose["look_at"] - pose["position"]) / np.linalg.norm(pose["look_at"] - pose["position"])
+        np.testing.assert_allclose(forward, c2w[:3, 2], atol=1e-9)

@@ -397,6 +397,7 @@ class Viewer:
         self._saves = 0
         self._save_lock = threading.Lock()
         self._rotated: dict[tuple[str, float], np.ndarray] = {}
+        self._env_lock = threading.Lock()
 
     def start(self, port: int) -> str:
         """Listen on 127.0.0.1:port; returns the URL. A :class:`ViewError` (nothing left running) when the port is
@@ -432,8 +433,12 @@ class Viewer:
         return s
 
     def stop(self) -> None:
-        for s in list(self.sessions.values()):
+        """Stop every tab's render thread (waiting for a frame in flight) and the server."""
+        sessions = list(self.sessions.values())
+        for s in sessions:
             s.close()
+        for s in sessions:
+            s.thread.join(timeout=30)
         if self.server is not None:
             with contextlib.redirect_stdout(StringIO()):  # viser's "Server stopped"
                 self.server.stop()
@@ -450,11 +455,12 @@ class Viewer:
     def env(self, label: str, rotation: float) -> np.ndarray:
         """The map ``label`` rotated by ``rotation`` degrees (cached)."""
         key = (label, float(rotation))
-        if key not in self._rotated:
-            if len(self._rotated) > 64:
-                self._rotated.clear()
-            self._rotated[key] = rotated(self.by_label[label], rotation)
-        return self._rotated[key]
+        with self._env_lock:
+            if key not in self._rotated:
+                if len(self._rotated) > 64:
+                    self._rotated.clear()
+                self._rotated[key] = rotated(self.by_label[label], rotation)
+            return self._rotated[key]
 
     def save(self, c2w: np.ndarray, intr: np.ndarray, width: int, height: int, label: str, rotation: float,
              exposure: float) -> Path:  # fmt: skip

@@ -42,7 +42,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from frng.apps.view import ViewError, measure, open_viewer, serve
+    from frng.apps.view import ViewError, check_port, measure, open_viewer, serve
     from frng.asset import AssetError
     from frng.capture import CaptureError
     from frng.sections import ConfigError
@@ -62,8 +62,12 @@ def run(args: argparse.Namespace) -> int:
                     f"{q}: {f['width']}x{f['height']} px, {f['spp']} spp: {f['ms']:.0f} ms per frame on {m['device']}"
                 )
             return 0
-        signal.signal(signal.SIGTERM, lambda *_: stop.set())
-        serve(viewer, args.port, stop, log=lambda m: print(m, flush=True))
+        check_port(args.port)  # before anything is started or changed
+        previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+        try:
+            serve(viewer, args.port, stop, log=lambda m: print(m, flush=True))
+        finally:
+            signal.signal(signal.SIGTERM, previous)
     except (ViewError, AssetError, CaptureError, ConfigError, FileNotFoundError) as e:
         print(f"frng view: error: {e}", file=sys.stderr)
         return 2
