@@ -33,6 +33,7 @@ import math
 import os
 import re
 import shutil
+import tempfile
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
@@ -57,6 +58,29 @@ class OutputError(UntrustedInputError):
 
 class NonFiniteError(UntrustedInputError):
     """An array entering from a file is non-finite, of the wrong type or shape, or out of its bounds."""
+
+
+def current_umask() -> int:
+    """The process's umask: from ``/proc/self/status`` on Linux (no side effect), else by setting and restoring
+    it (Python has no read-only call; another thread creating a file in between would see 022)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def temp_dir(prefix: str, dir: str | os.PathLike) -> Path:
+    """``tempfile.mkdtemp`` with the permissions an ordinary ``mkdir`` would give (0777 minus the umask) instead
+    of 0700, for staging folders that are renamed into place (results are shared on clusters)."""
+    tmp = Path(tempfile.mkdtemp(prefix=prefix, dir=dir))
+    os.chmod(tmp, 0o777 & ~current_umask())
+    return tmp
 
 
 # -- paths ------------------------------------------------------------------------------------------------------
@@ -216,8 +240,6 @@ def staged_output(
     ``force`` on a foreign folder, everything) and that the new output does not replace is moved back in.
     ``merge``: the previous output's own files are kept too where not replaced (outputs that add up, e.g. several
     exported objects in one folder); the manifest then lists both."""
-    from frng.io import temp_dir
-
     out = Path(out)
     check_output(out, command, force, recognise)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -226,11 +248,9 @@ def staged_output(
         yield stage
         written = _files(stage)
         if manifest:
-            from frng.io import write_json
-
             if merge and (old := read_manifest(out)) is not None:
                 written = sorted(set(written) | {str(f) for f in old["files"]})
-            write_json(stage / MANIFEST, {"command": command, "files": written})
+            (stage / MANIFEST).write_text(json.dumps({"command": command, "files": written}, indent=2) + "\n")
         swap_in(stage, out, merge)
     finally:
         if stage.exists():
@@ -240,8 +260,6 @@ def staged_output(
 def swap_in(stage: Path, out: Path, merge: bool = False) -> None:
     """Rename ``stage`` to ``out``; a previous ``out`` keeps the entries its command did not write (all entries not
     replaced, with ``merge``; :func:`staged_output`)."""
-    from frng.io import temp_dir
-
     if not out.exists():
         os.replace(stage, out)
         return

@@ -19,34 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
+from frng.confine import current_umask, temp_dir  # noqa: F401 -- staging folders' permissions live in frng.confine
 from frng.hashing import file_sha256
 
 
 class ImageError(ValueError):
     """An image file is missing, unreadable or has unexpected content. The message names the file."""
-
-
-def current_umask() -> int:
-    """The process's umask: from ``/proc/self/status`` on Linux (no side effect), else by setting and restoring
-    it (Python has no read-only call; another thread creating a file in between would see 022)."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("Umask:"):
-                    return int(line.split()[1], 8)
-    except (OSError, ValueError, IndexError):
-        pass
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def temp_dir(prefix: str, dir: str | os.PathLike) -> Path:
-    """``tempfile.mkdtemp`` with the permissions an ordinary ``mkdir`` would give (0777 minus the umask) instead
-    of 0700, for staging folders that are renamed into place (results are shared on clusters)."""
-    tmp = Path(tempfile.mkdtemp(prefix=prefix, dir=dir))
-    os.chmod(tmp, 0o777 & ~current_umask())
-    return tmp
 
 
 @contextlib.contextmanager
