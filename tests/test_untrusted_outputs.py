@@ -243,3 +243,13 @@ def test_export_adds_up_and_refuses_a_foreign_folder(tmp_path, capsys):
     assert sorted(p.name for p in foreign.iterdir()) == ["thesis.tex"]
     code, lines = _run([*base, "--scene", "../escaped"], capsys)
     assert code == 2 and "plain name" in lines[0] and not (tmp_path / "escaped").exists(), lines
+
+
+def test_reconstruct_export_object_refuses_a_foreign_folder(tmp_path, capsys):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "cameras.json").write_text("{}")  # a file of the name the export writes: not replaced without --force
+    cfg = write_config(tmp_path / "c.yaml", tmp_path / "results")
+    code, lines = _run(["reconstruct", "--export-object", "obj_0000", "--out", out, "--config", cfg], capsys)
+    assert code == 2 and len(lines) == 1 and "--force" in lines[0], lines
+    assert (out / "cameras.json").read_text() == "{}" and [p.name for p in out.iterdir()] == ["cameras.json"]

@@ -119,8 +119,15 @@ def run(args: argparse.Namespace) -> int:
         if args.measure:
             print(measure_table(config, args.measure, Path(args.out)))
             return 0
-        if args.export_object:
-            print(export_object(config, args.export_object, Path(args.out), args.views))
+        if args.export_object:  # staged: a failure leaves --out as it was; a foreign --out needs --force
+            from frng import confine
+
+            try:
+                with confine.staged_output(args.out, "reconstruct --export-object", args.force) as stage:
+                    export_object(config, args.export_object, stage, args.views)
+            except confine.OutputError as e:
+                raise CaptureError(str(e)) from None
+            print(args.out)
             return 0
         if not args.images:
             raise CaptureError("--images is required")
