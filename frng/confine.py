@@ -112,8 +112,12 @@ def inside(
         return path
     resolved = path.resolve()
     link = " (through a symlink)" if resolved != Path(os.path.abspath(path)) else ""
+    if source is None:  # a file found in the folder (listed, not named): itself the culprit
+        raise OutsideError(
+            f"{path}: is outside {Path(root).resolve()}{link} (resolves to {resolved}); {ALLOW_OUTSIDE_HINT}"
+        )
     raise OutsideError(
-        f"{_where(source or path, field)} names {path}, which is outside {Path(root).resolve()}{link} "
+        f"{_where(source, field)} names {path}, which is outside {Path(root).resolve()}{link} "
         f"(resolves to {resolved}); {ALLOW_OUTSIDE_HINT}"
     )
 
