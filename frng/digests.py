@@ -69,6 +69,17 @@ RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     # frng/baselines/curate.py: the object's curation settings (render.*, envmaps.width), the plan (its lights,
     # split, material; which test objects get dense views: baselines.objects_per_class)
     "curate_baselines": (*PLAN_KEYS, "render", "envmaps.width", "baselines.objects_per_class"),
+    # frng/baselines/perscene.py (frng baseline-fit): the object's views and lights (plan), the fit's budget and
+    # schedule, the rasterizer and shading, seeds, device
+    "baseline_fit": (*PLAN_KEYS, "train_seed", "device", "render", "baselines.fit", "raster", "shading"),
+    # frng/baselines/image_based.py: the IDM (registry: idm.*, backbone.near/far), the shading, seeds, device
+    "baseline_image": (*PLAN_KEYS, "train_seed", "device", "idm", "backbone.near", "backbone.far", "shading"),
+    # frng/stages/baseline_frng_nvs.py: what frng relight reads
+    "baseline_frng_nvs": RELIGHT_MAIN_KEYS,
+    # frng/baselines/scoring.py: the runs planned (dense views, baselines.*), the protocol
+    "baseline_eval": (*PLAN_KEYS, "eval", "render.dense_views", "baselines", "benchmarks"),
+    # frng/report/baseline_tables.py: captions (tier), compositing (eval.background), the runs' images for figures
+    "baseline_tables": (*PLAN_KEYS, "tier", "eval", "render.dense_views", "baselines", "benchmarks"),
     # frng/data/preview.py: the plan's object ids
     "dataset_preview": PLAN_KEYS,
     # frng/priors/backbone_train.py: the training split, architecture + backbone.train, patch size, the models'

@@ -40,3 +40,169 @@ rule curate_baselines:
 
 
 add_targets(*expand(L.baseline_views_meta(), obj=BASELINE_VIEW_IDS))
+
+
+# rule baseline_fit: one per-scene model (3dgs / gsir) of one object fitted on n of its dense views (run
+# {method}-v{n}), re-rendered at the target views under the input light (novel views) and, for gsir, relit under
+# every target light. One thread per job, like the relight jobs.
+PER_SCENE_RUNS = frng_baselines.per_scene_runs(config)
+_PER_SCENE_RE = "|".join(re.escape(r) for r in PER_SCENE_RUNS) or r"(?!x)x"
+
+
+rule baseline_fit:
+    input:
+        views=L.baseline_views_meta(),
+        meta=rules.curate.output.meta,
+        index=L.envmap_index(),
+    output:
+        record=L.relight_record("{run}", "{obj}"),
+    log:
+        L.log("baseline_fit", "{run}-{obj}"),
+    wildcard_constraints:
+        obj=r"[a-z0-9_]+",
+        run=_PER_SCENE_RE,
+    conda:
+        "../envs/torch.yaml"
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=60,
+        gpu=TORCH_GPUS,
+    params:
+        **stage_params("baseline_fit"),
+        method=lambda wildcards: wildcards.run.rsplit("-v", 1)[0],
+        views=lambda wildcards: wildcards.run.rsplit("-v", 1)[1],
+        out=lambda wildcards, output: os.path.dirname(output.record),
+    message:
+        "Per-scene baseline {wildcards.run} on {wildcards.obj}"
+    shell:
+        "exec {params.py:q} -m frng baseline-fit --config {params.config:q} --object {wildcards.obj:q} "
+        "--method {params.method:q} --views {params.views:q} --out {params.out:q} > {log:q} 2>&1"
+
+
+# rule baseline_image: the image-based baseline (each target view's photo under the input light decomposed by the
+# IDM and re-shaded under every target light), one job per test object
+rule baseline_image:
+    input:
+        views=L.baseline_views_meta(),
+        meta=rules.curate.output.meta,
+        idm=IDM_MODEL,
+        index=L.envmap_index(),
+    output:
+        record=L.relight_record(frng_baselines.IMAGE_BASED_RUN, "{obj}"),
+    log:
+        L.log("baseline_image", "{obj}"),
+    wildcard_constraints:
+        obj=r"[a-z0-9_]+",
+    conda:
+        "../envs/torch.yaml"
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=30,
+        gpu=TORCH_GPUS,
+    params:
+        **stage_params("baseline_image"),
+        out=lambda wildcards, output: os.path.dirname(output.record),
+    message:
+        "Image-based baseline on {wildcards.obj}"
+    shell:
+        "exec {params.py:q} -m frng baseline-image --config {params.config:q} --object {wildcards.obj:q} "
+        "--out {params.out:q} > {log:q} 2>&1"
+
+
+# rule baseline_frng_nvs: F-RNG's `full` model rendered under each per-scene object's input light at its target
+# views (the views table's F-RNG column: novel-view synthesis from the 6 rig views)
+rule baseline_frng_nvs:
+    input:
+        model=L.model("full"),
+        backbone=rules.backbone_train.output.model,
+        idm=IDM_MODEL,
+        meta=rules.curate.output.meta,
+        views=L.baseline_views_meta(),
+    output:
+        record=L.relight_record(frng_baselines.FRNG_NVS_RUN, "{obj}"),
+    log:
+        L.log("baseline_frng_nvs", "{obj}"),
+    wildcard_constraints:
+        obj=r"[a-z0-9_]+",
+    conda:
+        "../envs/torch.yaml"
+    threads: 1
+    resources:
+        mem_mb=6000,
+        runtime=30,
+        gpu=TORCH_GPUS,
+    params:
+        **stage_params("baseline_frng_nvs"),
+        out=lambda wildcards, output: os.path.dirname(output.record),
+    message:
+        "F-RNG's novel views of {wildcards.obj} under its input light"
+    shell:
+        "exec {params.py:q} -m frng baseline-frng-nvs --config {params.config:q} --object {wildcards.obj:q} "
+        "--out {params.out:q} > {log:q} 2>&1"
+
+
+_IMAGE_RUN_IDS = BASELINE_VIEW_IDS if _BASELINES.get("image_based", True) else []
+
+
+# rule baseline_eval: every baseline image and F-RNG's scored per image under eval.protocol
+rule baseline_eval:
+    input:
+        frng=expand(L.relight_record("full", "{obj}"), obj=TEST_IDS),
+        timing=expand(rules.relight.output.timing, obj=TEST_IDS),
+        nvs=expand(rules.baseline_frng_nvs.output.record, obj=BASELINE_OBJECTS),
+        fits=expand(L.relight_record("{run}", "{obj}"), run=PER_SCENE_RUNS, obj=BASELINE_OBJECTS),
+        image=expand(rules.baseline_image.output.record, obj=_IMAGE_RUN_IDS),
+        external=[e["path"] for e in _BASELINES.get("external", [])],
+    output:
+        per_image=L.metrics("baselines_per_image"),
+        timing=L.metrics("baselines_timing"),
+    log:
+        L.log("baseline_eval"),
+    conda:
+        "../envs/eval.yaml"
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=30,
+    params:
+        **stage_params("baseline_eval"),
+        out=lambda wildcards, output: os.path.dirname(output.per_image),
+    message:
+        "Scoring the baselines beside F-RNG"
+    shell:
+        "exec {params.py:q} -m frng baseline-eval --config {params.config:q} --out {params.out:q} > {log:q} 2>&1"
+
+
+# rule baseline_tables: Tables 2 and 3 (vs_dense, vs_image_based) and the views table (views_nvs), with figures
+BASELINE_TABLES = ("vs_dense", "vs_image_based", "views_nvs")
+
+
+rule baseline_tables:
+    input:
+        per_image=rules.baseline_eval.output.per_image,
+        timing=rules.baseline_eval.output.timing,
+    output:
+        tables=[L.table(t, ext) for t in BASELINE_TABLES for ext in ("csv", "md", "tex")],
+        figures=[os.path.join(L.figures_dir(), "baselines", f"{t}.png") for t in BASELINE_TABLES],
+    log:
+        L.log("baseline_tables"),
+    conda:
+        "../envs/eval.yaml"
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=20,
+    params:
+        **stage_params("baseline_tables"),
+        metrics=lambda wildcards, input: os.path.dirname(input.per_image),
+    message:
+        "Tables 2-3 and the views table"
+    shell:
+        "exec {params.py:q} -m frng baseline-tables --config {params.config:q} --metrics {params.metrics:q} "
+        "> {log:q} 2>&1"
+
+
+if BASELINE_VIEW_IDS:
+    add_targets(*rules.baseline_tables.output)

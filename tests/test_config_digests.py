@@ -108,8 +108,21 @@ RULES = {
     "evaluate",
     "tables",
     "figures",
+    *("curate_baselines", "baseline_fit", "baseline_image", "baseline_frng_nvs", "baseline_eval", "baseline_tables"),
 }
-AFTER_TRAIN = {"train", "model_alias", "relight", "evaluate", "tables", "figures"}
+# the baselines' scoring and tables, after anything they compare changed
+BASELINE_SCORES = {"baseline_eval", "baseline_tables"}
+# F-RNG's novel views (rule baseline_frng_nvs) come from the full model, the backbone and the IDM
+AFTER_TRAIN = {
+    "train",
+    "model_alias",
+    "relight",
+    "evaluate",
+    "tables",
+    "figures",
+    "baseline_frng_nvs",
+    *BASELINE_SCORES,
+}
 
 # (key, new value) -> the rules whose jobs rerun ("all" left out); the smoke tier: learned IDM, 8 trained variants
 CASES = [
@@ -120,14 +133,25 @@ CASES = [
         13,
         {"backbone_train", "backbone_cache", "training_set_caches", "eval_backbone", *AFTER_TRAIN},
     ),
-    ("idm.train.steps", 61, {"idm_train", "idm_priors", "training_set_priors", "eval_backbone", *AFTER_TRAIN}),
+    (
+        "idm.train.steps",
+        61,
+        {"idm_train", "idm_priors", "training_set_priors", "eval_backbone", "baseline_image", *AFTER_TRAIN},
+    ),
     ("train.steps", 21, AFTER_TRAIN),
     ("frng.hidden", 32, AFTER_TRAIN),
-    ("shading.spp_infer", 64, {"relight", "evaluate", "tables", "figures"}),  # inference only: no retraining
+    # inference only: no retraining (the per-scene fits and the image-based baseline shade with it too)
+    (
+        "shading.spp_infer",
+        64,
+        {"relight", "evaluate", "tables", "figures", "baseline_fit", "baseline_image", "baseline_frng_nvs"}
+        | BASELINE_SCORES,
+    ),
     # a second training seed (`make seeds`): its models and their relighting, not the first seed's `relight` jobs
     ("train.seeds", [0, 1], {"train", "relight_seed", "evaluate", "tables", "figures"}),
-    ("eval.protocol", "plain", {"evaluate", "tables", "figures"}),
-    ("tier", "custom", {"tables"}),
+    ("eval.protocol", "plain", {"evaluate", "tables", "figures", *BASELINE_SCORES}),
+    ("tier", "custom", {"tables", "baseline_tables"}),
+    ("baselines.fit.steps", 61, {"baseline_fit", *BASELINE_SCORES}),
 ]
 
 

@@ -36,6 +36,12 @@ RULE_STAGES = {
     "import_benchmark": "frng.stages.import_benchmark",
     "relight_benchmark": "frng.stages.relight_benchmark",
     "evaluate_benchmarks": "frng.stages.evaluate_benchmarks",
+    "curate_baselines": "frng.stages.curate_baselines",
+    "baseline_fit": "frng.stages.baseline_fit",
+    "baseline_image": "frng.stages.baseline_image",
+    "baseline_frng_nvs": "frng.stages.baseline_frng_nvs",
+    "baseline_eval": "frng.stages.baseline_eval",
+    "baseline_tables": "frng.stages.baseline_tables",
 }
 # rules that run no ``frng`` stage, and why
 NO_STAGE = {
@@ -60,6 +66,8 @@ STAGES_WITHOUT_RULE = {
     "frng.stages.reconstruct": "your own photos -> an asset, run by hand (tests/test_reconstruct.py)",
     "frng.stages.render_asset": "renders an asset folder, run by hand (tests/test_reconstruct.py)",
     "frng.stages.view": "the interactive relighting viewer (frng.apps.view), run by hand (tests/test_viewer.py)",
+    "frng.stages.export_image_inputs": "writes the image-based methods' inputs (one photo + target maps), run by hand "
+    "(tests/test_baselines_tables.py)",
     "frng.stages.config": "`frng config` validates a config file and prints it, run by make before snakemake",
     "frng.stages.results_page": "regenerates docs/results.md by hand; the rule tables does it through `frng tables "
     "--results-page` (tests/test_results_page.py)",

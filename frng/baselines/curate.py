@@ -58,7 +58,7 @@ def curate_baselines(
     light = spec.input_lights[0]
     try:
         curated = io.read_json(object_meta)
-        targets = [View.from_dict(d) for d in curated["views"]["targets"]]
+        targets = [View.from_record(d) for d in curated["views"]["targets"]]
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise CurationError(f"{object_meta}: not a curated object's meta.json ({type(e).__name__}: {e})") from e
     if curated.get("id") != oid:

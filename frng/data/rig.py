@@ -49,7 +49,7 @@ class View:
         }
 
     @classmethod
-    def from_dict(cls, d: dict) -> View:
+    def from_record(cls, d: dict) -> View:
         """The view a :meth:`to_dict` record (a meta.json ``views`` entry) describes."""
         return cls(
             str(d["name"]),

@@ -27,7 +27,7 @@ import re
 import shutil
 import subprocess
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 
 import yaml
@@ -402,7 +402,7 @@ def write_pages(
     headline(tables, tables_dir)  # a missing headline is an error before anything is written
     prov = read_provenance(results, repo or page.parent, tables)
     if overrides:
-        unknown = sorted(set(overrides) - (set(Provenance.__dataclass_fields__) - {"stated"}))
+        unknown = sorted(set(overrides) - ({f.name for f in fields(Provenance)} - {"stated"}))
         if unknown:
             raise ResultsPageError(f"results page: unknown provenance fields {unknown}")
         prov = replace(prov, **overrides, stated=tuple(sorted(overrides)))
