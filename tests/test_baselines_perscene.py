@@ -118,6 +118,15 @@ def settings(**kw) -> FitSettings:
     return dataclasses.replace(section(FitSettings, {}, "baselines.fit"), **kw)
 
 
+@pytest.fixture(autouse=True)
+def one_thread():
+    """The fits at one thread (as the pipeline's jobs run them; measured thresholds), the count restored after."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
 @pytest.fixture(scope="module")
 def toy():
     torch.manual_seed(0)
@@ -201,13 +210,13 @@ def test_gsir_relights(toy):
     H, W = v.size
     la = gsir.Light.of(toy["env_a"])
     rgba = m.shade(m.gbuffer(v.c2w, v.intr, H, W, RASTER), la)
-    assert psnr(rgba[..., :3], v.rgb) > 23.0
+    assert psnr(rgba[..., :3], v.rgb) > 26.0
     held = toy["held_b"]
     relit = m.shade(m.gbuffer(held.c2w, held.intr, H, W, RASTER), toy["light_b"])
     p_relit = psnr(relit[..., :3], held.rgb)
     # against the trivial answer: the object as seen under the training light
     p_unrelit = psnr(toy["held_a"].rgb, held.rgb)
-    assert p_relit > 21.0 and p_relit > p_unrelit, (p_relit, p_unrelit)
+    assert p_relit > 24.0 and p_relit > p_unrelit + 2.0, (p_relit, p_unrelit)
     assert math.isfinite(m.geometry_psnr)
 
 

@@ -208,7 +208,7 @@ class GaussianSet:
             self._swap(
                 k,
                 torch.cat([old.detach(), v.detach().to(old.dtype)]),
-                lambda s, v=v: torch.cat([s, torch.zeros((v.shape[0],) + s.shape[1:], dtype=s.dtype)]),
+                lambda s, v=v: torch.cat([s, s.new_zeros((v.shape[0],) + s.shape[1:])]),
             )
 
     def keep(self, mask: torch.Tensor) -> None:
@@ -244,15 +244,15 @@ class Screen:
 
     def ndc_grad_norm(self) -> torch.Tensor:
         """(V, N): |dL/d mean2d| in NDC units (pixels x (W/2, H/2)), as 3DGS's densification statistic."""
-        scale = torch.tensor([0.5 * self.width, 0.5 * self.height])
+        scale = torch.tensor([0.5 * self.width, 0.5 * self.height], device=self.visible.device)
         if self.mean2d is not None:
             g = self.mean2d.grad
             if g is None:
-                return torch.zeros(self.visible.shape)
+                return torch.zeros(self.visible.shape, device=self.visible.device)
             return (g.detach() * scale.to(g)).norm(dim=-1)
         g3 = self.means.grad
         if g3 is None:
-            return torch.zeros(self.visible.shape)
+            return torch.zeros(self.visible.shape, device=self.visible.device)
         w2c = torch.linalg.inv(self.c2w)
         g_cam = torch.einsum("vij,nj->vni", w2c[:, :3, :3], g3.detach())
         z = (torch.einsum("vij,nj->vni", w2c[:, :3, :3], self.means.detach()) + w2c[:, None, :3, 3])[..., 2]
@@ -282,7 +282,9 @@ def render(
         if not track:
             return (*out, None)
         with torch.no_grad():
-            proj = project_gaussians(gs.means, quats, scales, c2w, intr, height, width, near=kw["near"], eps2d=0.3)
+            proj = project_gaussians(
+                gs.means, quats, scales, c2w, intr, height, width, near=kw["near"], eps2d=kw["eps2d"]
+            )
         screen = Screen(proj.valid, proj.extent.max(-1).values, width, height, means=gs.means, c2w=c2w, intr=intr)
         return (*out, screen)
     proj = project_gaussians(
@@ -351,13 +353,13 @@ class Densifier:
     max_radii: torch.Tensor = field(default=None)
     resets: int = 0
 
-    def _reset_stats(self, n: int) -> None:
-        self.grad_accum, self.denom, self.max_radii = torch.zeros(n), torch.zeros(n), torch.zeros(n)
+    def _reset_stats(self, n: int, device: torch.device) -> None:
+        self.grad_accum, self.denom, self.max_radii = (torch.zeros(n, device=device) for _ in range(3))
 
     def record(self, gs: GaussianSet, screen: Screen) -> None:
         """Accumulate one step's statistics (after ``backward``)."""
         if self.grad_accum is None or self.grad_accum.shape[0] != len(gs):
-            self._reset_stats(len(gs))
+            self._reset_stats(len(gs), gs.means.device)
         g = screen.ndc_grad_norm()
         vis = screen.visible
         self.grad_accum += (g * vis).sum(0)
@@ -392,7 +394,7 @@ class Densifier:
         if bool(split.any()):  # splits: SPLIT_N samples from the Gaussian, scales / (0.8 N)
             rep = {k: v[split].repeat((SPLIT_N,) + (1,) * (v.ndim - 1)) for k, v in params.items()}
             std = torch.exp(rep["log_scales"])
-            sample = torch.randn(std.shape, generator=self.generator) * std
+            sample = torch.randn(std.shape, generator=self.generator).to(std.device) * std
             rep["means"] = rep["means"] + quat_rotate(rep["quats"], sample)
             rep["log_scales"] = torch.log(std / (0.8 * SPLIT_N))
             new = {k: torch.cat([new[k], rep[k]]) for k in new}
@@ -400,16 +402,16 @@ class Densifier:
         gs.extend(new)
         n_new = len(gs) - n_before
         # prune: the split originals, transparent ones, and (after the first reset) the huge ones
-        drop = torch.cat([split, torch.zeros(n_new, dtype=torch.bool)])
+        drop = torch.cat([split, split.new_zeros(n_new)])
         drop |= gs.opacities < MIN_OPACITY
         if self.resets > 0:
-            radii = torch.cat([self.max_radii, torch.zeros(n_new)])
+            radii = torch.cat([self.max_radii, self.max_radii.new_zeros(n_new)])
             drop |= radii > MAX_SCREEN_FRACTION * self.width
             drop |= gs.scales.max(-1).values > MAX_WORLD_FRACTION * self.extent
         if bool(drop.all()):
             drop[0] = False
         gs.keep(~drop)
-        self._reset_stats(len(gs))
+        self._reset_stats(len(gs), gs.means.device)
 
 
 # -- the loop -------------------------------------------------------------------------------------------------------
@@ -465,7 +467,7 @@ def optimise(
             if not stack:
                 stack = torch.randperm(len(views), generator=generator).tolist()
             idx.append(stack.pop())
-        idx_t = torch.tensor(idx)
+        idx_t = torch.tensor(idx, device=views.rgb.device)
         gs.opt.zero_grad(set_to_none=True)
         loss, pred, screen = step_fn(gs, idx_t, i)
         if not torch.isfinite(loss):
