@@ -34,6 +34,7 @@ import os
 import re
 import shutil
 import tempfile
+import warnings
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
@@ -400,8 +401,10 @@ def check_image_size(path: str | os.PathLike, max_pixels: int = MAX_IMAGE_PIXELS
         from PIL import Image
 
         try:
-            with Image.open(path) as im:
-                size = im.size
+            with warnings.catch_warnings():  # PIL warns of a "decompression bomb": bounded below, with the file named
+                warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+                with Image.open(path) as im:
+                    size = im.size
         except Exception as e:  # noqa: BLE001 -- PIL raises many kinds for a corrupt header
             raise UntrustedInputError(f"{path}: cannot read the image header ({type(e).__name__}: {e})") from None
     elif suffix == ".hdr":  # Radiance
