@@ -253,19 +253,17 @@ def _write_object(results, toy, oid: str = "toy") -> None:
 def test_stage_writes_the_contract(toy, tmp_path, method):
     from frng import config as frng_config
     from frng import io
+    from frng.baselines.fit_job import BaselineFitError, FitJob, fit_object
     from frng.layout import RelightFolder
-    from frng.stages.baseline_fit import BaselineFitError, fit_object
     from frng.typedconfig import typed
 
     results = tmp_path / "results"
     _write_object(results, toy)
     config = typed(frng_config.load(str(Path(__file__).resolve().parent.parent / "config" / "smoke.yaml")))
     fit = settings(steps=12, pbr_steps=6, init_points=200, max_gaussians=400)
-    config = dataclasses.replace(
-        config, results=str(results), device="cpu", baselines=dataclasses.replace(config.baselines, fit=fit)
-    )
+    job = dataclasses.replace(FitJob.of(config), results=str(results), device="cpu", fit=fit)
     out = results / "relight" / f"{method}-v6" / "toy"
-    rec = fit_object(config, "toy", method, 6, out)
+    rec = fit_object(job, "toy", method, 6, out)
     folder = RelightFolder(out)
     lights = ["lightA", "lightB"] if method == "gsir" else ["lightA"]
     assert sorted(p.name for p in out.iterdir() if p.is_dir()) == lights
@@ -280,8 +278,8 @@ def test_stage_writes_the_contract(toy, tmp_path, method):
     assert (out / "loss.csv").read_text().startswith("step,loss,psnr\n")
     assert not [p for p in out.parent.iterdir() if p.name.startswith(".staging")]
     with pytest.raises(BaselineFitError, match="25 views asked"):
-        fit_object(config, "toy", method, 25, out)
+        fit_object(job, "toy", method, 25, out)
     (results / "baselines" / "views" / "toy" / "dense" / "lightA" / "d000.exr").unlink()
     with pytest.raises(BaselineFitError, match="d000.exr"):
-        fit_object(config, "toy", method, 6, out)
+        fit_object(job, "toy", method, 6, out)
     assert io.read_json(folder.record()) == saved  # the failed jobs left the folder as it was

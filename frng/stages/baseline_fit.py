@@ -1,41 +1,19 @@
 """Stage ``frng baseline-fit --object OBJ --method {3dgs,gsir} --views N --out DIR`` (rule ``baseline_fit``, one job
-per baseline object, method and view count): fit one per-scene baseline (:mod:`frng.baselines.splat3d`,
-:mod:`frng.baselines.gsir`) on the first ``N`` of the object's dense views (the nested spread subset
-:func:`frng.baselines.plan.dense_subset`) under its input light, and render its outputs into the RelightFolder
-``DIR`` (``{results}/relight/{method}-v{N}/{obj}``):
-
-- ``{input_light}/{view}.exr``: the object's target views under the input light (novel-view synthesis), both methods;
-- ``{light}/{view}.exr`` for every target light (``gsir`` only: ``3dgs`` cannot relight);
-- ``run.json`` (run, method, views, source, fit_seconds, relight_seconds_per_image, threads, device, steps,
-  train_psnr, final_loss, ...) and ``loss.csv`` (step, loss, psnr).
-
-Reads ``{results}/baselines/views/{obj}/`` (meta.json, ``dense/{light}/{view}.exr``), ``{results}/objects/{obj}/
-meta.json`` (``target_lights``) and ``{results}/envmaps/{light}.exr`` (gsir: the input light, which it is given, and
-the target lights). Config keys: ``results``, ``seed``, ``device``, ``raster.*``, ``baselines.fit.*``.
-
-Everything is written into a temporary sibling of ``DIR`` and renamed onto it at the end: a failed job leaves
-nothing that looks valid. Bad input is one line naming the file.
+per baseline object, method and view count): one per-scene baseline fitted on N of the object's dense views, its
+novel views and (gsir) relit images written to the RelightFolder DIR. What the job reads and writes:
+:mod:`frng.baselines.fit_job`.
 """
 
 from __future__ import annotations
 
 import argparse
-import shutil
 import sys
-import time
 from pathlib import Path
 
-import numpy as np
-
 from frng import config as frng_config
-from frng import io
-from frng.baselines.plan import DENSE_KIND, PER_SCENE_METHODS, dense_subset, per_scene_run
-from frng.layout import Layout, ObjectFolder, RelightFolder
+from frng.baselines.fit_job import BaselineFitError, FitJob, fit_object
+from frng.baselines.plan import PER_SCENE_METHODS
 from frng.typedconfig import typed
-
-
-class BaselineFitError(ValueError):
-    """Bad input to ``frng baseline-fit`` (names the file at fault); nothing was written."""
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -47,193 +25,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", help="override the config's device")
 
 
-def _views_from(dicts: list, where: str):
-    from frng.data.rig import View
-
-    try:
-        return [View.from_dict(d) for d in dicts]
-    except (KeyError, TypeError, ValueError) as e:
-        raise BaselineFitError(f"{where}: bad view entry ({e})") from e
-
-
-def read_inputs(results: str, oid: str, views: int) -> dict:
-    """Everything the job reads, checked before anything is fitted: the dense views (train subset), the target
-    views, the input light and the target lights. Raises :class:`BaselineFitError` naming the file."""
-    L = Layout(results)
-    meta_path = L.baseline_views_meta(oid)
-    try:
-        meta = io.read_json(meta_path)
-    except (OSError, ValueError) as e:
-        raise BaselineFitError(f"{meta_path}: cannot read the baselines' views ({e})") from e
-    for key in ("light", "views"):
-        if key not in meta:
-            raise BaselineFitError(f"{meta_path}: missing key {key!r}")
-    dense = _views_from(meta["views"].get("dense") or [], meta_path)
-    targets = _views_from(meta["views"].get("targets") or [], meta_path)
-    if not dense:
-        raise BaselineFitError(f"{meta_path}: no dense views (is the object a per-scene baseline object?)")
-    if not 1 <= views <= len(dense):
-        raise BaselineFitError(f"{meta_path}: {views} views asked, the object has {len(dense)} dense views")
-    obj_meta_path = L.object_meta(oid)
-    try:
-        obj_meta = io.read_json(obj_meta_path)
-    except (OSError, ValueError) as e:
-        raise BaselineFitError(f"{obj_meta_path}: cannot read object metadata ({e})") from e
-    if "target_lights" not in obj_meta:
-        raise BaselineFitError(f"{obj_meta_path}: missing key 'target_lights'")
-    if not targets:
-        targets = _views_from(obj_meta.get("views", {}).get("targets") or [], obj_meta_path)
-    light = str(meta["light"])
-    train = dense_subset(dense, views)
-    folder = ObjectFolder(L.baseline_views_dir(oid))
-    images = []
-    for v in train:
-        path = folder.image(DENSE_KIND, light, v.name)
-        try:
-            rgba = io.read_rgba(path, require_alpha=True)
-        except (OSError, ValueError) as e:
-            raise BaselineFitError(f"dense view: {e}") from e
-        if rgba.shape[:2] != (v.height, v.width):
-            raise BaselineFitError(f"{path}: {rgba.shape[1]}x{rgba.shape[0]} px, meta.json says {v.width}x{v.height}")
-        if not np.isfinite(rgba).all():
-            raise BaselineFitError(f"{path}: NaN or inf")
-        images.append(rgba)
-    return {
-        "light": light,
-        "train": train,
-        "images": np.stack(images),
-        "targets": targets,
-        "target_lights": [str(x) for x in obj_meta["target_lights"]],
-        "envmap": L.envmap,
-    }
-
-
-def read_env(path: str):
-    import torch
-
-    from frng import envmap
-
-    try:
-        return torch.from_numpy(np.ascontiguousarray(envmap.read(path)[..., :3])).float()
-    except (OSError, ValueError) as e:
-        raise BaselineFitError(f"environment map: {e}") from e
-
-
-def fit_object(config, oid: str, method: str, views: int, out: Path, device_name: str | None = None) -> dict:
-    """The whole job (module docstring); returns the run record."""
-    import torch
-
-    from frng.baselines import gsir, splat3d
-    from frng.baselines.perscene import TrainViews
-    from frng.data import catalog
-    from frng.device import deterministic_kernels, resolve_device, training_threads
-
-    run = per_scene_run(method, views)
-    inputs = read_inputs(config.results, oid, views)
-    envs = {}
-    if method == "gsir":
-        for light in dict.fromkeys([inputs["light"]] + inputs["target_lights"]):
-            envs[light] = read_env(inputs["envmap"](light))
-    threads = training_threads()
-    device = resolve_device(device_name or config.device)
-    deterministic_kernels(device)
-    settings, raster = config.baselines.fit, config.raster
-    seed = catalog.derive_seed(int(config.seed), "baseline-fit", oid, method, str(views))
-
-    train = inputs["train"]
-    imgs = torch.from_numpy(inputs["images"]).to(device)
-    tv = TrainViews(
-        [v.name for v in train],
-        torch.tensor(np.array([v.c2w for v in train]), dtype=torch.float32, device=device),
-        torch.tensor(np.array([v.intrinsics for v in train]), dtype=torch.float32, device=device),
-        imgs[..., :3].contiguous(),
-        imgs[..., 3:4].contiguous(),
-    )
-    targets = inputs["targets"]
-    t_c2w = torch.tensor(np.array([v.c2w for v in targets]), dtype=torch.float32, device=device)
-    t_intr = torch.tensor(np.array([v.intrinsics for v in targets]), dtype=torch.float32, device=device)
-    t_names = [v.name for v in targets]
-    H, W = tv.size
-    if any((v.height, v.width) != (H, W) for v in targets):
-        raise BaselineFitError(f"{Layout(config.results).baseline_views_meta(oid)}: target views' size is not {W}x{H}")
-
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    staging = io.temp_dir(f".staging-{out.name}-", out.parent)
-    try:
-        t0 = time.perf_counter()
-        if method == "3dgs":
-            model = splat3d.fit(tv, settings, raster, seed, label=f"3dgs {oid} v{views}")
-            fit_s = time.perf_counter() - t0
-
-            def render_fn(c, i, h, w):
-                return model.render(c, i, h, w, raster)
-
-            train_psnr = splat3d.train_psnr(render_fn, tv)
-            t1 = time.perf_counter()
-            images = {inputs["light"]: render_fn(t_c2w, t_intr, H, W)}
-            per_image = (time.perf_counter() - t1) / max(1, len(t_names))
-            extra = {"sh_degree": model.sh.degree}
-        else:
-            model = gsir.fit(tv, envs[inputs["light"]].to(device), settings, raster, seed, label=f"gsir {oid} v{views}")
-            fit_s = time.perf_counter() - t0
-            lit_in = gsir.Light.of(envs[inputs["light"]].to(device))
-            train_psnr = splat3d.train_psnr(
-                lambda c, i, h, w: model.shade(model.gbuffer(c, i, h, w, raster), lit_in), tv
-            )
-            t1 = time.perf_counter()
-            buffers = model.gbuffer(t_c2w, t_intr, H, W, raster)
-            images = {
-                light: model.shade(buffers, gsir.Light.of(env.to(device)) if light != inputs["light"] else lit_in)
-                for light, env in envs.items()
-            }
-            per_image = (time.perf_counter() - t1) / max(1, len(t_names) * len(images))
-            extra = {"geometry_steps": model.geometry_steps, "geometry_train_psnr": model.geometry_psnr}
-        folder = RelightFolder(staging)
-        for light, rgba in images.items():
-            arr = rgba.detach().float().cpu().numpy()
-            for k, name in enumerate(t_names):
-                io.write_exr(folder.image(light, name), arr[k], channels=["R", "G", "B", "A"])
-        curve = model.curve
-        Path(staging, "loss.csv").write_text(curve.csv())
-        record = {
-            "run": run,
-            "method": method,
-            "object": oid,
-            "views": int(views),
-            "source": "trained here",
-            "fit_seconds": fit_s,
-            "relight_seconds_per_image": per_image,
-            "threads": int(threads),
-            "device": str(device),
-            "steps": len(curve.rows),
-            "train_psnr": train_psnr,
-            "final_loss": curve.mean_loss(first=False, fraction=0.05),
-            "first_loss": curve.mean_loss(first=True, fraction=0.05),
-            "gaussians": len(model.gs),
-            "seed": seed,
-            "resolution": int(H),
-            "input_light": inputs["light"],
-            "lights": [x for x in images if x != inputs["light"]],
-            "target_views": t_names,
-            "train_views": [v.name for v in train],
-            "init": settings.init,
-            **extra,
-        }
-        io.write_json(folder.record(), record)
-        if out.exists():
-            shutil.rmtree(out)
-        staging.rename(out)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    return record
-
-
 def run(args: argparse.Namespace) -> int:
     config = typed(frng_config.load(args.config))
     try:
-        rec = fit_object(config, args.object, args.method, int(args.views), Path(args.out), args.device)
+        rec = fit_object(FitJob.of(config), args.object, args.method, int(args.views), Path(args.out), args.device)
     except BaselineFitError as e:
         print(f"frng baseline-fit: error: {e}", file=sys.stderr)
         return 2
