@@ -190,6 +190,7 @@ def test_asset_renders_finite(tmp_path):
     "key, value, words",
     [
         ("train.lr", float("inf"), "greater than the maximum"),
+        ("train.lr", float("nan"), "should not be valid"),
         ("render.spp", 10**12, "greater than the maximum"),
         ("shading.spp_infer", 10**9, "greater than the maximum"),
         ("render.resolution", 8 * 10**6, "greater than the maximum"),
