@@ -686,24 +686,20 @@ def open_viewer(
     asset: str | None,
     env: Sequence[str] = (),
     object_id: str | None = None,
-    config: str | None = None,
+    results: str | Path | None = None,
     resolution: int | None = None,
     spp: int | None = None,
     device: str = "auto",
     out: str = "frng-view",
 ) -> Viewer:
     """Check every input and load the asset and the maps (everything that can fail on bad input), without listening
-    yet: a :class:`Viewer` to :meth:`~Viewer.start`. ``asset`` or ``object_id`` (+ ``config``)."""
+    yet: a :class:`Viewer` to :meth:`~Viewer.start`. ``asset`` or ``object_id`` (+ ``results``, the results folder
+    of the config the stage read: its test maps and the object's relit images)."""
     from frng import io
     from frng.layout import Layout, RelightFolder
     from frng.stages.render_asset import turntable
 
-    results = None
-    if config is not None:
-        from frng import config as frng_config
-        from frng.typedconfig import typed
-
-        results = Path(typed(frng_config.load(config)).results)
+    results = Path(results) if results is not None else None
     test_object = None
     if object_id is not None:
         if results is None:

@@ -49,8 +49,14 @@ def run(args: argparse.Namespace) -> int:
 
     stop = threading.Event()
     try:
+        results = None
+        if args.config is not None:
+            from frng import config as frng_config
+            from frng.typedconfig import typed
+
+            results = typed(frng_config.load(args.config)).results
         viewer = open_viewer(
-            args.asset, args.env, args.object, args.config, args.resolution, args.spp, args.device, args.out
+            args.asset, args.env, args.object, results, args.resolution, args.spp, args.device, args.out
         )
         if args.measure is not None:
             if args.measure < 1:
