@@ -85,7 +85,8 @@ BASE_PROPERTIES = (
     "rot_3",
 )
 REQUIRED_DECODER_KEYS = ("width", "depth", "input_encoding")
-LOG_SCALE_RANGE = (-30.0, 5.0)  # a PLY's log scales outside are refused (exp(5) = 148 object radii)
+# a PLY's log scales outside are refused (exp(5) = 148 object radii; exp(-80) is still > 0 in float32)
+LOG_SCALE_RANGE = (-80.0, 5.0)
 MAX_COORDINATE = 1e3  # a PLY's |x|, |y|, |z| above are refused (the object lies in the unit sphere)
 MAX_SPP_INFER = 4096  # asset.json render.shading.spp_infer bound (config/schema.yaml shading.spp_infer)
 MAX_DECODER_SIZE = 4096  # asset.json decoder.width / feature_dim above are refused (bounded memory before building)
