@@ -157,6 +157,18 @@ class Page:
 
         next(b for b in self.driver.find_elements(By.TAG_NAME, "button") if b.text == text).click()
 
+    def type_number(self, index: int, value: str) -> None:
+        """Type ``value`` into the panel's ``index``-th number box (a slider's) and press Enter."""
+        from selenium.webdriver.common.by import By
+        from selenium.webdriver.common.keys import Keys
+
+        boxes = [
+            e for e in self.driver.find_elements(By.CSS_SELECTOR, "input.mantine-NumberInput-input") if e.is_displayed()
+        ]
+        boxes[index].click()
+        boxes[index].send_keys(Keys.CONTROL, "a")
+        boxes[index].send_keys(value, Keys.ENTER)
+
     def images(self) -> list:
         """The panel's images (the map thumbnail, a test object's side by side)."""
         from selenium.webdriver.common.by import By
@@ -209,7 +221,7 @@ def _canvas_compare(shot: np.ndarray, frame_rgb: np.ndarray, keep: np.ndarray) -
 def test_viewer_in_a_browser(smoke_asset, browser_paths, tmp_path):
     import torch
 
-    from frng import camera, io
+    from frng import camera, envmap, io
     from frng.apps.view import display
     from frng.asset import load_asset
     from frng.layout import Layout
@@ -279,6 +291,18 @@ def test_viewer_in_a_browser(smoke_asset, browser_paths, tmp_path):
             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
         )  # fmt: skip
 
+        # the rotation slider (its number box): the saved light is the map rotated about Z, the frame re-shaded
+        n = int(page.wait_text(after=0).split()[2].rstrip(":"))
+        page.type_number(0, "90")
+        page.wait_text(f"{test_maps[0]} · test map", after=n)
+        page.click("Save frame")
+        _wait_file(out / "frame_002" / "view.json")
+        assert io.read_json(out / "frame_002" / "view.json")["rotation_deg"] == 90.0
+        test_map = envmap.read(Layout(results).envmap(test_maps[0]))
+        np.testing.assert_allclose(envmap.read(out / "frame_002" / "light.exr"), envmap.rotate_z(test_map, 90.0))
+        turned = io.read_rgba(out / "frame_002" / "frame_002.exr")
+        assert np.abs(turned - io.read_rgba(out / "frame_001" / "frame_001.exr")).max() > 1e-3
+
         # a relit test object's asset: picking a target view and light moves the camera there, picks the light and
         # shows the ground truth, F-RNG and the backbone side by side
         oid = asset.parent.name
@@ -289,12 +313,13 @@ def test_viewer_in_a_browser(smoke_asset, browser_paths, tmp_path):
         page.pick("(free camera)", f"{target} · {light}")
         page.wait_text(light, after=n)
         page.click("Save frame")
-        _wait_file(out / "frame_002" / "view.json")
-        saved2 = io.read_json(out / "frame_002" / "cameras.json")["cameras"][0]
+        _wait_file(out / "frame_003" / "view.json")
+        saved2 = io.read_json(out / "frame_003" / "cameras.json")["cameras"][0]
         np.testing.assert_allclose(saved2["c2w"], cam["c2w"], atol=2e-3)
         fov = lambda c: c["intrinsics"][1] / c["height"]  # noqa: E731
         assert abs(fov(saved2) / fov(cam) - 1) < 1e-3, (saved2, cam)
-        assert io.read_json(out / "frame_002" / "view.json")["map"].startswith(f"{light} · ")
+        picked = io.read_json(out / "frame_003" / "view.json")
+        assert picked["map"].startswith(f"{light} · ") and picked["rotation_deg"] == 0.0
         shown = [i for i in page.images() if i.is_displayed() and i.rect["width"] > 3 * i.rect["height"] > 0]
         assert len(shown) == 1, [i.rect for i in page.images()]  # the side-by-side strip (the thumbnail is 2:1)
 
