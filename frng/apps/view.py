@@ -64,6 +64,7 @@ LOW_RASTER = {"min_transmittance": 1e-2, "chunk": 1024}
 BACKGROUND = (0.05, 0.05, 0.05)  # linear RGB behind the object (sRGB ~0.25 grey)
 THUMB_WIDTH = 256  # the map thumbnail's width in the panel
 TILE_MIN = 128  # side-by-side tiles are upscaled (nearest neighbour, integer factor) to at least this
+MAX_ASPECT = 4  # frames are at most 4:1 (or 1:4), whatever the browser window's shape
 FALLBACK_RESOLUTION = 64  # frame height when neither the asset's rig nor an object's views give one
 FULL, LOW = "full", "low"  # frame qualities, as the status line names them
 
@@ -630,6 +631,7 @@ class _Session:
         cam, st = self.client.camera, self.viewer.settings
         res = st.resolution if quality == FULL else max(MIN_LOW_HEIGHT, st.resolution // LOW_DIVISOR)
         aspect = cam.image_width / max(cam.image_height, 1) if cam.image_height else 1.0
+        aspect = min(max(aspect, 1.0 / MAX_ASPECT), float(MAX_ASPECT))
         w, h = frame_size(res, aspect)
         c2w, intr = viewport_camera(cam.position, cam.wxyz, cam.fov, w, h)
         return c2w, intr, w, h, self.map.value, float(self.rotation.value), float(self.exposure.value)
@@ -710,10 +712,13 @@ def open_viewer(
         asset = RelightFolder(Layout(results).relight_run("full", object_id)).asset()
     elif asset is None:
         raise ViewError("give an ASSET folder (asset.json, gaussians.ply, decoder.safetensors) or --object OBJ")
-    if resolution is not None and resolution < 8:
-        raise ViewError(f"--resolution {resolution}: at least 8 px")
-    if spp is not None and spp < 1:
-        raise ViewError(f"--spp {spp}: at least 1")
+    from frng.stages.render_asset import MAX_RESOLUTION, MAX_SPP
+
+    top = MAX_RESOLUTION // MAX_ASPECT  # a frame's width stays within what render-asset renders (Save frame)
+    if resolution is not None and not 8 <= resolution <= top:
+        raise ViewError(f"--resolution {resolution}: must be 8..{top} px (frames up to {MAX_ASPECT}:1 wide)")
+    if spp is not None and not 1 <= spp <= MAX_SPP:
+        raise ViewError(f"--spp {spp}: must be 1..{MAX_SPP}")
     frames = FrameRenderer(asset, device)  # AssetError: missing / malformed asset, one line
     asset_path = Path(asset)
     meta = frames.renderer.meta
