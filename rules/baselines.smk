@@ -42,11 +42,13 @@ rule curate_baselines:
 add_targets(*expand(L.baseline_views_meta(), obj=BASELINE_VIEW_IDS))
 
 
-# rule baseline_fit: one per-scene model (3dgs / gsir) of one object fitted on n of its dense views (run
-# {method}-v{n}), re-rendered at the target views under the input light (novel views) and, for gsir, relit under
-# every target light. One thread per job, like the relight jobs.
+# rule baseline_fit: one per-scene method (3dgs / gsir) of one object, fitted on each baselines.view_counts subset of its
+# dense views in turn (runs {method}-v{n}), each re-rendered at the target views under the input light (novel views)
+# and, for gsir, relit under every target light. One job per (method, object), so that the paper tier's DAG grows by
+# 2 x its test objects (one job per fit: 8 x); one thread per job, like the relight jobs.
 PER_SCENE_RUNS = frng_baselines.per_scene_runs(config)
-_PER_SCENE_RE = "|".join(re.escape(r) for r in PER_SCENE_RUNS) or r"(?!x)x"
+VIEW_COUNTS = [int(n) for n in _BASELINES.get("view_counts", [6])]
+PER_SCENE_METHODS = list(_BASELINES.get("methods", frng_baselines.PER_SCENE_METHODS)) if PER_SCENE_RUNS else []
 
 
 rule baseline_fit:
@@ -55,29 +57,29 @@ rule baseline_fit:
         meta=rules.curate.output.meta,
         index=L.envmap_index(),
     output:
-        record=L.relight_record("{run}", "{obj}"),
+        records=[L.relight_record(f"{{method}}-v{n}", "{obj}") for n in VIEW_COUNTS],
     log:
-        L.log("baseline_fit", "{run}-{obj}"),
+        L.log("baseline_fit", "{method}-{obj}"),
     wildcard_constraints:
         obj=r"[a-z0-9_]+",
-        run=_PER_SCENE_RE,
+        method="|".join(PER_SCENE_METHODS) or r"(?!x)x",
     conda:
         "../envs/torch.yaml"
     threads: 1
     resources:
         mem_mb=4000,
-        runtime=60,
+        runtime=30 * len(VIEW_COUNTS),
         gpu=TORCH_GPUS,
     params:
         **stage_params("baseline_fit"),
-        method=lambda wildcards: wildcards.run.rsplit("-v", 1)[0],
-        views=lambda wildcards: wildcards.run.rsplit("-v", 1)[1],
-        out=lambda wildcards, output: os.path.dirname(output.record),
+        views=" ".join(str(n) for n in VIEW_COUNTS),
+        runs=lambda wildcards, output: os.path.dirname(os.path.dirname(output.records[0])),  # {relight}/{run}/{obj}
     message:
-        "Per-scene baseline {wildcards.run} on {wildcards.obj}"
+        "Per-scene baseline {wildcards.method} on {wildcards.obj}: {params.views} views"
     shell:
-        "exec {params.py:q} -m frng baseline-fit --config {params.config:q} --object {wildcards.obj:q} "
-        "--method {params.method:q} --views {params.views:q} --out {params.out:q} > {log:q} 2>&1"
+        "(for n in {params.views}; do {params.py:q} -m frng baseline-fit --config {params.config:q} "
+        "--object {wildcards.obj:q} --method {wildcards.method:q} --views $n "
+        '--out "{params.runs}/{wildcards.method}-v$n/{wildcards.obj}" || exit 1; done) > {log:q} 2>&1'
 
 
 # rule baseline_image: the image-based baseline (each target view's photo under the input light decomposed by the
@@ -152,7 +154,7 @@ rule baseline_eval:
         frng=expand(L.relight_record("full", "{obj}"), obj=TEST_IDS),
         timing=expand(rules.relight.output.timing, obj=TEST_IDS),
         nvs=expand(rules.baseline_frng_nvs.output.record, obj=BASELINE_OBJECTS),
-        fits=expand(L.relight_record("{run}", "{obj}"), run=PER_SCENE_RUNS, obj=BASELINE_OBJECTS),
+        fits=expand(rules.baseline_fit.output.records, method=PER_SCENE_METHODS, obj=BASELINE_OBJECTS),
         image=expand(rules.baseline_image.output.record, obj=_IMAGE_RUN_IDS),
         external=[e["path"] for e in _BASELINES.get("external", [])],
     output:
