@@ -61,6 +61,8 @@ rule tables:
         timing=expand(rules.relight.output.timing, obj=TEST_IDS),
         prior=rules.eval_backbone.output.backbone,
         ablation_figure=L.figure("ablation.png"),  # shown by the results page
+        # Tables 2-3 and the views table, when the config runs the baselines: the results page shows them too
+        baselines=lambda wildcards: BASELINE_TABLE_FILES,
     output:
         *[
             report(
