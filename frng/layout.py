@@ -108,6 +108,14 @@ class RelightFolder(_Folder):
         return self._p("asset")
 
 
+class ImageInputsFolder(_Folder):
+    """What ``frng export-image-inputs --out DIR`` writes for image-based methods run elsewhere
+    (:mod:`frng.baselines.export_inputs`): ``index.json`` lists the objects, views and lights."""
+
+    def index(self) -> str:
+        return self._p("index.json")
+
+
 class Layout(_Folder):
     """The results folder ``root``'s artefact paths (see the module docstring)."""
 

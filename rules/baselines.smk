@@ -73,7 +73,7 @@ rule baseline_fit:
     params:
         **stage_params("baseline_fit"),
         views=" ".join(str(n) for n in VIEW_COUNTS),
-        runs=lambda wildcards, output: os.path.dirname(os.path.dirname(output.records[0])),  # {relight}/{run}/{obj}
+        runs=L.relight_dir(),  # {runs}/{run}/{obj}/run.json
     message:
         "Per-scene baseline {wildcards.method} on {wildcards.obj}: {params.views} views"
     shell:

@@ -34,7 +34,7 @@ import numpy as np
 
 from frng import envmap, io
 from frng.baselines.plan import TARGETS_KIND
-from frng.layout import Layout, ObjectFolder
+from frng.layout import ImageInputsFolder, Layout, ObjectFolder
 
 NG_MAP_SIZE = 256  # Neural Gaffer's LDR / HDR map inputs are 256 x 256 (resized from the equirect)
 OPENCV_TO_BLENDER = np.diag([1.0, -1.0, -1.0])
@@ -139,6 +139,6 @@ def export(results: str | Path, objects: list[str], out: str | Path) -> Path:
         views = export_object(results, oid, out)
         meta = io.read_json(Layout(results).object_meta(oid))
         index["objects"][oid] = {"views": views, "lights": list(meta["target_lights"])}
-    path = Path(out) / "index.json"
+    path = Path(ImageInputsFolder(out).index())
     io.write_json(path, index)
     return path

@@ -36,6 +36,7 @@ import numpy as np
 
 from frng import io
 from frng.baselines.plan import external_run
+from frng.layout import RelightFolder
 
 ENCODINGS = ("srgb", "linear")
 FAMILIES = ("dense", "image")
@@ -80,7 +81,7 @@ class ExternalMethod:
 
     def record(self, oid: str) -> dict:
         """``{path}/{obj}/run.json`` if the method's user wrote one (its timings), else {}."""
-        p = self.object_dir(oid) / "run.json"
+        p = Path(RelightFolder(self.object_dir(oid)).record())
         return io.read_json(p) if p.exists() else {}
 
     def has_light(self, oid: str, light: str) -> bool:

@@ -29,7 +29,7 @@ import numpy as np
 from frng import io
 from frng.baselines.fit_settings import FitSettings
 from frng.baselines.plan import DENSE_KIND, dense_subset, per_scene_run
-from frng.layout import Layout, ObjectFolder, RelightFolder
+from frng.layout import Layout, ObjectFolder, RelightFolder, TrainingFolder
 from frng.sections import TypedConfig
 
 if TYPE_CHECKING:
@@ -205,7 +205,7 @@ def fit_object(job: FitJob, oid: str, method: str, views: int, out: Path, device
             for k, name in enumerate(t_names):
                 io.write_exr(folder.image(light, name), arr[k], channels=["R", "G", "B", "A"])
         curve = model.curve
-        Path(staging, "loss.csv").write_text(curve.csv())
+        Path(TrainingFolder(staging).curve("csv")).write_text(curve.csv())
         record = {
             "run": run,
             "method": method,
