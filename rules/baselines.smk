@@ -73,7 +73,8 @@ rule baseline_fit:
     params:
         **stage_params("baseline_fit"),
         views=" ".join(str(n) for n in VIEW_COUNTS),
-        runs=L.relight_dir(),  # {runs}/{run}/{obj}/run.json
+        # {runs}/{run}/{obj}/run.json
+        runs=lambda wildcards, output: os.path.dirname(os.path.dirname(os.path.dirname(output.records[0]))),
     message:
         "Per-scene baseline {wildcards.method} on {wildcards.obj}: {params.views} views"
     shell:
