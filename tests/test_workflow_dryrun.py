@@ -41,8 +41,10 @@ def _child_cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def test_paper_dry_run_plans_in_well_under_20_s(tmp_path):
-    """CPU seconds of the planning process (wall time on the shared 2-core machine is noisy; it is printed)."""
+def test_paper_dry_run_plans_in_seconds(tmp_path):
+    """CPU seconds of the planning process (wall time on the shared 2-core machine is noisy; it is printed). The
+    baselines' jobs (rules/baselines.smk, 527 of the paper DAG's 1767) took it from 16.2 to 18.6 s user time on the
+    project's machine (20.2 s CPU within the test suite), hence 24 s."""
     t0, c0 = time.perf_counter(), _child_cpu()
     proc = dry_run("config/paper.yaml", tmp_path / "results")
     dt, cpu = time.perf_counter() - t0, _child_cpu() - c0
@@ -51,7 +53,7 @@ def test_paper_dry_run_plans_in_well_under_20_s(tmp_path):
     counts = job_counts(proc.stdout + proc.stderr)
     libero = frng_config.load(ROOT / "config/paper.yaml")["objects"]["libero"]["count"]
     assert counts["curate"] == 1000 + libero and counts["envmaps"] == 1  # generated objects + the real ones
-    assert cpu < 20.0, f"paper dry-run took {cpu:.1f} s CPU ({dt:.1f} s wall)"
+    assert cpu < 24.0, f"paper dry-run took {cpu:.1f} s CPU ({dt:.1f} s wall)"
 
 
 def test_smoke_dry_run_lists_dataset_jobs(tmp_path):
