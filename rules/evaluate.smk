@@ -60,9 +60,10 @@ rule tables:
         cross=rules.evaluate.output.cross,
         timing=expand(rules.relight.output.timing, obj=TEST_IDS),
         prior=rules.eval_backbone.output.backbone,
-        ablation_figure=L.figure("ablation.png"),  # shown by the results page
-        # Tables 2-3 and the views table, when the config runs the baselines: the results page shows them too
-        baselines=lambda wildcards: BASELINE_TABLE_FILES,
+        # what the results page shows (default tier only: other tiers make tables and figures side by side)
+        ablation_figure=L.figure("ablation.png") if RESULTS_PAGE_ARGS else [],
+        # Tables 2-3 and the views table, when the config runs the baselines
+        baselines=lambda wildcards: BASELINE_TABLE_FILES if RESULTS_PAGE_ARGS else [],
     output:
         *[
             report(

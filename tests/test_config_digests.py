@@ -151,8 +151,8 @@ CASES = [
     ("train.seeds", [0, 1], {"train", "relight_seed", "evaluate", "tables", "figures"}),
     ("eval.protocol", "plain", {"evaluate", "tables", "figures", *BASELINE_SCORES}),
     ("tier", "custom", {"tables", "baseline_tables"}),
-    # the fits, their scores and tables, and the tables rule (its results page shows Tables 2-3)
-    ("baselines.fit.steps", 61, {"baseline_fit", *BASELINE_SCORES, "tables"}),
+    # the fits, their scores and tables (the tables rule waits for them only where it writes the results page)
+    ("baselines.fit.steps", 61, {"baseline_fit", *BASELINE_SCORES}),
 ]
 
 
