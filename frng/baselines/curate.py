@@ -15,17 +15,16 @@ times), ``dense/{light}/{view}.exr`` and ``targets/{light}/{view}.exr`` (RGBA fl
 
 from __future__ import annotations
 
-import shutil
 import time
 from pathlib import Path
 
 from frng import io
 from frng.baselines.plan import DENSE_KIND, TARGETS_KIND, dense_views
 from frng.data import catalog
-from frng.data.curate import CurationError, check_envmaps, object_scene, render_view, stale_temp_dirs
+from frng.data.curate import CurationError, check_envmaps, object_scene, render_view, staged_object
 from frng.data.rig import View
 from frng.data.stopguard import NoGuard, StopGuard
-from frng.layout import EnvmapFolder, ObjectFolder
+from frng.layout import EnvmapFolder
 
 META_VERSION = 1
 
@@ -65,19 +64,9 @@ def curate_baselines(
         raise CurationError(f"{object_meta}: its id is {curated.get('id')!r}, not {oid!r}")
     denses = dense_views(render.dense_views, render.camera_distance, render.fov_deg, render.resolution) if dense else []
 
-    out_root.mkdir(parents=True, exist_ok=True)
-    final = out_root / oid
-    for stale in stale_temp_dirs(out_root, oid):
-        log(f"[{oid}] removing {stale.name}, left by an earlier run that was killed")
-        shutil.rmtree(stale, ignore_errors=True)
-    with guard.lock:
-        tmp = io.temp_dir(f".tmp-{oid}-", out_root)
-        guard.paths.append(tmp)
-        scratch = io.temp_dir(f".tmp-{oid}-", out_root)
-        guard.paths.append(scratch)
-    staged = ObjectFolder(tmp)
-    t_start = time.perf_counter()
-    try:
+    with staged_object(out_root, oid, guard, log) as stage:
+        staged, scratch = stage.folder, stage.scratch
+        t_start = time.perf_counter()
         scene, cam, _, shape, _, _ = object_scene(plan, objaverse, render, spec, log)
         world.set_envmap(scene, Path(EnvmapFolder(env_dir).envmap(light)), sample_map_resolution=max(64, envmaps.width))
         log(
@@ -102,13 +91,5 @@ def curate_baselines(
             "render_seconds": times,
             "total_seconds": round(time.perf_counter() - t_start, 3),
         }
-        with guard.lock:
-            io.write_json(staged.meta(), meta)
-            if final.exists():
-                shutil.rmtree(final)
-            tmp.rename(final)
-    finally:
-        with guard.lock:
-            for path in (tmp, scratch):
-                shutil.rmtree(path, ignore_errors=True)
-    return final
+        stage.commit(meta)
+    return stage.final

@@ -29,9 +29,12 @@ curation starts.
 
 from __future__ import annotations
 
+import contextlib
 import re
 import shutil
 import time
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -68,6 +71,49 @@ def stale_temp_dirs(out_root: Path, oid: str) -> list[Path]:
         return []
     pattern = re.compile(rf"\.tmp-{re.escape(oid)}-[a-z0-9_]{{8}}")
     return sorted(d for d in out_root.iterdir() if pattern.fullmatch(d.name) and d.is_dir())
+
+
+@dataclass(frozen=True)
+class StagedObject:
+    """An object folder being written (:func:`staged_object`): ``folder`` (the staging folder), ``scratch`` (Blender's
+    render folder), ``final`` (where :meth:`commit` renames it)."""
+
+    folder: ObjectFolder
+    scratch: Path
+    final: Path
+    guard: StopGuard | NoGuard
+
+    def commit(self, meta: dict) -> None:
+        """Write ``meta.json`` (the file that marks the object complete) and swap the folder into place."""
+        with self.guard.lock:
+            io.write_json(self.folder.meta(), meta)
+            if self.final.exists():
+                shutil.rmtree(self.final)
+            self.folder.root.rename(self.final)
+
+
+@contextlib.contextmanager
+def staged_object(out_root: Path, oid: str, guard, log) -> Iterator[StagedObject]:
+    """Stage object ``oid``'s folder ``out_root/oid``: removes staging folders a SIGKILLed run of it left (only one
+    runs at a time), makes ``.tmp-{oid}-*`` folders for the files and for Blender's renders (a render that finishes
+    while the guard removes the staging folder cannot create that folder again) under ``guard``, and removes both when
+    the block ends; :meth:`StagedObject.commit` swaps the files into place. A failed job leaves nothing that looks
+    valid."""
+    out_root.mkdir(parents=True, exist_ok=True)
+    for stale in stale_temp_dirs(out_root, oid):
+        log(f"[{oid}] removing {stale.name}, left by an earlier run that was killed")
+        shutil.rmtree(stale, ignore_errors=True)
+    with guard.lock:
+        tmp = io.temp_dir(f".tmp-{oid}-", out_root)
+        guard.paths.append(tmp)
+        scratch = io.temp_dir(f".tmp-{oid}-", out_root)
+        guard.paths.append(scratch)
+    try:
+        yield StagedObject(ObjectFolder(tmp), scratch, out_root / oid, guard)
+    finally:
+        with guard.lock:
+            for path in (tmp, scratch):
+                shutil.rmtree(path, ignore_errors=True)
 
 
 def gbuffer_from_passes(passes: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -226,21 +272,9 @@ def curate(
     rig_rng = np.random.default_rng(np.random.SeedSequence(spec.seed).spawn(3)[0])
     inputs, targets = rig.object_views(rig_rng, render)
 
-    out_root.mkdir(parents=True, exist_ok=True)
-    final = out_root / oid
-    for stale in stale_temp_dirs(out_root, oid):  # left by a SIGKILLed run of this object (only one runs at a time)
-        log(f"[{oid}] removing {stale.name}, left by an earlier run that was killed")
-        shutil.rmtree(stale, ignore_errors=True)
-    with guard.lock:
-        tmp = io.temp_dir(f".tmp-{oid}-", out_root)
-        guard.paths.append(tmp)
-        staged = ObjectFolder(tmp)
-        # Blender writes each render into a folder of its own: a render that finishes while the guard removes the
-        # staging folder cannot create that folder again (a stale scratch folder is removed by the next run)
-        scratch = io.temp_dir(f".tmp-{oid}-", out_root)
-        guard.paths.append(scratch)
-    t_start = time.perf_counter()
-    try:
+    with staged_object(out_root, oid, guard, log) as stage:
+        staged, scratch = stage.folder, stage.scratch
+        t_start = time.perf_counter()
         scene, cam, mat, shape, licence, provenance = object_scene(plan, objaverse, render, spec, log)
         own = spec.material == catalog.OWN
         log(
@@ -311,13 +345,5 @@ def curate(
             "render_seconds": times,
             "total_seconds": round(time.perf_counter() - t_start, 3),
         }
-        with guard.lock:
-            io.write_json(staged.meta(), meta)
-            if final.exists():
-                shutil.rmtree(final)
-            tmp.rename(final)
-    finally:
-        with guard.lock:
-            for path in (tmp, scratch):
-                shutil.rmtree(path, ignore_errors=True)
-    return final
+        stage.commit(meta)
+    return stage.final
