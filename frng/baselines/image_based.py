@@ -173,16 +173,9 @@ def oracle_gbuffer(results: str | Path, oid: str, view: str) -> IntrinsicPriors:
     """The curated ground-truth G-buffer of target view ``view`` (``objects/{obj}/gbuffer/{view}.exr``), (1, H, W, C)
     passes as :class:`IntrinsicPriors` (mask = its coverage)."""
     from frng.data.dataset import open_object
+    from frng.priors.dataset import read_gbuffer
 
-    g = open_object(results, oid).gbuffer("targets", [view], torch=True)
-    return IntrinsicPriors(
-        normal=g["normal"],
-        depth=g["depth"],
-        albedo=g["albedo"].clamp(0, 1),
-        roughness=g["roughness"],
-        metallic=g["metallic"],
-        mask=g["alpha"],
-    ).masked()
+    return read_gbuffer(open_object(results, oid), "targets", [view])
 
 
 def reshade(

@@ -75,9 +75,10 @@ def _views(obj: ObjectData, kind: str, light: str) -> Views:
     )
 
 
-def read_gbuffer(obj: ObjectData) -> IntrinsicPriors:
-    """G-buffers of all input views -> IntrinsicPriors (V, H, W, C); mask = coverage A."""
-    g = obj.gbuffer("inputs", None, torch=True)
+def read_gbuffer(obj: ObjectData, kind: str = "inputs", views: list[str] | None = None) -> IntrinsicPriors:
+    """G-buffers of the ``kind`` views ``views`` (default: all input views) -> IntrinsicPriors (V, H, W, C); mask =
+    coverage A."""
+    g = obj.gbuffer(kind, views, torch=True)
     return IntrinsicPriors(
         normal=g["normal"],
         depth=g["depth"],
