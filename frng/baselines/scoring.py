@@ -40,12 +40,10 @@ import numpy as np
 from frng import io
 from frng import metrics as M
 from frng.baselines.external import ExternalMethod
-from frng.baselines.plan import IMAGE_BASED_RUN, TARGETS_KIND
+from frng.baselines.plan import FRNG_NVS_RUN, FRNG_RUN, IMAGE_BASED_RUN, TARGETS_KIND
 from frng.layout import Layout, ObjectFolder, RelightFolder
 
 TASKS = ("relight", "nvs")
-FRNG_RUN = "full"
-FRNG_NVS_RUN = "full-nvs"
 TRAINED, FILES = "trained here", "files"
 COLUMNS = (
     "task",

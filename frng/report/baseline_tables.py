@@ -36,10 +36,11 @@ import numpy as np
 import pandas as pd
 
 from frng import metrics as M
+from frng.baselines.plan import FRNG_NVS_RUN, FRNG_RUN
 from frng.report import tables as T
 from frng.report.paper_tables import IMAGE_KEYS, diff_to
 
-FRNG, FRNG_NVS = "full", "full-nvs"
+FRNG, FRNG_NVS = FRNG_RUN, FRNG_NVS_RUN
 METHOD_LABELS = {
     "F-RNG": "F-RNG (ours)",
     "3dgs": "3DGS (per-scene)",

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 
 from frng import config as frng_config
+from frng.baselines.plan import FRNG_NVS_RUN
 from frng.typedconfig import typed
 
 
@@ -54,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out or Layout(config.results).metrics_dir())
     runs = planned(config)
     if args.no_frng_nvs:
-        runs = [r for r in runs if r.run != "full-nvs"]
+        runs = [r for r in runs if r.run != FRNG_NVS_RUN]
     try:
         per_image, timing = score(config.results, runs, config.eval.protocol, config.eval.background, out)
     except (ScoringError, ExternalError) as e:

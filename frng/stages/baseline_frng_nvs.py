@@ -15,9 +15,10 @@ from __future__ import annotations
 import argparse
 
 from frng import config as frng_config
+from frng.baselines.plan import FRNG_NVS_RUN
 from frng.typedconfig import typed
 
-RUN = "full-nvs"
+RUN = FRNG_NVS_RUN
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
