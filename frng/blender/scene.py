@@ -56,6 +56,23 @@ def new_scene(
     return scene
 
 
+def set_sampling(scene: bpy.types.Scene, spp: int, denoise: bool, clamp_direct: float, clamp_indirect: float) -> None:
+    """Cycles' sampling of ``scene``: ``spp`` samples per pixel; ``denoise``: OpenImageDenoise on the final render,
+    fed the albedo and normal passes (prefilter ACCURATE, CPU), else no denoising; ``clamp_direct`` /
+    ``clamp_indirect``: Cycles' per-sample clamps of direct / indirect light (0 = no clamp; Blender's defaults 0 / 10).
+    The render's ``Combined`` layer is the denoised image; Blender adds a ``Noisy Image`` layer beside it."""
+    c = scene.cycles
+    c.samples = int(spp)
+    c.use_denoising = bool(denoise)
+    if denoise:
+        c.denoiser = "OPENIMAGEDENOISE"
+        c.denoising_input_passes = "RGB_ALBEDO_NORMAL"
+        c.denoising_prefilter = "ACCURATE"
+        c.denoising_use_gpu = False
+    c.sample_clamp_direct = float(clamp_direct)
+    c.sample_clamp_indirect = float(clamp_indirect)
+
+
 def enable_gbuffer_passes(scene: bpy.types.Scene) -> None:
     """Depth (Z), world normals and the albedo/roughness/metallic AOVs in every render (+3-6% time)."""
     vl = scene.view_layers[0]

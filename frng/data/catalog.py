@@ -114,6 +114,9 @@ class RenderConfig:
 
     resolution: int
     spp: int
+    denoise: bool  # OpenImageDenoise with albedo + normal passes (frng.blender.scene.set_sampling)
+    clamp_direct: float  # Cycles' sample clamps (0 = none)
+    clamp_indirect: float
     input_views: int
     extra_input_views: int
     target_views: int

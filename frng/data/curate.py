@@ -58,6 +58,16 @@ GBUFFER_CHANNELS = (
     "metallic.Y",
 )
 META_VERSION = 1
+RENDER_META_KEYS = (  # the render.* settings meta.json records
+    "resolution",
+    "spp",
+    "denoise",
+    "clamp_direct",
+    "clamp_indirect",
+    "camera_distance",
+    "fov_deg",
+    "threads",
+)
 
 
 class CurationError(RuntimeError):
@@ -194,6 +204,7 @@ def object_scene(plan: catalog.Catalog, objaverse: catalog.ObjaverseConfig, rend
 
     _, shape_rng, mat_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(spec.seed).spawn(3))
     scene = bscene.new_scene(render.resolution, render.spp, render.threads, spec.seed)
+    bscene.set_sampling(scene, render.spp, render.denoise, render.clamp_direct, render.clamp_indirect)
     bscene.enable_gbuffer_passes(scene)
     cam = bscene.add_camera(scene, render.fov_deg)
     own = spec.material == catalog.OWN
@@ -331,7 +342,7 @@ def curate(
             **({"objaverse": provenance} if provenance else {}),
             "material_class": material_class,
             "material": mat,
-            "render": {k: getattr(render, k) for k in ("resolution", "spp", "camera_distance", "fov_deg", "threads")}
+            "render": {k: getattr(render, k) for k in RENDER_META_KEYS}
             | {"engine": "CYCLES", "device": "CPU", "blender": __import__("bpy").app.version_string},
             "input_lights": list(spec.input_lights),
             "target_lights": list(spec.target_lights),
