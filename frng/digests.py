@@ -1,14 +1,24 @@
 """What each rule reads: the config digests that rerun it.
 
 Every rule of the workflow declares ``params: config_digest=digests.rule_digest(config, "<rule>")``: a digest of
-exactly the config keys its stage reads (:data:`RULE_CONFIG_KEYS`). Snakemake's ``params`` rerun trigger then reruns a
-rule whose keys were edited, and its downstream rules because their inputs are rebuilt; the other rules stay. Digests
-read the validated config mapping (no typed sections, no torch: the rule files call this while planning).
+exactly the config keys its stage reads. Snakemake's ``params`` rerun trigger then reruns a rule whose keys were
+edited, and its downstream rules because their inputs are rebuilt; the other rules stay. Digests read the validated
+config mapping (no typed sections, no torch: the rule files call this while planning).
+
+Where the keys are declared, once: each stage module ``frng/stages/<rule>.py`` holds ``CONFIG_READS``, a tuple of
+string literals beside its entry point (``configure``/``run``), naming the sections and keys its ``run`` reads
+(helpers and libraries included). This module reads those tuples from the stages' source (:mod:`ast`, without
+importing a stage: stages import torch, planning must not), and :data:`RULE_CONFIG_KEYS`, the digests, the rule
+params (``rules/common.smk``: ``stage_params``/``digest_params``), the digest files and the table of
+docs/provenance-and-reproducibility.md (:func:`reads_table`) all follow from them. The three bookkeeping rules that
+run no stage (their ``run:`` blocks live in ``rules/train.smk``) declare theirs here, :data:`STAGELESS_READS`.
 """
 
 from __future__ import annotations
 
+import ast
 import copy
+import functools
 import hashlib
 import json
 import os
@@ -20,13 +30,19 @@ from frng import io
 from frng.config import OVERWRITE_SWITCH
 from frng.sections import ConfigError, load_schema
 
-# A key is a dotted path (a whole section or one leaf); ``"!section.key"`` removes a part of a section listed before
-# it. Missing keys digest as null. ``results`` and the overwrite switch are never part of a digest.
+# A key is a dotted path (a whole section or one leaf); ``"!section.key"`` removes a part of a section listed (or a
+# key listed, e.g. one a group brings); ``"@group"`` stands for the keys of :data:`GROUPS`. Missing keys digest as
+# null. ``results`` and the overwrite switch are never part of a digest (:data:`NOT_DIGESTED`).
 #
-# The lists follow what each stage's entry point reads (``config[...]``, ``X.from_config(config)``, helpers
-# included). A key a stage reads but its list lacks leaves stale results; a key listed needlessly only costs an
-# extra rerun. Sections an upstream rule already covers may be listed whole downstream at no cost (editing them
-# reruns the upstream rule, hence this one).
+# A declaration follows what the stage's entry point reads (``config[...]``, ``config.<section>``,
+# ``config_section(config, ...)``, helpers and libraries included). A key a stage reads but its declaration lacks
+# leaves stale results; a key listed needlessly only costs an extra rerun. Sections an upstream rule already covers
+# may be listed whole downstream at no cost (editing them reruns the upstream rule, hence this one). A section listed
+# whole covers the keys added to it later: declare by section where the stage reads most of one.
+
+STAGES_DIR = Path(__file__).resolve().parent / "stages"
+DECLARATION = "CONFIG_READS"
+"""The name of a stage module's declaration: ``CONFIG_READS = ("@plan", "train", "!train.seeds", ...)``."""
 
 PLAN_KEYS: tuple[str, ...] = ("seed", "objects", "envmaps", "render.input_lights", "render.target_lights")
 """What the dataset plan reads (frng/data/catalog.py ``plan``): env maps and their split, objects, their split,
@@ -35,15 +51,6 @@ materials and lights. Every stage that asks the plan for a split or the object l
 ENVMAP_PLAN_KEYS: tuple[str, ...] = ("seed", "envmaps")
 """What the env-map plan reads (frng/data/catalog.py ``envmap_plan``)."""
 
-# idm.* keys only the diffusion-renderer IDM reads (frng/priors/__init__.py), plus idm.kind: not the learned IDM's
-# architecture or training
-_IDM_NOT_TRAINED = ("!idm.kind", "!idm.diffusion_renderer_dir", "!idm.normal_space", "!idm.depth_invert")
-
-# frng/relight.py: the runs (frng.*, idm.kind, render.extra_input_views, train.seeds), resolution check, build_idm,
-# shading.spp_infer + inference shading, seeds, device; RELIGHT_KEYS adds the split check's dataset plan. The rule
-# `relight` relights the main group only (frng.variants.MAIN_GROUP: the models' seed and the backbone), whose runs do
-# not depend on the other training seeds: it leaves train.seeds out, so that `make seeds` (train.seeds [0] -> [0, 1])
-# adds the relight_seed jobs without rerunning the first seed's 21 relight jobs (their outputs were identical).
 RELIGHT_MODEL_KEYS: tuple[str, ...] = (
     "device",
     "render.resolution",
@@ -57,114 +64,138 @@ RELIGHT_MODEL_KEYS: tuple[str, ...] = (
     "train.seeds",
     "train_seed",
 )
-RELIGHT_KEYS: tuple[str, ...] = (*PLAN_KEYS, *RELIGHT_MODEL_KEYS)
-RELIGHT_MAIN_KEYS: tuple[str, ...] = tuple(k for k in RELIGHT_KEYS if k != "train.seeds")
+"""What relighting one object with the trained models reads (frng/relight.py): the runs (frng.*, idm.kind,
+render.extra_input_views, train.seeds), the resolution check, build_idm, shading.spp_infer and the inference
+shading, seeds, device."""
 
-RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = {
-    # frng/data/envmaps.py: the env-map plan, envmaps.width/normalize, Blender threads of the sky bakes
-    "envmaps": (*ENVMAP_PLAN_KEYS, "render.threads"),
-    # frng/data/curate.py: render.* (rig, Cycles, fur) and envmaps.width; the object's own plan entry (its split,
-    # mesh, material, seed and lights) is the rule's `spec` param, so adding an object reruns no other curation
-    "curate": ("render", "!render.dense_views", "envmaps.width"),
-    # frng/baselines/curate.py: the object's curation settings (render.*, envmaps.width), the plan (its lights,
-    # split, material; which test objects get dense views: baselines.objects_per_class)
-    "curate_baselines": (*PLAN_KEYS, "render", "envmaps.width", "baselines.objects_per_class"),
-    # frng/baselines/perscene.py (frng baseline-fit): the object's views and lights (plan), the fit's budget and
-    # schedule, the rasterizer and shading, seeds, device
-    "baseline_fit": (*PLAN_KEYS, "train_seed", "device", "render", "baselines.fit", "raster", "shading"),
-    # frng/baselines/image_based.py: the IDM (registry: idm.*, backbone.near/far), the shading, seeds, device
-    "baseline_image": (*PLAN_KEYS, "train_seed", "device", "idm", "backbone.near", "backbone.far", "shading"),
-    # frng/stages/baseline_frng_nvs.py: what frng relight reads
-    "baseline_frng_nvs": RELIGHT_MAIN_KEYS,
-    # frng/baselines/scoring.py: the runs planned (dense views, baselines.*), the protocol
-    "baseline_eval": (*PLAN_KEYS, "eval", "render.dense_views", "baselines", "benchmarks"),
-    # frng/report/baseline_tables.py: captions (tier), compositing (eval.background), the runs' images for figures
-    "baseline_tables": (*PLAN_KEYS, "tier", "eval", "render.dense_views", "baselines", "benchmarks"),
-    # frng/data/preview.py: the plan's object ids
-    "dataset_preview": PLAN_KEYS,
-    # frng/priors/backbone_train.py: the training split, architecture + backbone.train, patch size, the models'
-    # seed (frng.training.train_seed: train_seed, else seed), device
-    "backbone_train": (
-        *PLAN_KEYS,
-        "train_seed",
-        "device",
-        "backbone",
-        "!backbone.cache_extra_lights",
-        "model.patch_size",
-    ),
-    # frng/priors/idm_train.py: the training split, the learned IDM's architecture + idm.train, near/far, patch
-    # size, the models' seed, device
-    "idm_train": (
-        *PLAN_KEYS,
-        "train_seed",
-        "device",
-        "idm",
-        *_IDM_NOT_TRAINED,
-        "model.patch_size",
-        "backbone.near",
-        "backbone.far",
-    ),
-    # frng/priors/cache.py (backbone model from its file): extra training lights from the env-map plan, DDIM seeds
-    "backbone_cache": (*ENVMAP_PLAN_KEYS, "device", "backbone.cache_extra_lights"),
-    # frng/priors/cache.py + build_idm (learned IDM from its file): idm.kind and the diffusion-renderer settings
-    "idm_priors": ("device", "idm", "!idm.train", "backbone.near", "backbone.far"),
-    # frng/priors/evaluate.py: both splits, build_idm, seeds (backbone model from its file)
-    "eval_backbone": (*PLAN_KEYS, "device", "idm", "!idm.train", "backbone.near", "backbone.far"),
-    # rules/train.smk: indexes of the training split's files
-    "training_set_caches": PLAN_KEYS,
-    "training_set_priors": PLAN_KEYS,
-    # frng/model/train.py + variant_config: train.*, the architecture (frng.* but the variant lists), decoder and
-    # training shading (not the inference-only spp_infer / bf16_infer: relight takes those from the config),
-    # rasterizer, idm.kind (which priors file), the training split, the models' seed, device
-    "train": (
-        *PLAN_KEYS,
-        "train_seed",
-        "device",
-        "train",
-        "!train.seeds",
-        "frng",
-        "!frng.variants",
-        "!frng.k_sweep",
-        "model.patch_size",
-        "shading",
-        "!shading.spp_infer",
-        "!shading.bf16_infer",
-        "raster",
-        "idm.kind",
-    ),
+GROUPS: dict[str, tuple[str, ...]] = {
+    "@plan": PLAN_KEYS,
+    "@envmap_plan": ENVMAP_PLAN_KEYS,
+    "@relight": RELIGHT_MODEL_KEYS,
+}
+"""Keys a library entry point that several stages call reads, by the name a declaration uses for them."""
+
+STAGELESS_READS: dict[str, tuple[str, ...]] = {
     # a copy of the full model: which K-sweep entry is the full model
     "model_alias": ("frng.top_k_percent",),
-    "relight": RELIGHT_MAIN_KEYS,
-    # the other training seeds' runs (rules/relight.smk): what `relight` reads
-    "relight_seed": RELIGHT_KEYS,
-    # frng/stages/evaluate.py: eval.protocol/background and the planned runs (frng/variants.py: the variants, the
-    # training seeds, whether the Lambertian-base run exists)
-    "evaluate": (
-        "eval",
-        "frng",
-        "idm.kind",
-        "render.extra_input_views",
-        "train.seeds",
-        "train_seed",
-        "seed",
-        "shading.decoder_cosine",
-    ),
-    # frng/report/paper_tables.py: tier and eval.background in the captions
-    "tables": ("tier", "eval"),
-    # frng/report/paper_figures.py: patch size (saliency), the ablation variants
-    "figures": ("model.patch_size", "frng.variants"),
-    # frng/benchmarks (rules/benchmarks.smk): the import converts to the resolution, map width and input-view count;
-    # relighting an imported object reads what `relight` reads; the benchmark table reads the runs and eval
-    "import_benchmark": ("benchmarks", "render.resolution", "render.extra_input_views", "envmaps.width"),
-    "relight_benchmark": (*RELIGHT_MODEL_KEYS, "seed"),
-    "evaluate_benchmarks": ("benchmarks", "eval", "tier"),
+    # indexes of the training split's files (frng.io.write_file_index)
+    "training_set_caches": ("@plan",),
+    "training_set_priors": ("@plan",),
 }
-"""Rule name -> the config keys its stage reads (see the comment above)."""
+"""The declarations of the rules that run no stage (bookkeeping ``run:``/``shell:`` blocks of rules/train.smk)."""
+
+NOT_DIGESTED: dict[str, str] = {
+    "results": "where the outputs go, not what they are: a moved or copied results folder reruns nothing",
+    OVERWRITE_SWITCH: "a switch of the run (`--config overwrite_config=true` replaces the recorded config), popped "
+    "before validation: no schema key, never recorded",
+}
+"""Config keys no rule's digest may hold, and why: every other schema key is declared by some rule."""
 
 RULES_WITHOUT_DIGEST = frozenset({"all", "config_digest"})
 """Rules that run no stage (``config_digest`` records the others' digests in the results folder)."""
 
-_NEVER_DIGESTED = ("results", OVERWRITE_SWITCH)
+
+def stage_declaration(path: str | os.PathLike) -> tuple[str, ...] | None:
+    """The ``CONFIG_READS`` of the stage module at ``path``, read from its source without importing it (a module-level
+    tuple of string literals); None when it declares none. A declaration that is not such a tuple is a
+    :class:`ConfigError` naming the file."""
+    path = Path(path)
+    found = None
+    for node in ast.parse(path.read_text(), str(path)).body:
+        targets = (
+            node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(node, ast.AnnAssign) else []
+        )
+        if any(isinstance(t, ast.Name) and t.id == DECLARATION for t in targets):
+            try:
+                found = ast.literal_eval(node.value)
+            except ValueError:
+                found = None
+            if not (isinstance(found, tuple) and found and all(isinstance(k, str) for k in found)):
+                raise ConfigError(
+                    f"{path}: {DECLARATION} must be a non-empty tuple of string literals (dotted config keys)"
+                )
+    return found
+
+
+def expand(keys, where: str = "") -> tuple[str, ...]:
+    """The keys of a declaration with its groups (``@plan``, :data:`GROUPS`) spelled out, each key once, in order,
+    the keys then the removals; a removal ``"!k"`` of a key ``k`` listed as such drops it (and goes: no section
+    listed contains it). ``where``: what declares them, for the error on an unknown group."""
+    flat: list[str] = []
+    for k in keys:
+        if k.startswith("@"):
+            if k not in GROUPS:
+                raise ConfigError(f"{where}: {k}: no such group of config keys; known: {', '.join(GROUPS)}")
+            flat += GROUPS[k]
+        else:
+            flat.append(k)
+    removed = {k[1:] for k in flat if k.startswith("!")}
+    include = [k for k in dict.fromkeys(flat) if not k.startswith("!") and k not in removed]
+    exclude = [f"!{k}" for k in dict.fromkeys(k[1:] for k in flat if k.startswith("!")) if _owned(k, include)]
+    return (*include, *exclude)
+
+
+def _within(key: str, section: str) -> bool:
+    return key == section or key.startswith(section + ".")
+
+
+def _owned(key: str, include) -> bool:
+    return any(key.startswith(k + ".") for k in include)
+
+
+@functools.lru_cache(maxsize=1)
+def _rule_config_keys() -> dict[str, tuple[str, ...]]:
+    out = {}
+    for path in sorted(STAGES_DIR.glob("*.py")):
+        declared = stage_declaration(path)
+        if declared is not None:
+            out[path.stem] = expand(declared, str(path.relative_to(STAGES_DIR.parent.parent)))
+    for rule, declared in STAGELESS_READS.items():
+        if rule in out:
+            raise ConfigError(f"rule {rule}: declared by its stage and in frng.digests.STAGELESS_READS")
+        out[rule] = expand(declared, f"frng.digests.STAGELESS_READS[{rule!r}]")
+    return dict(sorted(out.items()))
+
+
+RULE_CONFIG_KEYS: dict[str, tuple[str, ...]] = _rule_config_keys()
+"""Rule name -> the config keys its stage reads: the stage's ``CONFIG_READS`` (frng/stages/<rule>.py) with its groups
+spelled out (:func:`expand`), or :data:`STAGELESS_READS`. Derived: never edit it, edit the declaration."""
+
+_NEVER_DIGESTED = tuple(NOT_DIGESTED)
+
+
+def reads(rule: str, key: str) -> bool:
+    """Whether rule ``rule``'s digest holds the config key ``key`` (a schema leaf): a key or section it lists
+    contains it and no removal takes it out."""
+    keys = RULE_CONFIG_KEYS[rule]
+    return any(_within(key, k) for k in keys if not k.startswith("!")) and not any(
+        _within(key, k[1:]) for k in keys if k.startswith("!")
+    )
+
+
+def reads_table() -> str:
+    """A Markdown table, rule -> where its keys are declared and the keys (groups by name), for
+    docs/provenance-and-reproducibility.md (tests/test_config_reads.py checks that the page holds it)."""
+    rows = ["| rule | declared in | config keys it reads (`!`: but not) |", "|---|---|---|"]
+    for rule in RULE_CONFIG_KEYS:
+        if rule in STAGELESS_READS:
+            where, declared = "`frng.digests.STAGELESS_READS`", STAGELESS_READS[rule]
+        else:
+            where, declared = f"`frng/stages/{rule}.py`", stage_declaration(STAGES_DIR / f"{rule}.py")
+        rows.append(f"| `{rule}` | {where} | {', '.join(f'`{k}`' for k in declared)} |")
+    rows += ["", "Groups: " + "; ".join(f"`{g}` = {', '.join(f'`{k}`' for k in keys)}" for g, keys in GROUPS.items())]
+    return "\n".join(rows) + "\n"
+
+
+def _declared_where(rule: str) -> str:
+    return "frng.digests.STAGELESS_READS" if rule in STAGELESS_READS else f"frng/stages/{rule}.py ({DECLARATION})"
+
+
+def _undeclared(rule: str) -> str:
+    return (
+        f"no {DECLARATION} in frng/stages/{rule}.py (the config keys its stage reads; frng.digests.STAGELESS_READS "
+        "for a rule that runs no stage)"
+    )
 
 
 def _lookup(config: Any, dotted: str) -> Any:
@@ -200,7 +231,7 @@ def config_digest(config: dict, keys, length: int = 16) -> str:
 def rule_digest(config: dict, rule: str) -> str:
     """The digest of the config keys rule ``rule`` reads (:data:`RULE_CONFIG_KEYS`): its ``config_digest`` param."""
     if rule not in RULE_CONFIG_KEYS:
-        raise ConfigError(f"rule {rule!r} has no entry in frng.digests.RULE_CONFIG_KEYS (the config keys it reads)")
+        raise ConfigError(f"rule {rule!r}: {_undeclared(rule)}")
     return config_digest(config, RULE_CONFIG_KEYS[rule])
 
 
@@ -254,12 +285,15 @@ def check_rule_digests(config: dict, declared: dict[str, Any]) -> None:
         if rule in RULES_WITHOUT_DIGEST:
             continue
         if rule not in RULE_CONFIG_KEYS:
-            problems.append(f"rule {rule}: not in RULE_CONFIG_KEYS")
+            problems.append(f"rule {rule}: {_undeclared(rule)}")
         elif value != rule_digest(config, rule):
             problems.append(
                 f'rule {rule}: needs `params: config_digest=frng_digests.rule_digest(config, "{rule}")` (`**digest_params("{rule}")`)'
             )
-    problems += [f"RULE_CONFIG_KEYS[{r!r}]: no such rule" for r in sorted(set(RULE_CONFIG_KEYS) - set(declared))]
+    problems += [
+        f"{_declared_where(r)} declares the config keys of rule {r}: no such rule"
+        for r in sorted(set(RULE_CONFIG_KEYS) - set(declared))
+    ]
     if problems:
         raise ConfigError("config digests: " + "; ".join(problems))
 
@@ -274,24 +308,19 @@ def _schema_leaves(node: dict, prefix: str = "") -> list[str]:
     return out
 
 
+def schema_leaves(schema: dict | None = None) -> list[str]:
+    """The dotted keys of the schema's leaves (a value that is no section: scalars, lists, plain mappings)."""
+    return _schema_leaves(schema if schema is not None else load_schema())
+
+
 def undigested_keys(schema: dict | None = None) -> list[str]:
-    """Config keys of the schema that no rule's digest covers (besides ``results`` and the overwrite switch): a key
-    added to the schema must be added to :data:`RULE_CONFIG_KEYS` for every rule whose stage reads it."""
-    schema = schema if schema is not None else load_schema()
-
-    def within(key: str, section: str) -> bool:
-        return key == section or key.startswith(section + ".")
-
-    def covers(keys, leaf: str) -> bool:
-        return any(within(leaf, k) for k in keys if not k.startswith("!")) and not any(
-            within(leaf, k[1:]) for k in keys if k.startswith("!")
-        )
-
+    """Config keys of the schema that no rule's digest covers (besides :data:`NOT_DIGESTED`): a key added to the
+    schema must be declared (``CONFIG_READS`` of frng/stages/<rule>.py, or a section listed there) by every rule
+    whose stage reads it."""
     return [
         leaf
-        for leaf in _schema_leaves(schema)
-        if leaf.split(".")[0] not in _NEVER_DIGESTED
-        and not any(covers(keys, leaf) for keys in RULE_CONFIG_KEYS.values())
+        for leaf in schema_leaves(schema)
+        if leaf.split(".")[0] not in _NEVER_DIGESTED and not any(reads(rule, leaf) for rule in RULE_CONFIG_KEYS)
     ]
 
 

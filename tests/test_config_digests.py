@@ -1,7 +1,7 @@
 """Config edits rerun exactly what they affect (issue 12, problem 3).
 
-Every rule declares ``params: config_digest=`` a digest of the config keys its stage reads (``frng/config.py``,
-``RULE_CONFIG_KEYS``), so Snakemake's params trigger reruns the rules whose keys were edited and, through their
+Every rule declares ``params: config_digest=`` a digest of the config keys its stage reads (``CONFIG_READS`` of
+``frng/stages/<rule>.py``, gathered by ``frng/digests.py``), so Snakemake's params trigger reruns the rules whose keys were edited and, through their
 rebuilt outputs, the rules downstream; the other rules stay.
 
 The workflow test needs a results folder where every job has run with a known config, without running any stage:
@@ -83,9 +83,11 @@ def test_check_rule_digests_names_each_problem():
     frng_digests.check_rule_digests(cfg, good)
     with pytest.raises(frng_config.ConfigError, match=r"rule train: needs .*rule_digest\(config, \"train\"\)"):
         frng_digests.check_rule_digests(cfg, good | {"train": None})
-    with pytest.raises(frng_config.ConfigError, match="rule new_stage: not in RULE_CONFIG_KEYS"):
+    with pytest.raises(frng_config.ConfigError, match=r"rule new_stage: no CONFIG_READS in frng/stages/new_stage.py"):
         frng_digests.check_rule_digests(cfg, good | {"new_stage": "x"})
-    with pytest.raises(frng_config.ConfigError, match=r"RULE_CONFIG_KEYS\['figures'\]: no such rule"):
+    with pytest.raises(
+        frng_config.ConfigError, match=r"frng/stages/figures.py \(CONFIG_READS\) declares .* no such rule"
+    ):
         frng_digests.check_rule_digests(cfg, {k: v for k, v in good.items() if k != "figures"})
 
 

@@ -16,6 +16,10 @@ from frng.layout import Layout
 from frng.priors.cache import make_backbone_cache
 from frng.typedconfig import typed
 
+# The config keys this stage reads (frng.digests: its rule's digest): the backbone model from its file; extra
+# training lights from the env-map plan, DDIM seeds, device (frng/priors/cache.py)
+CONFIG_READS = ("@envmap_plan", "device", "backbone.cache_extra_lights")
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)

@@ -16,6 +16,10 @@ from frng import config as frng_config
 from frng.baselines.plan import FRNG_NVS_RUN
 from frng.typedconfig import typed
 
+# The config keys this stage reads (frng.digests: its rule's digest): the runs planned (dense views,
+# baselines.*), the protocol (frng/baselines/scoring.py)
+CONFIG_READS = ("@plan", "eval", "render.dense_views", "baselines", "benchmarks")
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)

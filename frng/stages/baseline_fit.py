@@ -15,6 +15,10 @@ from frng.baselines.fit_job import BaselineFitError, FitJob, fit_object
 from frng.baselines.plan import PER_SCENE_METHODS
 from frng.typedconfig import typed
 
+# The config keys this stage reads (frng.digests: its rule's digest): the object's views and lights (plan), the
+# fit's budget and schedule, the rasterizer and shading, seeds, device (frng/baselines/perscene.py)
+CONFIG_READS = ("@plan", "train_seed", "device", "render", "baselines.fit", "raster", "shading")
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)

@@ -21,6 +21,11 @@ from frng.typedconfig import typed
 RUN = FRNG_NVS_RUN
 
 
+# The config keys this stage reads (frng.digests: its rule's digest): what `frng relight` of the main group reads
+# (frng/stages/relight.py)
+CONFIG_READS = ("@plan", "@relight", "!train.seeds")
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)
     parser.add_argument("--object", required=True, help="test object id")

@@ -14,6 +14,10 @@ import argparse
 from frng import config as frng_config
 from frng.typedconfig import typed
 
+# The config keys this stage reads (frng.digests: its rule's digest): the IDM (registry: idm.*, backbone.near/far),
+# the shading, seeds, device (frng/baselines/image_based.py)
+CONFIG_READS = ("@plan", "train_seed", "device", "idm", "backbone.near", "backbone.far", "shading")
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     from frng.baselines.image_based import GBUFFERS

@@ -15,6 +15,10 @@ import argparse
 from frng import config as frng_config
 from frng.typedconfig import typed
 
+# The config keys this stage reads (frng.digests: its rule's digest): captions (tier), compositing
+# (eval.background), the runs' images for figures (frng/report/baseline_tables.py)
+CONFIG_READS = ("@plan", "tier", "eval", "render.dense_views", "baselines", "benchmarks")
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)

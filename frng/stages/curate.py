@@ -24,6 +24,11 @@ from frng.data.stopguard import StopGuard
 from frng.layout import Layout
 from frng.sections import config_section
 
+# The config keys this stage reads (frng.digests: its rule's digest): render.* (rig, Cycles, fur) and envmaps.width
+# (frng/data/curate.py); the object's own plan entry (its split, mesh, material, seed and lights) is the rule's
+# `spec` param, so adding an object reruns no other curation
+CONFIG_READS = ("render", "!render.dense_views", "envmaps.width")
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)

@@ -19,6 +19,11 @@ from frng.data.stopguard import StopGuard
 from frng.layout import Layout
 from frng.sections import config_section
 
+# The config keys this stage reads (frng.digests: its rule's digest): the object's curation settings (render.*,
+# envmaps.width), the plan (its lights, split, material; which test objects get dense views:
+# baselines.objects_per_class); frng/baselines/curate.py
+CONFIG_READS = ("@plan", "render", "envmaps.width", "baselines.objects_per_class")
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)

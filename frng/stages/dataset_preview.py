@@ -18,6 +18,9 @@ from frng.data.preview import write_previews
 from frng.layout import Layout
 from frng.typedconfig import typed
 
+# The config keys this stage reads (frng.digests: its rule's digest): the plan's object ids (frng/data/preview.py)
+CONFIG_READS = ("@plan",)
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     p = parser

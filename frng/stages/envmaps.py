@@ -17,6 +17,10 @@ from frng.data.envmaps import prepare
 from frng.layout import Layout
 from frng.typedconfig import typed
 
+# The config keys this stage reads (frng.digests: its rule's digest): the env-map plan, envmaps.width/normalize,
+# Blender threads of the sky bakes (frng/data/envmaps.py)
+CONFIG_READS = ("@envmap_plan", "render.threads")
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)

@@ -18,6 +18,10 @@ from frng.priors import build_idm, load_backbone
 from frng.priors.evaluate import eval_backbone, eval_idm, mean_image
 from frng.typedconfig import typed
 
+# The config keys this stage reads (frng.digests: its rule's digest): both splits, build_idm, seeds, device; the
+# backbone model from its file (frng/priors/evaluate.py)
+CONFIG_READS = ("@plan", "device", "idm", "!idm.train", "backbone.near", "backbone.far")
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)

@@ -195,6 +195,20 @@ def run_dirs_of(config: Config | dict, objects: list[str]) -> list[Path]:
     return [Path(L.relight_run(r.name, oid)) for oid in objects for r in runs(config)]
 
 
+# The config keys this stage reads (frng.digests: its rule's digest): eval.protocol/background and the planned
+# runs (frng/variants.py: the variants, the training seeds, whether the Lambertian-base run exists)
+CONFIG_READS = (
+    "eval",
+    "frng",
+    "idm.kind",
+    "render.extra_input_views",
+    "train.seeds",
+    "train_seed",
+    "seed",
+    "shading.decoder_cosine",
+)
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)
     parser.add_argument("--objects", nargs="*", help="test objects (default: the config's test split)")

@@ -103,6 +103,10 @@ def evaluate(
     return per_image, out
 
 
+# The config keys this stage reads (frng.digests: its rule's digest): the runs and the protocol
+CONFIG_READS = ("benchmarks", "eval", "tier")
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)
     parser.add_argument("--objects", nargs="*", help="imported objects (default: the config's benchmarks)")

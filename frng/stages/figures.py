@@ -14,6 +14,10 @@ from frng.layout import Layout
 from frng.report.paper_figures import make_figures
 from frng.typedconfig import typed
 
+# The config keys this stage reads (frng.digests: its rule's digest): patch size (saliency), the ablation variants
+# (frng/report/paper_figures.py)
+CONFIG_READS = ("model.patch_size", "frng.variants")
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)

@@ -15,6 +15,10 @@ from frng.layout import Layout
 from frng.priors.cache import make_idm_priors
 from frng.typedconfig import typed
 
+# The config keys this stage reads (frng.digests: its rule's digest): the learned IDM from its file; idm.kind and
+# the diffusion-renderer settings (frng/priors/cache.py + build_idm), near/far, device
+CONFIG_READS = ("device", "idm", "!idm.train", "backbone.near", "backbone.far")
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)

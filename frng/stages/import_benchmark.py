@@ -17,6 +17,10 @@ from frng import config as frng_config
 from frng.layout import Layout
 from frng.typedconfig import typed
 
+# The config keys this stage reads (frng.digests: its rule's digest): the import converts to the resolution, map
+# width and input-view count (frng/benchmarks)
+CONFIG_READS = ("benchmarks", "render.resolution", "render.extra_input_views", "envmaps.width")
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     from frng.benchmarks import LAYOUTS

@@ -9,6 +9,10 @@ import argparse
 
 from frng.stages import relight as _relight
 
+# The config keys this stage reads (frng.digests: its rule's digest): what relighting reads (frng/relight.py) and
+# the seed
+CONFIG_READS = ("@relight", "seed")
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     _relight.configure(parser)

@@ -17,6 +17,10 @@ from frng.report.paper_tables import write_tables
 from frng.report.results_page import ResultsPageError, write_pages
 from frng.typedconfig import typed
 
+# The config keys this stage reads (frng.digests: its rule's digest): tier and eval.background in the captions
+# (frng/report/paper_tables.py)
+CONFIG_READS = ("tier", "eval")
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)

@@ -21,6 +21,27 @@ from frng.model.train import TrainRun, train
 from frng.typedconfig import typed
 from frng.variants import all_variants, canonical_variant, reads_priors, split_seed, trained_variants
 
+# The config keys this stage reads (frng.digests: its rule's digest): train.* (but the seeds: a variant's seed is
+# its name's), the architecture (frng.* but the variant lists), decoder and training shading (not the
+# inference-only spp_infer / bf16_infer: relight takes those from the config), rasterizer, idm.kind (which priors
+# file), the training split, the models' seed, device (frng/model/train.py + variant_config)
+CONFIG_READS = (
+    "@plan",
+    "train_seed",
+    "device",
+    "train",
+    "!train.seeds",
+    "frng",
+    "!frng.variants",
+    "!frng.k_sweep",
+    "model.patch_size",
+    "shading",
+    "!shading.spp_infer",
+    "!shading.bf16_infer",
+    "raster",
+    "idm.kind",
+)
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)
