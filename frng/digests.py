@@ -183,7 +183,8 @@ def reads_table() -> str:
         else:
             where, declared = f"`frng/stages/{rule}.py`", stage_declaration(STAGES_DIR / f"{rule}.py")
         rows.append(f"| `{rule}` | {where} | {', '.join(f'`{k}`' for k in declared)} |")
-    rows += ["", "Groups: " + "; ".join(f"`{g}` = {', '.join(f'`{k}`' for k in keys)}" for g, keys in GROUPS.items())]
+    rows += ["", "| group | stands for (`frng.digests.GROUPS`) |", "|---|---|"]
+    rows += [f"| `{g}` | {', '.join(f'`{k}`' for k in keys)} |" for g, keys in GROUPS.items()]
     return "\n".join(rows) + "\n"
 
 

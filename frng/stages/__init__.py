@@ -6,6 +6,11 @@ parsing and orchestration, two functions::
     def configure(parser: argparse.ArgumentParser) -> None   # add arguments (or sub-subcommands)
     def run(args: argparse.Namespace) -> int | None           # do the work
 
+and, when a rule runs it, one declaration: the config sections and keys ``run`` reads (libraries included), whence
+the rule's config digest follows (:mod:`frng.digests`: read from the source, so planning imports no stage)::
+
+    CONFIG_READS = ("@plan", "train", "!train.seeds", ...)
+
 ``run`` reads the config, loops over objects, calls the libraries (:mod:`frng.data`, :mod:`frng.priors`,
 :mod:`frng.model`, :mod:`frng.render`, :mod:`frng.report`, ...) and writes the outputs; the algorithms live in the
 libraries. ``tests/test_stages.py`` checks that every rule's stage exists and every stage has a rule; the one
