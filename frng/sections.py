@@ -74,13 +74,19 @@ Sections not registered (objects.material_mix) and list items (objects.extra, en
 
 
 def register(where: str):
-    """Class decorator: ``cls`` holds the config section at dotted key ``where``."""
+    """Class decorator: ``cls`` holds the config section at dotted key ``where``, and gets its one constructor,
+    ``cls.from_dict(mapping)``: strict (:func:`section` at ``where``: an unknown key is an error naming it, a missing
+    one takes the schema's default; ``{}`` or None: the defaults). A section of the whole config is
+    :func:`config_section` (the stages: ``typed(config).<key>``); a class spells no constructor of its own."""
 
     def deco(cls: type) -> type:
         known = SECTIONS.get(where)
         if known is not None and known.__qualname__ != cls.__qualname__:
             raise ValueError(f"config section '{where}': registered twice ({known.__name__}, {cls.__name__})")
+        if "from_dict" in vars(cls):
+            raise ValueError(f"config section '{where}': {cls.__name__}.from_dict is given by register, not spelled")
         SECTIONS[where] = cls
+        cls.from_dict = classmethod(lambda c, d=None: section(c, d, where))
         return cls
 
     return deco
@@ -226,6 +232,6 @@ TypedConfig = Any
 """How a library annotates the whole typed config (``frng.typedconfig.Config``): libraries do not import
 ``frng.typedconfig`` (it imports every component that declares a section). Library functions take the sections
 they read (their classes) and small typed arguments, not the whole config; what still takes it: the section
-selectors a stage calls (``X.from_config``, ``frng.model.frng.ModelSections.of``, ``frng.relight.RelightJob.of``)
+selectors a stage calls (:func:`config_section`, ``frng.model.frng.ModelSections.of``, ``frng.relight.RelightJob.of``)
 and the torch-free planning helpers of :mod:`frng.data.catalog` and :mod:`frng.variants` (the dataset plan, the
 variants and runs follow from many sections; the rule files call them with the validated dict)."""

@@ -12,7 +12,17 @@ import pytest
 
 from frng import config as fc
 from frng import digests
-from frng.sections import SECTIONS, ConfigError, as_dict, schema_defaults, schema_keys, section, section_keys
+from frng.sections import (
+    SECTIONS,
+    ConfigError,
+    as_dict,
+    config_section,
+    register,
+    schema_defaults,
+    schema_keys,
+    section,
+    section_keys,
+)
 from frng.typedconfig import SECTION_CLASSES, Config, typed
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -108,10 +118,9 @@ def test_unknown_nested_key_and_model_records():
 
 
 def test_missing_keys_take_the_schema_defaults():
-    from frng.model.train import TrainConfig
     from frng.render.shading import ShadingConfig
 
-    t = TrainConfig.from_config({"train": {"steps": 7}})
+    t = config_section({"train": {"steps": 7}}, "train")
     assert t.steps == 7 and t.lr == schema_defaults("train")["lr"]
     assert t.loss.lambda_c == schema_defaults("train.loss")["lambda_c"]
     assert ShadingConfig.from_dict({}).spp_infer == schema_defaults("shading")["spp_infer"]
@@ -159,3 +168,33 @@ def test_every_config_from_dict_is_strict():
             if "section(" not in m.group(1) and "IntrinsicPriors" not in m.group(0):
                 not_strict.append(f"{f.relative_to(ROOT)}: {m.group(0).splitlines()[0].strip()}")
     assert not lenient and not not_strict, (lenient, not_strict)
+
+
+# constructors besides from_dict, and why: a saved model's or asset's shading record, whose keys added later take
+# frng.render.shading.SAVED_DEFAULTS (what the model was trained with), not the schema's defaults
+OTHER_CONSTRUCTORS = {("shading", "from_saved")}
+
+
+def test_one_constructor_per_section():
+    """A section is built one way from its mapping, ``cls.from_dict`` (given by frng.sections.register, strict, at
+    the key the class is registered under), and one way from the whole config, frng.sections.config_section."""
+    config = fc.load(ROOT / "config" / "config.yaml")
+    for where, cls in SECTIONS.items():
+        assert "from_dict" in vars(cls), f"{where}: {cls.__name__} has no from_dict of its registration"
+        others = {
+            (where, name)
+            for klass in cls.__mro__
+            for name, v in vars(klass).items()
+            if isinstance(v, (classmethod, staticmethod)) and name != "from_dict"
+        }
+        assert others <= OTHER_CONSTRUCTORS, f"{where}: constructors besides from_dict: {sorted(others)}"
+        mapping = config
+        for part in where.split(".") if where else ():
+            mapping = mapping[part]
+        assert cls.from_dict(mapping) == section(cls, mapping, where), where
+    shading = SECTIONS["shading"].from_dict({"spp_infer": 8})
+    assert shading == config_section({"shading": {"spp_infer": 8}}, "shading")
+    with pytest.raises(ConfigError, match=r"^shading\.bogus: unknown key"):
+        SECTIONS["shading"].from_dict({"bogus": 1})
+    with pytest.raises(ValueError, match="given by register"):
+        register("raster")(type("RasterConfig", (), {"from_dict": classmethod(lambda c, d: None)}))

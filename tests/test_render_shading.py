@@ -18,6 +18,7 @@ from frng.render.shading import (
     lambert_sh,
     shade_pixels,
 )
+from frng.sections import config_section
 
 DT = torch.float64
 
@@ -228,7 +229,7 @@ def test_grad_split_value_and_gradient():
 
 
 def test_shading_config_from_config():
-    cfg = ShadingConfig.from_config({"shading": {"spp_train": 64, "spp_grad": 24, "decoder_width": 256}})
+    cfg = config_section({"shading": {"spp_train": 64, "spp_grad": 24, "decoder_width": 256}}, "shading")
     assert (cfg.spp_train, cfg.spp_grad, cfg.decoder_width, cfg.spp_infer) == (
         64,
         24,

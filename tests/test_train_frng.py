@@ -14,6 +14,7 @@ import pytest
 import torch
 from conftest import smoke_results
 
+from frng.sections import config_section
 from frng.typedconfig import typed
 
 
@@ -78,9 +79,9 @@ def _train(config, variant, out, **kw):
 def _fixed_loss(model, objects, config) -> float:
     """Mean L_2 (the training loss's term, over the training background) over every object's first two target
     views of each target light, fixed light-sample seeds, no gradient."""
-    from frng.model.train import TrainConfig, l2_loss
+    from frng.model.train import l2_loss
 
-    bg = TrainConfig.from_config(config).background
+    bg = config_section(config, "train").background
     vals = []
     with torch.no_grad():
         for obj in objects:
@@ -95,12 +96,12 @@ def _fixed_loss(model, objects, config) -> float:
                     spp=model.shading_cfg.spp_train,
                     generator=torch.Generator().manual_seed(123),
                 )
-                vals.append(float(l2_loss(out, rgba[:2], bg, pixels=TrainConfig.from_config(config).l2_pixels)[0]))
+                vals.append(float(l2_loss(out, rgba[:2], bg, pixels=config_section(config, "train").l2_pixels)[0]))
     return sum(vals) / len(vals)
 
 
 def test_frozen_backbone_gets_no_gradient(frng_smoke):
-    from frng.model.train import StepLoss, TrainConfig, build_model
+    from frng.model.train import StepLoss, build_model
     from frng.priors import load_backbone
 
     _, config = frng_smoke
@@ -111,7 +112,7 @@ def test_frozen_backbone_gets_no_gradient(frng_smoke):
 
     model = FRNG.from_backbone(model.cfg, backbone, model.raster_cfg, model.shading_cfg)
     objs = _objects(config)
-    step = StepLoss(model, ind, TrainConfig.from_config(config), None, bf16=False)
+    step = StepLoss(model, ind, config_section(config, "train"), None, bf16=False)
     # one update first: the MatDetokenizer starts at zero (an untrained model relights its inputs as a Lambertian
     # surface), so the layers before it receive gradients from the second step on
     step([(objs[0], 1, 0, [0, 1], 0)])[0].backward()
@@ -136,7 +137,7 @@ def test_light_independence_sees_the_inputs_under_the_second_input_light(frng_sm
     light (no second photos: tokens only), so the re-lit photos here are the inputs halved under a target light."""
     from dataclasses import replace
 
-    from frng.model.train import StepLoss, TrainConfig, build_model
+    from frng.model.train import StepLoss, build_model
 
     _, config = frng_smoke
     res = Path(config["results"])
@@ -163,7 +164,7 @@ def test_light_independence_sees_the_inputs_under_the_second_input_light(frng_sm
     torch.testing.assert_close(r0.material, s0.material)
     torch.testing.assert_close(s0.material, s1.material)  # same photos: the untrained payload ignores T_app
     assert torch.equal(r0.gaussians.means, r1.gaussians.means) and torch.equal(r0.patch_idx, r1.patch_idx)
-    tcfg = TrainConfig.from_config(config)
+    tcfg = config_section(config, "train")
     with torch.no_grad():
         on = StepLoss(model, ind, tcfg, None, bf16=False)([(obj, 1, 0, [0, 1], 0)])[1]["ind"]
         off = StepLoss(model, replace(ind, pixels=False), tcfg, None, bf16=False)([(obj, 1, 0, [0, 1], 0)])[1]["ind"]

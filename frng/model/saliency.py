@@ -41,7 +41,7 @@ import torch
 import torch.nn.functional as F
 from scipy import ndimage
 
-from frng.sections import register, section
+from frng.sections import register
 
 LUMA = (0.2126, 0.7152, 0.0722)  # Rec. 709 on linear RGB
 
@@ -71,12 +71,6 @@ class SaliencyConfig:
     @property
     def effective_margin(self) -> float:
         return float(self.box_size // 2 + 1) if self.margin is None else float(self.margin)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> SaliencyConfig:
-        """Strict (:func:`frng.sections.section`): unknown keys are errors, missing ones take the schema's defaults
-        (``{}``: the defaults)."""
-        return section(cls, d, "frng.saliency")
 
     def to_dict(self) -> dict:
         return asdict(self)

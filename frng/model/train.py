@@ -52,7 +52,7 @@ from frng.layout import Layout
 from frng.memo import TensorMemo
 from frng.model.frng import FRNG, ModelSections, variant_config
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
-from frng.sections import TypedConfig, config_section, register
+from frng.sections import register
 from frng.variants import canonical_for
 
 CACHE_KEYS = ("t_geo", "raw_prior", "means", "quats", "scales", "opacities", "keep", "c2w", "intr")  # + light{j}.t_app
@@ -101,10 +101,6 @@ class TrainConfig:
     def __post_init__(self):
         object.__setattr__(self, "background", tuple(float(c) for c in self.background))
         object.__setattr__(self, "seeds", tuple(int(c) for c in self.seeds))
-
-    @classmethod
-    def from_config(cls, config: TypedConfig) -> TrainConfig:
-        return config_section(config, "train")
 
     def steps_for(self, variant: str) -> int:
         return self.steps if variant == "full" or self.ablation_steps is None else self.ablation_steps

@@ -44,7 +44,7 @@ from frng.memo import TensorMemo
 from frng.priors import backbone as bb
 from frng.priors.dataset import PriorObject, Views
 from frng.priors.diffusion import to_diffusion_space
-from frng.sections import register, section
+from frng.sections import register
 from frng.seeding import seed_everything
 
 
@@ -68,11 +68,6 @@ class BackboneTrainConfig:
     inference_geometry: bool
     bf16: bool
     checkpoint_every: int
-
-    @classmethod
-    def from_dict(cls, d: dict) -> BackboneTrainConfig:
-        """Strict (:func:`frng.sections.section`): unknown keys are errors, missing ones take the schema's defaults."""
-        return section(cls, d, "backbone.train")
 
 
 @register("backbone")

@@ -31,7 +31,7 @@ from frng.hashing import data_digest
 from frng.priors import idm as idm_mod
 from frng.priors import multiview
 from frng.priors.dataset import PriorObject, Views
-from frng.sections import register, section
+from frng.sections import register
 from frng.seeding import seed_everything
 
 
@@ -51,11 +51,6 @@ class IDMTrainConfig:
     # internal, not config keys (config/schema.yaml has none for the IDM): the values the IDM has always trained with
     weight_decay: float = 0.01
     grad_clip: float = 1.0
-
-    @classmethod
-    def from_dict(cls, d: dict) -> IDMTrainConfig:
-        """Strict (:func:`frng.sections.section`): unknown keys are errors, missing ones take the schema's defaults."""
-        return section(cls, d, "idm.train")
 
 
 @register("idm")

@@ -10,7 +10,7 @@ from frng.render import gsplat_backend
 from frng.render.project import project_gaussians
 from frng.render.reference import rasterize_reference
 from frng.render.tiles import rasterize_tiles
-from frng.sections import TypedConfig, config_section, register, section
+from frng.sections import register
 
 BACKENDS = ("auto", "torch", "gsplat", "reference")
 
@@ -28,15 +28,6 @@ class RasterConfig:
     min_transmittance: float
     eps2d: float
     near: float
-
-    @classmethod
-    def from_dict(cls, d: dict) -> RasterConfig:
-        """Strict (:func:`frng.sections.section`; ``{}``: the schema's defaults; a model file's ``raster``)."""
-        return section(cls, d, "raster")
-
-    @classmethod
-    def from_config(cls, config: TypedConfig) -> RasterConfig:
-        return config_section(config, "raster")
 
     def kwargs(self) -> dict:
         """Keyword arguments for :func:`rasterize`."""

@@ -28,7 +28,7 @@ from torch import nn
 
 from frng import camera, envmap
 from frng.envmap import EnvSamples
-from frng.sections import TypedConfig, config_section, register, section
+from frng.sections import register
 
 DIFFUSE_MODES = ("sh", "mc")
 SPECULAR_PARAMS = ("linear", "softplus")  # frng.render.prefilter.specular_params (that module imports this one)
@@ -83,20 +83,11 @@ class ShadingConfig:
             raise ValueError(f"shading.specular_model must be one of {SPECULAR_MODELS}, got {self.specular_model!r}")
 
     @classmethod
-    def from_dict(cls, d: dict) -> ShadingConfig:
-        """Strict (:func:`frng.sections.section`; ``{}``: the schema's defaults)."""
-        return section(cls, d, "shading")
-
-    @classmethod
     def from_saved(cls, d: dict) -> ShadingConfig:
         """The shading a saved model or asset records (``model.pt``'s ``shading``, ``asset.json``'s
         ``render.shading``): keys added after it was saved take :data:`SAVED_DEFAULTS` (what the model was trained
         with before the key existed), not today's schema defaults; an empty record is the schema's defaults."""
         return cls.from_dict({**SAVED_DEFAULTS, **dict(d)} if d else {})
-
-    @classmethod
-    def from_config(cls, config: TypedConfig) -> ShadingConfig:
-        return config_section(config, "shading")
 
     def normal_sigma_px(self, width: int) -> float:
         """The standard deviation in pixels of :func:`smooth_normals` in an image ``width`` pixels wide

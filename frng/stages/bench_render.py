@@ -44,12 +44,11 @@ def _timed(fn, dev, repeats) -> float:
 
 def run(args: argparse.Namespace) -> int:
     from frng import config as cfgmod
-    from frng.render import RasterConfig
     from frng.render.raster import resolve_backend
-    from frng.render.shading import ShadingConfig
+    from frng.sections import config_section
 
     cfg = cfgmod.load(args.config) if args.config else {}
-    rc, sc = RasterConfig.from_config(cfg), ShadingConfig.from_config(cfg)
+    rc, sc = config_section(cfg, "raster"), config_section(cfg, "shading")
     if args.threads:
         torch.set_num_threads(args.threads)
     dev = torch.device(
