@@ -26,6 +26,10 @@ BENCHES: dict[str, tuple[str, str]] = {
         "frng.stages.bench_backbone",
         "held-out relighting quality and light sensitivity of trained backbones under inference settings (paired CIs)",
     ),
+    "targets-noise": (
+        "frng.stages.bench_targets_noise",
+        "the curated images' noise floor against a high-spp render; denoising, spp and clamps (aligned metrics)",
+    ),
 }
 
 
