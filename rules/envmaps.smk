@@ -1,5 +1,7 @@
-# Environment maps: Blender's bundled HDRIs + baked skies (+ users' maps), rotated, resized, normalised,
-# split train/test by base map. One job writes them all (seconds); see frng/data/envmaps.py.
+# Environment maps: one per (object, light) draw of the plan -- a base map of the light pool (Blender's bundled HDRIs,
+# baked skies, procedural studios, users' maps) rotated by the draw's own angle, resized, normalised; split
+# train/test by base map within each family. One job writes them all (~30 s for the default tier's 715 maps); see
+# frng/data/envmaps.py.
 ENVMAP_NAMES = [e.name for e in CATALOG.envmaps]
 USER_ENVMAP_FILES = sorted({e.origin for e in CATALOG.envmaps if e.source == "user"})
 
@@ -8,8 +10,9 @@ rule envmaps:
     input:
         USER_ENVMAP_FILES,
     output:
+        # the index only: the maps (one per object and light: 106k at the paper tier) as outputs made the paper DAG
+        # plan for minutes; `frng envmaps` writes all or nothing, the index last, and curation checks every map
         index=L.envmap_index(),
-        maps=expand(L.envmap(), env=ENVMAP_NAMES),
     log:
         L.log("envmaps"),
     conda:
@@ -17,7 +20,7 @@ rule envmaps:
     threads: config["render"]["threads"]
     resources:
         mem_mb=3000,
-        runtime=10 + len(ENVMAP_NAMES) // 20,
+        runtime=10 + len(ENVMAP_NAMES) // 300,  # ~0.04 s per map at 128 px; 0.2 s allowed
     params:
         **stage_params("envmaps"),
         out=lambda wildcards, output: os.path.dirname(output.index),

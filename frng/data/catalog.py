@@ -2,9 +2,12 @@
 
 It answers, at Snakemake DAG-parse time, every question a rule needs:
 
-- which environment maps exist (:func:`envmap_plan`): base maps (Blender's bundled HDRIs, baked skies,
-  procedural studios, user files) x ``envmaps.rotations`` random Z rotations, named ``{base}_r{k}``; the train/test split is made per
-  BASE map, so no rotation of a test map is ever seen in training;
+- which light base maps exist (:func:`light_bases`): Blender's bundled HDRIs (family ``hdri``), baked analytic
+  skies over sun elevation and turbidity (``sky``), procedural studios, soft and hard (``studio``), users' files
+  (``user``); the train/test split is made per BASE map within each family (or whole families held out,
+  ``envmaps.test_families``), so no rotation of a test map is ever seen in training;
+- which environment maps exist (:func:`envmap_plan`): one per (object, light) draw, ``{base}_r{k}-{object}``,
+  rotated about Z by its own seeded angle;
 - which objects exist (:func:`object_plan`): built-ins ``obj_0000 ..`` drawn from ``objects.sources``, users'
   meshes ``user_<stem>``, Objaverse objects ``objaverse_<uid>`` and LIBERO objects ``libero_<name>``; their split, mesh source and licence, material class (``objects.material_mix``),
   per-object seed, and input/target lights (train objects get train lights only, test objects test lights only).
@@ -74,7 +77,12 @@ class SkiesConfig:
 
     models: tuple[str, ...]
     sun_elevations_deg: tuple[float, ...]
-    turbidity: float
+    turbidity: float | tuple[float, ...]  # one value or a list: the skies are the grid models x elevations x these
+
+    @property
+    def turbidities(self) -> tuple[float, ...]:
+        t = self.turbidity
+        return tuple(float(x) for x in t) if isinstance(t, (tuple, list)) else (float(t),)
 
 
 @register("envmaps.studio")
@@ -88,6 +96,9 @@ class StudioConfig:
     elevation_deg: tuple[float, ...]
     kelvin: tuple[float, ...]
     background: float
+    hard_fraction: float
+    hard_size_deg: tuple[float, ...]
+    hard_background: float
 
 
 @register("envmaps")
@@ -104,6 +115,8 @@ class EnvmapsConfig:
     extra: tuple[dict, ...]
     normalize: float | None
     studio: StudioConfig
+    hard_input_fraction: float
+    test_families: tuple[str, ...]
 
 
 @register("render")
@@ -413,20 +426,45 @@ def sanitize(stem: str) -> str:
 
 # -- environment maps -------------------------------------------------------------------------------
 
+FAMILIES = ("sky", "hdri", "studio", "user")
+"""Light families (``EnvMapSpec.family``): analytic skies, Blender's bundled HDRIs, procedural studios, users' maps.
+The per-family tables (frng/report/paper_tables.py) group the test lights by it; the split holds out bases within
+each family (``envmaps.test_fraction``) or whole families (``envmaps.test_families``)."""
+FAMILY_OF_SOURCE = {"sky": "sky", "bundled": "hdri", "studio": "studio", "user": "user"}
+
+
+@dataclass(frozen=True)
+class LightBase:
+    """One base map of the light pool: every draw of it (:class:`EnvMapSpec`) is a rotated copy."""
+
+    base: str  # bundled name, "sky_{model}_e{elev}[_t{turbidity}]", "procstudio_{k}" or "user_{stem}"
+    source: str  # "bundled" | "sky" | "studio" | "user"
+    family: str  # FAMILY_OF_SOURCE[source]
+    hard: bool  # a hard light by construction (the hard procedural studios: one small key light on a dark background)
+    split: str  # "train" | "test"
+    licence: str
+    origin: str  # bundled file name, sky parameters, or the user's file path
+    sky: dict | None = None  # {"model", "sun_elevation_deg", "turbidity"} for skies
+    studio: dict | None = None  # procedural studios: {"background", "hard", "lights": [...]} (studio_params)
+
 
 @dataclass(frozen=True)
 class EnvMapSpec:
-    """One prepared environment map ``results/envmaps/{name}.exr``."""
+    """One prepared environment map ``results/envmaps/{name}.exr``: one (object, light) draw of a base map, rotated
+    about world Z by its own seeded angle."""
 
-    name: str  # "{base}_r{k}"
-    base: str  # bundled name, "sky_{model}_e{elev}" or "user_{stem}"
+    name: str  # "{base}_r{k}-{object}": the object's k-th draw of the base
+    base: str  # bundled name, "sky_{model}_e{elev}[_t{turbidity}]", "procstudio_{k}" or "user_{stem}"
     source: str  # "bundled" | "sky" | "studio" | "user"
     split: str  # "train" | "test"
     rotation_deg: float  # about world Z, applied with frng.envmap.rotate_z
     licence: str
     origin: str  # bundled file name, sky parameters, or the user's file path
     sky: dict | None = None  # {"model", "sun_elevation_deg", "turbidity"} for skies
-    studio: dict | None = None  # procedural studios: {"background", "lights": [...]} (studio_params)
+    studio: dict | None = None  # procedural studios: {"background", "hard", "lights": [...]} (studio_params)
+    family: str = ""  # "sky" | "hdri" | "studio" | "user" (FAMILIES): the one place a light's family is defined
+    hard: bool = False  # LightBase.hard
+    object: str = ""  # the object whose draw this map is
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -435,31 +473,41 @@ class EnvMapSpec:
         return d
 
 
-def studio_params(seed: int, base: str, cfg: StudioConfig) -> dict:
-    """The seeded layout of procedural studio ``base``: a dim background and ``cfg.lights`` (range) rectangular
-    area lights, each facing the origin, of random angular width / height (``size_deg`` range), azimuth (uniform),
-    elevation (``elevation_deg`` range), roll, blackbody colour temperature (``kelvin`` range) and relative
-    strength U(0.5, 2). Rendered by :func:`frng.data.envmaps.studio_map`."""
+def studio_params(seed: int, base: str, cfg: StudioConfig, hard: bool = False) -> dict:
+    """The seeded layout of procedural studio ``base``: a background and rectangular area lights, each facing the
+    origin, of random azimuth (uniform), elevation (``elevation_deg`` range), roll and blackbody colour temperature
+    (``kelvin`` range). Rendered by :func:`frng.data.envmaps.studio_map`.
+
+    Soft studios: ``cfg.lights`` (range) lights of angular width / height in ``size_deg``, relative strength
+    U(0.5, 2), over the dim ``background``. Hard studios (``hard``): one key light of width / height in
+    ``hard_size_deg`` and strength 1, plus, half of the time, a second light of that size at a quarter to half its
+    strength, over the dark ``hard_background``: most of the light comes from a few square degrees."""
     rng = rng_for(seed, "studio", base)
-    lo, hi = int(min(cfg.lights)), int(max(cfg.lights))
+    if hard:
+        n, size, bg = 1 + int(rng.integers(0, 2)), cfg.hard_size_deg, cfg.hard_background
+    else:
+        lo, hi = int(min(cfg.lights)), int(max(cfg.lights))
+        n, size, bg = int(rng.integers(lo, hi + 1)), cfg.size_deg, cfg.background
     lights = []
-    for _ in range(int(rng.integers(lo, hi + 1))):
+    for i in range(n):
+        strength = (1.0 if i == 0 else float(rng.uniform(0.25, 0.5))) if hard else float(rng.uniform(0.5, 2.0))
         lights.append(
             {
                 "azimuth_deg": round(float(rng.uniform(0.0, 360.0)), 3),
                 "elevation_deg": round(float(rng.uniform(*sorted(cfg.elevation_deg))), 3),
-                "width_deg": round(float(rng.uniform(*sorted(cfg.size_deg))), 3),
-                "height_deg": round(float(rng.uniform(*sorted(cfg.size_deg))), 3),
+                "width_deg": round(float(rng.uniform(*sorted(size))), 3),
+                "height_deg": round(float(rng.uniform(*sorted(size))), 3),
                 "roll_deg": round(float(rng.uniform(-45.0, 45.0)), 3),
                 "kelvin": round(float(rng.uniform(*sorted(cfg.kelvin))), 1),
-                "strength": round(float(rng.uniform(0.5, 2.0)), 4),
+                "strength": round(strength, 4),
             }
         )
-    return {"background": float(cfg.background), "lights": lights}
+    return {"background": float(bg), "hard": bool(hard), "lights": lights}
 
 
-def _sky_base(model: str, elevation: float) -> str:
-    return f"sky_{model}_e{elevation:g}".replace(".", "p")
+def _sky_base(model: str, elevation: float, turbidity: float | None = None) -> str:
+    base = f"sky_{model}_e{elevation:g}" + ("" if turbidity is None else f"_t{turbidity:g}")
+    return base.replace(".", "p")
 
 
 def _user_files(entries: list[dict], suffixes: tuple[str, ...], key: str) -> list[tuple[Path, dict]]:
@@ -492,54 +540,74 @@ def _unique_user_ids(files: list[tuple[Path, dict]], key: str) -> list[str]:
     return ids
 
 
-def _split_bases(bases: list[str], fraction: float, seed: int) -> dict[str, str]:
+def _split_bases(bases: list[str], fraction: float, seed: int, key: str = "envmap-split") -> dict[str, str]:
     """Hold out round(fraction * n) base maps for testing (at least one of each split when n >= 2)."""
     n = len(bases)
     n_test = int(round(fraction * n))
     if n >= 2 and 0 < fraction < 1:
         n_test = min(max(n_test, 1), n - 1)
-    order = rng_for(seed, "envmap-split").permutation(n)
+    order = rng_for(seed, key).permutation(n)
     test = {bases[i] for i in order[:n_test]}
     return {b: ("test" if b in test else "train") for b in bases}
 
 
-def envmap_plan(config: TypedConfig | Mapping) -> list[EnvMapSpec]:
-    """Every environment map the ``envmaps`` stage writes, in a fixed order."""
+def light_bases(config: TypedConfig | Mapping) -> list[LightBase]:
+    """Every base map of the light pool, in a fixed order (bundled HDRIs, skies, studios, users' maps), with its
+    family and split. The split holds out bases by family: within each family (and, for the studios, separately
+    among the hard and the soft ones) ``envmaps.test_fraction`` of the bases go to the test split (at least one of
+    each split where the group has two or more), so the test pool has every family and hard lights; the families of
+    ``envmaps.test_families`` are held out whole. Users' maps keep the split their entry names."""
     env, seed = config_section(config, "envmaps"), config_section(config, "seed")
-    bases: list[tuple[str, str, str, str, dict | None]] = []  # base, source, licence, origin, sky
+    unknown = sorted(set(env.test_families) - set(FAMILIES))
+    if unknown:
+        raise CatalogError(f"config key 'envmaps.test_families': unknown family {unknown[0]!r} ({', '.join(FAMILIES)})")
+    rows: list[tuple[str, str, bool, str, str, dict | None]] = []  # base, source, hard, licence, origin, params
     for name in env.bundled:
-        bases.append((name, "bundled", BUNDLED_LICENCE, f"{name}.exr", None))
+        rows.append((name, "bundled", False, BUNDLED_LICENCE, f"{name}.exr", None))
     skies = env.skies
+    turbidities = skies.turbidities
     for model in skies.models:
         for el in skies.sun_elevations_deg:
-            sky = {"model": model, "sun_elevation_deg": float(el), "turbidity": float(skies.turbidity)}
-            bases.append((_sky_base(model, el), "sky", GENERATED_LICENCE, f"Blender Sky Texture ({model})", sky))
-    for k in range(env.studio.count):
-        base = f"procstudio_{k}"
-        bases.append(
-            (
-                base,
-                "studio",
-                GENERATED_LICENCE,
-                "procedural studio (area lights over a dim background)",
-                studio_params(seed, base, env.studio),
-            )
+            for t in turbidities:
+                sky = {"model": model, "sun_elevation_deg": float(el), "turbidity": float(t)}
+                base = _sky_base(model, el, t if len(turbidities) > 1 else None)
+                rows.append((base, "sky", False, GENERATED_LICENCE, f"Blender Sky Texture ({model})", sky))
+    studio = env.studio
+    n_hard = int(round(studio.count * studio.hard_fraction))
+    hard_ids = set(rng_for(seed, "studio-hard").permutation(studio.count)[:n_hard].tolist())
+    for k in range(studio.count):
+        base, hard = f"procstudio_{k}", k in hard_ids
+        origin = "procedural studio (" + ("one small key light on a dark" if hard else "area lights over a dim")
+        rows.append(
+            (base, "studio", hard, GENERATED_LICENCE, origin + " background)", studio_params(seed, base, studio, hard))
         )
-    split = _split_bases([b[0] for b in bases], env.test_fraction, seed)
+    split: dict[str, str] = {}
+    groups: dict[tuple[str, bool], list[str]] = {}
+    for base, source, hard, *_ in rows:
+        groups.setdefault((FAMILY_OF_SOURCE[source], hard), []).append(base)
+    for (family, hard), names in groups.items():
+        if family in env.test_families:
+            split |= {b: "test" for b in names}
+        else:
+            split |= _split_bases(names, env.test_fraction, seed, f"envmap-split-{family}{'-hard' if hard else ''}")
     user = _user_files(env.extra, ENVMAP_SUFFIXES, "envmaps.extra")
     for (f, entry), uid in zip(user, _unique_user_ids(user, "envmaps.extra")):
         if uid in split:
             raise CatalogError(f"config key 'envmaps.extra': {f} gives id {uid!r} twice")
-        bases.append((uid, "user", entry.get("licence", "user-supplied"), str(f), None))
-        split[uid] = entry["split"]
-    specs = []
-    for base, source, licence, origin, params in bases:
-        sky, studio = (None, params) if source == "studio" else (params, None)
-        for k in range(env.rotations):
-            name = f"{base}_r{k}"
-            rot = float(rng_for(seed, "envmap-rotation", name).uniform(0.0, 360.0))
-            specs.append(EnvMapSpec(name, base, source, split[base], round(rot, 4), licence, origin, sky, studio))
-    return specs
+        rows.append((uid, "user", False, entry.get("licence", "user-supplied"), str(f), None))
+        split[uid] = "test" if "user" in env.test_families else entry["split"]
+    out = []
+    for base, source, hard, licence, origin, params in rows:
+        sky, stu = (None, params) if source == "studio" else (params, None)
+        out.append(LightBase(base, source, FAMILY_OF_SOURCE[source], hard, split[base], licence, origin, sky, stu))
+    return out
+
+
+def envmap_plan(config: TypedConfig | Mapping) -> list[EnvMapSpec]:
+    """Every environment map the ``envmaps`` stage writes: one per (object, light) draw of the object plan
+    (:func:`object_plan`), each rotated by its own seeded angle; ordered by base map (the bases' order of
+    :func:`light_bases`), then by object, input lights before target lights."""
+    return list(plan(config).envmaps)
 
 
 # -- objects ----------------------------------------------------------------------------------------
@@ -664,28 +732,80 @@ def _pybullet_pool(seed: int) -> list[tuple[str, str, tuple[float, float, float]
     return list(PYBULLET_NAMED) + randoms
 
 
-def _assign_lights(rng: np.random.Generator, pool: list[str], n_in: int, n_tgt: int, obj: str, split: str):
-    """Input lights distinct; target lights distinct, and distinct from the inputs whenever the pool allows."""
-    if len(pool) < max(n_in, n_tgt):
+def _assign_lights(
+    rng: np.random.Generator,
+    pool: list[LightBase],
+    rotations: int,
+    n_in: int,
+    n_tgt: int,
+    obj: str,
+    split: str,
+    hard_first: bool,
+) -> tuple[list[tuple[LightBase, int]], list[tuple[LightBase, int]]]:
+    """The object's input and target draws, each a slot (base, k) of the split's pool (``rotations`` slots per base):
+    inputs distinct, the first a hard light when ``hard_first`` (else a soft one where the pool has any); targets
+    distinct, from other base maps than the inputs whenever the pool allows (supervised under another light), one
+    family after another in a seeded order (3 targets over 3 families: one of each), distinct base maps first."""
+    n_slots = len(pool) * rotations
+    if n_slots < max(n_in, n_tgt):
         raise CatalogError(
-            f"object {obj}: the {split} env-map pool has {len(pool)} maps but render.input_lights={n_in} and "
+            f"object {obj}: the {split} env-map pool has {n_slots} maps but render.input_lights={n_in} and "
             f"render.target_lights={n_tgt}; add base maps, envmaps.rotations or lower the light counts"
         )
-    inputs = [pool[i] for i in rng.choice(len(pool), n_in, replace=False)]
-    rest = [p for p in pool if p not in inputs]
-    if len(rest) >= n_tgt:
-        targets = [rest[i] for i in rng.choice(len(rest), n_tgt, replace=False)]
-    else:  # small pools (smoke tier): every other map, then reuse input lights
-        targets = rest + [inputs[i] for i in rng.choice(len(inputs), n_tgt - len(rest), replace=False)]
-    return tuple(inputs), tuple(targets)
+    inputs: list[tuple[LightBase, int]] = []
+    want = [b for b in pool if b.hard == hard_first] or pool
+    first = int(rng.integers(len(want) * rotations))
+    inputs.append((want[first // rotations], first % rotations))
+    taken = {(inputs[0][0].base, inputs[0][1])}
+    while len(inputs) < n_in:  # the other inputs: uniform over the free slots (rejection; n_in <= slots)
+        i = int(rng.integers(n_slots))
+        b, k = pool[i // rotations], i % rotations
+        if (b.base, k) not in taken:
+            inputs.append((b, k))
+            taken.add((b.base, k))
+    in_bases = {b.base for b, _ in inputs}
+    families = sorted({b.family for b in pool})
+    order = [families[i] for i in rng.permutation(len(families))]
+
+    def queue(bases: list[LightBase]):  # distinct bases first (seeded order), then each base's next slot
+        perm, ks = rng.permutation(len(bases)), rng.random((len(bases), rotations)).argsort(1)
+        return iter([(bases[i], int(ks[i, r])) for r in range(rotations) for i in perm])
+
+    queues = {f: queue([b for b in pool if b.family == f and b.base not in in_bases]) for f in families}
+    rest = queue([b for b in pool if b.base in in_bases])  # other slots of the input lights' base maps
+    targets: list[tuple[LightBase, int]] = []
+    for j in range(n_tgt):
+        pick = None
+        for f in [order[j % len(order)], *order]:
+            pick = next(queues[f], None)
+            if pick is not None:
+                break
+        while pick is None or (pick[0].base, pick[1]) in taken:
+            pick = next(rest, None)
+            if pick is None:  # small pools (smoke tier): reuse input lights
+                left = [s for s in inputs if s not in targets]
+                pick = left[int(rng.integers(len(left)))]
+                break
+        targets.append(pick)
+    return inputs, targets
 
 
-def object_plan(config: TypedConfig | Mapping, envmaps: list[EnvMapSpec] | None = None) -> list[ObjectSpec]:
+def object_plan(config: TypedConfig | Mapping) -> list[ObjectSpec]:
     """Every object of the dataset, built-ins first (``obj_0000 ..``), then users' meshes (``user_<stem>``)."""
+    return list(plan(config).objects)
+
+
+def _plan_objects(config: TypedConfig | Mapping, bases: list[LightBase]) -> tuple[list[ObjectSpec], list[EnvMapSpec]]:
+    """The objects (see :func:`object_plan`) and the env map of each of their light draws (:func:`envmap_plan`).
+
+    Lights: each object draws its input and target lights from its split's base maps (:func:`_assign_lights`;
+    ``envmaps.rotations`` draws of one base at most); ``round(envmaps.hard_input_fraction * n)`` of the n objects
+    of each split, seeded, get a hard first input light (the one relighting starts from), the others a soft one.
+    Every draw is its own map ``{base}_r{k}-{object}``, rotated about Z by an angle drawn for it (seeded by the
+    object)."""
     seed, objects = config_section(config, "seed"), config_section(config, "objects")
-    render = config_section(config, "render")
-    envmaps = envmap_plan(config) if envmaps is None else envmaps
-    pools = {s: sorted(e.name for e in envmaps if e.split == s) for s in ("train", "test")}
+    render, env = config_section(config, "render"), config_section(config, "envmaps")
+    pools = {s: [b for b in bases if b.split == s] for s in ("train", "test")}
     n = objects.count
     ids = [f"obj_{i:04d}" for i in range(n)]
     test_ids = {ids[i] for i in rng_for(seed, "object-split").permutation(n)[: objects.test_count]}
@@ -787,17 +907,53 @@ def object_plan(config: TypedConfig | Mapping, envmaps: list[EnvMapSpec] | None 
                 )
             )
 
-    out = []
+    hard_first: set[str] = set()
+    for split in ("train", "test"):
+        ids_split = [sp[0] for sp in specs if sp[1] == split]
+        n_hard = int(round(env.hard_input_fraction * len(ids_split)))
+        if n_hard and not any(b.hard for b in pools[split]):
+            raise CatalogError(
+                f"config key 'envmaps.hard_input_fraction': {env.hard_input_fraction} of the {split} objects get a "
+                f"hard input light, but the {split} light pool has none; raise envmaps.studio.count or "
+                "envmaps.studio.hard_fraction"
+            )
+        hard_first |= {ids_split[i] for i in rng_for(seed, "hard-input", split).permutation(len(ids_split))[:n_hard]}
+    out, draws = [], []
     for oid, split, source, mesh, up, prescale, licence, material, *cls in specs:
         oseed = derive_seed(seed, "object", oid)
         ins, tgts = _assign_lights(
             np.random.default_rng(derive_seed(oseed, "lights")),
             pools[split],
+            env.rotations,
             render.input_lights,
             render.target_lights,
             oid,
             split,
+            oid in hard_first,
         )
+        rot_rng = np.random.default_rng(derive_seed(oseed, "light-rotations"))
+        names = {}
+        for b, k in ins + tgts:
+            name = f"{b.base}_r{k}-{oid}"
+            if name not in names:
+                names[name] = name
+                rot = round(float(rot_rng.uniform(0.0, 360.0)), 4)
+                draws.append(
+                    EnvMapSpec(
+                        name,
+                        b.base,
+                        b.source,
+                        b.split,
+                        rot,
+                        b.licence,
+                        b.origin,
+                        b.sky,
+                        b.studio,
+                        b.family,
+                        b.hard,
+                        oid,
+                    )
+                )
         out.append(
             ObjectSpec(
                 oid,
@@ -809,12 +965,14 @@ def object_plan(config: TypedConfig | Mapping, envmaps: list[EnvMapSpec] | None 
                 licence,
                 material,
                 oseed,
-                ins,
-                tgts,
+                tuple(f"{b.base}_r{k}-{oid}" for b, k in ins),
+                tuple(f"{b.base}_r{k}-{oid}" for b, k in tgts),
                 (cls[0] if cls else None) if material == OWN else None,
             )
         )
-    return out
+    rank = {b.base: i for i, b in enumerate(bases)}
+    draws.sort(key=lambda e: rank[e.base])  # stable: by object, then inputs before targets within a base
+    return out, draws
 
 
 # -- the plan as a whole ------------------------------------------------------------------------------
@@ -822,8 +980,9 @@ def object_plan(config: TypedConfig | Mapping, envmaps: list[EnvMapSpec] | None 
 
 @dataclass(frozen=True)
 class Catalog:
-    envmaps: tuple[EnvMapSpec, ...]
+    envmaps: tuple[EnvMapSpec, ...]  # one per (object, light) draw
     objects: tuple[ObjectSpec, ...]
+    bases: tuple[LightBase, ...] = ()  # the light pool's base maps (light_bases)
 
     def object(self, oid: str) -> ObjectSpec:
         by_id = self.__dict__.get("_by_id")
@@ -838,10 +997,17 @@ class Catalog:
         )
 
     def envmap(self, name: str) -> EnvMapSpec:
-        for e in self.envmaps:
-            if e.name == name:
-                return e
+        by_name = self.__dict__.get("_env_by_name")
+        if by_name is None:
+            by_name = {e.name: e for e in self.envmaps}
+            object.__setattr__(self, "_env_by_name", by_name)
+        if name in by_name:
+            return by_name[name]
         raise CatalogError(f"unknown environment map {name!r}")
+
+    def light_families(self) -> dict[str, str]:
+        """{map name: its family} (EnvMapSpec.family) of every planned map: what the per-family tables group by."""
+        return {e.name: e.family for e in self.envmaps}
 
     @property
     def object_ids(self) -> list[str]:
@@ -854,8 +1020,9 @@ class Catalog:
 @functools.lru_cache(maxsize=8)
 def _plan_cached(config_json: str) -> Catalog:
     config = json.loads(config_json)
-    envmaps = envmap_plan(config)
-    return Catalog(tuple(envmaps), tuple(object_plan(config, envmaps)))
+    bases = light_bases(config)
+    objects, envmaps = _plan_objects(config, bases)
+    return Catalog(tuple(envmaps), tuple(objects), tuple(bases))
 
 
 def plan(config: TypedConfig | Mapping) -> Catalog:

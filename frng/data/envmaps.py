@@ -1,11 +1,12 @@
 """Every environment map of the dataset plan (stage :mod:`frng.stages.envmaps`, ``frng envmaps``).
 
-For each base map of :func:`frng.data.catalog.envmap_plan` -- one of Blender's 8 bundled CC0 HDRIs, a
-Preetham / Hosek-Wilkie sky baked with Cycles (lower hemisphere darkened to a 0.3-albedo ground), a procedural
-studio (:func:`studio_map`: seeded area lights over a dim background, baked at 512 px) or a user's EXR/HDR
-file -- and each of its ``envmaps.rotations`` random Z rotations:
+For each (object, light) draw of :func:`frng.data.catalog.envmap_plan` -- a rotated copy of a base map of the light
+pool (:func:`frng.data.catalog.light_bases`): one of Blender's 8 bundled CC0 HDRIs, a Preetham / Hosek-Wilkie sky
+baked with Cycles (lower hemisphere darkened to a 0.3-albedo ground), a procedural studio (:func:`studio_map`: seeded
+area lights over a dim or dark background, baked at 512 px) or a user's EXR/HDR file:
 
-    rotate (frng.envmap.rotate_z, at the source resolution) -> resize to envmaps.width (frng.envmap.resize)
+    load the base once (resized to ROTATE_OVERSAMPLE x envmaps.width where the source is wider)
+    -> rotate by the draw's angle (frng.envmap.rotate_z) -> resize to envmaps.width (frng.envmap.resize)
     -> scale so the solid-angle-weighted mean luminance is envmaps.normalize (if set) -> write
 
 Outputs (``--out``, default ``{results}/envmaps``):
@@ -13,7 +14,8 @@ Outputs (``--out``, default ``{results}/envmaps``):
     {name}.exr    linear float32 RGB equirect, width = envmaps.width, height = width / 2
     {name}.json   the map's record (as in the index)
     index.json    {"width", "height", "normalize", "maps": [record, ...]}; a record has name, base, source,
-                  split, rotation_deg, licence, origin, sky, scale (applied factor), mean_luminance (after).
+                  split, rotation_deg, licence, origin, sky, family, hard, object (the draw's), scale
+                  (applied factor), mean_luminance (after), hardness (:func:`hardness`, measured).
 
 All or nothing (see :func:`prepare`): a failed or killed run leaves no record without its map.
 """
@@ -36,6 +38,8 @@ from frng.layout import EnvmapFolder
 
 SKY_BAKE_WIDTH = 512  # skies are smooth; baked at this width then resized
 GROUND_ALBEDO = 0.3
+ROTATE_OVERSAMPLE = 4  # each draw is rotated at this many times the output width (at most the source's), then resized
+HARD_SOLID_ANGLE = 0.01  # hardness: the share of the light arriving from the brightest 1 % of the sphere
 
 
 def mean_luminance(image: np.ndarray) -> float:
@@ -43,6 +47,22 @@ def mean_luminance(image: np.ndarray) -> float:
     h, w = image.shape[:2]
     omega = envmap.pixel_solid_angles(h, w).numpy()
     return float((envmap.luminance(image) * omega).sum() / (4.0 * math.pi))
+
+
+def hardness(image: np.ndarray, share: float = HARD_SOLID_ANGLE) -> float:
+    """How hard a light is: the fraction of the map's energy (solid-angle-weighted luminance) that arrives from its
+    brightest pixels covering ``share`` of the sphere (1 % by default). A uniform map gives ``share``, a single
+    small light ~1; the procedural hard studios, whose key light covers a few square degrees, come near 1."""
+    h, w = image.shape[:2]
+    omega = envmap.pixel_solid_angles(h, w).numpy().ravel()
+    lum = np.maximum(envmap.luminance(image), 0.0).ravel()
+    order = np.argsort(-lum, kind="stable")
+    energy = (lum * omega)[order]
+    total = float(energy.sum())
+    if total <= 0.0:
+        return float("nan")
+    covered = np.cumsum(omega[order]) <= share * 4.0 * math.pi
+    return float(energy[covered].sum() / total)
 
 
 def bundled_dir() -> Path:
@@ -78,7 +98,7 @@ def blackbody_rgb(kelvin: float) -> np.ndarray:
 
 def studio_map(params: dict, width: int) -> np.ndarray:
     """A procedural studio (``catalog.studio_params``) as a linear equirect map (width/2, width, 3), frng.envmap's
-    convention: a dim background (``background`` above the horizon, half of it below: a floor) plus rectangular
+    convention: a dim or dark background (``background`` above the horizon, half of it below: a floor) plus rectangular
     area lights facing the origin, each of radiance ``strength`` x its blackbody colour, edges softened over 5% of
     their size (and at least a pixel)."""
     h = width // 2
@@ -156,8 +176,11 @@ def prepare(
         for spec in specs:
             t0 = time.perf_counter()
             if spec.base not in bases:
-                bases.clear()  # keep one base in memory
-                bases[spec.base] = load_base(spec, work, threads)
+                bases.clear()  # keep one base in memory (the plan orders the draws by base)
+                base = load_base(spec, work, threads)
+                if base.shape[1] > ROTATE_OVERSAMPLE * env.width:
+                    base = envmap.resize(base, ROTATE_OVERSAMPLE * env.width)
+                bases[spec.base] = base
             img = envmap.resize(envmap.rotate_z(bases[spec.base], spec.rotation_deg), env.width)
             raw = mean_luminance(img)
             if not np.isfinite(raw) or raw <= 0.0:
@@ -169,6 +192,7 @@ def prepare(
             rec = spec.to_dict() | {
                 "scale": scale,
                 "mean_luminance": mean_luminance(img),
+                "hardness": round(hardness(img), 4),
                 "file": EnvmapFolder(".").envmap(spec.name),
             }
             with guard.lock:
@@ -176,8 +200,8 @@ def prepare(
                 io.write_json(staged.record(spec.name), rec)
             records.append(rec)
             log(
-                f"[envmaps] {spec.name:<32} {spec.split:<5} rot {spec.rotation_deg:7.2f} deg  "
-                f"scale {scale:9.4f}  {time.perf_counter() - t0:.2f} s"
+                f"[envmaps] {spec.name:<44} {spec.split:<5} {spec.family:<6} rot {spec.rotation_deg:7.2f} deg  "
+                f"scale {scale:9.4f}  hardness {rec['hardness']:.3f}  {time.perf_counter() - t0:.2f} s"
             )
         with guard.lock:
             io.write_json(
