@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import ast
 import copy
-import functools
 import hashlib
 import json
 import os
@@ -129,10 +128,13 @@ def expand(keys, where: str = "") -> tuple[str, ...]:
             flat += GROUPS[k]
         else:
             flat.append(k)
-    removed = {k[1:] for k in flat if k.startswith("!")}
-    include = [k for k in dict.fromkeys(flat) if not k.startswith("!") and k not in removed]
-    exclude = [f"!{k}" for k in dict.fromkeys(k[1:] for k in flat if k.startswith("!")) if _owned(k, include)]
-    return (*include, *exclude)
+    listed = [k for k in dict.fromkeys(flat) if not k.startswith("!")]
+    removed = list(dict.fromkeys(k[1:] for k in flat if k.startswith("!")))
+    include = [k for k in listed if k not in removed]
+    for k in removed:
+        if k not in listed and not _owned(k, include):
+            raise ConfigError(f"{where}: !{k}: removes a key that no key or section listed contains")
+    return (*include, *(f"!{k}" for k in removed if _owned(k, include)))
 
 
 def _within(key: str, section: str) -> bool:
@@ -143,7 +145,6 @@ def _owned(key: str, include) -> bool:
     return any(key.startswith(k + ".") for k in include)
 
 
-@functools.lru_cache(maxsize=1)
 def _rule_config_keys() -> dict[str, tuple[str, ...]]:
     out = {}
     for path in sorted(STAGES_DIR.glob("*.py")):

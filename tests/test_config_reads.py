@@ -113,6 +113,8 @@ def test_a_bad_declaration_is_one_line_naming_the_file(tmp_path):
     assert digests.stage_declaration(stage) is None
     with pytest.raises(frng_config.ConfigError, match=r"stage\.py: @nope: no such group"):
         digests.expand(("@nope", "train"), "stage.py")
+    with pytest.raises(frng_config.ConfigError, match=r"stage\.py: !shading\.spp_infer: removes a key that no"):
+        digests.expand(("train", "!shading.spp_infer"), "stage.py")
     assert digests.expand(("@plan", "train", "!train.steps", "!seed")) == (
         *("objects", "envmaps", "render.input_lights", "render.target_lights", "train", "!train.steps"),
     )
