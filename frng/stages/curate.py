@@ -26,7 +26,9 @@ from frng.sections import config_section
 
 # The config keys this stage reads (frng.digests: its rule's digest): render.* (rig, Cycles, fur) and envmaps.width
 # (frng/data/curate.py); the object's own plan entry (its split, mesh, material, seed and lights) is the rule's
-# `spec` param, so adding an object reruns no other curation
+# `spec` param, so adding an object reruns no other curation. objects.objaverse is read too, but only where the
+# GLB cache is and whether to fetch a missing uid (cache, download): the mesh of a uid is the same file wherever
+# it is cached, and the uids, filter and material reach the spec
 CONFIG_READS = ("render", "!render.dense_views", "envmaps.width")
 
 
