@@ -59,5 +59,6 @@ def test_orphaned_records_and_staging_folders_are_removed(tmp_path):
     frng("envmaps", "--config", str(cfg))
     assert not (out / "gone_r0.json").exists() and not (out / ".tmp-envmaps-abcd1234").exists()
     assert _orphans(out) == []
-    assert sorted(p.name for p in out.glob("*.exr")) == ["user_a_good_r0.exr", "user_b_good_r0.exr"]
-    assert (out / "user_a_good_r0.json").exists() and (out / "index.json").exists()
+    # one map per (object, light) draw: the train object's (obj_0001) of a_good, the test object's of b_good
+    assert sorted(p.name for p in out.glob("*.exr")) == ["user_a_good_r0-obj_0001.exr", "user_b_good_r0-obj_0000.exr"]
+    assert (out / "user_a_good_r0-obj_0001.json").exists() and (out / "index.json").exists()

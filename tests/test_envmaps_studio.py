@@ -19,7 +19,12 @@ def _cfg(count=3, seed=0):
             "tier": "custom",
             "seed": seed,
             "objects": {"count": 2, "test_count": 1},
-            "envmaps": {"bundled": ["city"], "skies": {"models": []}, "rotations": 1, "studio": {"count": count}},
+            "envmaps": {
+                "bundled": ["city", "forest", "sunset"],
+                "skies": {"models": []},
+                "rotations": 1,
+                "studio": {"count": count},
+            },
             "render": {"resolution": 32, "input_lights": 1, "target_lights": 1},
         }
     )
@@ -29,7 +34,9 @@ def test_studio_plan_is_seeded_and_off_by_default():
     assert all(e.source != "studio" for e in catalog.envmap_plan(_cfg(count=0)))
     a, b = catalog.envmap_plan(_cfg()), catalog.envmap_plan(_cfg())
     studios = [e for e in a if e.source == "studio"]
-    assert [e.base for e in studios] == ["procstudio_0", "procstudio_1", "procstudio_2"]
+    bases = catalog.plan(_cfg()).bases
+    assert [b.base for b in bases if b.source == "studio"] == ["procstudio_0", "procstudio_1", "procstudio_2"]
+    assert {e.base for e in studios} <= {"procstudio_0", "procstudio_1", "procstudio_2"}
     assert [e.to_dict() for e in a] == [e.to_dict() for e in b]
     assert [e.studio for e in studios] != [e.studio for e in catalog.envmap_plan(_cfg(seed=1)) if e.source == "studio"]
     d = catalog.StudioConfig(
@@ -37,10 +44,13 @@ def test_studio_plan_is_seeded_and_off_by_default():
     )
     for e in studios:
         lights = e.studio["lights"]
-        assert d.lights[0] <= len(lights) <= d.lights[1]
+        hard = e.studio["hard"]
+        assert hard == e.hard and e.family == "studio"
+        assert (1 <= len(lights) <= 2) if hard else (d.lights[0] <= len(lights) <= d.lights[1])
+        size = d.hard_size_deg if hard else d.size_deg
         for light in lights:
             assert d.kelvin[0] <= light["kelvin"] <= d.kelvin[1]
-            assert d.size_deg[0] <= light["width_deg"] <= d.size_deg[1]
+            assert size[0] <= light["width_deg"] <= size[1]
     assert "studio" not in next(e for e in a if e.source == "bundled").to_dict()  # other records unchanged
 
 
@@ -108,12 +118,9 @@ def test_studio_maps_are_written_by_the_envmaps_stage(tmp_path):
     )
     frng("envmaps", "--config", str(cfg))
     index = io.read_json(tmp_path / "results" / "envmaps" / "index.json")
-    assert sorted(m["name"] for m in index["maps"]) == [
-        "procstudio_0_r0",
-        "procstudio_0_r1",
-        "procstudio_1_r0",
-        "procstudio_1_r1",
-    ]
+    plan = catalog.plan(frng_config.load(cfg))
+    assert sorted(m["name"] for m in index["maps"]) == sorted(e.name for e in plan.envmaps)
+    assert {m["base"] for m in index["maps"]} == {"procstudio_0", "procstudio_1"}  # one hard (test), one soft
     assert {m["split"] for m in index["maps"]} == {"train", "test"}
     for m in index["maps"]:
         assert m["source"] == "studio" and m["studio"]["lights"] and m["licence"] == catalog.GENERATED_LICENCE

@@ -67,7 +67,7 @@ def test_user_mesh_and_envmaps_are_curated(tmp_path):
         "specular",
         "CC0 (test)",
     )
-    assert obj.input_lights == ["user_b_r0"] and all(l == "user_b_r0" for l in obj.target_lights)
+    assert obj.input_lights == ["user_b_r0-user_box"] and all(l == "user_b_r0-user_box" for l in obj.target_lights)
 
     # The box's corners, mapped file -> world with the recorded transform, project onto the silhouette's bbox.
     m = np.asarray(meta["shape"]["file_to_world"])

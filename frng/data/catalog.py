@@ -540,22 +540,28 @@ def _unique_user_ids(files: list[tuple[Path, dict]], key: str) -> list[str]:
     return ids
 
 
-def _split_bases(bases: list[str], fraction: float, seed: int, key: str = "envmap-split") -> dict[str, str]:
-    """Hold out round(fraction * n) base maps for testing (at least one of each split when n >= 2)."""
-    n = len(bases)
+def _split_bases(groups: list[list[str]], fraction: float, seed: int, key: str = "envmap-split") -> dict[str, str]:
+    """Hold out round(fraction * n) of the n base maps of ``groups`` (one family: its hard and soft maps) for
+    testing, at least one of each split when n >= 2, spread over the groups in proportion to their sizes (each
+    group's maps in a seeded order, merged by rank / group size)."""
+    n = sum(len(g) for g in groups)
     n_test = int(round(fraction * n))
     if n >= 2 and 0 < fraction < 1:
         n_test = min(max(n_test, 1), n - 1)
-    order = rng_for(seed, key).permutation(n)
-    test = {bases[i] for i in order[:n_test]}
-    return {b: ("test" if b in test else "train") for b in bases}
+    rng = rng_for(seed, key)
+    ranked = []
+    for gi, g in enumerate(groups):
+        order = rng.permutation(len(g))
+        ranked += [((r + 0.5) / len(g), gi, g[i]) for r, i in enumerate(order)]
+    test = {b for _, _, b in sorted(ranked)[:n_test]}
+    return {b: ("test" if b in test else "train") for g in groups for b in g}
 
 
 def light_bases(config: TypedConfig | Mapping) -> list[LightBase]:
     """Every base map of the light pool, in a fixed order (bundled HDRIs, skies, studios, users' maps), with its
-    family and split. The split holds out bases by family: within each family (and, for the studios, separately
-    among the hard and the soft ones) ``envmaps.test_fraction`` of the bases go to the test split (at least one of
-    each split where the group has two or more), so the test pool has every family and hard lights; the families of
+    family and split. The split holds out bases by family: within each family ``envmaps.test_fraction`` of the bases go to the test split (at least one of each split where the
+    family has two or more), the studios' share spread over the hard and the soft ones in proportion, so the test
+    pool has every family and hard lights; the families of
     ``envmaps.test_families`` are held out whole. Users' maps keep the split their entry names."""
     env, seed = config_section(config, "envmaps"), config_section(config, "seed")
     unknown = sorted(set(env.test_families) - set(FAMILIES))
@@ -582,14 +588,15 @@ def light_bases(config: TypedConfig | Mapping) -> list[LightBase]:
             (base, "studio", hard, GENERATED_LICENCE, origin + " background)", studio_params(seed, base, studio, hard))
         )
     split: dict[str, str] = {}
-    groups: dict[tuple[str, bool], list[str]] = {}
+    families: dict[str, dict[bool, list[str]]] = {}
     for base, source, hard, *_ in rows:
-        groups.setdefault((FAMILY_OF_SOURCE[source], hard), []).append(base)
-    for (family, hard), names in groups.items():
+        families.setdefault(FAMILY_OF_SOURCE[source], {}).setdefault(hard, []).append(base)
+    for family, groups in families.items():
         if family in env.test_families:
-            split |= {b: "test" for b in names}
+            split |= {b: "test" for g in groups.values() for b in g}
         else:
-            split |= _split_bases(names, env.test_fraction, seed, f"envmap-split-{family}{'-hard' if hard else ''}")
+            parts = [groups[h] for h in (True, False) if h in groups]  # hard first: ties go to the hard maps
+            split |= _split_bases(parts, env.test_fraction, seed, f"envmap-split-{family}")
     user = _user_files(env.extra, ENVMAP_SUFFIXES, "envmaps.extra")
     for (f, entry), uid in zip(user, _unique_user_ids(user, "envmaps.extra")):
         if uid in split:
@@ -740,10 +747,11 @@ def _assign_lights(
     n_tgt: int,
     obj: str,
     split: str,
-    hard_first: bool,
+    hard_first: bool | None,
 ) -> tuple[list[tuple[LightBase, int]], list[tuple[LightBase, int]]]:
     """The object's input and target draws, each a slot (base, k) of the split's pool (``rotations`` slots per base):
-    inputs distinct, the first a hard light when ``hard_first`` (else a soft one where the pool has any); targets
+    inputs distinct, the first a hard light when ``hard_first`` is True, a soft one (where the pool has any) when
+    False, any when None; targets
     distinct, from other base maps than the inputs whenever the pool allows (supervised under another light), one
     family after another in a seeded order (3 targets over 3 families: one of each), distinct base maps first."""
     n_slots = len(pool) * rotations
@@ -753,7 +761,7 @@ def _assign_lights(
             f"render.target_lights={n_tgt}; add base maps, envmaps.rotations or lower the light counts"
         )
     inputs: list[tuple[LightBase, int]] = []
-    want = [b for b in pool if b.hard == hard_first] or pool
+    want = (pool if hard_first is None else [b for b in pool if b.hard == hard_first]) or pool
     first = int(rng.integers(len(want) * rotations))
     inputs.append((want[first // rotations], first % rotations))
     taken = {(inputs[0][0].base, inputs[0][1])}
@@ -800,7 +808,8 @@ def _plan_objects(config: TypedConfig | Mapping, bases: list[LightBase]) -> tupl
 
     Lights: each object draws its input and target lights from its split's base maps (:func:`_assign_lights`;
     ``envmaps.rotations`` draws of one base at most); ``round(envmaps.hard_input_fraction * n)`` of the n objects
-    of each split, seeded, get a hard first input light (the one relighting starts from), the others a soft one.
+    of each split, seeded, get a hard first input light (the one relighting starts from), the others a soft one
+    (fraction 0: no constraint).
     Every draw is its own map ``{base}_r{k}-{object}``, rotated about Z by an angle drawn for it (seeded by the
     object)."""
     seed, objects = config_section(config, "seed"), config_section(config, "objects")
@@ -929,7 +938,7 @@ def _plan_objects(config: TypedConfig | Mapping, bases: list[LightBase]) -> tupl
             render.target_lights,
             oid,
             split,
-            oid in hard_first,
+            (oid in hard_first) if env.hard_input_fraction > 0 else None,
         )
         rot_rng = np.random.default_rng(derive_seed(oseed, "light-rotations"))
         names = {}
