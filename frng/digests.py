@@ -47,8 +47,9 @@ PLAN_KEYS: tuple[str, ...] = ("seed", "objects", "envmaps", "render.input_lights
 """What the dataset plan reads (frng/data/catalog.py ``plan``): env maps and their split, objects, their split,
 materials and lights. Every stage that asks the plan for a split or the object list reads these."""
 
-ENVMAP_PLAN_KEYS: tuple[str, ...] = ("seed", "envmaps")
-"""What the env-map plan reads (frng/data/catalog.py ``envmap_plan``)."""
+ENVMAP_PLAN_KEYS: tuple[str, ...] = ("seed", "envmaps", "objects", "render.input_lights", "render.target_lights")
+"""What the env-map plan reads (frng/data/catalog.py ``envmap_plan``): one map per (object, light) draw, so the
+objects and the light counts too."""
 
 RELIGHT_MODEL_KEYS: tuple[str, ...] = (
     "device",

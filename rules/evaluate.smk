@@ -14,6 +14,9 @@ _TABLE_CAPTIONS = {
     "timing": "timing",
     "ladder": "quality ladder",
     "lambertian": "Lambertian base per material class",
+    "vs_backbone_by_light": "F-RNG vs backbone per light family",
+    "ablation_by_light": "ablation per light family",
+    "ladder_by_light": "quality ladder per light family",
 }
 # The default tier's tables also write the repository's generated results page and the README's results block
 # (frng/report/results_page.py), so that `make reproduce` rewrites them; other tiers write neither.

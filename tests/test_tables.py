@@ -209,3 +209,64 @@ def test_markdown_escapes_pipes_in_headers_and_cells():
     header = md.splitlines()[0]
     assert "median \\|log2 scale\\|" in header and header.count(" | ") == 1
     assert "| a\\|b | 0.25 |" in md and "a|b" in tex
+
+
+def test_tables_per_light_family(tmp_path):
+    """vs_backbone / ablation / ladder per family of the target light: the family from the plan's map (a mapping,
+    not the light's name), rows per family, the paired differences and intervals within each family; written by
+    write_tables beside the other tables."""
+    from frng import io
+    from frng.report import paper_tables as P
+
+    families = {"l0": "sky", "l1": "studio"}  # the plan's light -> family (Catalog.light_families)
+    rows = _per_image("backbone", "backbone", 0.0) + _per_image("no-fine", "no-fine", 0.7)
+    rows += [dict(r, psnr=r["psnr"] + (0.5 if r["light"] == "l1" else 0.0)) for r in _per_image("full", "full", 1.0)]
+    df = P.with_families(pd.DataFrame(rows), families)
+    vs = P.vs_backbone_by_light(df)
+    assert list(vs.columns[:5]) == list(T.TABLE_COLUMNS["vs_backbone_by_light"])
+    assert list(vs["light_family"]) == ["sky", "sky", "studio", "studio"]
+    assert list(vs["method"]) == ["F-RNG (ours)", "backbone (RelitLRM-style)"] * 2
+    sky, studio = vs.iloc[0], vs.iloc[2]
+    # F-RNG is +1.0 over the backbone under the sky, +1.5 under the studio, on every object
+    assert np.isclose(sky["dpsnr"], 1.0) and np.isclose(sky["dpsnr_lo"], 1.0) and np.isclose(sky["dpsnr_hi"], 1.0)
+    assert np.isclose(studio["dpsnr"], 1.5) and studio["better"] == 3 and studio["objects"] == 3
+    assert sky["n"] == 3 and pd.isna(vs.iloc[1]["dpsnr"])
+    ab = P.ablation_by_light(df)
+    assert list(ab.columns[:5]) == list(T.TABLE_COLUMNS["ablation_by_light"])
+    assert list(zip(ab["light_family"], ab["variant"])) == [
+        ("sky", "full model"),
+        ("sky", "w/o fine-grained Gaussians"),
+        ("studio", "full model"),
+        ("studio", "w/o fine-grained Gaussians"),
+    ]
+    assert np.isclose(ab.iloc[1]["dpsnr"], -0.3) and np.isclose(ab.iloc[3]["dpsnr"], -0.8)
+    prior = pd.DataFrame([dict(r, task="relight", method="gt-depth+oracle-colour") for r in _per_image("x", "x", 3.0)])
+    lad = P.ladder_by_light(df, P.with_families(prior, families))
+    assert list(lad.columns[:9]) == list(T.TABLE_COLUMNS["ladder_by_light"])
+    assert set(lad["light_family"]) == {"sky", "studio"}
+    assert list(lad[lad["light_family"] == "sky"]["step"]) == ["a", "d", "e"]  # the prior's rows by family too
+    e = lad[(lad["step"] == "e") & (lad["light_family"] == "studio")].iloc[0]
+    assert e["vs"] == "d" and np.isclose(e["dpsnr"], 1.5)
+    assert P.with_families(pd.DataFrame({"light": ["zz"]}), families)["light_family"].tolist() == ["other"]
+
+    # end to end: write_tables writes the three tables beside the others, with their columns
+    per_image = tmp_path / "per_image.csv"
+    pd.DataFrame(rows).to_csv(per_image, index=False)
+    prior_csv = tmp_path / "backbone.csv"
+    prior.to_csv(prior_csv, index=False)
+    timing = tmp_path / "t.json"
+    io.write_json(
+        timing,
+        {
+            "device": "cpu",
+            "resolution": 32,
+            "spp": 16,
+            "F-RNG": {"reconstruction_s": 1.0, "relight_ms_per_image": 20.0},
+            "backbone": {"reconstruction_s": 1.0, "relight_ms_per_image": 40.0},
+        },
+    )
+    out = P.write_tables("custom", [1, 1, 1], per_image, [timing], tmp_path / "tables", prior_csv, families=families)
+    for name in ("vs_backbone_by_light", "ablation_by_light", "ladder_by_light"):
+        t = pd.read_csv(out[name]["csv"])
+        assert set(T.TABLE_COLUMNS[name]) <= set(t.columns) and len(t), name
+        assert "light family" in out[name]["md"].read_text()

@@ -23,6 +23,10 @@ table            rows                                                reference r
                  sensitivity rows ``s*`` (:func:`sensitivity_rows`)
 ``lambertian``   per dataset: F-RNG and its Lambertian base alone    F-RNG, same dataset
                  (run ``full-base``)
+``*_by_light``   ``vs_backbone``, ``ablation`` and ``ladder`` per     as in the table, within the family
+                 family of the target light (``light_family``: sky,
+                 hdri, studio, user; the dataset plan's
+                 ``EnvMapSpec.family``, passed as ``families``)
 ================ =================================================== =====================================
 
 Metric columns (psnr, ssim, lpips) are means of per-image values (PSNR averaged in dB) over all test objects,
@@ -42,7 +46,7 @@ frame per seed, :func:`seed_parts`), so they contain the spread between training
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -422,6 +426,90 @@ def lambertian_table(df: pd.DataFrame) -> pd.DataFrame:
     return _ordered(pd.DataFrame(rows), "lambertian")
 
 
+# -- per light family ------------------------------------------------------------------------------------------
+
+LIGHT_FAMILY = "light_family"
+OTHER_FAMILY = "other"  # a light the plan does not know (not one of its maps)
+
+
+def with_families(df: pd.DataFrame | None, families: Mapping[str, str]) -> pd.DataFrame | None:
+    """``df`` with a ``light_family`` column: the family of each row's ``light`` (``families``: map name -> family,
+    from the dataset plan, :meth:`frng.data.catalog.Catalog.light_families`; lights it lacks are
+    :data:`OTHER_FAMILY`). Frames without a ``light`` column come back unchanged."""
+    if df is None or "light" not in df.columns:
+        return df
+    out = df.copy()
+    out[LIGHT_FAMILY] = out["light"].astype(str).map(dict(families)).fillna(OTHER_FAMILY)
+    return out
+
+
+def family_order(df: pd.DataFrame) -> list[str]:
+    """The light families present in ``df`` (sky, hdri, studio, user, then other)."""
+    from frng.data.catalog import FAMILIES
+
+    present = set(df[LIGHT_FAMILY]) if LIGHT_FAMILY in df.columns else set()
+    return [f for f in (*FAMILIES, OTHER_FAMILY) if f in present]
+
+
+def _of_family(d: pd.DataFrame | None, family: str) -> pd.DataFrame | None:
+    if d is None or LIGHT_FAMILY not in d.columns:
+        return d if d is None else d.iloc[:0]
+    return d[d[LIGHT_FAMILY] == family]
+
+
+def vs_backbone_by_light(df: pd.DataFrame) -> pd.DataFrame:
+    """:func:`vs_backbone_table` per family of the target light instead of per dataset (``df`` with
+    :func:`with_families`' column): F-RNG (averaged over its training seeds) and the backbone, F-RNG's paired
+    difference to the backbone over the same images with its object (and seed) bootstrap interval, the seed
+    columns. No ``all`` rows: the ``vs_backbone`` table's."""
+    frng, bb = seed_mean(df, "full"), seed_mean(df, BACKBONE)
+    rows = []
+    for fam in family_order(df):
+        pick = lambda d, fam=fam: _of_family(d, fam)  # noqa: E731
+        for method, sub in (("F-RNG", pick(frng)), (BACKBONE, pick(bb))):
+            if not len(sub):
+                continue
+            row = {
+                LIGHT_FAMILY: fam,
+                "method": METHOD_LABELS[method],
+                "n": len(sub),
+                "psnr": sub["psnr"].mean(),
+                "ssim": sub["ssim"].mean(),
+                "lpips": sub["lpips"].mean(),
+            }
+            if method == "F-RNG":
+                row |= diff_to([*seed_parts(df, "full", pick).values()], [*seed_parts(df, BACKBONE, pick).values()])
+                row |= seed_columns(df, "full", BACKBONE, pick)
+            rows.append(row)
+    return _ordered(pd.DataFrame(rows), "vs_backbone_by_light")
+
+
+def ablation_by_light(df: pd.DataFrame) -> pd.DataFrame:
+    """:func:`ablation_table` for each family of the target light (rows: family, then variant)."""
+    parts = []
+    for fam in family_order(df):
+        t = ablation_table(_of_family(df, fam))
+        if len(t):
+            parts.append(t.assign(**{LIGHT_FAMILY: fam}))
+    out = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=[LIGHT_FAMILY])
+    return _ordered(out, "ablation_by_light")
+
+
+def ladder_by_light(df: pd.DataFrame, prior: pd.DataFrame, cross: pd.DataFrame | None = None) -> pd.DataFrame:
+    """:func:`ladder_table` for each family of the light (rows: family, then step; the light-sensitivity rows
+    ``s*`` included, by the family of the light rendered). Row c's light is the input light (the held-out input
+    views): it is grouped under the input light's family."""
+    parts = []
+    for fam in family_order(df):
+        t = ladder_table(_of_family(df, fam), _of_family(prior, fam), _of_family(cross, fam))
+        if len(t):
+            parts.append(t.assign(**{LIGHT_FAMILY: fam}))
+    out = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=[LIGHT_FAMILY])
+    main = list(T.TABLE_COLUMNS["ladder_by_light"])
+    rest = [c for c in ["vs", *T.diff_columns()] if c in out.columns]
+    return out.reindex(columns=main + rest).reset_index(drop=True)
+
+
 def timing_table(timings: list[dict]) -> pd.DataFrame:
     rows = []
     for m in ("F-RNG", BACKBONE):
@@ -445,9 +533,12 @@ def write_tables(
     out_dir: Path,
     prior_csv: Path,
     cross_csv: Path | None = None,
+    families: Mapping[str, str] | None = None,
 ) -> dict[str, dict]:
     """Write the tables (see the module docstring). Returns {table: {"csv"|"md"|"tex": path}}. ``tier`` and
-    ``background`` (the config's ``tier`` and ``eval.background``) go into the captions."""
+    ``background`` (the config's ``tier`` and ``eval.background``) go into the captions. ``families``: map name ->
+    light family (the dataset plan's, :meth:`frng.data.catalog.Catalog.light_families`); without it the per-family
+    tables (``*_by_light``) are not written."""
     df = M.read_csv(per_image_csv)
     missing = [
         c
@@ -546,6 +637,8 @@ def write_tables(
         ),
         label="tab:lambertian",
     )
+    if families is not None:
+        out |= _write_family_tables(tier, background, df, prior, cross, families, out_dir, seed_note)
     t = timing_table(timings)
     out["timing"] = T.write_table(
         t,
@@ -557,5 +650,54 @@ def write_tables(
             f"runs one full denoising pass per light. Tier {tier}."
         ),
         label="tab:timing",
+    )
+    return out
+
+
+def _write_family_tables(tier, background, df, prior, cross, families, out_dir: Path, seed_note: str) -> dict:
+    """The ``*_by_light`` tables: vs_backbone, ablation and ladder per family of the target light."""
+    df, prior, cross = (with_families(d, families) for d in (df, prior, cross))
+    fams = ", ".join(family_order(df))
+    note = (
+        f" Per family of the target light ({fams}: the dataset plan's light families, frng.data.catalog "
+        "FAMILIES); the differences and their intervals are computed within each family."
+    )
+    out = {}
+    out["vs_backbone_by_light"] = T.write_table(
+        vs_backbone_by_light(df),
+        out_dir / "vs_backbone_by_light",
+        best_within=[LIGHT_FAMILY],
+        caption=_caption(
+            "Relighting quality per light family: F-RNG vs the backbone." + note + seed_note,
+            tier,
+            background,
+            df[df["run"].isin(["full", BACKBONE])],
+        ),
+        label="tab:vs_backbone_by_light",
+    )
+    out["ablation_by_light"] = T.write_table(
+        ablation_by_light(df),
+        out_dir / "ablation_by_light",
+        best_within=[LIGHT_FAMILY],
+        caption=_caption(
+            "Ablation per light family (differences: variant minus the full model)."
+            + note
+            + seed_note.replace("F-RNG rows", "Every row"),
+            tier,
+            background,
+            ablation_rows(df),
+        ),
+        label="tab:ablation_by_light",
+    )
+    out["ladder_by_light"] = T.write_table(
+        ladder_by_light(df, prior, cross),
+        out_dir / "ladder_by_light",
+        best_within=[LIGHT_FAMILY],
+        caption=(
+            "Quality ladder per light family (the ladder table's steps and light-sensitivity rows s, each family's "
+            f"images only; row c: the input light's family).{note} {DIFF_NOTE} The models' own training seed. "
+            f"Tier {tier}."
+        ),
+        label="tab:ladder_by_light",
     )
     return out

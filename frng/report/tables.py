@@ -49,6 +49,20 @@ TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
     "timing": ("method", "reconstruction_s", "relight_ms_per_image", "resolution", "spp"),
     "ladder": ("step", "what", "n", "psnr", "ssim", "lpips", "scale_log2", "brightness_log2"),
     "lambertian": ("dataset", "method", "n", "psnr", "ssim", "lpips", "scale_log2", "brightness_log2"),
+    # per family of the target light (sky / hdri / studio; frng/report/paper_tables.py)
+    "vs_backbone_by_light": ("light_family", "method", "psnr", "ssim", "lpips"),
+    "ablation_by_light": ("light_family", "variant", "psnr", "ssim", "lpips"),
+    "ladder_by_light": (
+        "light_family",
+        "step",
+        "what",
+        "n",
+        "psnr",
+        "ssim",
+        "lpips",
+        "scale_log2",
+        "brightness_log2",
+    ),
 }
 
 DIFF_METRICS = ("psnr", "ssim", "lpips")
@@ -84,6 +98,7 @@ HEADERS: dict[str, str] = {
     "ssim": "SSIM",
     "lpips": "LPIPS",
     "dataset": "Dataset",
+    "light_family": "Light family",
     "method": "Method",
     "variant": "Variant",
     "views": "Input views",

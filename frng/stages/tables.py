@@ -18,8 +18,8 @@ from frng.report.results_page import ResultsPageError, write_pages
 from frng.typedconfig import typed
 
 # The config keys this stage reads (frng.digests: its rule's digest): tier and eval.background in the captions
-# (frng/report/paper_tables.py)
-CONFIG_READS = ("tier", "eval")
+# (frng/report/paper_tables.py), the plan (the test objects' timings, the lights' families of the per-family tables)
+CONFIG_READS = ("tier", "eval", "@plan")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -50,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
 
     config = typed(frng_config.load(args.config))
     L = Layout(config.results)
-    timing = args.timing or [L.relight_timing(o) for o in catalog.plan(config).split("test")]
+    plan = catalog.plan(config)
+    timing = args.timing or [L.relight_timing(o) for o in plan.split("test")]
     out = write_tables(
         config.tier,
         config.eval.background,
@@ -59,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
         Path(args.out or L.tables_dir()),
         Path(args.prior_metrics or L.metrics("backbone")),
         Path(args.cross_light or L.metrics("relight_cross_light")),
+        families=plan.light_families(),
     )
     for name, paths in out.items():
         print(f"== {name} ({paths['md']})\n{paths['md'].read_text()}")
