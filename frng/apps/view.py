@@ -102,7 +102,8 @@ def collect_lights(
     asset: Path, results: Path | None, env_files: Sequence[str | Path], object_id: str | None
 ) -> list[Light]:
     """The picker's maps, in order: the files given (``--env``), the asset's input light (``input_light.exr`` of
-    ``frng reconstruct``, else the results' object's first input light), then the results folder's test maps.
+    ``frng reconstruct``, else the results' object's first input light), then the results folder's test maps (one
+    per test base map).
     Raises :class:`~frng.capture.CaptureError` (a map missing, unreadable or not 2:1) or :class:`ViewError`."""
     from frng import io
     from frng.capture import read_light
@@ -135,8 +136,10 @@ def collect_lights(
             index = read_index(L.envmap_index())
         except EnvMapError as e:
             raise ViewError(str(e)) from None
+        bases: set[str] = set()  # one map per test base map (each base has a rotated map per object that drew it)
         for rec in index["maps"]:
-            if rec.get("split") == "test":
+            if rec.get("split") == "test" and rec.get("base", rec["name"]) not in bases:
+                bases.add(rec.get("base", rec["name"]))
                 add(f"{rec['name']} · test map", Path(L.envmap(rec["name"])))
     if not out:
         raise ViewError("no environment map to light the asset with: give --env MAP (EXR/HDR, 2:1) or --config C")
