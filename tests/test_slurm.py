@@ -30,8 +30,9 @@ ROOT = Path(__file__).resolve().parent.parent
 SNAKEMAKE = str(Path(sys.executable).parent / "snakemake")
 PROFILE = str(ROOT / "profiles" / "slurm-ci")
 TOY = str(ROOT / "tests" / "slurm_toy" / "Snakefile")
-# the smoke tier without the baselines' jobs: SMOKE ends with its --configfile, this file joins it (merged over it)
-SMOKE_SLURM = [*SMOKE, str(ROOT / "tests" / "slurm_toy" / "no_baselines.yaml")]
+# the smoke tier without the baselines and the ablations (one job per rule, tests/slurm_toy/cluster_overlay.yaml):
+# SMOKE ends with its --configfile, the overlay joins it (merged over it)
+SMOKE_SLURM = [*SMOKE, str(ROOT / "tests" / "slurm_toy" / "cluster_overlay.yaml")]
 
 pytestmark = pytest.mark.slow
 
