@@ -1,6 +1,6 @@
 # Environment maps: one per (object, light) draw of the plan -- a base map of the light pool (Blender's bundled HDRIs,
 # baked skies, procedural studios, users' maps) rotated by the draw's own angle, resized, normalised; split
-# train/test by base map within each family. One job writes them all (~30 s for the default tier's 715 maps); see
+# train/test by base map within each family. One job writes them all (~25 s for the default tier's 715 maps); see
 # frng/data/envmaps.py.
 ENVMAP_NAMES = [e.name for e in CATALOG.envmaps]
 USER_ENVMAP_FILES = sorted({e.origin for e in CATALOG.envmaps if e.source == "user"})

@@ -158,3 +158,34 @@ def test_hard_studios_measure_hard():
     soft = [measured[b.base] for b in studios if not b.hard]
     assert min(hard) > 0.6 and max(soft) < min(hard), (hard, soft)
     assert abs(envmaps.hardness(np.ones((64, 128, 3), np.float32)) - 0.01) < 0.002
+
+
+def test_sunny_skies_are_hard_lights():
+    """envmaps.skies.sun_share: a sun disc towards the sky's sun carrying that share of the light (measured), in
+    the sky's colour there; at >= 0.5 the skies join the hard lights the hard inputs are drawn from."""
+    import math
+
+    import torch
+
+    from frng import envmap
+
+    h, w = 128, 256
+    d = envmap.pixel_directions(h, w, dtype=torch.float64).numpy()
+    sky = np.where(d[..., 2:3] > 0, [[0.3, 0.4, 0.6]], [[0.05, 0.05, 0.05]]).astype(np.float32) * np.ones((h, w, 3))
+    el = 30.0
+    sunny = envmaps.add_sun(sky, el, 0.8)
+    e_all, e_sky = envmaps.mean_luminance(sunny), envmaps.mean_luminance(sky)
+    assert np.isclose((e_all - e_sky) / e_all, 0.8, atol=1e-4)
+    j, i = np.unravel_index(np.argmax(envmap.luminance(sunny)), (h, w))
+    sun = np.array([math.cos(math.radians(el)), 0.0, math.sin(math.radians(el))])
+    assert d[j, i] @ sun > math.cos(math.radians(2.0))
+    rgb = sunny[j, i] - sky[j, i]
+    assert np.allclose(rgb / rgb.sum(), np.array([0.3, 0.4, 0.6]) / 1.3, atol=1e-3)  # the sky's colour there
+    assert envmaps.hardness(sunny) > 0.75 > 0.1 > envmaps.hardness(sky)
+
+    cat = catalog.plan(_cfg(skies={"models": ["preetham"], "sun_elevations_deg": [10, 40], "sun_share": 0.8}))
+    skies = [b for b in cat.bases if b.family == "sky"]
+    assert skies and all(b.hard and b.sky["sun_share"] == 0.8 for b in skies)
+    hard_inputs = {cat.envmap(o.input_lights[0]).family for o in cat.objects if cat.envmap(o.input_lights[0]).hard}
+    assert hard_inputs == {"sky", "studio"}
+    assert not any(b.hard for b in catalog.plan(_cfg()).bases if b.family == "sky")  # sun_share 0: soft skies

@@ -78,6 +78,7 @@ class SkiesConfig:
     models: tuple[str, ...]
     sun_elevations_deg: tuple[float, ...]
     turbidity: float | tuple[float, ...]  # one value or a list: the skies are the grid models x elevations x these
+    sun_share: float  # share of a sky map's light in its sun disc (0: none); >= HARD_SUN_SHARE makes it a hard light
 
     @property
     def turbidities(self) -> tuple[float, ...]:
@@ -431,6 +432,7 @@ FAMILIES = ("sky", "hdri", "studio", "user")
 The per-family tables (frng/report/paper_tables.py) group the test lights by it; the split holds out bases within
 each family (``envmaps.test_fraction``) or whole families (``envmaps.test_families``)."""
 FAMILY_OF_SOURCE = {"sky": "sky", "bundled": "hdri", "studio": "studio", "user": "user"}
+HARD_SUN_SHARE = 0.5  # a sky whose sun disc carries at least this share of its light is a hard light
 
 
 @dataclass(frozen=True)
@@ -440,7 +442,8 @@ class LightBase:
     base: str  # bundled name, "sky_{model}_e{elev}[_t{turbidity}]", "procstudio_{k}" or "user_{stem}"
     source: str  # "bundled" | "sky" | "studio" | "user"
     family: str  # FAMILY_OF_SOURCE[source]
-    hard: bool  # a hard light by construction (the hard procedural studios: one small key light on a dark background)
+    hard: bool  # a hard light by construction: the hard procedural studios (one small key light on a dark
+    # background) and the skies whose sun disc carries >= HARD_SUN_SHARE of the light
     split: str  # "train" | "test"
     licence: str
     origin: str  # bundled file name, sky parameters, or the user's file path
@@ -576,8 +579,11 @@ def light_bases(config: TypedConfig | Mapping) -> list[LightBase]:
         for el in skies.sun_elevations_deg:
             for t in turbidities:
                 sky = {"model": model, "sun_elevation_deg": float(el), "turbidity": float(t)}
+                if skies.sun_share > 0:  # (absent otherwise: the records of sunless skies stay as they were)
+                    sky["sun_share"] = float(skies.sun_share)
                 base = _sky_base(model, el, t if len(turbidities) > 1 else None)
-                rows.append((base, "sky", False, GENERATED_LICENCE, f"Blender Sky Texture ({model})", sky))
+                hard = skies.sun_share >= HARD_SUN_SHARE
+                rows.append((base, "sky", hard, GENERATED_LICENCE, f"Blender Sky Texture ({model})", sky))
     studio = env.studio
     n_hard = int(round(studio.count * studio.hard_fraction))
     hard_ids = set(rng_for(seed, "studio-hard").permutation(studio.count)[:n_hard].tolist())

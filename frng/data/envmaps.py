@@ -2,7 +2,7 @@
 
 For each (object, light) draw of :func:`frng.data.catalog.envmap_plan` -- a rotated copy of a base map of the light
 pool (:func:`frng.data.catalog.light_bases`): one of Blender's 8 bundled CC0 HDRIs, a Preetham / Hosek-Wilkie sky
-baked with Cycles (lower hemisphere darkened to a 0.3-albedo ground), a procedural studio (:func:`studio_map`: seeded
+baked with Cycles (lower hemisphere darkened to a 0.3-albedo ground; a sun disc added, :func:`add_sun`), a procedural studio (:func:`studio_map`: seeded
 area lights over a dim or dark background, baked at 512 px) or a user's EXR/HDR file:
 
     load the base once (resized to ROTATE_OVERSAMPLE x envmaps.width where the source is wider)
@@ -38,6 +38,7 @@ from frng.layout import EnvmapFolder
 
 SKY_BAKE_WIDTH = 512  # skies are smooth; baked at this width then resized
 GROUND_ALBEDO = 0.3
+SUN_DIAMETER_DEG = 0.53  # the sun's angular diameter (drawn at least 2 pixels across)
 ROTATE_OVERSAMPLE = 4  # each draw is rotated at this many times the output width (at most the source's), then resized
 HARD_SOLID_ANGLE = 0.01  # hardness: the share of the light arriving from the brightest 1 % of the sphere
 
@@ -63,6 +64,36 @@ def hardness(image: np.ndarray, share: float = HARD_SOLID_ANGLE) -> float:
         return float("nan")
     covered = np.cumsum(omega[order]) <= share * 4.0 * math.pi
     return float(energy[covered].sum() / total)
+
+
+def add_sun(
+    image: np.ndarray, elevation_deg: float, share: float, diameter_deg: float = SUN_DIAMETER_DEG
+) -> np.ndarray:
+    """A sky map (H, W, 3) plus a sun disc towards +X at ``elevation_deg`` (Blender's sky bake puts its sun there)
+    that carries ``share`` (< 1) of the result's light (solid-angle-weighted luminance), in the sky's own colour at
+    the sun's direction (luminance 1: warm low suns). Blender's Preetham / Hosek-Wilkie skies have no sun disc;
+    on a clear day the sun brings ~0.8 of the light. The disc is ``diameter_deg`` wide but at least 2 pixels
+    across, its edge softened over a pixel."""
+    import torch
+
+    if not 0.0 <= share < 1.0:
+        raise ValueError(f"sun share {share} is not in [0, 1)")
+    h, w = image.shape[:2]
+    d = envmap.pixel_directions(h, w, dtype=torch.float64).numpy()
+    el = math.radians(elevation_deg)
+    sun = np.array([math.cos(el), 0.0, math.sin(el)])
+    pixel = math.pi / h
+    radius = max(math.radians(diameter_deg) / 2.0, pixel)
+    mask = np.clip((radius - np.arccos(np.clip(d @ sun, -1.0, 1.0))) / pixel + 0.5, 0.0, 1.0)
+    omega = envmap.pixel_solid_angles(h, w).numpy()
+    e_sky = float((envmap.luminance(image) * omega).sum())
+    e_disc = float((mask * omega).sum())
+    j, i = np.unravel_index(np.argmax(d @ sun), (h, w))
+    colour = np.maximum(image[j, i, :3].astype(np.float64), 0.0)
+    lum = float(envmap.luminance(colour))
+    colour = colour / lum if lum > 0 else np.ones(3)
+    radiance = share / (1.0 - share) * e_sky / e_disc
+    return (image + mask[..., None] * radiance * colour).astype(np.float32)
 
 
 def bundled_dir() -> Path:
@@ -139,7 +170,9 @@ def load_base(spec: catalog.EnvMapSpec, work: Path, threads: int) -> np.ndarray:
         path = work / f"{spec.base}.exr"
         world.bake_sky(path, sky["model"], sky["sun_elevation_deg"], sky["turbidity"], SKY_BAKE_WIDTH, threads=threads)
         rgb = bscene.read_passes(path)["rgba"][..., :3]
-        return world.ground(np.maximum(rgb, 0.0), GROUND_ALBEDO)
+        img = world.ground(np.maximum(rgb, 0.0), GROUND_ALBEDO)
+        share = float(sky.get("sun_share", 0.0))
+        return add_sun(img, sky["sun_elevation_deg"], share) if share > 0 else img
     raise ValueError(f"unknown env-map source {spec.source!r}")
 
 
