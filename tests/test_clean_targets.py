@@ -41,7 +41,16 @@ def _render(tmp_path, name, **render) -> dict[str, np.ndarray]:
 
 
 def test_render_settings_reach_cycles(tmp_path):
-    scene, ch = _render(tmp_path, "oidn", resolution=16, spp=4, denoise=True, clamp_direct=2.5, clamp_indirect=3.5)
+    scene, ch = _render(
+        tmp_path,
+        "oidn",
+        resolution=16,
+        spp=4,
+        denoise=True,
+        denoise_prefilter="fast",
+        clamp_direct=2.5,
+        clamp_indirect=3.5,
+    )
     c = scene.cycles
     assert (c.samples, c.use_denoising, c.denoiser, c.denoising_input_passes) == (
         4,
@@ -49,7 +58,7 @@ def test_render_settings_reach_cycles(tmp_path):
         "OPENIMAGEDENOISE",
         "RGB_ALBEDO_NORMAL",
     )
-    assert (c.sample_clamp_direct, c.sample_clamp_indirect) == (2.5, 3.5)
+    assert (c.sample_clamp_direct, c.sample_clamp_indirect, c.denoising_prefilter) == (2.5, 3.5, "FAST")
     # the denoiser ran: Blender keeps the noisy image beside the denoised Combined layer
     noisy = np.stack([ch[f"ViewLayer.Noisy Image.{k}"] for k in "RGB"], -1)
     combined = np.stack([ch[f"ViewLayer.Combined.{k}"] for k in "RGB"], -1)

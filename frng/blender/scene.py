@@ -56,18 +56,33 @@ def new_scene(
     return scene
 
 
-def set_sampling(scene: bpy.types.Scene, spp: int, denoise: bool, clamp_direct: float, clamp_indirect: float) -> None:
-    """Cycles' sampling of ``scene``: ``spp`` samples per pixel; ``denoise``: OpenImageDenoise on the final render,
-    fed the albedo and normal passes (prefilter ACCURATE, CPU), else no denoising; ``clamp_direct`` /
-    ``clamp_indirect``: Cycles' per-sample clamps of direct / indirect light (0 = no clamp; Blender's defaults 0 / 10).
-    The render's ``Combined`` layer is the denoised image; Blender adds a ``Noisy Image`` layer beside it."""
+DENOISE_PREFILTERS = ("none", "fast", "accurate")  # Cycles' denoising_prefilter, lower case (render.denoise_prefilter)
+
+
+def set_sampling(
+    scene: bpy.types.Scene,
+    spp: int,
+    denoise: bool,
+    clamp_direct: float,
+    clamp_indirect: float,
+    prefilter: str,
+) -> None:
+    """Cycles' sampling of ``scene``: ``spp`` samples per pixel; ``denoise``: OpenImageDenoise (CPU, quality HIGH) on
+    the final render, fed the albedo and normal passes, else no denoising; ``prefilter`` (one of
+    :data:`DENOISE_PREFILTERS`): how OIDN treats those passes (``none``: as noise-free, ``fast`` / ``accurate``:
+    denoised first); ``clamp_direct`` / ``clamp_indirect``: Cycles' per-sample clamps of direct / indirect light (0 =
+    no clamp; Blender's defaults 0 / 10). The render's ``Combined`` layer is the denoised image; Blender adds a
+    ``Noisy Image`` layer beside it."""
+    if prefilter not in DENOISE_PREFILTERS:
+        raise ValueError(f"denoise prefilter {prefilter!r}: expected one of {', '.join(DENOISE_PREFILTERS)}")
     c = scene.cycles
     c.samples = int(spp)
     c.use_denoising = bool(denoise)
     if denoise:
         c.denoiser = "OPENIMAGEDENOISE"
         c.denoising_input_passes = "RGB_ALBEDO_NORMAL"
-        c.denoising_prefilter = "ACCURATE"
+        c.denoising_prefilter = prefilter.upper()
+        c.denoising_quality = "HIGH"
         c.denoising_use_gpu = False
     c.sample_clamp_direct = float(clamp_direct)
     c.sample_clamp_indirect = float(clamp_indirect)

@@ -129,6 +129,7 @@ class RenderConfig:
     resolution: int
     spp: int
     denoise: bool  # OpenImageDenoise with albedo + normal passes (frng.blender.scene.set_sampling)
+    denoise_prefilter: str  # none | fast | accurate: how OIDN treats the albedo / normal passes
     clamp_direct: float  # Cycles' sample clamps (0 = none)
     clamp_indirect: float
     input_views: int

@@ -62,6 +62,7 @@ RENDER_META_KEYS = (  # the render.* settings meta.json records
     "resolution",
     "spp",
     "denoise",
+    "denoise_prefilter",
     "clamp_direct",
     "clamp_indirect",
     "camera_distance",
@@ -204,7 +205,9 @@ def object_scene(plan: catalog.Catalog, objaverse: catalog.ObjaverseConfig, rend
 
     _, shape_rng, mat_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(spec.seed).spawn(3))
     scene = bscene.new_scene(render.resolution, render.spp, render.threads, spec.seed)
-    bscene.set_sampling(scene, render.spp, render.denoise, render.clamp_direct, render.clamp_indirect)
+    bscene.set_sampling(
+        scene, render.spp, render.denoise, render.clamp_direct, render.clamp_indirect, render.denoise_prefilter
+    )
     bscene.enable_gbuffer_passes(scene)
     cam = bscene.add_camera(scene, render.fov_deg)
     own = spec.material == catalog.OWN
@@ -293,6 +296,7 @@ def curate(
             f"{shape['vertices']} verts; {len(inputs)} input views x {len(spec.input_lights)} lights, "
             f"{len(targets)} target views x {len(spec.target_lights)} lights at {render.resolution} px, "
             f"{render.spp} spp"
+            + (f" + OpenImageDenoise (prefilter {render.denoise_prefilter})" if render.denoise else "")
         )
 
         raw = scratch / "raw.exr"

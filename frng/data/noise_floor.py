@@ -9,9 +9,10 @@ than the settings' (its noise is independent of theirs); row ``reference-half`` 
 where noise dominates, the reference's own MSE is a quarter of that row's (6 dB above it). Setting ``tier`` is the
 config's own ``render.*``: its images are the dataset's, bit for bit (tests/test_clean_targets.py).
 
-Setting specs ``SPP[+oidn][+noclamp|+clamp=D/I]``: SPP samples per pixel, raw (no denoising) and Blender's default
-clamps (direct 0, indirect 10) unless ``oidn`` (OpenImageDenoise with albedo + normal passes,
-:func:`frng.blender.scene.set_sampling`), ``noclamp`` (clamps 0 / 0) or ``clamp=D/I``; or ``tier``.
+Setting specs ``SPP[+oidn[=P]][+noclamp|+clamp=D/I]``: SPP samples per pixel, raw (no denoising) and Blender's
+default clamps (direct 0, indirect 10) unless ``oidn`` (OpenImageDenoise with albedo + normal passes,
+:func:`frng.blender.scene.set_sampling`; ``=P`` its prefilter of those passes, ``none`` (default), ``fast`` or
+``accurate``), ``noclamp`` (clamps 0 / 0) or ``clamp=D/I``; or ``tier``.
 
 Render times are wall-clock of :func:`frng.blender.scene.render_to`; each setting's first view per object and light
 re-syncs the scene (as curation's first render does), the others reuse it (``use_persistent_data``, as curation).
@@ -30,8 +31,9 @@ from frng.layout import EnvmapFolder
 BLENDER_CLAMPS = (0.0, 10.0)  # Cycles' default sample_clamp_direct / sample_clamp_indirect
 TIER = "tier"
 REFERENCE = "reference"
+PREFILTERS = ("none", "fast", "accurate")  # frng.blender.scene.DENOISE_PREFILTERS (that module needs bpy)
 HALF = "reference-half"  # the second reference render scored against the first
-_SPEC = re.compile(r"^(?P<spp>[0-9]+)(?P<rest>(\+[a-z]+(=[0-9.]+/[0-9.]+)?)*)$")
+_SPEC = re.compile(r"^(?P<spp>[0-9]+)(?P<rest>(\+[a-z]+(=[a-z0-9./]+)?)*)$")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,26 +45,34 @@ class Sampling:
     denoise: bool
     clamp_direct: float
     clamp_indirect: float
+    prefilter: str  # OIDN's prefilter of the albedo / normal passes (frng.blender.scene.DENOISE_PREFILTERS)
 
 
 def parse_setting(spec: str, render) -> Sampling:
     """``--settings`` spec -> :class:`Sampling`; ``render``: the config's render section (for ``tier``)."""
     if spec == TIER:
-        return Sampling(TIER, render.spp, render.denoise, render.clamp_direct, render.clamp_indirect)
+        return Sampling(
+            TIER, render.spp, render.denoise, render.clamp_direct, render.clamp_indirect, render.denoise_prefilter
+        )
     m = _SPEC.match(spec)
     if m is None or int(m["spp"]) < 1:
-        raise ValueError(f"--settings {spec!r}: expected 'tier' or SPP[+oidn][+noclamp|+clamp=D/I], e.g. 32+oidn")
-    denoise, (cd, ci) = False, BLENDER_CLAMPS
+        raise ValueError(f"--settings {spec!r}: expected 'tier' or SPP[+oidn[=P]][+noclamp|+clamp=D/I], e.g. 32+oidn")
+    denoise, prefilter, (cd, ci) = False, PREFILTERS[0], BLENDER_CLAMPS
     for token in filter(None, m["rest"].split("+")):
-        if token == "oidn":
-            denoise = True
+        if token == "oidn" or (token.startswith("oidn=") and token[len("oidn=") :] in PREFILTERS):
+            denoise, prefilter = True, token.partition("=")[2] or PREFILTERS[0]
         elif token == "noclamp":
             cd, ci = 0.0, 0.0
         elif token.startswith("clamp="):
-            cd, ci = (float(x) for x in token[len("clamp=") :].split("/"))
+            try:
+                cd, ci = (float(x) for x in token[len("clamp=") :].split("/"))
+            except ValueError:
+                raise ValueError(f"--settings {spec!r}: {token!r} is not clamp=DIRECT/INDIRECT (numbers)") from None
         else:
-            raise ValueError(f"--settings {spec!r}: unknown part {token!r} (oidn, noclamp, clamp=D/I)")
-    return Sampling(spec, int(m["spp"]), denoise, cd, ci)
+            raise ValueError(
+                f"--settings {spec!r}: unknown part {token!r} (oidn, oidn=none|fast|accurate, noclamp, clamp=D/I)"
+            )
+    return Sampling(spec, int(m["spp"]), denoise, cd, ci, prefilter)
 
 
 def renders_per_object(render) -> int:
@@ -110,7 +120,7 @@ def render_images(
     from frng.data.curate import object_scene
 
     folder = EnvmapFolder(Path(env_dir))
-    reference = Sampling(REFERENCE, reference_spp, False, 0.0, 0.0)
+    reference = Sampling(REFERENCE, reference_spp, False, 0.0, 0.0, PREFILTERS[0])
     plans = [reference, dataclasses.replace(reference, name=HALF)] + list(settings)
     seed_offset = {REFERENCE: 1, HALF: 2}
     raw = Path(out) / ".render" / "raw.exr"
@@ -128,7 +138,7 @@ def render_images(
                 raise FileNotFoundError(f"{path}: no such env map (--lights / --envmaps)")
             world.set_envmap(scene, path, sample_map_resolution=max(64, envmaps_width))
             for s in plans:
-                bscene.set_sampling(scene, s.spp, s.denoise, s.clamp_direct, s.clamp_indirect)
+                bscene.set_sampling(scene, s.spp, s.denoise, s.clamp_direct, s.clamp_indirect, s.prefilter)
                 scene.cycles.seed = (spec.seed + seed_offset.get(s.name, 0)) % (2**31 - 1)
                 for i, view in enumerate(views):
                     bscene.set_camera_pose(cam, view.c2w)
@@ -144,7 +154,7 @@ def render_images(
                         )
                     records.append(
                         dict(object=oid, material=spec.material, light=light, view=view.name, setting=s.name)
-                        | dict(spp=s.spp, denoise=s.denoise, clamp_direct=s.clamp_direct)
+                        | dict(spp=s.spp, denoise=s.denoise, prefilter=s.prefilter, clamp_direct=s.clamp_direct)
                         | dict(clamp_indirect=s.clamp_indirect, seconds=round(dt, 4), rgba=rgba)
                     )
                 log(

@@ -5,7 +5,7 @@ Renders target views of planned objects exactly as curation does (the object's o
 under the settings of ``--settings`` and scores each against a high-spp reference of the same view
 (``--reference-spp``: the mean of two raw unclamped renders with other seeds), aligned protocol by default. Setting
 ``tier`` is the config's ``render.*`` (the dataset's images): its row is the targets' noise floor. Specs
-``SPP[+oidn][+noclamp|+clamp=D/I]`` (:func:`frng.data.noise_floor.parse_setting`).
+``SPP[+oidn[=P]][+noclamp|+clamp=D/I]`` (:func:`frng.data.noise_floor.parse_setting`).
 
 Writes into ``--out``: ``renders.csv`` (one row per object, light, view and setting: metrics and render seconds),
 ``summary.md`` (per setting: mean / min PSNR, SSIM, LPIPS, seconds per view and per object at the config's
@@ -37,7 +37,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=int, help="Cycles threads (default: render.threads)")
     parser.add_argument("--reference-spp", type=int, default=1024, help="samples of the reference (raw, no clamps)")
     parser.add_argument(
-        "--settings", nargs="+", default=[N.TIER], help="tier | SPP[+oidn][+noclamp|+clamp=D/I] (module docstring)"
+        "--settings", nargs="+", default=[N.TIER], help="tier | SPP[+oidn[=P]][+noclamp|+clamp=D/I] (module docstring)"
     )
     parser.add_argument("--protocol", default="aligned", help="metric protocol (frng.metrics)")
     parser.add_argument("--envmaps", help="prepared env-map folder (default: {results}/envmaps)")
