@@ -3,7 +3,7 @@ Cycles' clamps buy (:mod:`frng.data.noise_floor`).
 
 Renders target views of planned objects exactly as curation does (the object's own target lights or ``--lights``)
 under the settings of ``--settings`` and scores each against a high-spp reference of the same view
-(``--reference-spp``: the mean of two raw unclamped renders with other seeds), aligned protocol by default. Setting
+(the mean of two raw unclamped renders of ``--reference-spp`` samples, default 512, with other seeds), aligned protocol by default. Setting
 ``tier`` is the config's ``render.*`` (the dataset's images): its row is the targets' noise floor. Specs
 ``SPP[+oidn[=P]][+noclamp|+clamp=D/I]`` (:func:`frng.data.noise_floor.parse_setting`).
 
@@ -35,7 +35,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--views", type=int, default=2, help="target views per object and light (the rig's first)")
     parser.add_argument("--resolution", type=int, help="image size in px (default: render.resolution)")
     parser.add_argument("--threads", type=int, help="Cycles threads (default: render.threads)")
-    parser.add_argument("--reference-spp", type=int, default=1024, help="samples of the reference (raw, no clamps)")
+    parser.add_argument(
+        "--reference-spp", type=int, default=512, help="samples of each of the reference's two renders (raw, no clamps)"
+    )
     parser.add_argument(
         "--settings", nargs="+", default=[N.TIER], help="tier | SPP[+oidn[=P]][+noclamp|+clamp=D/I] (module docstring)"
     )
