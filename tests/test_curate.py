@@ -140,8 +140,7 @@ def test_corrupt_envmap_fails_naming_file_and_leaves_nothing(curated, tmp_path):
         ("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 inf\nf 1 2 3\nf 1 2 4\n", "non-finite vertex coordinate"),  # inf
     ],
 )
-def test_bad_meshes_fail_naming_object_and_leave_nothing(tmp_path, curated, mesh_text, expect):
-    tmp, _, _ = curated
+def test_bad_meshes_fail_naming_object_and_leave_nothing(tmp_path, mesh_text, expect):
     mesh = tmp_path / "bad.obj"
     mesh.write_text(mesh_text)
     results = tmp_path / "results"
@@ -156,10 +155,38 @@ def test_bad_meshes_fail_naming_object_and_leave_nothing(tmp_path, curated, mesh
         },
         render={"resolution": 16, "spp": 1},
     )
-    shutil.copytree(tmp / "results" / "envmaps", results / "envmaps")
+    frng("envmaps", "--config", str(cfg))  # the object's own maps: one per object and light
     proc = frng("curate", "--config", str(cfg), "--object", "user_bad", check=False)
     assert proc.returncode != 0
     assert "user_bad" in proc.stderr and str(mesh) in proc.stderr and expect in proc.stderr, proc.stderr
+    assert not (results / "objects").exists() or not any((results / "objects").iterdir())
+
+
+def test_object_added_after_envmaps_fails_naming_its_map_and_the_fix(curated, tmp_path):
+    """An object added to the config after `frng envmaps` ran has no maps (one per object and light): curating it
+    fails in one line naming the missing map, the index and `frng envmaps`, and writes nothing."""
+    tmp, _, _ = curated
+    mesh = tmp_path / "mine.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    results = tmp_path / "results"
+    cfg = write_config(
+        tmp_path / "c.yaml",
+        results,
+        render={"resolution": RES},
+        objects={
+            "count": 2,
+            "test_count": 1,
+            "sources": ["primitives"],
+            "extra": [{"path": str(mesh), "split": "train"}],
+        },
+    )
+    shutil.copytree(tmp / "results" / "envmaps", results / "envmaps")  # made before the object was added
+    proc = frng("curate", "--config", str(cfg), "--object", "user_mine", check=False)
+    assert proc.returncode != 0
+    err = proc.stderr.strip()
+    assert len(err.splitlines()) == 1, err
+    assert "user_mine" in err and "-user_mine'" in err and str(results / "envmaps" / "index.json") in err, err
+    assert "frng envmaps" in err, err
     assert not (results / "objects").exists() or not any((results / "objects").iterdir())
 
 

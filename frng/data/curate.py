@@ -183,8 +183,8 @@ def check_envmaps(spec: catalog.ObjectSpec, env_dir: Path) -> dict[str, dict]:
     for light in dict.fromkeys(spec.input_lights + spec.target_lights):
         if light not in records:
             raise CurationError(
-                f"object {spec.id}: light {light!r} is not in {folder.index()}; "
-                "re-run `frng envmaps` with the same config"
+                f"object {spec.id}: light {light!r} is not in {folder.index()} (made for another object list or "
+                "light pool: there is a map per object and light); re-run `frng envmaps` with the same config"
             )
         try:
             envmap.read(folder.envmap(light))  # raises naming the file if missing/corrupt
