@@ -91,8 +91,9 @@ NOT_DIGESTED: dict[str, str] = {
 }
 """Config keys no rule's digest may hold, and why: every other schema key is declared by some rule."""
 
-RULES_WITHOUT_DIGEST = frozenset({"all", "config_digest"})
-"""Rules that run no stage (``config_digest`` records the others' digests in the results folder)."""
+RULES_WITHOUT_DIGEST = frozenset({"all", "config_digest", "curate_record"})
+"""Rules that run no stage (``config_digest`` records the others' digests in the results folder, ``curate_record``
+each object's plan entry and maps' records: frng.data.catalog.curate_record)."""
 
 
 def stage_declaration(path: str | os.PathLike) -> tuple[str, ...] | None:

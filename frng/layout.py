@@ -131,6 +131,12 @@ class Layout(_Folder):
         (:func:`frng.digests.rule_digest`); every job of the rule reads it, so the digest travels with the folder."""
         return self._p(".digests", f"{rule}-{digest}.txt")
 
+    def curate_record(self, obj: str = "{obj}", digest: str = "{digest}") -> str:
+        """``.digests/objects/{obj}-{digest}.json``: what object ``obj``'s curation renders -- its plan entry and
+        its maps' plan records (:func:`frng.data.catalog.curate_record`), ``digest`` their digest; its curation job
+        reads it, so a change of them (and only of them) reruns the job, wherever the folder goes."""
+        return self._p(".digests", "objects", f"{obj}-{digest}.json")
+
     def lock(self) -> str:
         """``.lock``: locked (fcntl) by the snakemake process running jobs on this folder."""
         return self._p(".lock")

@@ -14,7 +14,7 @@ BASELINE_VIEW_IDS = TEST_IDS if _BASELINES.get("image_based", True) and BASELINE
 
 rule curate_baselines:
     input:
-        unpack(lambda wildcards: frng_catalog.curate_inputs(config, CATALOG.object(wildcards.obj))),
+        unpack(curation_inputs("curate_baselines", L.baseline_views_meta)),  # (rules/curate.smk)
         meta=rules.curate.output.meta,
     output:
         meta=L.baseline_views_meta(),

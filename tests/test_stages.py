@@ -51,6 +51,8 @@ NO_STAGE = {
     "training_set_priors": "Snakemake bookkeeping: likewise, the index of the training split's IDM priors",
     "config_digest": "Snakemake bookkeeping: a `run:` block recording a rule's config digest in the results folder "
     "(frng.digests.write_rule_digest)",
+    "curate_record": "Snakemake bookkeeping: a `run:` block recording an object's plan entry and maps' records in "
+    "the results folder (frng.data.catalog.write_curate_record)",
 }
 # stage modules without a rule, and why
 STAGES_WITHOUT_RULE = {

@@ -103,6 +103,8 @@ EXPECTED = {
     "baseline_tables": lambda c: int(bool(baseline_objects(c))),
     # one digest file per rule with a config digest ({results}/.digests, rules/digests.smk), asked for by rule all
     "config_digest": lambda c: len(frng_digests.RULE_CONFIG_KEYS),
+    # one record file per object (its plan entry and maps' records, {results}/.digests/objects), asked for by rule all
+    "curate_record": n_objects,
 }
 
 

@@ -25,11 +25,13 @@ from frng.layout import Layout
 from frng.sections import config_section
 
 # The config keys this stage reads (frng.digests: its rule's digest): render.* (rig, Cycles, fur) and envmaps.width
-# (frng/data/curate.py); the object's own plan entry (its split, mesh, material, seed and lights) is the rule's
-# `spec` param, so adding an object reruns no other curation. objects.objaverse is read too, but only where the
+# (frng/data/curate.py), and envmaps.normalize (the maps' scale); the object's own plan entry (its split, mesh,
+# material, seed and lights) and its maps' plan records are its record file (rule curate_record, an input named by
+# their digest; the env-map index is an ancient input: rules/curate.smk), so adding an object reruns no other
+# curation. objects.objaverse is read too, but only where the
 # GLB cache is and whether to fetch a missing uid (cache, download): the mesh of a uid is the same file wherever
 # it is cached, and the uids, filter and material reach the spec
-CONFIG_READS = ("render", "!render.dense_views", "envmaps.width")
+CONFIG_READS = ("render", "!render.dense_views", "envmaps.width", "envmaps.normalize")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
