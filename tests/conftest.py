@@ -66,35 +66,28 @@ def copy_results(results: Path, dest: Path) -> Path:
 
 
 @pytest.fixture(scope="session")
-def smoke_dataset(tmp_path_factory):
-    """The smoke tier's curated dataset (env maps + every object), built once per test session with Blender.
+def smoke_dataset(smoke_pipeline, tmp_path_factory):
+    """The smoke tier's curated dataset (env maps + every object): the ``envmaps/`` and ``objects/`` of the session's
+    smoke run (:func:`smoke_pipeline`), so that a test session curates once.
 
-    Returns (config path, validated config) of a results folder holding ``envmaps/`` and ``objects/``. Consumers
-    that write outputs should use :func:`smoke_results` (their own results folder linking to this data)."""
-    pytest.importorskip("bpy")
-    import subprocess
-
+    Returns (config path, validated config) of config/smoke.yaml with ``results`` = that run's folder (read it, never
+    write there). Consumers that write outputs should use :func:`smoke_results` (their own results folder linking to
+    this data)."""
     import yaml
 
     from frng import config as frng_config
-    from frng.data import catalog
 
-    d = tmp_path_factory.mktemp("smoke_dataset")
     cfg = yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text())
-    cfg["results"] = str(d / "results")
-    path = d / "smoke.yaml"
+    cfg["results"] = str(smoke_pipeline)
+    path = tmp_path_factory.mktemp("smoke_dataset") / "smoke.yaml"
     path.write_text(yaml.safe_dump(cfg))
-    config = frng_config.load(path)
-    py = [sys.executable, "-m", "frng"]
-    subprocess.run(py + ["envmaps", "--config", str(path)], check=True, cwd=d, capture_output=True)
-    for oid in catalog.plan(config).object_ids:
-        subprocess.run(py + ["curate", "--config", str(path), "--object", oid], check=True, cwd=d, capture_output=True)
-    return path, config
+    return path, frng_config.load(path)
 
 
-def smoke_results(smoke_dataset, folder: Path, **overrides) -> tuple[Path, dict]:
-    """A fresh results folder whose ``envmaps``/``objects`` link to the shared smoke dataset (read-only use);
-    top-level config keys in ``overrides`` are merged (dicts one level deep). Returns (config path, config)."""
+def smoke_results(smoke_dataset, folder: Path, link=("envmaps", "objects"), **overrides) -> tuple[Path, dict]:
+    """A fresh results folder whose ``link`` subfolders (default ``envmaps``, ``objects``) link to those of the shared
+    smoke run (read-only use); top-level config keys in ``overrides`` are merged (dicts one level deep). Returns
+    (config path, config)."""
     import yaml
 
     from frng import config as frng_config
@@ -106,7 +99,7 @@ def smoke_results(smoke_dataset, folder: Path, **overrides) -> tuple[Path, dict]
         cfg[k] = {**cfg.get(k, {}), **v} if isinstance(v, dict) else v
     cfg["results"] = str(folder / "results")
     (folder / "results").mkdir(parents=True, exist_ok=True)
-    for sub in ("envmaps", "objects"):
+    for sub in link:
         (folder / "results" / sub).symlink_to(src / sub, target_is_directory=True)
     path = folder / "smoke.yaml"
     path.write_text(yaml.safe_dump(cfg))

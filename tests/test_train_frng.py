@@ -1,6 +1,6 @@
 """F-RNG training on the smoke tier (frng/model/train.py): frozen backbone gets no gradient, no-idm never reads priors,
-a short run lowers the relighting loss, kill + rerun resumes. Priors: a tiny backbone trained here + oracle IDM
-priors (G-buffers), on the session's shared smoke dataset (tests/conftest.py)."""
+a short run lowers the relighting loss, kill + rerun resumes. Priors: the session's smoke run's tiny backbone and
+its token caches + oracle IDM priors (G-buffers) made here, on that run's dataset (tests/conftest.py)."""
 
 import csv
 import os
@@ -20,33 +20,17 @@ from frng.typedconfig import typed
 
 @pytest.fixture(scope="module")
 def frng_smoke(smoke_dataset, tmp_path_factory):
+    """Own results folder on the session's smoke run: its data and its trained backbone with token caches (linked,
+    read-only), oracle IDM priors made here."""
     from frng.data import catalog
-    from frng.priors import backbone_train, cache
-    from frng.priors.dataset import load_split
+    from frng.priors import cache
 
     d = tmp_path_factory.mktemp("train_smoke")
-    path, config = smoke_results(smoke_dataset, d, idm={"kind": "oracle"})
+    path, config = smoke_results(smoke_dataset, d, link=("envmaps", "objects", "backbone"), idm={"kind": "oracle"})
     res = Path(config["results"])
     tc = typed(config)
-    model = backbone_train.train(
-        tc.backbone,
-        tc.model.patch_size,
-        tc.device,
-        tc.model_seed,
-        load_split(tc.results, catalog.plan(tc).split("train")),
-        res / "backbone",
-    )
-    envmaps = catalog.plan(tc).envmaps
     for oid in catalog.plan(tc).split("train"):
-        cache.make_backbone_cache(
-            tc.results,
-            tc.seed,
-            envmaps,
-            tc.backbone.cache_extra_lights,
-            oid,
-            model,
-            res / "backbone" / "cache" / f"{oid}.safetensors",
-        )
+        assert (res / "backbone" / "cache" / f"{oid}.safetensors").is_file(), oid
         cache.make_idm_priors(tc.idm, tc.backbone, tc.results, oid, res / "priors" / "idm" / f"{oid}.safetensors")
     return path, config
 
