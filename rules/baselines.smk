@@ -14,7 +14,7 @@ BASELINE_VIEW_IDS = TEST_IDS if _BASELINES.get("image_based", True) and BASELINE
 
 rule curate_baselines:
     input:
-        unpack(curation_inputs("curate_baselines", L.baseline_views_meta)),  # (rules/curate.smk)
+        unpack(curation_inputs("curate_baselines", L.baseline_views_meta)),  # (rules/common.smk)
         meta=rules.curate.output.meta,
     output:
         meta=L.baseline_views_meta(),

@@ -174,6 +174,44 @@ IDM_MODEL = [L.idm_model()] if config["idm"]["kind"] == "learned" else []  # the
 FRNG_VARIANTS = all_variants(config)  # every F-RNG variant the config asks for (frng/variants.py)
 
 
+def _up_to_date(output, inputs):
+    """Whether `output` exists and is at least as new as every existing file of `inputs` (missing ones are made by
+    jobs that run, and rerun it through them)."""
+    out = Path(output)
+    if not out.exists():
+        return False
+    t = out.stat().st_mtime
+    return all(not Path(f).exists() or Path(f).stat().st_mtime <= t for f in inputs)
+
+
+def curation_inputs(rule_name, output):
+    """Input function of rules curate and curate_baselines (`output`: the job's meta.json). The env-map index orders
+    the job after `frng envmaps`; where the job is otherwise up to date it is ancient, so its rewrite (whenever any
+    object's maps change, e.g. an object added) reruns nothing: what the object's own maps are is its record file
+    (rule curate_record) and the rule's digest (envmaps.width, envmaps.normalize), frng.data.catalog.curate_inputs.
+    Ancient only then: Snakemake 9.27 never plans a job that hangs below a rerunning job by ancient files alone,
+    whatever its own reason (a missing output, a newer input)."""
+
+    def inputs(wildcards):
+        spec = CATALOG.object(wildcards.obj)
+        got = frng_catalog.curate_inputs(config, spec)
+        own = [f for k, v in got.items() if k != "index" for f in ([v] if isinstance(v, str) else v)]
+        own.append(L.rule_digest(rule_name, frng_digests.rule_digest(config, rule_name)))
+        if rule_name == "curate_baselines":
+            own.append(L.object_meta(wildcards.obj))
+        if _up_to_date(output(wildcards.obj), own):
+            got["index"] = ancient(got["index"])
+        return got
+
+    return inputs
+
+
+def write_curate_record(obj, path, log):
+    """Rule curate_record's job: the object's record file (frng.data.catalog.write_curate_record) and its log line."""
+    frng_catalog.write_curate_record(CATALOG, CATALOG.object(obj), path)
+    Path(log).write_text(f"recorded {path}\n")
+
+
 _TARGETS = []
 
 

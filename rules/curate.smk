@@ -4,38 +4,6 @@ OBJECT_IDS = CATALOG.object_ids
 _RENDER = config["render"]
 
 
-def _up_to_date(output, inputs):
-    """Whether `output` exists and is at least as new as every existing file of `inputs` (missing ones are made by
-    jobs that run, and rerun it through them)."""
-    out = Path(output)
-    if not out.exists():
-        return False
-    t = out.stat().st_mtime
-    return all(not Path(f).exists() or Path(f).stat().st_mtime <= t for f in inputs)
-
-
-def curation_inputs(rule, output):
-    """Input function of rules curate and curate_baselines (`output`: the job's meta.json). The env-map index orders
-    the job after `frng envmaps`; where the job is otherwise up to date it is ancient, so its rewrite (whenever any
-    object's maps change, e.g. an object added) reruns nothing: what the object's own maps are is its record file
-    (rule curate_record) and the rule's digest (envmaps.width, envmaps.normalize), frng.data.catalog.curate_inputs.
-    Ancient only then: Snakemake 9.27 never plans a job that hangs below a rerunning job by ancient files alone,
-    whatever its own reason (a missing output, a newer input)."""
-
-    def inputs(wildcards):
-        spec = CATALOG.object(wildcards.obj)
-        got = frng_catalog.curate_inputs(config, spec)
-        own = [f for k, v in got.items() if k != "index" for f in ([v] if isinstance(v, str) else v)]
-        own.append(L.rule_digest(rule, frng_digests.rule_digest(config, rule)))
-        if rule == "curate_baselines":
-            own.append(L.object_meta(wildcards.obj))
-        if _up_to_date(output(wildcards.obj), own):
-            got["index"] = ancient(got["index"])
-        return got
-
-    return inputs
-
-
 # The object's plan entry and its maps' plan records, in a file named by their digest (as rule config_digest's):
 # a changed record names a missing file, made here, newer than the object's curation, which reruns; an unchanged
 # one reruns nothing, in a copied folder too (Snakemake's params trigger lives in .snakemake/metadata only).
@@ -51,8 +19,7 @@ rule curate_record:
     message:
         "Curation record of {wildcards.obj}: {wildcards.digest}"
     run:
-        frng_catalog.write_curate_record(CATALOG, CATALOG.object(wildcards.obj), output[0])
-        Path(log[0]).write_text(f"recorded {output[0]}\n")
+        write_curate_record(wildcards.obj, output[0], log[0])
 
 
 rule curate:
