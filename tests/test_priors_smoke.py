@@ -23,7 +23,10 @@ def smoke(smoke_dataset, tmp_path_factory):
     """Own results folder on the session's shared smoke dataset (tests/conftest.py)."""
     from conftest import smoke_results
 
-    return smoke_results(smoke_dataset, tmp_path_factory.mktemp("priors_smoke"))
+    # the learned IDM's training at a fifth of the tier's steps, a checkpoint every 10: the kill-and-resume test needs
+    # a checkpoint before the end, not the tier's 150 steps (the smoke run trains those)
+    idm_train = {"steps": 30, "checkpoint_every": 10, "bf16": False}
+    return smoke_results(smoke_dataset, tmp_path_factory.mktemp("priors_smoke"), idm={"train": idm_train})
 
 
 def _rows(p):
@@ -98,12 +101,13 @@ def test_backbone_resume_cache_and_stale(smoke):
         cache.load_backbone_cache(p, other)
 
 
-def test_priors_beat_trivial_baselines(smoke):
-    """Runs after the two tests above (same module): eval-backbone on the smoke test object."""
+def test_priors_beat_trivial_baselines(smoke_dataset):
+    """eval-backbone on the smoke test object, with the smoke run's backbone and learned IDM (trained at the tier's
+    steps; this module's own trainings are short resume checks)."""
     from frng.priors import build_idm, evaluate, load_backbone
     from frng.priors.dataset import load_split
 
-    _, config = smoke
+    _, config = smoke_dataset
     res = Path(config["results"])
     assert (res / "backbone" / "model.pt").exists() and (res / "idm" / "model.pt").exists()
     train_objs, test = (
