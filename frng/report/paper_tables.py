@@ -197,6 +197,29 @@ def views_rows(df: pd.DataFrame) -> pd.DataFrame:
 # -- tables --------------------------------------------------------------------------------------------------
 
 
+def _vs_backbone_rows(df: pd.DataFrame, frng: pd.DataFrame, bb: pd.DataFrame, pick, key: dict) -> list[dict]:
+    """The F-RNG and backbone rows of one group of a vs-backbone table: ``key`` (the group's column and value),
+    method, n and the mean metrics of ``pick(frng)`` / ``pick(bb)`` (seed means); F-RNG's row adds the paired
+    difference to the backbone (:func:`diff_to`) and the per-seed columns over the same ``pick`` of ``df``."""
+    rows = []
+    for method, sub in (("F-RNG", pick(frng)), (BACKBONE, pick(bb))):
+        if not len(sub):
+            continue
+        row = {
+            **key,
+            "method": METHOD_LABELS[method],
+            "n": len(sub),
+            "psnr": sub["psnr"].mean(),
+            "ssim": sub["ssim"].mean(),
+            "lpips": sub["lpips"].mean(),
+        }
+        if method == "F-RNG":
+            row |= diff_to([*seed_parts(df, "full", pick).values()], [*seed_parts(df, BACKBONE, pick).values()])
+            row |= seed_columns(df, "full", BACKBONE, pick)
+        rows.append(row)
+    return rows
+
+
 def vs_backbone_table(df: pd.DataFrame, timings: list[dict]) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Per dataset (then ``all``): F-RNG (``full``, averaged over its training seeds) and the backbone, with F-RNG's
     paired difference to the backbone and the seed columns."""
@@ -205,21 +228,7 @@ def vs_backbone_table(df: pd.DataFrame, timings: list[dict]) -> tuple[pd.DataFra
     datasets = sorted(set(frng["dataset"]) | set(bb["dataset"])) + ["all"]
     for ds in datasets:
         pick = (lambda d: d) if ds == "all" else (lambda d, ds=ds: d[d["dataset"] == ds])
-        for method, sub in (("F-RNG", pick(frng)), (BACKBONE, pick(bb))):
-            if not len(sub):
-                continue
-            row = {
-                "dataset": ds,
-                "method": METHOD_LABELS[method],
-                "n": len(sub),
-                "psnr": sub["psnr"].mean(),
-                "ssim": sub["ssim"].mean(),
-                "lpips": sub["lpips"].mean(),
-            }
-            if method == "F-RNG":
-                row |= diff_to([*seed_parts(df, "full", pick).values()], [*seed_parts(df, BACKBONE, pick).values()])
-                row |= seed_columns(df, "full", BACKBONE, pick)
-            rows.append(row)
+        rows += _vs_backbone_rows(df, frng, bb, pick, {"dataset": ds})
     out = pd.DataFrame(rows)
     ms = {
         METHOD_LABELS[m]: float(np.mean([t[m]["relight_ms_per_image"] for t in timings])) for m in ("F-RNG", BACKBONE)
@@ -466,21 +475,7 @@ def vs_backbone_by_light(df: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for fam in family_order(df):
         pick = lambda d, fam=fam: _of_family(d, fam)  # noqa: E731
-        for method, sub in (("F-RNG", pick(frng)), (BACKBONE, pick(bb))):
-            if not len(sub):
-                continue
-            row = {
-                LIGHT_FAMILY: fam,
-                "method": METHOD_LABELS[method],
-                "n": len(sub),
-                "psnr": sub["psnr"].mean(),
-                "ssim": sub["ssim"].mean(),
-                "lpips": sub["lpips"].mean(),
-            }
-            if method == "F-RNG":
-                row |= diff_to([*seed_parts(df, "full", pick).values()], [*seed_parts(df, BACKBONE, pick).values()])
-                row |= seed_columns(df, "full", BACKBONE, pick)
-            rows.append(row)
+        rows += _vs_backbone_rows(df, frng, bb, pick, {LIGHT_FAMILY: fam})
     return _ordered(pd.DataFrame(rows), "vs_backbone_by_light")
 
 
