@@ -1002,25 +1002,25 @@ class Catalog:
     objects: tuple[ObjectSpec, ...]
     bases: tuple[LightBase, ...] = ()  # the light pool's base maps (light_bases)
 
+    @functools.cached_property
+    def _objects_by_id(self) -> dict[str, ObjectSpec]:
+        return {o.id: o for o in self.objects}
+
+    @functools.cached_property
+    def _envmaps_by_name(self) -> dict[str, EnvMapSpec]:
+        return {e.name: e for e in self.envmaps}
+
     def object(self, oid: str) -> ObjectSpec:
-        by_id = self.__dict__.get("_by_id")
-        if by_id is None:
-            by_id = {o.id: o for o in self.objects}
-            object.__setattr__(self, "_by_id", by_id)
-        if oid in by_id:
-            return by_id[oid]
+        if oid in self._objects_by_id:
+            return self._objects_by_id[oid]
         raise CatalogError(
             f"unknown object id {oid!r}; the config plans {len(self.objects)} objects "
             f"({', '.join(o.id for o in self.objects[:5])}{' ...' if len(self.objects) > 5 else ''})"
         )
 
     def envmap(self, name: str) -> EnvMapSpec:
-        by_name = self.__dict__.get("_env_by_name")
-        if by_name is None:
-            by_name = {e.name: e for e in self.envmaps}
-            object.__setattr__(self, "_env_by_name", by_name)
-        if name in by_name:
-            return by_name[name]
+        if name in self._envmaps_by_name:
+            return self._envmaps_by_name[name]
         raise CatalogError(f"unknown environment map {name!r}")
 
     def light_families(self) -> dict[str, str]:
