@@ -212,6 +212,8 @@ def test_scorer_rows_sources_and_tables(tree, tmp_path):
     assert t.loc[t["run"] == "ext-densefiles", "fit_seconds"].tolist()[:2] == [1800.0, 1800.0]
 
     out = BT.write_tables(per_image, timing, R / "tables", "test", BG)
+    found = M.read_csv(out["baseline_findings"]["csv"])  # every Table 2-3 method against F-RNG, 3dgs/gsir vs F-RNG
+    assert list(found["vs"]) == ["F-RNG (6 views)"] * 6 and found["finding"].str.len().min() > 10
     dense = M.read_csv(out["vs_dense"]["csv"])
     all_rows = dense[dense["dataset"] == "all"].set_index("method")
     assert list(all_rows.index) == ["F-RNG (ours)", "GS-IR-style (per-scene)", "densefiles (per-scene, from files)"]
@@ -433,3 +435,40 @@ def test_export_image_inputs(tmp_path):
     assert cam["c2w_opencv"] == views[0]["c2w"] and np.asarray(cam["w2c_blender_3x4"]).shape == (3, 4)
     assert envmap.read(d / "envmaps_camera" / "l0.exr").shape == (16, 32, 3)
     assert io.read_png(d / "envmaps_camera" / "l0_ldr.png").shape[:2] == (256, 256)
+
+
+def test_findings_name_a_side_only_where_the_interval_excludes_zero():
+    """baseline_findings: a baseline 2 dB below F-RNG on every object is called so; one that is above on half the
+    objects and below on the others is not resolved; a per-scene method's fewest views against its own most."""
+    import pandas as pd
+
+    rows = []
+    rng = np.random.default_rng(0)
+
+    def add(task, run, method, family, views, offset, spread=0.0):
+        for k in range(6):
+            for v in ("t0", "t1"):
+                base = 20.0 + k + (v == "t1")
+                shift = offset + (spread if k % 2 else -spread)
+                rows.append(
+                    dict(task=task, run=run, method=method, family=family, views=views, source="trained here",
+                         object=f"o{k}", dataset="diffuse", light="l0", view=v, psnr=base + shift + rng.normal(0, 0.01),
+                         ssim=0.5, lpips=0.2 - 0.01 * shift)
+                )  # fmt: skip
+
+    add("relight", BT.FRNG, "F-RNG", "frng", 6, 0.0)
+    add("relight", "gsir-v24", "gsir", "dense", 24, -2.0)
+    add("relight", "idm-reshade", "idm-reshade", "image", 1, 0.0, spread=1.0)
+    add("nvs", BT.FRNG_NVS, "F-RNG", "frng", 6, 0.0)
+    add("nvs", "3dgs-v6", "3dgs", "dense", 6, -9.0)
+    add("nvs", "3dgs-v24", "3dgs", "dense", 24, -4.0)
+    f = BT.findings(pd.DataFrame(rows)).set_index(["what", "vs"])
+    gsir = f.loc[("GS-IR-style (24 views), relighting", "F-RNG (6 views)")]
+    assert gsir["dpsnr_hi"] < 0 and gsir["finding"].startswith("F-RNG (6 views) higher PSNR by 2.0")
+    assert "F-RNG (6 views) lower LPIPS" in gsir["finding"]
+    idm = f.loc[("IDM re-shading, relighting", "F-RNG (6 views)")]
+    assert idm["dpsnr_lo"] < 0 < idm["dpsnr_hi"] and idm["finding"].startswith("PSNR not resolved")
+    drop = f.loc[("3DGS (6 views), novel views under the input light", "3DGS (24 views)")]
+    assert drop["dpsnr"] == pytest.approx(-5.0, abs=0.05) and drop["finding"].startswith("3DGS (24 views) higher PSNR")
+    assert f.loc[("3DGS (6 views), novel views under the input light", "F-RNG (6 views)"), "n"] == 12
+    assert len(f) == 4

@@ -68,6 +68,7 @@ TABLE_TITLES: dict[str, str] = {
     "vs_dense": "Per-scene baselines on dense views (the paper's Table 2)",
     "vs_image_based": "Image-based relighting baselines (the paper's Table 3)",
     "views_nvs": "Novel views from fewer views",
+    "baseline_findings": "What the baseline tables show (paired differences, one verdict each)",
     "benchmarks": "Public benchmarks",
 }
 """Section titles, in page order; other tables follow in name order under their file name."""
@@ -75,6 +76,9 @@ TABLE_TITLES: dict[str, str] = {
 FIGURES: dict[str, str] = {
     "ablation.png": "Every test object under every ablation (ground truth first; PSNR per image)",
     "loss_curves.png": "Every training curve",
+    "baselines/vs_dense.png": "Table 2: ground truth, F-RNG from 6 views and the dense per-scene baselines, relit",
+    "baselines/vs_image_based.png": "Table 3: ground truth, F-RNG and the image-based baselines, relit",
+    "baselines/views_nvs.png": "Novel views: F-RNG from 6 views and the per-scene baselines at each view count",
 }
 """The run's figures (``{results}/figures/NAME``) the page shows, copied next to it; missing ones are skipped."""
 

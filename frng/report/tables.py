@@ -121,6 +121,7 @@ HEADERS: dict[str, str] = {
     "seed_spread_psnr": "seed spread PSNR",
     "seed_spread_dpsnr": "seed spread ΔPSNR",
     "vs": "Δ vs",
+    "finding": "Finding",
 }
 TEX_HEADERS: dict[str, str] = {  # LaTeX source, not escaped
     "dpsnr": "$\\Delta$PSNR [95\\% CI]",
