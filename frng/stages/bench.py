@@ -26,6 +26,10 @@ BENCHES: dict[str, tuple[str, str]] = {
         "frng.stages.bench_backbone",
         "held-out relighting quality and light sensitivity of trained backbones under inference settings (paired CIs)",
     ),
+    "train": (
+        "frng.stages.bench_train",
+        "seconds per training step of the backbone and F-RNG, per thread count, bf16 off/on",
+    ),
     "targets-noise": (
         "frng.stages.bench_targets_noise",
         "the curated images' noise floor against a high-spp render; denoising, spp and clamps (aligned metrics)",
