@@ -63,6 +63,7 @@ STAGES_WITHOUT_RULE = {
     "frng.stages.bench_cues": "`frng bench cues` (frng.stages.bench.BENCHES), run by hand",
     "frng.stages.bench_heldout": "`frng bench heldout` (frng.stages.bench.BENCHES), run by hand on a finished run",
     "frng.stages.bench_backbone": "`frng bench backbone` (frng.stages.bench.BENCHES), run by hand on a finished run",
+    "frng.stages.bench_train": "`frng bench train` (frng.stages.bench.BENCHES), run by hand on a finished run",
     "frng.stages.bench_targets_noise": "`frng bench targets-noise` (frng.stages.bench.BENCHES), run by hand (the "
     "curated images' noise floor; tests/test_clean_targets.py)",
     "frng.stages.export_benchmark": "writes curated objects in the public benchmarks' layouts, run by hand and by "

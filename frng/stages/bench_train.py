@@ -59,7 +59,7 @@ def _step_seconds(loss_csv: Path, skip: int) -> list[float]:
 def _measure(config, model: str, bf16: bool, args: argparse.Namespace, out: Path) -> list[float]:
     """Run ``model``'s trainer for ``skip + steps`` steps into ``out``; the timed steps' seconds."""
     from frng.data import catalog
-    from frng.layout import Layout
+    from frng.layout import Layout, TrainingFolder
 
     total = args.skip + args.steps + 1
     ids = catalog.plan(config).split("train")[: args.objects]
@@ -90,7 +90,7 @@ def _measure(config, model: str, bf16: bool, args: argparse.Namespace, out: Path
         tcfg = dataclasses.replace(config.train, bf16=bf16, checkpoint_every=total + 1)
         job = TrainRun(config.results, config.model_seed, config.device, config.idm.kind, tuple(ids))
         train(ModelSections.of(config), tcfg, job, args.variant, out, backbone, steps=total)
-    return _step_seconds(out / "loss.csv", args.skip)
+    return _step_seconds(Path(TrainingFolder(out).curve()), args.skip)
 
 
 def _child(args: argparse.Namespace) -> int:
