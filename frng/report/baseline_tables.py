@@ -43,7 +43,7 @@ import pandas as pd
 from frng import metrics as M
 from frng.baselines.plan import FRNG_NVS_RUN, FRNG_RUN
 from frng.report import tables as T
-from frng.report.paper_tables import IMAGE_KEYS, diff_to
+from frng.report.paper_tables import IMAGE_KEYS, diff_to, image_means
 
 FRNG, FRNG_NVS = FRNG_RUN, FRNG_NVS_RUN
 METHOD_LABELS = {
@@ -104,10 +104,7 @@ def _row(group: str, sub: pd.DataFrame, timing: pd.DataFrame, run: str) -> dict:
         "method": label(str(first["method"]), str(first["family"])),
         "source": first["source"],
         "views": views if pd.notna(views) else np.nan,
-        "n": len(sub),
-        "psnr": sub["psnr"].mean(),
-        "ssim": sub["ssim"].mean(),
-        "lpips": sub["lpips"].mean(),
+        **image_means(sub),
         **_times(timing, run, sub["object"].unique()),
     }
 

@@ -134,6 +134,17 @@ def seed_parts(df: pd.DataFrame, run: str, select=lambda d: d) -> dict[str, pd.D
     return {r: d for r, d in parts.items() if len(d)}
 
 
+def image_means(sub: pd.DataFrame) -> dict:
+    """``n`` (images) and the mean PSNR / SSIM / LPIPS of per-image rows (LPIPS NaN where the rows have none): the
+    metric cells every table row carries."""
+    return {
+        "n": len(sub),
+        "psnr": sub["psnr"].mean(),
+        "ssim": sub["ssim"].mean(),
+        "lpips": sub["lpips"].mean() if "lpips" in sub else np.nan,
+    }
+
+
 def diff_to(rows, ref) -> dict:
     """The paired-difference columns (:func:`frng.report.tables.diff_columns`) of ``rows`` minus ``ref``, matched
     on object, light and view (:func:`frng.report.stats.paired`). Either may be a list of per-seed frames
@@ -208,10 +219,7 @@ def _vs_backbone_rows(df: pd.DataFrame, frng: pd.DataFrame, bb: pd.DataFrame, pi
         row = {
             **key,
             "method": METHOD_LABELS[method],
-            "n": len(sub),
-            "psnr": sub["psnr"].mean(),
-            "ssim": sub["ssim"].mean(),
-            "lpips": sub["lpips"].mean(),
+            **image_means(sub),
         }
         if method == "F-RNG":
             row |= diff_to([*seed_parts(df, "full", pick).values()], [*seed_parts(df, BACKBONE, pick).values()])
@@ -247,10 +255,7 @@ def ablation_table(df: pd.DataFrame) -> pd.DataFrame:
         sub = sub[sub["views"] == RIG_VIEWS]
         row = {
             "variant": VARIANT_LABELS[v],
-            "n": len(sub),
-            "psnr": sub["psnr"].mean(),
-            "ssim": sub["ssim"].mean(),
-            "lpips": sub["lpips"].mean(),
+            **image_means(sub),
         }
         if v != "full":
             row |= diff_to([*seed_parts(df, v, _at_rig).values()], [*seed_parts(df, "full", _at_rig).values()])
@@ -276,10 +281,7 @@ def _sweep_table(rows: pd.DataFrame, key: str, ref_value, table: str, rename: st
     for value, sub in sorted(rows.groupby(key), key=lambda kv: kv[0]):
         row = {
             rename or key: value,
-            "n": len(sub),
-            "psnr": sub["psnr"].mean(),
-            "ssim": sub["ssim"].mean(),
-            "lpips": sub["lpips"].mean(),
+            **image_means(sub),
         }
         if value != ref_value and len(ref):
             row |= diff_to(sub, ref)
@@ -385,10 +387,7 @@ def ladder_table(df: pd.DataFrame, prior: pd.DataFrame, cross: pd.DataFrame | No
         row = {
             "step": step,
             "what": what,
-            "n": len(sub),
-            "psnr": sub["psnr"].mean(),
-            "ssim": sub["ssim"].mean(),
-            "lpips": sub["lpips"].mean() if "lpips" in sub else np.nan,
+            **image_means(sub),
             "scale_log2": M.scale_log2(sub),
             "brightness_log2": M.brightness_log2(sub),
         }
@@ -422,10 +421,7 @@ def lambertian_table(df: pd.DataFrame) -> pd.DataFrame:
             row = {
                 "dataset": ds,
                 "method": label,
-                "n": len(sub),
-                "psnr": sub["psnr"].mean(),
-                "ssim": sub["ssim"].mean(),
-                "lpips": sub["lpips"].mean(),
+                **image_means(sub),
                 "scale_log2": M.scale_log2(sub),
                 "brightness_log2": M.brightness_log2(sub),
             }
