@@ -174,3 +174,33 @@ def test_backbone_overfits_one_object(smoke):
         opt.step()
         l2.append(float(losses["l2"].detach()))
     assert l2[-1] < 0.5 * l2[0], l2[::10]
+
+
+
+def test_backbone_opacity_term_keeps_pixels_gaussians_as_opaque_as_their_pixels(smoke):
+    """``backbone.train.lambda_opacity``: the loss is the mean |opacity - input alpha| of the foreground pixels'
+    Gaussians, ~0 where the backbone starts (the prior's opacity is the alpha), added to the total with its weight,
+    and its gradient reaches the GeoDetokenizer (without it the wide light pool's backbone fell to opacity ~0.3)."""
+    import random
+
+    from frng.priors import backbone as bb
+    from frng.priors import backbone_train as bt
+    from frng.priors.dataset import load_split
+
+    _, config = smoke
+    obj = load_split(config["results"], plan(config).split("train"))[0]
+    torch.manual_seed(0)
+    model = bb.RelitLRMBackbone(bt.backbone_config(typed(config).backbone, config["model"]["patch_size"]))
+    base = {**config["backbone"]["train"], "bf16": False, "lambda_per": 0.0}
+
+    def losses(lam):
+        torch.manual_seed(1)
+        tcfg = bt.BackboneTrainConfig.from_dict({**base, "lambda_opacity": lam})
+        return bt.step_loss(model, obj, tcfg, 0, random.Random(1), torch.device("cpu"))
+
+    on, off = losses(2.0), losses(0.0)
+    assert "opacity" not in off and 0.0 <= float(on["opacity"]) < 0.05, float(on["opacity"])
+    assert torch.isclose(on["total"] - off["total"], 2.0 * on["opacity"], atol=1e-5)
+    model.zero_grad()
+    on["opacity"].backward()
+    assert float(model.geo_detokenizer.proj.bias.grad.abs().sum()) > 0

@@ -184,6 +184,9 @@ PRIOR_PIXEL_CHANNELS = ("albedo", "normal", "roughness", "metallic")
 PBR_INIT_ROUGHNESS_LOGIT, PBR_INIT_METALLIC_LOGIT = 2.0, -4.0  # pbr pixel head's start: roughness ~0.9, metallic ~0.02
 # Where things sit in :func:`pixel_map`'s channels (one place for the layout).
 PIXEL_RATIO = slice(4, 7)  # shading-normalised colour (gamma)
+# pixel_map trusts c / E(n) fully where E is at least this share of the view's bright irradiance (bright_irradiance),
+# and blends to the IDM's albedo below it (shadows of hard lights, where c / E is noise clamped at its bound)
+RATIO_TRUST = 0.1
 PIXEL_GEO_NORMAL = 10  # geometry normal, 3 channels
 PIXEL_IDM_NORMAL = 16  # the IDM's normal, 3 channels (with priors)
 
@@ -199,6 +202,18 @@ def pixel_normal_index(uses_priors: bool) -> int:
     return PIXEL_IDM_NORMAL if uses_priors else PIXEL_GEO_NORMAL
 
 
+def bright_irradiance(E: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
+    """Per view, the 90th percentile of the irradiance E (V, H, W, 3) over the view's foreground (alpha (V, H, W, 1)
+    > 0.5; the whole view where it has none): how much light the lit side receives, (V, 1, 1, 3)."""
+    V = E.shape[0]
+    fg = alpha[..., 0] > 0.5
+    out = []
+    for v in range(V):
+        e = E[v][fg[v]] if fg[v].any() else E[v].reshape(-1, 3)
+        out.append(torch.quantile(e.float(), 0.9, dim=0))
+    return torch.stack(out)[:, None, None, :].to(E.dtype)
+
+
 def pixel_map(images: torch.Tensor, priors, V: int, normals: torch.Tensor, input_env: torch.Tensor) -> torch.Tensor:
     """Per-pixel inputs of the pixel head.
 
@@ -206,7 +221,10 @@ def pixel_map(images: torch.Tensor, priors, V: int, normals: torch.Tensor, input
     None; normals (V, H, W, 3) world normals of the backbone's geometry (:func:`frng.priors.surfels.grid_normals`);
     input_env (He, We, 3) the input light's HDR map. Returns (V, H, W, C) = [unpremultiplied gamma-2.2 colour, alpha,
     shading-normalised colour (gamma of c * pi / E(n): an albedo estimate under a Lambertian assumption, clamped
-    to [0, 4]), input irradiance (gamma of E(n) / pi), the geometry normal, (IDM albedo, world normal, roughness,
+    to [0, 1]; with priors blended towards the IDM's albedo where E(n) is under :data:`RATIO_TRUST` of the view's
+    :func:`bright_irradiance`: in a hard light's shadow c / E is noise, and an albedo of 4 there, the old bound,
+    rendered those pixels several times too bright under any other light and drove the Lambertian base below 0
+    for the whole model), input irradiance (gamma of E(n) / pi), the geometry normal, (IDM albedo, world normal, roughness,
     metallic)], where E(n) is
     the input light's irradiance at the shading normal n (the IDM's normal with priors, else the geometry's;
     degree-2 SH, :func:`frng.envmap.sh_irradiance`). The input light is
@@ -219,7 +237,10 @@ def pixel_map(images: torch.Tensor, priors, V: int, normals: torch.Tensor, input
     shading_normals = d["normal"][:V] if d is not None else normals
     E = envmap.sh_irradiance(envmap.sh_project(input_env.float().cpu()).float(), shading_normals.float().cpu())
     E = E.to(images.device).clamp_min(0.0) / math.pi
-    ratio = (col / E.clamp_min(1e-3)).clamp(0, 4)
+    ratio = (col / E.clamp_min(1e-3)).clamp(0, 1)
+    if d is not None:  # where the input light barely reaches (hard lights' shadows) c / E is noise: the IDM's albedo
+        w = (E / (RATIO_TRUST * bright_irradiance(E, a)).clamp_min(1e-6)).clamp(0, 1)
+        ratio = w * ratio + (1 - w) * d["albedo"][:V].to(images.device).float().clamp(0, 1)
     parts = [col ** (1 / 2.2), a, ratio ** (1 / 2.2), E ** (1 / 2.2), normals.to(images.device).float()]
     if d is not None:
         parts += [d[k][:V].to(images.device).float() for k in PRIOR_PIXEL_CHANNELS]

@@ -1,0 +1,50 @@
+"""F-RNG's per-pixel inputs (frng.model.frng.pixel_map): the albedo estimate c / E(n) behind the Lambertian start."""
+
+import math
+
+import torch
+
+from frng import envmap
+from frng.model.frng import PIXEL_RATIO, RATIO_TRUST, pixel_map
+from frng.priors.intrinsics import IntrinsicPriors
+
+
+def _hard_light(h: int = 32) -> torch.Tensor:
+    """An equirect map dark everywhere but a small bright patch: a hard studio light."""
+    env = torch.full((h, 2 * h, 3), 1e-4)
+    env[h // 4 : h // 4 + 3, h // 2 : h // 2 + 3] = 200.0
+    return env
+
+
+def _priors(normals: torch.Tensor, albedo: float) -> IntrinsicPriors:
+    V, H, W, _ = normals.shape
+    z = torch.zeros(V, H, W, 1)
+    return IntrinsicPriors(normals, z + 2.0, torch.full((V, H, W, 3), albedo), z + 0.5, z, z + 1.0)
+
+
+def test_shadowed_pixels_take_the_idm_albedo_and_lit_ones_their_colour_over_the_irradiance():
+    env = _hard_light()
+    # one view, 2 x 2 pixels: two normals towards the light, two away from it
+    sh = envmap.sh_project(env).float()
+    dirs = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    E = envmap.sh_irradiance(sh, dirs)[:, 0]
+    lit, dark = dirs[E.argmax()], dirs[E.argmin()]
+    assert E.max() > 100 * E.min().clamp_min(1e-9)
+    normals = torch.stack([lit, lit, dark, dark]).reshape(1, 2, 2, 3)
+    colour = 0.05  # every pixel: the same dim colour (a shadow's colour is not an albedo)
+    images = torch.cat([torch.full((1, 2, 2, 3), colour), torch.ones(1, 2, 2, 1)], -1)
+    pm = pixel_map(images, _priors(normals, albedo=0.3), 1, normals, env)
+    ratio = pm[..., PIXEL_RATIO] ** 2.2
+    E_lit = float(envmap.sh_irradiance(sh, lit)[0]) / math.pi
+    assert torch.allclose(ratio[0, 0], torch.full((2, 3), min(colour / E_lit, 1.0)), atol=1e-3)
+    # the dark side: E far under RATIO_TRUST of the lit side's -> the IDM's albedo, not c / E clamped at its bound
+    assert float(envmap.sh_irradiance(sh, dark)[0]) / math.pi < RATIO_TRUST * E_lit
+    assert torch.allclose(ratio[0, 1], torch.full((2, 3), 0.3), atol=1e-3)
+
+
+def test_the_estimate_is_an_albedo_without_priors_too():
+    env = torch.full((16, 32, 3), 0.5)
+    normals = torch.tensor([0.0, 0.0, 1.0]).expand(1, 4, 4, 3).clone()
+    images = torch.cat([torch.full((1, 4, 4, 3), 0.9), torch.ones(1, 4, 4, 1)], -1)  # brighter than the light
+    pm = pixel_map(images, None, 1, normals, env)
+    assert float((pm[..., PIXEL_RATIO] ** 2.2).max()) <= 1.0 + 1e-5
