@@ -176,7 +176,6 @@ def test_backbone_overfits_one_object(smoke):
     assert l2[-1] < 0.5 * l2[0], l2[::10]
 
 
-
 def test_backbone_opacity_term_keeps_pixels_gaussians_as_opaque_as_their_pixels(smoke):
     """``backbone.train.lambda_opacity``: the loss is the mean |opacity - input alpha| of the foreground pixels'
     Gaussians, ~0 where the backbone starts (the prior's opacity is the alpha), added to the total with its weight,
