@@ -121,8 +121,10 @@ def _frng_bench(*args: str) -> subprocess.CompletedProcess:
 
 def _assert_pipeline_scores(mine: pd.DataFrame, results: Path, config: dict, run: str) -> None:
     """A benchmark's per-image rows ``mine`` equal the pipeline's rows of ``run`` (relight_per_image.csv) and its
-    ``psnr_other_light`` the cross-light CSV's, image by image: equal up to float rounding (the bench and the relight
-    jobs run in other processes and thread counts, which moves a PSNR in the 7th digit: 2e-7 dB measured)."""
+    ``psnr_other_light`` the cross-light CSV's, image by image: equal up to float rounding. The bench runs at the
+    relight jobs' one thread: at another thread count the sums round differently, which moved a PSNR in the 7th digit
+    (2e-7 dB) until, with the opaque backbone's smoke models (2026-11-29), two images moved by 0.02 dB at 2 threads
+    (presumably a rounding that flips a discrete choice: a salient patch, a Gaussian's cut-off; not isolated)."""
     pipeline = pd.read_csv(results / "metrics" / "relight_per_image.csv")
     m = mine.merge(pipeline[pipeline["run"] == run], on=["object", "light", "view"], suffixes=("", "_pipeline"))
     assert len(m) == len(mine) == (pipeline["run"] == run).sum() > 0
@@ -151,6 +153,8 @@ def test_bench_heldout_scores_equal_the_pipeline(smoke_run, tmp_path):
         f"again={model}",
         "--out",
         str(out),
+        "--threads",
+        "1",  # the relight jobs' thread count (rules/relight.smk): the same sums
     )
     assert "again - full: psnr +0.0000 [+0.0000, +0.0000]" in r.stdout, r.stdout
     assert "PSNR by target light" in r.stdout, r.stdout
