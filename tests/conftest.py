@@ -1,5 +1,7 @@
 import os
+import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -55,6 +57,55 @@ def smoke_pipeline(tmp_path_factory) -> Path:
     )
     assert r.returncode == 0, (r.stdout + r.stderr)[-4000:]
     return results
+
+
+@dataclass(frozen=True)
+class PaperDryRun:
+    """One ``snakemake -n --quiet rules`` of config/paper.yaml (see :func:`paper_dry_run`)."""
+
+    proc: subprocess.CompletedProcess
+    cpu_s: float  # the planning process's CPU seconds (wall time on a shared 2-core machine is noisy)
+    wall_s: float
+    recorded: Path  # the results folder's config.yaml, written before the dry run as ``frng config`` prints it
+    recorded_before: bytes
+
+    @property
+    def output(self) -> str:
+        return self.proc.stdout + self.proc.stderr
+
+
+@pytest.fixture(scope="session")
+def paper_dry_run(tmp_path_factory) -> PaperDryRun:
+    """The paper tier planned once per test session (~15 s): a config that is config/paper.yaml with ``results`` in a
+    temporary folder, whose ``config.yaml`` already records what ``frng config`` prints for it, dry-run from the
+    repository as ``make dry-run`` does. Its planning time, its job counts (tests/test_workflow_dag.py,
+    tests/test_workflow_dryrun.py) and its provenance check (tests/test_provenance.py) read this one run."""
+    import resource
+    import time
+
+    import yaml
+
+    folder = tmp_path_factory.mktemp("paper_dry_run")
+    results = folder / "results"
+    cfg = yaml.safe_load((ROOT / "config" / "paper.yaml").read_text())
+    cfg["results"] = str(results)
+    path = folder / "paper.yaml"
+    path.write_text(yaml.safe_dump(cfg, sort_keys=False))
+    printed = subprocess.run([venv_bin("frng"), "config", str(path)], capture_output=True, text=True, timeout=120)
+    assert printed.returncode == 0, printed.stdout + printed.stderr
+    results.mkdir()
+    recorded = results / "config.yaml"
+    recorded.write_text(yaml.safe_dump(yaml.safe_load(printed.stdout), sort_keys=False))
+    before = recorded.read_bytes()
+    cmd = [venv_bin("snakemake"), "--snakefile", str(ROOT / "workflow" / "Snakefile"), "--configfile", str(path)]
+    cmd += ["-n", "--quiet", "rules", "--cores", "1"]
+    usage = lambda: (lambda r: r.ru_utime + r.ru_stime)(resource.getrusage(resource.RUSAGE_CHILDREN))  # noqa: E731
+    t0, c0 = time.monotonic(), usage()
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300, env=env)
+    cpu, wall = usage() - c0, time.monotonic() - t0
+    print(f"\npaper dry-run: {cpu:.1f} s CPU, {wall:.1f} s wall")
+    return PaperDryRun(proc, cpu, wall, recorded, before)
 
 
 def copy_results(results: Path, dest: Path) -> Path:

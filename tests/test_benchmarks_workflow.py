@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import re
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -68,10 +67,11 @@ def test_bad_benchmark_entries_fail_before_any_job(exported, tmp_path):
     assert proc.returncode != 0 and "benchmarks" in proc.stdout + proc.stderr
 
 
-def test_smoke_tier_exported_imported_relit_scored(smoke_pipeline, tmp_path):
+def test_smoke_tier_exported_imported_relit_scored(smoke_pipeline, tmp_path, capsys):
     """Export the smoke tier's curated test object in every layout, then run the workflow's benchmark target on a
     copy of the session's smoke run (conftest.smoke_pipeline): import -> relight (the trained smoke models and the
     backbone) -> each benchmark's protocol; nothing the smoke run made is redone."""
+    from frng import cli
     from frng import config as frng_config
     from frng.data import catalog
 
@@ -80,29 +80,13 @@ def test_smoke_tier_exported_imported_relit_scored(smoke_pipeline, tmp_path):
     config = frng_config.load(cfg0)
     oid = catalog.plan(config).split("test")[0]
     paths = {}
-    for layout in LAYOUTS:
-        proc = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "frng",
-                "export",
-                "--config",
-                str(cfg0),
-                "--layout",
-                layout,
-                "--object",
-                oid,
-                "--out",
-                str(tmp_path / "export" / layout),
-            ],
-            cwd=ROOT,
-            capture_output=True,
-            text=True,
-            timeout=300,
+    for layout in LAYOUTS:  # `frng export` in this process (its command line; a subprocess each cost ~2 s CPU)
+        args = cli.stage_parser("export").parse_args(
+            ["--config", str(cfg0), "--layout", layout, "--object", oid, "--out", str(tmp_path / "export" / layout)]
         )
-        assert proc.returncode == 0, proc.stdout + proc.stderr
-        paths[layout] = proc.stdout.strip().splitlines()[-1]
+        capsys.readouterr()
+        assert cli.run_stage("export", args._run, args) == 0, capsys.readouterr()
+        paths[layout] = capsys.readouterr().out.strip().splitlines()[-1]
     cfg = _config(tmp_path, results, [{"layout": l, "path": p} for l, p in paths.items()])
     r = _snakemake(
         cfg,

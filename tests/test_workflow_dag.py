@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import re
 import subprocess
-import time
-from pathlib import Path
 
 import pytest
 from conftest import ROOT, venv_bin
@@ -108,36 +106,9 @@ EXPECTED = {
 }
 
 
-def _child_cpu() -> float:
-    import resource
-
-    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return ru.ru_utime + ru.ru_stime
-
-
-def _plan(configfile: Path, results: Path) -> tuple[dict[str, int], float, str]:
-    cmd = [
-        SNAKEMAKE,
-        "--snakefile",
-        str(ROOT / "workflow" / "Snakefile"),
-        "--configfile",
-        str(configfile),
-        "--config",
-        f"results={results}",
-        "-n",
-        "-q",
-        "rules",
-        "--cores",
-        "1",
-    ]
-    t0, c0 = time.monotonic(), _child_cpu()
-    r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
-    wall, cpu = time.monotonic() - t0, _child_cpu() - c0
-    # the limit is on CPU time: CI machines are shared (2 cores), so wall time measures the neighbours too
-    elapsed = cpu
-    print(f"snakemake -n: {wall:.1f} s wall, {cpu:.1f} s CPU")
-    out = r.stdout + r.stderr
-    assert r.returncode == 0, out[-3000:]
+def _job_counts(out: str) -> dict[str, int]:
+    """Jobs per rule family (batched rules such as backbone_cache_train0 counted under theirs) from the job-count
+    table of ``snakemake -n --quiet rules``."""
     counts = {}
     table = out.split("job count", 1)[-1] if "job count" in out else out
     for line in table.splitlines():
@@ -145,18 +116,19 @@ def _plan(configfile: Path, results: Path) -> tuple[dict[str, int], float, str]:
         if m and m.group(1) != "total":
             counts[m.group(1)] = int(m.group(2))
     assert counts, f"no job-count table in:\n{out[-3000:]}"
-    families = {}  # batched rules (backbone_cache_train0, ...) counted under their family
+    families = {}
     for rule, n in counts.items():
         families[rule_family(rule)] = families.get(rule_family(rule), 0) + n
-    return families, elapsed, out
+    return families
 
 
 @pytest.fixture(scope="module")
-def paper_plan(tmp_path_factory):
-    config = frng_config.load(PAPER)
-    counts, elapsed, out = _plan(PAPER, tmp_path_factory.mktemp("paper") / "results")
-    print(f"\npaper DAG planned in {elapsed:.1f} s CPU; jobs per rule: {counts}")
-    return config, counts, elapsed
+def paper_plan(paper_dry_run):
+    """(config, jobs per rule family, planning CPU seconds) of the session's paper dry run (conftest.py)."""
+    assert paper_dry_run.proc.returncode == 0, paper_dry_run.output[-3000:]
+    counts = _job_counts(paper_dry_run.output)
+    print(f"\npaper DAG planned in {paper_dry_run.cpu_s:.1f} s CPU; jobs per rule: {counts}")
+    return frng_config.load(PAPER), counts, paper_dry_run.cpu_s
 
 
 def test_paper_dag_plans_fast(paper_plan):

@@ -2,9 +2,7 @@
 plan keeps test lights out of training."""
 
 import re
-import resource
 import subprocess
-import time
 
 import pytest
 from conftest import ROOT, venv_bin
@@ -36,24 +34,16 @@ def job_counts(text):
     return {m.group(1): int(m.group(2)) for m in re.finditer(r"^(\w+)\s+(\d+)$", text, re.M)}
 
 
-def _child_cpu() -> float:
-    r = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return r.ru_utime + r.ru_stime
-
-
-def test_paper_dry_run_plans_in_seconds(tmp_path):
+def test_paper_dry_run_plans_in_seconds(paper_dry_run):
     """CPU seconds of the planning process (wall time on the shared 2-core machine is noisy; it is printed). The
     baselines' jobs (rules/baselines.smk, 527 of the paper DAG's 1767) took it from 16.2 to 18.6 s user time on the
-    project's machine (20.2 s CPU within the test suite), hence 24 s."""
-    t0, c0 = time.perf_counter(), _child_cpu()
-    proc = dry_run("config/paper.yaml", tmp_path / "results")
-    dt, cpu = time.perf_counter() - t0, _child_cpu() - c0
-    print(f"paper dry-run: {cpu:.1f} s CPU, {dt:.1f} s wall")
+    project's machine (20.2 s CPU within the test suite), hence 24 s. The session's one paper dry run (conftest.py)."""
+    proc, cpu = paper_dry_run.proc, paper_dry_run.cpu_s
     assert proc.returncode == 0, proc.stderr[-3000:]
-    counts = job_counts(proc.stdout + proc.stderr)
+    counts = job_counts(paper_dry_run.output)
     libero = frng_config.load(ROOT / "config/paper.yaml")["objects"]["libero"]["count"]
     assert counts["curate"] == 1000 + libero and counts["envmaps"] == 1  # generated objects + the real ones
-    assert cpu < 24.0, f"paper dry-run took {cpu:.1f} s CPU ({dt:.1f} s wall)"
+    assert cpu < 24.0, f"paper dry-run took {cpu:.1f} s CPU ({paper_dry_run.wall_s:.1f} s wall)"
 
 
 def test_smoke_dry_run_lists_dataset_jobs(tmp_path):
