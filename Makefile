@@ -5,6 +5,9 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+# The rasterizer's fused C++ CPU kernels (frng/render/native.py), compiled here once rather than in the middle of a
+# run; when they cannot build, the line says why and the PyTorch rasterizer is used (nothing else fails).
+NATIVE := build/native/.stamp
 CONFIG ?= config/config.yaml
 CORES ?= 2
 SNAKEMAKE := $(VENV)/bin/snakemake --snakefile workflow/Snakefile --profile profiles/local
@@ -14,7 +17,7 @@ CHECK = $(PY) -m frng config --check
 
 .PHONY: reproduce seeds test setup smoke dry-run lint format bench clean-results
 
-setup: $(STAMP)
+setup: $(STAMP) $(NATIVE)
 
 $(STAMP): requirements.lock requirements.txt pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -25,19 +28,23 @@ $(STAMP): requirements.lock requirements.txt pyproject.toml
 	$(PY) -m pip install -q --no-deps --no-build-isolation -e .
 	touch $(STAMP)
 
+$(NATIVE): $(STAMP) frng/render/csrc/composite.cpp frng/render/native.py
+	$(PY) -m frng.render.native --build || true
+	@mkdir -p $(@D) && touch $@
+
 # seeds: `make reproduce` plus training seed 1 of the full model and the ablations (config/seeds.yaml merged over
 # $(CONFIG), same results folder: what reproduce made is reused, its recorded config replaced) and tables over both
 # seeds; a later `make reproduce` asks for overwrite_config=true to go back to one seed
 seeds: OVERLAY = config/seeds.yaml
 seeds: REPLACE = --config overwrite_config=true
-reproduce seeds: $(STAMP)
+reproduce seeds: $(STAMP) $(NATIVE)
 	@$(CHECK) $(CONFIG) $(OVERLAY)
 	$(SNAKEMAKE) --configfile $(CONFIG) $(OVERLAY) --cores $(CORES) $(REPLACE)
 
-test: $(STAMP)
+test: $(STAMP) $(NATIVE)
 	$(PY) -m pytest -q --durations=15 tests  # the 15 slowest tests, for keeping CI well under 30 min
 
-smoke: $(STAMP)
+smoke: $(STAMP) $(NATIVE)
 	@$(CHECK) config/smoke.yaml
 	$(SNAKEMAKE) --configfile config/smoke.yaml --cores $(CORES)
 
@@ -61,5 +68,5 @@ format: $(STAMP)
 	$(VENV)/bin/ruff format $(LINT_PY)
 	$(VENV)/bin/snakefmt $(LINT_SMK)
 
-bench: $(STAMP)
+bench: $(STAMP) $(NATIVE)
 	$(VENV)/bin/frng bench render

@@ -277,7 +277,7 @@ def render(
     quats, scales, op = gs["quats"], gs.scales, gs.opacities
     kw = raster.kwargs()
     backend = resolve_backend(kw.pop("backend"), gs.means.device)
-    if backend != "torch":
+    if backend not in ("torch", "native"):
         out = rasterize(gs.means, quats, scales, op, features, c2w, intr, height, width, backend=backend, **kw)
         if not track:
             return (*out, None)
@@ -312,6 +312,7 @@ def render(
         chunk=kw["chunk"],
         min_transmittance=kw["min_transmittance"],
         compile=kw["compile"],
+        kernel=backend,
     )
     screen = None
     if track:

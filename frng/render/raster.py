@@ -12,7 +12,7 @@ from frng.render.reference import rasterize_reference
 from frng.render.tiles import rasterize_tiles
 from frng.sections import register
 
-BACKENDS = ("auto", "torch", "gsplat", "reference")
+BACKENDS = ("auto", "torch", "native", "gsplat", "reference")
 
 
 @register("raster")
@@ -35,13 +35,22 @@ class RasterConfig:
 
 
 def resolve_backend(backend: str, device: torch.device) -> str:
-    """``auto`` -> ``gsplat`` on CUDA with gsplat installed, else ``torch``."""
+    """``auto`` -> ``gsplat`` on CUDA with gsplat installed, else ``native`` on CPU when the C++ kernels build
+    (:func:`frng.render.native.available`), else ``torch``."""
+    from frng.render import native  # not at import: `python -m frng.render.native` runs it as __main__
+
     if backend not in BACKENDS:
         raise ValueError(f"unknown raster backend {backend!r}; choose from {', '.join(BACKENDS)}")
     if backend == "auto":
-        return "gsplat" if device.type == "cuda" and gsplat_backend.available() else "torch"
+        if device.type == "cuda" and gsplat_backend.available():
+            return "gsplat"
+        return "native" if device.type == "cpu" and native.available() else "torch"
     if backend == "gsplat" and not gsplat_backend.available():
         raise RuntimeError("raster backend 'gsplat' needs CUDA and the gsplat package; use 'torch' or 'auto'")
+    if backend == "native" and (device.type != "cpu" or not native.available()):
+        raise RuntimeError(
+            "raster backend 'native' needs CPU tensors and the C++ kernels (see the warning); use 'torch' or 'auto'"
+        )
     return backend
 
 
@@ -78,11 +87,14 @@ def rasterize(
         c2w: (V, 4, 4) OpenCV camera-to-world matrices (``frng.camera``).
         intrinsics: (V, 4) pinhole ``fx, fy, cx, cy`` in pixels.
         height, width: image size in pixels.
-        backend: ``auto`` (gsplat on CUDA when installed, else ``torch``), ``torch`` (tile-binned, pure
-            PyTorch, any device), ``gsplat`` (CUDA), ``reference`` (brute force, tests only).
-        tile_size, chunk, compile, min_transmittance: ``torch`` backend only: tile edge in pixels, Gaussians
-            per depth chunk, ``torch.compile`` the compositing kernel, early-termination threshold (a tile stops
-            once all its pixels' transmittance is below it; 0 disables early termination).
+        backend: ``auto`` (gsplat on CUDA when installed, else ``native`` on CPU when it builds, else
+            ``torch``), ``torch`` (tile-binned, pure PyTorch, any device), ``native`` (the same tile rasterizer
+            with its binning and compositing in fused C++ CPU kernels, :mod:`frng.render.native`), ``gsplat``
+            (CUDA), ``reference`` (brute force, tests only).
+        tile_size, chunk, compile, min_transmittance: ``torch`` and ``native`` backends only: tile edge in pixels;
+            ``torch`` only: Gaussians per depth chunk, ``torch.compile`` the compositing kernel; early-termination
+            threshold (``torch``: a tile stops once all its pixels' transmittance is below it; ``native``: each
+            pixel stops once its own is; 0 disables early termination).
         max_radius_px: footprints whose 3-sigma radius exceeds this are shrunk to it (None: no cap).
         eps2d: screen-space low-pass added to the 2D covariance diagonal (px^2), as 3DGS/gsplat.
         near, far: camera-z clipping; Gaussians outside are dropped (no NaN for points behind the camera).
@@ -130,4 +142,5 @@ def rasterize(
         chunk=chunk,
         min_transmittance=min_transmittance,
         compile=compile,
+        kernel=name,
     )

@@ -200,12 +200,14 @@ def composite_tiles(params, f_inst, table, counts, pix, origin, chunk=32, min_tr
     return _CompositeTiles.apply(params, f_inst, table, counts, pix, origin, chunk, min_transmittance, compile_)
 
 
-def bin_pairs(proj: Projected, height: int, width: int, tile: int):
+def bin_pairs(proj: Projected, height: int, width: int, tile: int, kernel: str = "torch"):
     """Instances and their (tile, depth)-sorted pairs.
 
     Returns ``inst`` (M,) flat (view * N + n) indices of valid instances in depth order, ``table``
     (T, K_max) long instance positions (into ``inst``; M = padding), ``counts`` (T,) pairs per tile, and the
-    tile grid (TY, TX).
+    tile grid (TY, TX). ``kernel="native"`` (CPU) builds the table by a counting sort in C++
+    (:func:`frng.render.native.bin_tiles`) and returns its rows concatenated, (sum(counts),) long (the same rows,
+    bit for bit, without the padding, which :func:`frng.render.native.composite_tiles` reads).
     """
     V, N = proj.depth.shape
     TY, TX = -(-height // tile), -(-width // tile)
@@ -215,6 +217,11 @@ def bin_pairs(proj: Projected, height: int, width: int, tile: int):
         inst = valid.nonzero().squeeze(1)
         depth = proj.depth.reshape(-1)[inst]
         inst = inst[torch.argsort(depth, stable=True)]
+        if kernel == "native":
+            from frng.render import native
+
+            table, counts = native.bin_tiles(proj.mean2d, proj.extent, inst, TY, TX, tile)
+            return inst, table, counts, (TY, TX)
         M = inst.numel()
         m = proj.mean2d.detach().reshape(-1, 2)[inst]
         ext = proj.extent.reshape(-1, 2)[inst]
@@ -254,13 +261,19 @@ def rasterize_tiles(
     chunk: int = 64,
     min_transmittance: float = 1e-4,
     compile: bool = False,
+    kernel: str = "torch",
 ):
     """Tile-binned compositing of projected Gaussians. Shapes as in :func:`frng.render.rasterize`;
-    ``features`` is (N, C) or (V, N, C)."""
+    ``features`` is (N, C) or (V, N, C). ``kernel``: ``torch`` (:func:`composite_tiles`, any device) or
+    ``native`` (CPU: the fused C++ compositing kernel :func:`frng.render.native.composite_tiles` and the C++
+    table build of :func:`bin_pairs`; ``chunk`` and ``compile`` do not apply). Projection, the depth sort,
+    packing and untiling are shared."""
+    if kernel not in ("torch", "native"):
+        raise ValueError(f"unknown tile kernel {kernel!r}; choose torch or native")
     V, N = proj.depth.shape
     C = features.shape[-1]
     dev, dtype = features.device, features.dtype
-    inst, table, counts, (TY, TX) = bin_pairs(proj, height, width, tile)
+    inst, table, counts, (TY, TX) = bin_pairs(proj, height, width, tile, kernel)
     n_tiles = V * TY * TX
 
     # per-instance parameters packed into (M + 1, 6) and features with depth appended into (M + 1, C + 1);
@@ -284,7 +297,12 @@ def rasterize_tiles(
         origin[:, 0] = (t_all % TX).to(dtype) * tile
         origin[:, 1] = (torch.div(t_all, TX, rounding_mode="floor") % TY).to(dtype) * tile
 
-    feat_t, T_t = composite_tiles(params, f_inst, table, counts, pix, origin, chunk, min_transmittance, compile)
+    if kernel == "native":
+        from frng.render import native
+
+        feat_t, T_t = native.composite_tiles(params, f_inst, table, counts, pix, origin, min_transmittance)
+    else:
+        feat_t, T_t = composite_tiles(params, f_inst, table, counts, pix, origin, chunk, min_transmittance, compile)
 
     def untile(x):  # (n_tiles, P, D) -> (V, H, W, D)
         D = x.shape[-1]
