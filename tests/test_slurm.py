@@ -28,7 +28,7 @@ from slurm_cluster import Cluster, Unavailable, ensure_installed
 
 ROOT = Path(__file__).resolve().parent.parent
 SNAKEMAKE = str(Path(sys.executable).parent / "snakemake")
-# the cluster runs: Snakemake with the slurm plugin's status polls at most 3 s apart (the launcher's docstring)
+# the cluster runs: Snakemake with the slurm plugin's status polls at most 1 s apart (the launcher's docstring)
 SNAKEMAKE_CLUSTER = [sys.executable, str(ROOT / "tests" / "slurm_toy" / "snakemake_fast_poll.py")]
 PROFILE = str(ROOT / "profiles" / "slurm-ci")
 TOY = str(ROOT / "tests" / "slurm_toy" / "Snakefile")

@@ -13,7 +13,7 @@ import sys
 import snakemake_executor_plugin_slurm as slurm
 from snakemake.cli import main
 
-POLL_CAP_S = 3.0
+POLL_CAP_S = 1.0
 
 _interval = slurm.Executor.next_seconds_between_status_checks  # the base class's property
 slurm.Executor.next_seconds_between_status_checks = property(
