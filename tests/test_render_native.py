@@ -132,23 +132,6 @@ def test_native_composite_takes_padded_or_concatenated_rows():
         assert torch.equal(x, y)
 
 
-def test_gradcheck_native():
-    H, W = 8, 8
-    c2w, K = _cams([0], H, W, dist=2.0)
-    g = torch.Generator().manual_seed(5)
-    N = 3
-    means = ((torch.rand(N, 3, generator=g, dtype=DT) - 0.5) * 0.4).requires_grad_()
-    quats = torch.randn(N, 4, generator=g, dtype=DT).requires_grad_()
-    scales = (torch.rand(N, 3, generator=g, dtype=DT) * 0.05 + 0.08).requires_grad_()
-    op = (torch.rand(N, generator=g, dtype=DT) * 0.5 + 0.3).requires_grad_()
-    f = torch.randn(N, 2, generator=g, dtype=DT).requires_grad_()
-
-    def fn(*p):
-        return rasterize(*p, c2w, K, H, W, backend="native", tile_size=4, min_transmittance=0.0)
-
-    assert torch.autograd.gradcheck(fn, (means, quats, scales, op, f), eps=1e-6, atol=1e-5, rtol=1e-4)
-
-
 def test_native_is_deterministic_at_two_threads():
     H, W = 32, 32
     c2w, K = _cams([0, 90, 180], H, W)

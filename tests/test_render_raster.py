@@ -77,7 +77,13 @@ def test_early_termination_error_is_bounded_and_float32_matches():
     assert (fast[1].double() - ref[1]).abs().max() < 2e-4
 
 
-def test_gradcheck_tile_backend():
+@pytest.mark.parametrize("backend", ["torch", "native"])
+def test_gradcheck_tile_backend(backend):
+    from frng.render import native
+
+    if backend == "native" and not native.available():
+        pytest.skip(f"the C++ rasterizer kernels did not build: {native.reason()}")
+    chunk = {"chunk": 2} if backend == "torch" else {}  # torch: several depth chunks per tile
     H, W = 8, 8
     c2w, K = _cams([0], H, W, dist=2.0)
     g = torch.Generator().manual_seed(5)
@@ -89,7 +95,7 @@ def test_gradcheck_tile_backend():
     f = torch.randn(N, 2, generator=g, dtype=DT).requires_grad_()
 
     def fn(*p):
-        return rasterize(*p, c2w, K, H, W, backend="torch", tile_size=4, chunk=2, min_transmittance=0.0)
+        return rasterize(*p, c2w, K, H, W, backend=backend, tile_size=4, min_transmittance=0.0, **chunk)
 
     assert torch.autograd.gradcheck(fn, (means, quats, scales, op, f), eps=1e-6, atol=1e-5, rtol=1e-4)
 
