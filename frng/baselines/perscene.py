@@ -38,7 +38,7 @@ import torch.nn.functional as F
 
 from frng.render.project import project_gaussians
 from frng.render.raster import RasterConfig, rasterize, resolve_backend
-from frng.render.tiles import rasterize_tiles
+from frng.render.tiles import TILE_KERNELS, rasterize_tiles
 
 LAMBDA_DSSIM = 0.2  # 3DGS's lambda_dssim
 SSIM_WINDOW, SSIM_SIGMA = 11, 1.5  # 3DGS utils/loss_utils.py
@@ -277,7 +277,7 @@ def render(
     quats, scales, op = gs["quats"], gs.scales, gs.opacities
     kw = raster.kwargs()
     backend = resolve_backend(kw.pop("backend"), gs.means.device)
-    if backend not in ("torch", "native"):
+    if backend not in TILE_KERNELS:
         out = rasterize(gs.means, quats, scales, op, features, c2w, intr, height, width, backend=backend, **kw)
         if not track:
             return (*out, None)

@@ -26,6 +26,8 @@ import torch
 from frng.render.project import ALPHA_MAX, ALPHA_MIN, SIGMA_CUTOFF, Projected
 
 _compiled: dict = {}
+# the raster backends this module composites: the PyTorch kernels and the C++ ones (frng.render.native)
+TILE_KERNELS = ("torch", "native")
 
 
 def _monomials(pix: torch.Tensor) -> torch.Tensor:
@@ -268,8 +270,8 @@ def rasterize_tiles(
     ``native`` (CPU: the fused C++ compositing kernel :func:`frng.render.native.composite_tiles` and the C++
     table build of :func:`bin_pairs`; ``chunk`` and ``compile`` do not apply). Projection, the depth sort,
     packing and untiling are shared."""
-    if kernel not in ("torch", "native"):
-        raise ValueError(f"unknown tile kernel {kernel!r}; choose torch or native")
+    if kernel not in TILE_KERNELS:
+        raise ValueError(f"unknown tile kernel {kernel!r}; choose from {', '.join(TILE_KERNELS)}")
     V, N = proj.depth.shape
     C = features.shape[-1]
     dev, dtype = features.device, features.dtype
