@@ -89,10 +89,10 @@ def synchronize(device: torch.device) -> None:
         torch.cuda.synchronize(device)
 
 
-def median_time(fn, device: torch.device, repeats: int):
-    """(median seconds of ``fn()`` over ``repeats`` runs after one warm-up, synchronised on ``device``; the last
-    run's result)."""
-    out = fn()
+def median_time(fn, device: torch.device, repeats: int, warmup: bool = True):
+    """(median seconds of ``fn()`` over ``repeats`` runs after one warm-up (none with ``warmup=False``: the caller
+    warmed the code path up some cheaper way), synchronised on ``device``; the last run's result)."""
+    out = fn() if warmup else None
     ts = []
     for _ in range(repeats):
         synchronize(device)

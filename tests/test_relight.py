@@ -124,7 +124,8 @@ def test_cli_reports_bad_input(private_object):
 
 
 def test_bench_relight_reports_both_methods():
-    """`frng bench relight` at smoke sizes: one JSON line with both methods' costs (values, not timings, checked)."""
+    """`frng bench relight` at smoke sizes and two resolutions: one JSON line each with both methods' costs and the
+    shading's roofline (values, not timings, checked)."""
     import json
 
     r = subprocess.run(
@@ -138,7 +139,8 @@ def test_bench_relight_reports_both_methods():
             str(ROOT / "config" / "smoke.yaml"),
             "--resolution",
             "32",
-            "--repeats",
+            "48",
+            "--passes",
             "1",
             "--lights",
             "2",
@@ -152,19 +154,36 @@ def test_bench_relight_reports_both_methods():
         cwd=ROOT,
     )
     assert r.returncode == 0, r.stdout + r.stderr
-    row = json.loads(r.stdout.strip().splitlines()[-1])
-    for key in (
-        "reconstruction_s",
-        "frng_ms_per_image",
-        "frng_ms_per_image_amortised",
-        "backbone_ms_per_image",
-        "speedup",
-        "gaussians",
-    ):
-        assert np.isfinite(row[key]) and row[key] > 0, (key, row)
-    assert row["resolution"] == 32 and row["lights"] == 2 and row["target_views"] == 2
-    # amortising the light-independent rasterization over 2 lights can only help
-    assert row["frng_ms_per_image_amortised"] <= row["frng_ms_per_image"]
+    rows = [json.loads(line) for line in r.stdout.strip().splitlines()]
+    assert [row["resolution"] for row in rows] == [32, 48]
+    from frng import config as frng_config
+    from frng.typedconfig import typed
+
+    sc = typed(frng_config.load(ROOT / "config" / "smoke.yaml")).shading
+    W, D = sc.decoder_width, sc.decoder_depth
+    assert sc.decoder_attenuation  # 6 outputs
+    for row in rows:
+        for key in (
+            "reconstruction_s",
+            "frng_ms_per_image",
+            "frng_ms_per_image_amortised",
+            "backbone_ms_per_image",
+            "speedup",
+            "gaussians",
+            "pixels_per_image",
+            "lit_pairs_per_image",
+            "shade_gflops",
+            "matmul_peak_gflops",
+        ):
+            assert np.isfinite(row[key]) and row[key] > 0, (key, row)
+        assert row["lights"] == 2 and row["target_views"] == 2 and row["passes"] == 1
+        # amortising the light-independent rasterization over 2 lights can only help
+        assert row["frng_ms_per_image_amortised"] <= row["frng_ms_per_image"]
+        # the smoke decoder (width W, depth D): (D - 1) W x W hidden layers + a W x 6 output, + W adds, per pair
+        assert row["decoder_flops_per_pair"] == W + 2 * ((D - 1) * W * W + W * 6)
+        assert 0 < row["lit_fraction"] < 1
+        assert row["lit_pairs_per_image"] <= row["pixels_per_image"] * row["spp"]
+    assert rows[1]["pixels_per_image"] > rows[0]["pixels_per_image"]
 
 
 # -- issue 12, point 6: an RGB-only input view and a training object are refused (no Blender: synthetic inputs) ----

@@ -146,6 +146,38 @@ def test_attenuating_decoder_can_darken_its_base_and_splits_exactly():
         NeuralDecoder(8, width=16, depth=2, cosine=False, attenuation=True)
 
 
+@pytest.mark.parametrize("attenuation", [False, True])
+@pytest.mark.parametrize("with_diffuse", [False, True])
+def test_cosine_decoder_runs_its_mlp_on_lit_pairs_only(attenuation, with_diffuse):
+    """A cosine decoder's output is 0 below the horizon of its normal, so it decodes only the pairs with n . w_i > 0
+    (gathered, then scattered back): values and gradients equal the dense broadcast reference's; a pixel with a zero
+    normal and a sample set entirely below every horizon give zeros, not errors."""
+    g = torch.Generator().manual_seed(1)
+    P, K = 50, 23
+    unit = lambda x: x / x.norm(dim=-1, keepdim=True)  # noqa: E731
+    feats = torch.randn(P, 8, generator=g, dtype=DT)
+    feats[7, :3] = 0.0  # no normal: nothing lit
+    wo, wi = unit(torch.randn(P, 3, generator=g, dtype=DT)), unit(torch.randn(K, 3, generator=g, dtype=DT))
+    dec = NeuralDecoder(8, width=16, depth=3, cosine=True, attenuation=attenuation).double()
+    feats.requires_grad_(True)
+    lit = dec._reflectance(feats, wo, wi, with_diffuse)
+    ref = dec._reflectance_dense(feats, wo, wi, with_diffuse)
+    assert lit.shape == ref.shape == (P, K, 3)
+    assert torch.equal(lit, ref)
+    assert (lit[7] == 0).all() and ((feats[:, :3] @ wi.T <= 0)[..., None] <= (lit == 0)).all()
+    w = torch.randn(P, K, 3, generator=g, dtype=DT)
+    params = [feats, *dec.parameters()]
+    grads = zip(torch.autograd.grad((lit * w).sum(), params), torch.autograd.grad((ref * w).sum(), params))
+    (g_lit, g_ref), *rest = grads
+    # at the zero normal the reference's clamp lets 1/eps through normalize (~1e6); the lit pairs leave it at 0
+    assert (g_lit[7, :3] == 0).all() and g_ref[7, :3].abs().max() > 1e3
+    g_lit[7, :3] = g_ref[7, :3] = 0
+    for a, b in [(g_lit, g_ref), *rest]:
+        assert torch.allclose(a, b, atol=1e-5, rtol=1e-4)
+    dark = dec._reflectance(feats, wo, -unit(feats[:1, :3].detach()).expand(3, 3).contiguous(), with_diffuse)
+    assert dark.shape == (P, 3, 3) and (dark[0] == 0).all()
+
+
 def test_ggx_lobes_split():
     """ggx_reflectance = its specular lobe + ggx_diffuse_brdf x max(0, n.w_i) (the closed-form shading's split)."""
     g = torch.Generator().manual_seed(1)

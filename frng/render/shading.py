@@ -118,7 +118,8 @@ class NeuralDecoder(nn.Module):
     [feature (C), enc(w_o), enc(w_i)] with :func:`encode_dirs` (raw directions by default). Because the light
     samples are shared by all pixels, the first layer is split: W [f; w_o; w_i] = (W_f f + W_o w_o)[p] +
     (W_i w_i)[k], computed per pixel and per sample and broadcast-added -- identical to the concatenated MLP
-    at a fraction of the cost.
+    at a fraction of the cost. A cosine decoder runs its MLP only on the pairs above the normal's horizon
+    (:meth:`_reflectance`; the dense reference: :meth:`_reflectance_dense`).
     """
 
     def __init__(
@@ -149,6 +150,14 @@ class NeuralDecoder(nn.Module):
         self.hidden = nn.ModuleList(nn.Linear(width, width) for _ in range(depth - 1))
         self.out = nn.Linear(width, 6 if attenuation else 3)  # 0:3 residual, 3:6 attenuation logits
 
+    def flops(self) -> tuple[int, int]:
+        """(FLOPs per decoded (pixel, sample) pair, FLOPs per pixel) of the MLP's matrix products (multiply + add
+        = 2): the hidden and output layers plus the first layer's add run per pair, the first layer's pixel half
+        per pixel (its sample half, per sample, is negligible). What a roofline of the shading counts."""
+        w = self.inp_pixel.out_features
+        per_pair = w + sum(2 * layer.in_features * layer.out_features for layer in [*self.hidden, self.out])
+        return per_pair, 2 * self.inp_pixel.in_features * w
+
     def forward(self, features: torch.Tensor, wo: torch.Tensor, wi: torch.Tensor) -> torch.Tensor:
         """features (P, C), wo (P, 3), wi (K, 3) -> (P, K, 3): the full reflectance x cosine."""
         return self._reflectance(features, wo, wi, with_diffuse=True)
@@ -162,13 +171,44 @@ class NeuralDecoder(nn.Module):
             raise ValueError("NeuralDecoder.residual needs a cosine decoder (shading.decoder_cosine)")
         return self._reflectance(features, wo, wi, with_diffuse=False)
 
-    def _reflectance(self, features, wo, wi, with_diffuse: bool) -> torch.Tensor:
-        a = self.inp_pixel(torch.cat([features, encode_dirs(wo, self.dir_freqs)], -1))  # (P, W)
-        b = self.inp_light(encode_dirs(wi, self.dir_freqs))  # (K, W)
-        h = torch.relu(a[:, None, :] + b[None, :, :])
+    def _mlp(self, h: torch.Tensor) -> torch.Tensor:
+        """The hidden and output layers on first-layer pre-activations h (..., W) -> raw outputs (..., 3 | 6)."""
+        h = torch.relu(h)
         for layer in self.hidden:
             h = torch.relu(layer(h))
-        raw = self.out(h)
+        return self.out(h)
+
+    def _first(self, features, wo, wi) -> tuple[torch.Tensor, torch.Tensor]:
+        """The split first layer: (W_f f + W_o w_o + bias) per pixel (P, W), W_i w_i per sample (K, W)."""
+        a = self.inp_pixel(torch.cat([features, encode_dirs(wo, self.dir_freqs)], -1))
+        return a, self.inp_light(encode_dirs(wi, self.dir_freqs))
+
+    def _reflectance(self, features, wo, wi, with_diffuse: bool) -> torch.Tensor:
+        """features (P, C), wo (P, 3), wi (K, 3) -> (P, K, 3). A cosine decoder's output is exactly 0 where
+        n . w_i <= 0 (below the horizon of the pixel's normal: about half of the pairs under a shared sample set),
+        so its MLP runs only on the lit (pixel, sample) pairs, gathered and scattered back (same values as
+        :meth:`_reflectance_dense`, the reference, up to float summation order; half the decoder's FLOPs)."""
+        assert features.dim() == 2 and wo.shape == (features.shape[0], 3) and wi.dim() == 2, (features.shape, wi.shape)
+        if not self.cosine:
+            return self._reflectance_dense(features, wo, wi, with_diffuse)
+        a, b = self._first(features, wo, wi)
+        n = nn.functional.normalize(features[:, :3].float(), dim=-1, eps=1e-6)
+        cos = n @ wi.float().T  # (P, K)
+        pi, ki = torch.nonzero(cos > 0, as_tuple=True)  # the lit pairs, row-major
+        raw = self._mlp(a.index_select(0, pi) + b.index_select(0, ki))  # (N, 3 | 6)
+        out = nn.functional.softplus(raw[:, :3]).float()
+        d = features[:, 3:6].float().clamp_min(0.0).index_select(0, pi)  # (N, 3)
+        if self.attenuation:
+            out = out - d * torch.sigmoid(raw[:, 3:6].float())
+        if with_diffuse:
+            out = out + d
+        out = out * cos[pi, ki][:, None]
+        return out.new_zeros(features.shape[0], wi.shape[0], 3).index_put((pi, ki), out)
+
+    def _reflectance_dense(self, features, wo, wi, with_diffuse: bool) -> torch.Tensor:
+        """:meth:`_reflectance` on every (pixel, sample) pair: the pure broadcast reference, (P, K, 3)."""
+        a, b = self._first(features, wo, wi)
+        raw = self._mlp(a[:, None, :] + b[None, :, :])
         out = nn.functional.softplus(raw[..., :3])
         if self.cosine:  # the rendering equation's cosine, factored out: the MLP only learns the BRDF beyond diffuse
             n = nn.functional.normalize(features[:, :3].float(), dim=-1, eps=1e-6)
@@ -180,6 +220,16 @@ class NeuralDecoder(nn.Module):
                 out = out + d
             out = out * (n @ wi.float().T).clamp_min(0.0)[..., None]
         return out
+
+
+def lit_pairs(maps: torch.Tensor, alpha: torch.Tensor, wi: torch.Tensor, alpha_eps: float = 1e-3) -> tuple[int, int]:
+    """(foreground pixels, lit (pixel, sample) pairs) of a cosine decoder's G-buffer: maps (V, H, W, C) premultiplied
+    features with the normal in channels 0:3, alpha (V, H, W, 1), sample directions wi (K, 3); a pair is lit where
+    n . w_i > 0 (:meth:`NeuralDecoder._reflectance` decodes only those). For rooflines and benchmarks."""
+    assert maps.shape[:3] == alpha.shape[:3] and wi.dim() == 2 and wi.shape[-1] == 3, (maps.shape, wi.shape)
+    fg = alpha[..., 0] > alpha_eps
+    n = maps[fg][:, :3].float()
+    return int(fg.sum()), int(((n @ wi.to(n).T) > 0).sum())
 
 
 def lambert_sh(

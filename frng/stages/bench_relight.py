@@ -15,23 +15,31 @@ at a resolution this machine can afford, and measures, with the same code paths 
 - ``backbone_ms_per_image``: one full denoising pass per light + rendering the target views, per image;
 - ``speedup``: backbone / F-RNG (single new image), ``speedup_amortised``.
 
-Medians of ``--repeats`` runs after a warm-up. ``--device cuda`` where a GPU is present (gsplat backend if
-installed); ``--bf16`` runs the transformers and the decoder under bf16 autocast (CPU: AMX; CUDA); the decoder
-also uses bf16 when the config's ``shading.bf16_infer`` is true.
+- the shading's roofline: the decoder's MLP FLOPs per decoded (pixel, sample) pair (only lit pairs are decoded,
+  :meth:`frng.render.shading.NeuralDecoder._reflectance`), the GFLOP per image and the GFLOP/s the shading achieved,
+  against the measured peak of this machine for the same matrix product shapes (``shading.chunk_pairs`` rows x
+  decoder width, in the dtype the decoder runs in).
+
+Each ``--resolution`` is timed ``--passes`` times (median reported) after ONE untimed warm-up pass of the whole
+chain at a small resolution (two patches a side): at 256-512 px a second full-size pass would double hours of
+CPU time for no information. ``--device cuda`` where a GPU is present (gsplat backend if installed); ``--bf16``
+runs the transformers and the decoder under bf16 autocast (CPU: AMX; CUDA); the decoder also uses bf16 when the
+config's ``shading.bf16_infer`` is true.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import time
 from contextlib import nullcontext
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from frng.device import median_time
+from frng.device import bf16_ok, median_time, synchronize
 from frng.typedconfig import Config, typed
 
 DEFAULT_CONFIGS = ["config/config.yaml", "config/paper.yaml"]
@@ -44,11 +52,20 @@ def configure(parser: argparse.ArgumentParser) -> None:
         default=DEFAULT_CONFIGS,
         help="pipeline configs whose architecture sizes (backbone, idm, frng, shading) are timed",
     )
-    parser.add_argument("--resolution", type=int, default=64, help="image size (multiple of the patch size)")
+    parser.add_argument(
+        "--resolution", type=int, nargs="+", default=[64], help="image sizes (multiples of the patch size), each timed"
+    )
     parser.add_argument("--lights", type=int, default=3, help="lights per relighting (amortised figure)")
     parser.add_argument("--target-views", type=int, default=4)
     parser.add_argument("--spp", type=int, default=None, help="light samples per pixel (default shading.spp_infer)")
-    parser.add_argument("--repeats", type=int, default=3, help="timed runs per measurement (median reported)")
+    parser.add_argument(
+        "--passes",
+        "--repeats",
+        dest="passes",
+        type=int,
+        default=3,
+        help="timed passes per resolution (median reported), after one untimed warm-up pass at a small resolution",
+    )
     parser.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
     parser.add_argument("--bf16", action="store_true", help="bf16 autocast for the transformers")
@@ -111,22 +128,34 @@ def synthetic_env(height: int, seed: int, dev: torch.device) -> torch.Tensor:
     return (sky + blob).float().to(dev)
 
 
-def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict:
+@dataclass
+class Models:
+    """One config's untrained models at its architecture sizes, built once for every resolution."""
+
+    path: str
+    config: Config
+    backbone: torch.nn.Module
+    idm: torch.nn.Module
+    frng: torch.nn.Module
+    shading: object  # frng.render.shading.ShadingConfig
+
+
+def build(path: str, args: argparse.Namespace, dev: torch.device) -> Models:
     from frng import config as frng_config
     from frng.model.frng import FRNG, ModelSections, variant_config
     from frng.priors import backbone as backbone_mod
     from frng.priors import freeze
     from frng.priors import idm as idm_mod
     from frng.priors.backbone_train import backbone_config
-    from frng.priors.cache import geometry_entry
-    from frng.priors.dataset import Views
     from frng.priors.idm_train import idm_config
 
     config = typed(frng_config.load(path))
-    res = args.resolution
     patch = int(config.model.patch_size)
-    if res % patch:
-        raise SystemExit(f"--resolution {res} is not a multiple of the patch size {patch} ({path})")
+    for res in args.resolution:
+        if res % patch:
+            raise SystemExit(
+                f"frng bench relight: --resolution {res} is not a multiple of the patch size {patch} ({path})"
+            )
     torch.manual_seed(args.seed)
     backbone = freeze(backbone_mod.build(backbone_config(config.backbone, config.model.patch_size)).to(dev))
     idm = freeze(
@@ -139,6 +168,33 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
     if args.bf16:
         shading = replace(shading, bf16_infer=True)
     model = FRNG.from_backbone(fcfg, backbone, shading=shading).to(dev).eval()
+    return Models(path, config, backbone, idm, model, shading)
+
+
+def matmul_peak_gflops(rows: int, width: int, dtype: torch.dtype, dev: torch.device, seconds: float = 1.0) -> float:
+    """GFLOP/s of (rows, width) @ (width, width) products in ``dtype`` on ``dev``, repeated for about ``seconds``
+    after one warm-up: the peak a decoder layer of that shape can reach on this machine (roofline's ceiling)."""
+    a = torch.randn(rows, width, device=dev).to(dtype)
+    w = torch.randn(width, width, device=dev).to(dtype)
+    with torch.no_grad():
+        torch.mm(a, w)
+        n, t0 = 0, time.perf_counter()
+        while True:
+            torch.mm(a, w)
+            n += 1
+            synchronize(dev)
+            if time.perf_counter() - t0 >= seconds:
+                break
+    return 2.0 * rows * width * width * n / (time.perf_counter() - t0) / 1e9
+
+
+def measure(m: Models, res: int, args: argparse.Namespace, dev: torch.device, passes: int) -> dict:
+    """One resolution's timings (median of ``passes`` timed runs per measurement, no warm-up of its own)."""
+    from frng.priors.cache import geometry_entry
+    from frng.priors.dataset import Views
+    from frng.render.shading import lit_pairs
+
+    config, backbone, idm, model, shading = m.config, m.backbone, m.idm, m.frng, m.shading
     spp = args.spp or int(config.shading.spp_infer)
     obj = synthetic_object(config, res, args.target_views, args.seed, dev)
     env_h = max(16, int(config.envmaps.width) // 2)
@@ -148,33 +204,36 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
     nd = backbone.cfg.den_views
     Vt = t_c2w.shape[0]
     amp = torch.autocast(dev.type, dtype=torch.bfloat16) if args.bf16 else nullcontext()
-    R = args.repeats
 
     def gen(seed):
         return torch.Generator(device=dev).manual_seed(seed)
 
+    def timed(fn):
+        return median_time(fn, dev, passes, warmup=False)
+
     with torch.no_grad(), amp:
-        t_geo_s, recon = median_time(lambda: backbone.reconstruct(rgb, alpha, c2w, intr, env_in), dev, R)
+        t_geo_s, recon = timed(lambda: backbone.reconstruct(rgb, alpha, c2w, intr, env_in))
         t_geo, _, gauss, keep, _, pixels = recon
-        t_app_s, (sh_in, t_app) = median_time(
+        t_app_s, (sh_in, t_app) = timed(
             lambda: backbone.denoise(
                 t_geo, gauss, keep, env_in[None], c2w[:nd], intr[:nd], res, res, generator=gen(0), pixels=pixels
-            ),
-            dev,
-            R,
+            )
         )
         views = Views([f"in_{i:02d}" for i in range(6)], rgb, alpha, c2w, intr)
-        t_idm_s, priors = median_time(lambda: idm.predict(views.rgb, views.alpha, views.c2w, views.intr), dev, R)
+        t_idm_s, priors = timed(lambda: idm.predict(views.rgb, views.alpha, views.c2w, views.intr))
         # the far-side completion (back_*) is part of the backbone's reconstruction, as in live relighting
-        t_back_s, bv = median_time(lambda: geometry_entry(backbone, recon, alpha, c2w, intr), dev, R)
+        t_back_s, bv = timed(lambda: geometry_entry(backbone, recon, alpha, c2w, intr))
         bv["light0.t_app"] = t_app[0].float()
         images = torch.cat([rgb, alpha], -1)
-        t_frng_s, rec = median_time(lambda: model.reconstruct(bv, 0, priors, images, input_env=env_in), dev, R)
+        t_frng_s, rec = timed(lambda: model.reconstruct(bv, 0, priors, images, input_env=env_in))
     with torch.no_grad():
-        t_ras_s, raster = median_time(lambda: model.rasterize(rec, t_c2w, t_intr, res, res), dev, R)
-        t_shade_s, _ = median_time(
-            lambda: [model.shade(raster, e, spp, generator=gen(i)) for i, e in enumerate(envs)], dev, R
-        )
+        t_ras_s, raster = timed(lambda: model.rasterize(rec, t_c2w, t_intr, res, res))
+        t_shade_s, _ = timed(lambda: [model.shade(raster, e, spp, generator=gen(i)) for i, e in enumerate(envs)])
+        # the pairs the decoder decodes: the same sample sets shade() draws
+        counts = [
+            lit_pairs(raster[0], raster[1], model.light_samples(e, spp, gen(i)).dirs, shading.alpha_eps)
+            for i, e in enumerate(envs)
+        ]
 
     def backbone_relight():
         with torch.no_grad(), amp:
@@ -184,26 +243,22 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
                 )
                 backbone.render(gauss, sh, t_c2w, t_intr, res, res, keep)
 
-    t_bb_s, _ = median_time(backbone_relight, dev, R)
+    t_bb_s, _ = timed(backbone_relight)
     L = len(envs)
     raster_ms, shade_ms = 1000 * t_ras_s / Vt, 1000 * t_shade_s / (L * Vt)
     frng_ms, frng_amort_ms = raster_ms + shade_ms, shade_ms + raster_ms / L
     bb_ms = 1000 * t_bb_s / (L * Vt)
-    n_params = lambda m: sum(p.numel() for p in m.parameters())  # noqa: E731
+    pix_img = sum(c[0] for c in counts) / (L * Vt)
+    pairs_img = sum(c[1] for c in counts) / (L * Vt)
+    per_pair, per_pixel = model.decoder.flops() if hasattr(model.decoder, "flops") else (0, 0)
+    gflop_img = (pairs_img * per_pair + pix_img * per_pixel) / 1e9
     return {
-        "config": path,
-        "tier": config.tier,
-        "device": str(dev),
-        "threads": torch.get_num_threads(),
-        "bf16": bool(args.bf16),
-        "bf16_decoder": shading.bf16_infer,
         "resolution": res,
+        "passes": passes,
         "spp": spp,
         "lights": L,
         "target_views": Vt,
         "gaussians": int(rec.gaussians.means.shape[0]),
-        "backbone_params_m": n_params(backbone) / 1e6,
-        "frng_params_m": n_params(model) / 1e6,
         "reconstruction_s": t_geo_s + t_back_s + t_app_s + t_idm_s + t_frng_s,
         "backbone_geometry_s": t_geo_s + t_back_s,
         "backbone_appearance_s": t_app_s,
@@ -216,7 +271,38 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> dict
         "backbone_ms_per_image": bb_ms,
         "speedup": bb_ms / frng_ms,
         "speedup_amortised": bb_ms / frng_amort_ms,
+        "pixels_per_image": pix_img,
+        "lit_pairs_per_image": pairs_img,
+        "lit_fraction": pairs_img / max(1.0, pix_img * spp),
+        "decoder_flops_per_pair": per_pair,
+        "shade_gflop_per_image": gflop_img,
+        "shade_gflops": gflop_img / max(1e-9, shade_ms / 1000),
     }
+
+
+def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> list[dict]:
+    """Every ``--resolution`` of one config, after one untimed warm-up pass at two patches a side."""
+    m = build(path, args, dev)
+    patch = int(m.config.model.patch_size)
+    measure(m, 2 * patch, args, dev, passes=1)  # warm-up: the same code paths, seconds instead of minutes
+    sc = m.shading
+    dtype = torch.bfloat16 if sc.bf16_infer and bf16_ok(dev) else torch.float32
+    width = int(sc.decoder_width)
+    peak = matmul_peak_gflops(int(sc.chunk_pairs), width, dtype, dev)
+    n_params = lambda mod: sum(p.numel() for p in mod.parameters())  # noqa: E731
+    head = {
+        "config": path,
+        "tier": m.config.tier,
+        "device": str(dev),
+        "threads": torch.get_num_threads(),
+        "bf16": bool(args.bf16),
+        "bf16_decoder": sc.bf16_infer,
+        "backbone_params_m": n_params(m.backbone) / 1e6,
+        "frng_params_m": n_params(m.frng) / 1e6,
+        "matmul_peak_gflops": peak,
+        "matmul_shape": f"({int(sc.chunk_pairs)}, {width}) @ ({width}, {width}) {str(dtype).replace('torch.', '')}",
+    }
+    return [{**head, **measure(m, res, args, dev, args.passes)} for res in args.resolution]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -229,28 +315,30 @@ def run(args: argparse.Namespace) -> int:
         if not Path(path).exists():
             raise SystemExit(f"frng bench relight: config {path} does not exist")
     for path in args.configs:
-        r = bench_config(path, args, dev)
-        if args.json:
-            print(json.dumps(r), flush=True)
-            continue
-        print(
-            f"== {r['tier']} sizes ({path}) on {r['device']} ({r['threads']} threads{', bf16' if r['bf16'] else ''}), "
+        for r in bench_config(path, args, dev):
+            print(json.dumps(r) if args.json else report(r), flush=True)
+    return 0
+
+
+def report(r: dict) -> str:
+    """The human-readable lines of one (config, resolution) measurement."""
+    pct = 100 * r["shade_gflops"] / max(1e-9, r["matmul_peak_gflops"])
+    return "\n".join(
+        [
+            f"== {r['tier']} sizes ({r['config']}) on {r['device']} ({r['threads']} threads{', bf16' if r['bf16'] else ''}), "
             f"{r['resolution']} px, {r['spp']} spp, {r['lights']} lights x {r['target_views']} views, "
-            f"{r['gaussians']} Gaussians; backbone {r['backbone_params_m']:.1f} M params, "
-            f"F-RNG {r['frng_params_m']:.1f} M params"
-        )
-        print(
+            f"{r['gaussians']} Gaussians, median of {r['passes']} pass(es); backbone {r['backbone_params_m']:.1f} M "
+            f"params, F-RNG {r['frng_params_m']:.1f} M params",
             f"  F-RNG reconstruction {r['reconstruction_s']:.2f} s (backbone geometry {r['backbone_geometry_s']:.2f}, "
-            f"appearance {r['backbone_appearance_s']:.2f}, IDM {r['idm_s']:.2f}, F-RNG {r['frng_s']:.2f})"
-        )
-        print(
+            f"appearance {r['backbone_appearance_s']:.2f}, IDM {r['idm_s']:.2f}, F-RNG {r['frng_s']:.2f})",
             f"  F-RNG relighting {r['frng_ms_per_image']:.1f} ms/image (raster {r['raster_ms_per_view']:.1f} + "
             f"shade {r['shade_ms_per_image']:.1f}); amortised over {r['lights']} lights "
-            f"{r['frng_ms_per_image_amortised']:.1f} ms/image"
-        )
-        print(
+            f"{r['frng_ms_per_image_amortised']:.1f} ms/image",
             f"  backbone relighting {r['backbone_ms_per_image']:.1f} ms/image -> speed-up {r['speedup']:.1f}x "
             f"({r['speedup_amortised']:.1f}x amortised)",
-            flush=True,
-        )
-    return 0
+            f"  shading roofline: {r['pixels_per_image']:.0f} px x {r['spp']} spp, {100 * r['lit_fraction']:.0f} % of "
+            f"the pairs lit and decoded, {r['decoder_flops_per_pair'] / 1e3:.0f} kFLOP a pair -> "
+            f"{r['shade_gflop_per_image']:.2f} GFLOP/image at {r['shade_gflops']:.1f} GFLOP/s = {pct:.0f} % of "
+            f"{r['matmul_peak_gflops']:.1f} GFLOP/s measured for {r['matmul_shape']} products",
+        ]
+    )
