@@ -15,6 +15,7 @@ _TABLE_CAPTIONS = {
     "ladder": "quality ladder",
     "lambertian": "Lambertian base per material class",
     "vs_backbone_by_light": "F-RNG vs backbone per light family",
+    "vs_backbone_by_source": "F-RNG vs backbone per object source",
     "ablation_by_light": "ablation per light family",
     "ladder_by_light": "quality ladder per light family",
 }

@@ -265,8 +265,38 @@ def test_tables_per_light_family(tmp_path):
             "backbone": {"reconstruction_s": 1.0, "relight_ms_per_image": 40.0},
         },
     )
-    out = P.write_tables("custom", [1, 1, 1], per_image, [timing], tmp_path / "tables", prior_csv, families=families)
+    out = P.write_tables(
+        "custom",
+        [1, 1, 1],
+        per_image,
+        [timing],
+        tmp_path / "tables",
+        prior_csv,
+        families=families,
+        sources={"o0": "procedural", "o1": "libero", "o2": "libero"},
+    )
+    assert "object source" in out["vs_backbone_by_source"]["md"].read_text().lower()
     for name in ("vs_backbone_by_light", "ablation_by_light", "ladder_by_light"):
         t = pd.read_csv(out[name]["csv"])
         assert set(T.TABLE_COLUMNS[name]) <= set(t.columns) and len(t), name
         assert "light family" in out[name]["md"].read_text()
+
+
+def test_vs_backbone_per_object_source(tmp_path):
+    """vs_backbone per source of the test object (the plan's ObjectRecord.source, a mapping, not the object's name):
+    rows per source in name order, F-RNG's paired difference and its interval within each source; objects the
+    mapping lacks are 'other'; write_tables writes it when given the sources."""
+    from frng.report import paper_tables as P
+
+    rows = _per_image("backbone", "backbone", 0.0) + _per_image("full", "full", 1.0)
+    rows = [dict(r, psnr=r["psnr"] + (0.5 if r["object"] == "o2" and r["run"] == "full" else 0.0)) for r in rows]
+    sources = {"o0": "procedural", "o1": "procedural", "o2": "libero"}
+    vs = P.vs_backbone_by_source(pd.DataFrame(rows), sources)
+    assert list(vs.columns[:5]) == list(T.TABLE_COLUMNS["vs_backbone_by_source"])
+    assert list(vs["object_source"]) == ["libero", "libero", "procedural", "procedural"]
+    libero, procedural = vs.iloc[0], vs.iloc[2]
+    assert np.isclose(libero["dpsnr"], 1.5) and libero["objects"] == 1 and libero["n"] == 2
+    assert np.isclose(procedural["dpsnr"], 1.0) and procedural["objects"] == 2 and procedural["better"] == 2
+    other = P.vs_backbone_by_source(pd.DataFrame(rows), {"o0": "procedural"})
+    assert list(other["object_source"]) == ["other", "other", "procedural", "procedural"]
+    assert np.isclose(other.iloc[0]["dpsnr"], 1.25)  # o1 (+1.0) and o2 (+1.5) together

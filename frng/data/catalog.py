@@ -1027,6 +1027,11 @@ class Catalog:
         """{map name: its family} (EnvMapSpec.family) of every planned map: what the per-family tables group by."""
         return {e.name: e.family for e in self.envmaps}
 
+    def object_sources(self) -> dict[str, str]:
+        """{object id: its source} (ObjectRecord.source: procedural, libero, objaverse, user, ...) of every planned
+        object: what the per-source table groups by (real assets apart from generated shapes)."""
+        return {o.id: o.source for o in self.objects}
+
     @property
     def object_ids(self) -> list[str]:
         return [o.id for o in self.objects]

@@ -27,6 +27,9 @@ table            rows                                                reference r
                  family of the target light (``light_family``: sky,
                  hdri, studio, user; the dataset plan's
                  ``EnvMapSpec.family``, passed as ``families``)
+``vs_backbone_   ``vs_backbone`` per source of the test object       the backbone, same source
+by_source``      (``object_source``: procedural, libero, objaverse,
+                 user; the plan's ``ObjectRecord.source``)
 ================ =================================================== =====================================
 
 Metric columns (psnr, ssim, lpips) are means of per-image values (PSNR averaged in dB) over all test objects,
@@ -475,6 +478,23 @@ def vs_backbone_by_light(df: pd.DataFrame) -> pd.DataFrame:
     return _ordered(pd.DataFrame(rows), "vs_backbone_by_light")
 
 
+OBJECT_SOURCE = "object_source"
+
+
+def vs_backbone_by_source(df: pd.DataFrame, sources: Mapping[str, str]) -> pd.DataFrame:
+    """:func:`vs_backbone_table` per source of the test object (``sources``: object id -> source, from the dataset
+    plan, :meth:`frng.data.catalog.Catalog.object_sources`; objects it lacks are ``other``), sources in name order:
+    whether F-RNG's lead holds on real assets (LIBERO, Objaverse, users') as on generated shapes. The differences and
+    their intervals are computed within each source. No ``all`` rows: the ``vs_backbone`` table's."""
+    df = df.assign(**{OBJECT_SOURCE: df["object"].astype(str).map(dict(sources)).fillna("other")})
+    frng, bb = seed_mean(df, "full"), seed_mean(df, BACKBONE)
+    rows = []
+    for src in sorted(set(frng.get(OBJECT_SOURCE, [])) | set(bb.get(OBJECT_SOURCE, []))):
+        pick = lambda d, src=src: d[d[OBJECT_SOURCE] == src]  # noqa: E731
+        rows += _vs_backbone_rows(df, frng, bb, pick, {OBJECT_SOURCE: src})
+    return _ordered(pd.DataFrame(rows, columns=None if rows else [OBJECT_SOURCE]), "vs_backbone_by_source")
+
+
 def ablation_by_light(df: pd.DataFrame) -> pd.DataFrame:
     """:func:`ablation_table` for each family of the target light (rows: family, then variant)."""
     parts = []
@@ -525,11 +545,13 @@ def write_tables(
     prior_csv: Path,
     cross_csv: Path | None = None,
     families: Mapping[str, str] | None = None,
+    sources: Mapping[str, str] | None = None,
 ) -> dict[str, dict]:
     """Write the tables (see the module docstring). Returns {table: {"csv"|"md"|"tex": path}}. ``tier`` and
     ``background`` (the config's ``tier`` and ``eval.background``) go into the captions. ``families``: map name ->
     light family (the dataset plan's, :meth:`frng.data.catalog.Catalog.light_families`); without it the per-family
-    tables (``*_by_light``) are not written."""
+    tables (``*_by_light``) are not written; ``sources``: object id -> source (the plan's,
+    :meth:`frng.data.catalog.Catalog.object_sources`), without it ``vs_backbone_by_source`` is not written."""
     df = M.read_csv(per_image_csv)
     missing = [
         c
@@ -630,6 +652,21 @@ def write_tables(
     )
     if families is not None:
         out |= _write_family_tables(tier, background, df, prior, cross, families, out_dir, seed_note)
+    if sources is not None:
+        out["vs_backbone_by_source"] = T.write_table(
+            vs_backbone_by_source(df, sources),
+            out_dir / "vs_backbone_by_source",
+            best_within=[OBJECT_SOURCE],
+            caption=_caption(
+                "Relighting quality per object source: F-RNG vs the backbone (the dataset plan's object sources: "
+                "procedural shapes, libero = LIBERO's modelled assets, objaverse, user); the differences and their "
+                "intervals are computed within each source." + seed_note,
+                tier,
+                background,
+                df[df["run"].isin(["full", BACKBONE])],
+            ),
+            label="tab:vs_backbone_by_source",
+        )
     t = timing_table(timings)
     out["timing"] = T.write_table(
         t,

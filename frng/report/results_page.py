@@ -63,6 +63,7 @@ TABLE_TITLES: dict[str, str] = {
     "lambertian": "Lambertian base per material class",
     "timing": "Timing",
     "vs_backbone_by_light": "F-RNG vs the backbone per light family (sky / HDRI / studio)",
+    "vs_backbone_by_source": "F-RNG vs the backbone per object source (generated shapes / real assets)",
     "ablation_by_light": "Ablations per light family",
     "ladder_by_light": "Quality ladder per light family",
     "vs_dense": "Per-scene baselines on dense views (the paper's Table 2)",

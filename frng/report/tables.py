@@ -51,6 +51,8 @@ TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
     "lambertian": ("dataset", "method", "n", "psnr", "ssim", "lpips", "scale_log2", "brightness_log2"),
     # per family of the target light (sky / hdri / studio; frng/report/paper_tables.py)
     "vs_backbone_by_light": ("light_family", "method", "psnr", "ssim", "lpips"),
+    # per source of the test object (procedural shapes, LIBERO's modelled assets, Objaverse, the user's)
+    "vs_backbone_by_source": ("object_source", "method", "psnr", "ssim", "lpips"),
     "ablation_by_light": ("light_family", "variant", "psnr", "ssim", "lpips"),
     "ladder_by_light": (
         "light_family",
@@ -99,6 +101,7 @@ HEADERS: dict[str, str] = {
     "lpips": "LPIPS",
     "dataset": "Dataset",
     "light_family": "Light family",
+    "object_source": "Object source",
     "method": "Method",
     "variant": "Variant",
     "views": "Input views",

@@ -61,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
         Path(args.prior_metrics or L.metrics("backbone")),
         Path(args.cross_light or L.metrics("relight_cross_light")),
         families=plan.light_families(),
+        sources=plan.object_sources(),
     )
     for name, paths in out.items():
         print(f"== {name} ({paths['md']})\n{paths['md'].read_text()}")
