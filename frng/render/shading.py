@@ -487,21 +487,8 @@ def ggx_shade(
     (:func:`ggx_diffuse_brdf` x the SH irradiance at the oriented normal), Monte Carlo for the specular lobe;
     ``'mc'``: both by Monte Carlo. Returns RGB (V, H, W, 3), premultiplied, 0 where alpha <= alpha_eps."""
     split = [maps[..., 0:3], maps[..., 3:4], maps[..., 4:5], maps[..., 5:8]]
-    if diffuse != "sh":
-        return deferred_shade(
-            _ggx_pixels,
-            split,
-            alpha,
-            c2w,
-            intrinsics,
-            samples,
-            spp_grad,
-            alpha_eps,
-            chunk=chunk,
-            chunk_pairs=chunk_pairs,
-        )
     rgb = deferred_shade(
-        _ggx_pixels_specular,
+        _ggx_pixels if diffuse != "sh" else _ggx_pixels_specular,
         split,
         alpha,
         c2w,
@@ -511,7 +498,10 @@ def ggx_shade(
         alpha_eps,
         chunk=chunk,
         chunk_pairs=chunk_pairs,
-    ).float()
+    )
+    if diffuse != "sh":
+        return rgb
+    rgb = rgb.float()
     V, H, W = alpha.shape[:3]
     f = maps.float() / alpha.float().clamp_min(alpha_eps)
     _, d = camera.pixel_rays(c2w.float(), intrinsics.float(), H, W)

@@ -29,7 +29,7 @@ table            rows                                                reference r
                  ``EnvMapSpec.family``, passed as ``families``)
 ``vs_backbone_   ``vs_backbone`` per source of the test object       the backbone, same source
 by_source``      (``object_source``: procedural, libero, objaverse,
-                 user; the plan's ``ObjectRecord.source``)
+                 libero, objaverse, user: ``ObjectRecord.source``)
 ================ =================================================== =====================================
 
 Metric columns (psnr, ssim, lpips) are means of per-image values (PSNR averaged in dB) over all test objects,
@@ -81,6 +81,11 @@ def _caption(title: str, tier: str, background: Sequence[float], df: pd.DataFram
         f"{df['protocol'].iloc[0]} metric protocol (see frng/metrics.py), background "
         f"{list(background)}; mean over test objects, lights and views. {DIFF_NOTE}"
     )
+
+
+def _write(out_dir: Path, name: str, table: pd.DataFrame, caption: str, **kw) -> dict:
+    """:func:`frng.report.tables.write_table` of ``table`` as ``out_dir/name`` with label ``tab:name``."""
+    return T.write_table(table, out_dir / name, caption=caption, label=f"tab:{name}", **kw)
 
 
 def _metrics(df: pd.DataFrame, by: list[str]) -> pd.DataFrame:
@@ -572,59 +577,44 @@ def write_tables(
         else ""
     )
     out = {}
+
+    def table(name: str, frame: pd.DataFrame, title: str, rows: pd.DataFrame, **kw) -> dict:
+        return _write(out_dir, name, frame, _caption(title, tier, background, rows), **kw)
+
     rows, footer = vs_backbone_table(df, timings)
-    out["vs_backbone"] = T.write_table(
+    out["vs_backbone"] = table(
+        "vs_backbone",
         rows,
-        out_dir / "vs_backbone",
+        "Relighting quality: F-RNG vs the backbone it builds on (datasets = material classes)." + seed_note,
+        df[df["run"].isin(["full", BACKBONE])],
         footer=footer,
         best_within=["dataset"],
-        caption=_caption(
-            "Relighting quality: F-RNG vs the backbone it builds on (datasets = material classes)." + seed_note,
-            tier,
-            background,
-            df[df["run"].isin(["full", BACKBONE])],
-        ),
-        label="tab:vs_backbone",
     )
-    out["ablation"] = T.write_table(
+    out["ablation"] = table(
+        "ablation",
         ablation_table(df),
-        out_dir / "ablation",
-        caption=_caption(
-            "Ablation of F-RNG's components (differences: variant minus the full model)."
-            + seed_note.replace("F-RNG rows", "Every row"),
-            tier,
-            background,
-            ablation_rows(df),
-        ),
-        label="tab:ablation",
+        "Ablation of F-RNG's components (differences: variant minus the full model)."
+        + seed_note.replace("F-RNG rows", "Every row"),
+        ablation_rows(df),
     )
-    out["views"] = T.write_table(
+    out["views"] = table(
+        "views",
         views_table(df),
-        out_dir / "views",
-        caption=_caption(
-            "Number of input views (the same trained full model; differences to 6 views).",
-            tier,
-            background,
-            views_rows(df),
-        ),
-        label="tab:views",
+        "Number of input views (the same trained full model; differences to 6 views).",
+        views_rows(df),
     )
-    out["k"] = T.write_table(
+    out["k"] = table(
+        "k",
         k_table(df),
-        out_dir / "k",
-        caption=_caption(
-            "Top-K salient patches (K in % of a view's patches; differences to the full model's K).",
-            tier,
-            background,
-            k_rows(df),
-        ),
-        label="tab:k",
+        "Top-K salient patches (K in % of a view's patches; differences to the full model's K).",
+        k_rows(df),
     )
     prior = pd.read_csv(prior_csv)
     steps, sensitivity = split_ladder(ladder_table(df, prior, cross))
-    out["ladder"] = T.write_table(
+    out["ladder"] = _write(
+        out_dir,
+        "ladder",
         steps,
-        out_dir / "ladder",
         footer=sensitivity,
         footer_best=False,
         caption=(
@@ -636,48 +626,38 @@ def write_tables(
             f"test light (same object and view); their Δ = right light minus that wrong light (ground truth: "
             f"itself vs the other light's). {DIFF_NOTE} The models' own training seed. Tier {tier}."
         ),
-        label="tab:ladder",
     )
-    out["lambertian"] = T.write_table(
+    out["lambertian"] = table(
+        "lambertian",
         lambertian_table(df),
-        out_dir / "lambertian",
-        caption=_caption(
-            "F-RNG and its decoder's closed-form Lambertian base alone (residual, attenuation and "
-            "specular base dropped), per material class; differences: base minus F-RNG.",
-            tier,
-            background,
-            df[df["run"].isin(["full", BASE_RUN])],
-        ),
-        label="tab:lambertian",
+        "F-RNG and its decoder's closed-form Lambertian base alone (residual, attenuation and "
+        "specular base dropped), per material class; differences: base minus F-RNG.",
+        df[df["run"].isin(["full", BASE_RUN])],
     )
     if families is not None:
         out |= _write_family_tables(tier, background, df, prior, cross, families, out_dir, seed_note)
     if sources is not None:
-        out["vs_backbone_by_source"] = T.write_table(
+        out["vs_backbone_by_source"] = table(
+            "vs_backbone_by_source",
             vs_backbone_by_source(df, sources),
-            out_dir / "vs_backbone_by_source",
+            "Relighting quality per object source: F-RNG vs the backbone (the dataset plan's object sources: "
+            "generated shapes: procedural, primitives, pybullet; real assets: libero = LIBERO's modelled objects, "
+            "objaverse, user); the differences and their "
+            "intervals are computed within each source." + seed_note,
+            df[df["run"].isin(["full", BACKBONE])],
             best_within=[OBJECT_SOURCE],
-            caption=_caption(
-                "Relighting quality per object source: F-RNG vs the backbone (the dataset plan's object sources: "
-                "procedural shapes, libero = LIBERO's modelled assets, objaverse, user); the differences and their "
-                "intervals are computed within each source." + seed_note,
-                tier,
-                background,
-                df[df["run"].isin(["full", BACKBONE])],
-            ),
-            label="tab:vs_backbone_by_source",
         )
     t = timing_table(timings)
-    out["timing"] = T.write_table(
+    out["timing"] = _write(
+        out_dir,
+        "timing",
         t,
-        out_dir / "timing",
         caption=(
             f"Reconstruction and relighting time per image, measured side by side in the same job on "
             f"{', '.join(device)} at {int(t['resolution'].iloc[0])} px, mean over {len(timings)} test "
             f"object(s); F-RNG renders with {t['spp'].iloc[0]:.0f} light samples per pixel, the backbone "
             f"runs one full denoising pass per light. Tier {tier}."
         ),
-        label="tab:timing",
     )
     return out
 
@@ -691,41 +671,35 @@ def _write_family_tables(tier, background, df, prior, cross, families, out_dir: 
         "FAMILIES); the differences and their intervals are computed within each family."
     )
     out = {}
-    out["vs_backbone_by_light"] = T.write_table(
+
+    def table(name: str, frame: pd.DataFrame, title: str, rows: pd.DataFrame, **kw) -> dict:
+        return _write(out_dir, name, frame, _caption(title, tier, background, rows), **kw)
+
+    out["vs_backbone_by_light"] = table(
+        "vs_backbone_by_light",
         vs_backbone_by_light(df),
-        out_dir / "vs_backbone_by_light",
+        "Relighting quality per light family: F-RNG vs the backbone." + note + seed_note,
+        df[df["run"].isin(["full", BACKBONE])],
         best_within=[LIGHT_FAMILY],
-        caption=_caption(
-            "Relighting quality per light family: F-RNG vs the backbone." + note + seed_note,
-            tier,
-            background,
-            df[df["run"].isin(["full", BACKBONE])],
-        ),
-        label="tab:vs_backbone_by_light",
     )
-    out["ablation_by_light"] = T.write_table(
+    out["ablation_by_light"] = table(
+        "ablation_by_light",
         ablation_by_light(df),
-        out_dir / "ablation_by_light",
+        "Ablation per light family (differences: variant minus the full model)."
+        + note
+        + seed_note.replace("F-RNG rows", "Every row"),
+        ablation_rows(df),
         best_within=[LIGHT_FAMILY],
-        caption=_caption(
-            "Ablation per light family (differences: variant minus the full model)."
-            + note
-            + seed_note.replace("F-RNG rows", "Every row"),
-            tier,
-            background,
-            ablation_rows(df),
-        ),
-        label="tab:ablation_by_light",
     )
-    out["ladder_by_light"] = T.write_table(
+    out["ladder_by_light"] = _write(
+        out_dir,
+        "ladder_by_light",
         ladder_by_light(df, prior, cross),
-        out_dir / "ladder_by_light",
         best_within=[LIGHT_FAMILY],
         caption=(
             "Quality ladder per light family (the ladder table's steps and light-sensitivity rows s, each family's "
             f"images only; row c: the input light's family).{note} {DIFF_NOTE} The models' own training seed. "
             f"Tier {tier}."
         ),
-        label="tab:ladder_by_light",
     )
     return out
