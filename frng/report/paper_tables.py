@@ -28,7 +28,7 @@ table            rows                                                reference r
                  hdri, studio, user; the dataset plan's
                  ``EnvMapSpec.family``, passed as ``families``)
 ``vs_backbone_   ``vs_backbone`` per source of the test object       the backbone, same source
-by_source``      (``object_source``: procedural, libero, objaverse,
+by_source``      (``object_source``: procedural, primitives, pybullet,
                  libero, objaverse, user: ``ObjectRecord.source``)
 ================ =================================================== =====================================
 
