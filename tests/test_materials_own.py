@@ -73,6 +73,18 @@ def test_file_material_detection(tmp_path):
     assert catalog.own_material_class(0.7, 0.1) == "diffuse"
 
 
+def _albedo_halves(obj):
+    """The object's input G-buffer, its foreground and red-texel mask, after checking that about half the texels are
+    red and that the albedo matches the texture's red / blue halves."""
+    g = obj.gbuffer("inputs")
+    fg = g["alpha"][..., 0] > 0.99
+    alb, is_red, red, blue = _halves(g, fg)
+    assert 0.2 < is_red.mean() < 0.8
+    assert np.median(np.abs(alb[is_red] - red), 0).max() < 0.02
+    assert np.median(np.abs(alb[~is_red] - blue), 0).max() < 0.02
+    return g, fg, is_red
+
+
 def _halves(g, fg):
     """Foreground pixels split by which texture half their albedo shows (nearest of RED / BLUE)."""
     alb = g["albedo"][fg]
@@ -133,12 +145,7 @@ def test_own_materials_are_curated_with_their_aovs(tmp_path):
     # OBJ + MTL: albedo = map_Kd's texels (sRGB-decoded), roughness = map_Pr's values (data: not sRGB-decoded),
     # metallic 0, normals tilted by the bump (normal) map
     obj = open_object(results, "user_crate")
-    g = obj.gbuffer("inputs")
-    fg = g["alpha"][..., 0] > 0.99
-    alb, is_red, red, blue = _halves(g, fg)
-    assert 0.2 < is_red.mean() < 0.8
-    assert np.median(np.abs(alb[is_red] - red), 0).max() < 0.02
-    assert np.median(np.abs(alb[~is_red] - blue), 0).max() < 0.02
+    g, fg, is_red = _albedo_halves(obj)
     rough = g["roughness"][fg][:, 0]
     assert abs(np.median(rough[is_red]) - 0.2) < 0.02 and abs(np.median(rough[~is_red]) - 0.8) < 0.02
     assert np.abs(g["metallic"][fg]).max() < 1e-3
@@ -152,12 +159,7 @@ def test_own_materials_are_curated_with_their_aovs(tmp_path):
 
     # glTF metallic-roughness: red texels rough 0.2 / metal 1, blue texels rough 0.8 / metal 0; normal map
     obj = open_object(results, "user_pbr")
-    g = obj.gbuffer("inputs")
-    fg = g["alpha"][..., 0] > 0.99
-    alb, is_red, red, blue = _halves(g, fg)
-    assert 0.2 < is_red.mean() < 0.8
-    assert np.median(np.abs(alb[is_red] - red), 0).max() < 0.02
-    assert np.median(np.abs(alb[~is_red] - blue), 0).max() < 0.02
+    g, fg, is_red = _albedo_halves(obj)
     rough, metal = g["roughness"][fg][:, 0], g["metallic"][fg][:, 0]
     assert abs(np.median(rough[is_red]) - 0.2) < 0.02 and abs(np.median(rough[~is_red]) - 0.8) < 0.02
     assert np.median(metal[is_red]) > 0.98 and np.median(metal[~is_red]) < 0.02

@@ -129,29 +129,22 @@ def test_real_checkpoint_state_loads_safely(tmp_path):
         "fingerprint": {"a": [1, 2.0, "x", None, True]},
     }
     save_torch(state, tmp_path / "checkpoint.pt")
-    expect = (
-        random.random(),
-        np.random.rand(),
-        torch.rand(1).item(),
-        rngs["py"].random(),
-        torch.rand(1, generator=rngs["torch"]).item(),
-        rngs["np"].random(),
-        rngs["mt"].random(),
-        rngs["legacy"].rand(),
-    )
+    def draws():  # one number from every generator the checkpoint holds
+        return (
+            random.random(),
+            np.random.rand(),
+            torch.rand(1).item(),
+            rngs["py"].random(),
+            torch.rand(1, generator=rngs["torch"]).item(),
+            rngs["np"].random(),
+            rngs["mt"].random(),
+            rngs["legacy"].rand(),
+        )
+
+    expect = draws()
     back = io.load_torch(tmp_path / "checkpoint.pt", "checkpoint")
     set_rng_state(back["rng"][0], "cpu", rngs)
-    got = (
-        random.random(),
-        np.random.rand(),
-        torch.rand(1).item(),
-        rngs["py"].random(),
-        torch.rand(1, generator=rngs["torch"]).item(),
-        rngs["np"].random(),
-        rngs["mt"].random(),
-        rngs["legacy"].rand(),
-    )
-    assert got == expect
+    assert draws() == expect
     opt.load_state_dict(back["optimizer"])
     model.load_state_dict(back["model"])
 

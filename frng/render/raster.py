@@ -111,24 +111,11 @@ def rasterize(
         raise ValueError(f"features must be (N, C) or (V, N, C) with N={N}, got {tuple(features.shape)}")
     name = resolve_backend(backend, means.device)
     common = dict(near=near, far=far, eps2d=eps2d)
+    scene = (means, quats, scales, opacities, features, c2w, intrinsics, height, width)
     if name == "reference":
-        return rasterize_reference(
-            means,
-            quats,
-            scales,
-            opacities,
-            features,
-            c2w,
-            intrinsics,
-            height,
-            width,
-            max_radius_px=max_radius_px,
-            **common,
-        )
+        return rasterize_reference(*scene, max_radius_px=max_radius_px, **common)
     if name == "gsplat":
-        return gsplat_backend.rasterize_gsplat(
-            means, quats, scales, opacities, features, c2w, intrinsics, height, width, **common
-        )
+        return gsplat_backend.rasterize_gsplat(*scene, **common)
     proj = project_gaussians(
         means, quats, scales, c2w, intrinsics, height, width, max_radius_px=max_radius_px, opacities=opacities, **common
     )
