@@ -1,5 +1,6 @@
 """A curation stops at once on SIGINT (Ctrl-C, also through a shell as Snakemake runs it) and SIGTERM (scancel, a
-scheduler's kill), also in the middle of a render, with a non-zero exit status and nothing that looks complete;
+scheduler's kill), also in the middle of a render, with a non-zero exit status and nothing that looks complete (nor
+Blender's temporary folder left in $TMPDIR);
 staging folders left by a SIGKILLed curation are removed when the same object is curated again (never another
 object's). Renders are made slow on purpose (many samples) so that the signal lands mid-render."""
 
@@ -31,11 +32,12 @@ def _start(tmp, shell: bool) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "frng", "curate", "--config", str(cfg), "--object", "obj_0000"]
     log = tmp / "curate.log"
     log.unlink(missing_ok=True)
+    env = {**os.environ, "TMPDIR": str(_tmpdir(tmp))}  # Blender makes its blender_* folder there
     if shell:  # as Snakemake's shell: directive runs it; Ctrl-C signals the whole process group
         cmd = ["bash", "-c", " ".join(cmd) + f" > {log} 2>&1"]
-        proc = subprocess.Popen(cmd, start_new_session=True)
+        proc = subprocess.Popen(cmd, start_new_session=True, env=env)
     else:
-        proc = subprocess.Popen(cmd, stdout=open(log, "w"), stderr=subprocess.STDOUT, start_new_session=True)
+        proc = subprocess.Popen(cmd, stdout=open(log, "w"), stderr=subprocess.STDOUT, start_new_session=True, env=env)
     deadline = time.monotonic() + 60
     while not log.exists() or "spp" not in log.read_text():  # the first render has started
         assert proc.poll() is None, log.read_text()
@@ -43,6 +45,12 @@ def _start(tmp, shell: bool) -> subprocess.Popen:
         time.sleep(0.1)
     time.sleep(1.0)
     return proc
+
+
+def _tmpdir(tmp):
+    d = tmp / "tmpdir"
+    d.mkdir(exist_ok=True)
+    return d
 
 
 def _objects(tmp):
@@ -74,6 +82,7 @@ def test_signal_stops_curation_at_once_leaving_nothing(envmaps, sig, shell):
     assert took < 5, f"{sig.name}: took {took:.1f} s to stop"
     assert f"stopped by {sig.name}" in log, log
     assert _objects(tmp) == [], "a final or staging folder was left behind"
+    assert not list(_tmpdir(tmp).iterdir()), "Blender's temporary folder was left behind"
 
 
 def test_sigkilled_staging_folder_is_removed_by_the_next_run_of_the_same_object_only(envmaps):

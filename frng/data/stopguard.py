@@ -7,6 +7,7 @@ import contextlib
 import os
 import shutil
 import signal
+import sys
 import threading
 from pathlib import Path
 
@@ -24,6 +25,10 @@ class StopGuard:
     number to a pipe (``signal.set_wakeup_fd``); a thread waiting on it (Blender releases the GIL while it renders)
     takes :attr:`lock`, removes the paths and calls ``os._exit``. The main thread holds :attr:`lock` while it
     writes into a registered path, so the removal never races a write.
+
+    ``os._exit`` skips Blender's own exit, which removes its per-process temporary folder (``bpy.app.tempdir``,
+    ``$TMPDIR/blender_*``): the guard removes that folder too when bpy is loaded, so a stopped job leaves nothing in
+    the temporary directory either.
 
     Installed by the stages only (``frng curate``, ``frng envmaps``): a library caller keeps its own handlers.
     """
@@ -49,7 +54,8 @@ class StopGuard:
                 break
         signum = stops[0]
         self.lock.acquire()  # never released: nothing is written after this
-        for path in self.paths:
+        bpy = sys.modules.get("bpy")
+        for path in [*self.paths, *([Path(bpy.app.tempdir)] if bpy is not None and bpy.app.tempdir else [])]:
             shutil.rmtree(path, ignore_errors=True)
         os.write(2, f"{self.name}: stopped by {signal.Signals(signum).name}; removed the partial output\n".encode())
         os._exit(128 + signum)
