@@ -129,6 +129,7 @@ def test_real_checkpoint_state_loads_safely(tmp_path):
         "fingerprint": {"a": [1, 2.0, "x", None, True]},
     }
     save_torch(state, tmp_path / "checkpoint.pt")
+
     def draws():  # one number from every generator the checkpoint holds
         return (
             random.random(),
