@@ -116,6 +116,7 @@ def write_results(folder: Path) -> Path:
         metrics / "backbone.csv",
         metrics / "relight_cross_light.csv",
         families=dict(zip(LIGHTS, ("sky", "studio"), strict=True)),
+        sources={obj: ("libero" if i else "procedural") for i, (obj, _) in enumerate(OBJECTS)},
     )
     write_baseline_tables(folder, metrics)
     for t in (folder / "tables").iterdir():

@@ -33,8 +33,9 @@ import argparse
 import json
 import time
 from contextlib import nullcontext
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -128,19 +129,9 @@ def synthetic_env(height: int, seed: int, dev: torch.device) -> torch.Tensor:
     return (sky + blob).float().to(dev)
 
 
-@dataclass
-class Models:
-    """One config's untrained models at its architecture sizes, built once for every resolution."""
-
-    path: str
-    config: Config
-    backbone: torch.nn.Module
-    idm: torch.nn.Module
-    frng: torch.nn.Module
-    shading: object  # frng.render.shading.ShadingConfig
-
-
-def build(path: str, args: argparse.Namespace, dev: torch.device) -> Models:
+def build(path: str, args: argparse.Namespace, dev: torch.device) -> SimpleNamespace:
+    """One config's untrained models at its architecture sizes, built once for every resolution: a namespace of
+    path, config, backbone, idm, frng and shading."""
     from frng import config as frng_config
     from frng.model.frng import FRNG, ModelSections, variant_config
     from frng.priors import backbone as backbone_mod
@@ -168,7 +159,7 @@ def build(path: str, args: argparse.Namespace, dev: torch.device) -> Models:
     if args.bf16:
         shading = replace(shading, bf16_infer=True)
     model = FRNG.from_backbone(fcfg, backbone, shading=shading).to(dev).eval()
-    return Models(path, config, backbone, idm, model, shading)
+    return SimpleNamespace(path=path, config=config, backbone=backbone, idm=idm, frng=model, shading=shading)
 
 
 def matmul_peak_gflops(rows: int, width: int, dtype: torch.dtype, dev: torch.device, seconds: float = 1.0) -> float:
@@ -188,7 +179,7 @@ def matmul_peak_gflops(rows: int, width: int, dtype: torch.dtype, dev: torch.dev
     return 2.0 * rows * width * width * n / (time.perf_counter() - t0) / 1e9
 
 
-def measure(m: Models, res: int, args: argparse.Namespace, dev: torch.device, passes: int) -> dict:
+def measure(m: SimpleNamespace, res: int, args: argparse.Namespace, dev: torch.device, passes: int) -> dict:
     """One resolution's timings (median of ``passes`` timed runs per measurement, no warm-up of its own)."""
     from frng.priors.cache import geometry_entry
     from frng.priors.dataset import Views
