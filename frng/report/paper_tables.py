@@ -49,6 +49,7 @@ frame per seed, :func:`seed_parts`), so they contain the spread between training
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -86,6 +87,11 @@ def _caption(title: str, tier: str, background: Sequence[float], df: pd.DataFram
 def _write(out_dir: Path, name: str, table: pd.DataFrame, caption: str, **kw) -> dict:
     """:func:`frng.report.tables.write_table` of ``table`` as ``out_dir/name`` with label ``tab:name``."""
     return T.write_table(table, out_dir / name, caption=caption, label=f"tab:{name}", **kw)
+
+
+def _captioned(out_dir, tier, background, name: str, frame: pd.DataFrame, title: str, rows: pd.DataFrame, **kw):
+    """:func:`_write` with the standard caption (:func:`_caption` of ``title`` over the images ``rows``)."""
+    return _write(out_dir, name, frame, _caption(title, tier, background, rows), **kw)
 
 
 def _metrics(df: pd.DataFrame, by: list[str]) -> pd.DataFrame:
@@ -578,8 +584,7 @@ def write_tables(
     )
     out = {}
 
-    def table(name: str, frame: pd.DataFrame, title: str, rows: pd.DataFrame, **kw) -> dict:
-        return _write(out_dir, name, frame, _caption(title, tier, background, rows), **kw)
+    table = functools.partial(_captioned, out_dir, tier, background)
 
     rows, footer = vs_backbone_table(df, timings)
     out["vs_backbone"] = table(
@@ -672,8 +677,7 @@ def _write_family_tables(tier, background, df, prior, cross, families, out_dir: 
     )
     out = {}
 
-    def table(name: str, frame: pd.DataFrame, title: str, rows: pd.DataFrame, **kw) -> dict:
-        return _write(out_dir, name, frame, _caption(title, tier, background, rows), **kw)
+    table = functools.partial(_captioned, out_dir, tier, background)
 
     out["vs_backbone_by_light"] = table(
         "vs_backbone_by_light",
