@@ -698,7 +698,7 @@ class AssetRenderer:
         self, raster: tuple, env: torch.Tensor, spp: int | None = None, generator: torch.Generator | None = None
     ) -> torch.Tensor:
         """Deferred shading under an equirect map (He, We, 3) -> RGBA (V, H, W, 4), linear, premultiplied."""
-        from frng import envmap
+        from frng.render import envmap
         from frng.render.decoder import shade_decoder
 
         maps, alpha, c2w, intr = raster

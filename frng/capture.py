@@ -70,7 +70,8 @@ from pathlib import Path
 
 import numpy as np
 
-from frng import camera, confine, envmap, io
+from frng import camera, confine, io
+from frng.render import envmap
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".exr")
 MIN_VIEWS, MAX_VIEWS = 2, 10
@@ -786,7 +787,7 @@ def reconstruct(
 
     from frng.asset import RIG_KEY, render_settings, save_asset
     from frng.device import resolve_device
-    from frng.layout import Layout, TrainingFolder
+    from frng.plan.layout import Layout, TrainingFolder
     from frng.relight import Timer, backbone_views
 
     cfg = config
@@ -938,7 +939,7 @@ def export_object(config, oid: str, out: Path, views: int = 6) -> Path:
     """A curated object's first ``views`` input views (input light) as straight-alpha sRGB PNGs
     (``{out}/images/{view}.png``), their cameras (``{out}/cameras.json``, frng entries) and the input light
     (``{out}/light.exr``). Returns ``out``."""
-    from frng.layout import Layout
+    from frng.plan.layout import Layout
 
     L = Layout(config.results)
     try:
@@ -973,8 +974,8 @@ def measure(config, oid: str, work: str | Path, views: int = 6, settings=None) -
 
     from frng import metrics
     from frng.asset import AssetRenderer
-    from frng.data import catalog
-    from frng.layout import Layout
+    from frng.plan import catalog
+    from frng.plan.layout import Layout
 
     cfg = config
     L = Layout(cfg.results)

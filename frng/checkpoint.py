@@ -20,7 +20,7 @@ import os
 from pathlib import Path
 
 from frng import io
-from frng.layout import TrainingFolder
+from frng.plan.layout import TrainingFolder
 from frng.seeding import plain
 
 CHECKPOINT_FORMAT = 2  # checkpoints of another format (or none) are never resumed

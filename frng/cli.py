@@ -162,8 +162,8 @@ def run_stage(name: str, run, args: argparse.Namespace) -> int:
     disk ends in one line on stderr naming the file (exit 2), not a traceback; so does any other ValueError or
     KeyError a loader raises (its first line, with a hint). Under ``--debug`` every error propagates with its
     traceback. Other errors propagate."""
-    from frng.config import ConfigError
     from frng.io import CorruptFileError, ImageError
+    from frng.plan.config import ConfigError
 
     try:
         return int(run(args) or 0)

@@ -43,7 +43,7 @@ import torch
 import torch.distributed as dist
 
 from frng.device import deterministic_kernels, training_threads
-from frng.variants import torchrun_command  # noqa: F401  (torch-free, used by the rule files)
+from frng.plan.variants import torchrun_command  # noqa: F401  (torch-free, used by the rule files)
 
 DEFAULT_PORT = 29500
 

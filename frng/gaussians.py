@@ -27,7 +27,7 @@ from dataclasses import dataclass, fields
 import torch
 
 from frng import camera
-from frng.sections import Settings
+from frng.plan.sections import Settings
 
 RAW_CHANNELS = 9  # distance 1, scale 3, rotation 4, opacity 1
 RAW_SPLIT = (1, 3, 4, 1)

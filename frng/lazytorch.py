@@ -1,5 +1,5 @@
 """``torch``, imported on first use: for the modules that mix numpy helpers with torch ones (:mod:`frng.camera`,
-:mod:`frng.envmap`) and are also imported by torch-free stages.
+:mod:`frng.render.envmap`) and are also imported by torch-free stages.
 
 A curation job (one Blender process per object, ~140 per default-tier run) reads env maps and builds its camera
 rig with those modules' numpy halves only; importing torch cost each job ~2.5 s of its ~12 s (3 min of the

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from frng import io
-from frng.layout import TrainingFolder
+from frng.plan.layout import TrainingFolder
 
 
 class LossLog:

@@ -61,7 +61,7 @@ from pathlib import Path
 import numpy as np
 
 from frng.io import atomic_path, composite, read_rgba, srgb_encode
-from frng.sections import register
+from frng.plan.sections import register
 
 PROTOCOLS = ("aligned", "plain")
 DEFAULT_PROTOCOL = "aligned"
@@ -73,7 +73,7 @@ HIGHER_IS_BETTER = {"psnr": True, "ssim": True, "lpips": False}
 @register("eval")
 @dataclass(frozen=True)
 class EvalConfig:
-    """The config's ``eval`` section: the protocol and background of the relighting metrics (frng.sections.section;
+    """The config's ``eval`` section: the protocol and background of the relighting metrics (frng.plan.sections.section;
     defaults: config/schema.yaml)."""
 
     protocol: str

@@ -13,13 +13,13 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from frng.sections import register
+from frng.plan.sections import register
 
 
 @register("model")
 @dataclass(frozen=True)
 class ModelConfig:
-    """The config's ``model`` section: the patch size of every tokenizer (frng.sections.section; defaults:
+    """The config's ``model`` section: the patch size of every tokenizer (frng.plan.sections.section; defaults:
     config/schema.yaml)."""
 
     patch_size: int

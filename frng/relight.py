@@ -21,7 +21,7 @@ What one job does (one test object, all runs, so the paper-scale DAG stays at on
 Everything is first written to a staging folder ``{results}/relight/.staging-{obj}-*`` and each run folder is
 renamed into place only after the whole object succeeded.
 
-Groups (``group``, :func:`frng.variants.run_groups`): the workflow relights an object in one job per group, the
+Groups (``group``, :func:`frng.plan.variants.run_groups`): the workflow relights an object in one job per group, the
 ``main`` group (the models' seed runs and the backbone, timed side by side: it writes the timing) and one per
 other training seed (its ``{variant}@s{seed}`` runs only, no timing), so that relighting of the first seed's
 models overlaps the other seeds' trainings; ``all`` (the CLI's default) does every run in one job.
@@ -32,7 +32,7 @@ Runs
 ``no-ind``, ``no-neural``), the K sweep ``k1``, ``k4``, ``k8`` (``frng.k_sweep``; their own trained models; the
 entry equal to the full model's K is the full run), the #views sweep ``full-v{V}`` (the full model fed V input
 views), ``full-oracle``, the other training seeds ``{variant}@s{seed}`` (``train.seeds``), ``full-base`` (the full
-model's Lambertian base alone: :func:`shade_base`), and ``backbone`` (:func:`frng.variants.runs`).
+model's Lambertian base alone: :func:`shade_base`), and ``backbone`` (:func:`frng.plan.variants.runs`).
 
 Timing (``timing/{obj}.json``)
 ------------------------------
@@ -57,15 +57,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from frng import envmap, io
-from frng.data.catalog import Catalog
+from frng import io
 from frng.device import resolve_device, synchronize
-from frng.layout import Layout, RelightFolder, TrainingFolder
+from frng.plan.catalog import Catalog
+from frng.plan.layout import Layout, RelightFolder, TrainingFolder
+from frng.plan.sections import TypedConfig
+from frng.plan.variants import ALL_GROUPS, BACKBONE, RIG_VIEWS, Run, RunPlan, model_variants, runs  # noqa: F401
 from frng.priors.backbone_train import BackboneSection
 from frng.priors.idm_train import IDMSection
+from frng.render import envmap
 from frng.render.shading import ShadingConfig
-from frng.sections import TypedConfig
-from frng.variants import ALL_GROUPS, BACKBONE, RIG_VIEWS, Run, RunPlan, model_variants, runs  # noqa: F401
 
 
 class RelightError(ValueError):
@@ -77,7 +78,7 @@ class RelightJob:
     """What relighting reads of the config, picked out by the stage (:meth:`of`): the results folder, the data
     ``seed`` (the live backbone's DDIM seeds and the light-sample seeds), ``render.resolution``, the default
     ``device``, the ``shading``, ``idm`` and ``backbone`` sections (inference spp; the IDM, :func:`frng.priors.
-    build_idm`), the runs (:class:`frng.variants.RunPlan`) and the dataset plan (:func:`frng.data.catalog.plan`:
+    build_idm`), the runs (:class:`frng.plan.variants.RunPlan`) and the dataset plan (:func:`frng.plan.catalog.plan`:
     the split an object is planned in)."""
 
     results: str
@@ -93,7 +94,7 @@ class RelightJob:
     @classmethod
     def of(cls, config: TypedConfig) -> RelightJob:
         """The job of the typed config (``frng.typedconfig.Config``)."""
-        from frng.data import catalog
+        from frng.plan import catalog
 
         return cls(
             results=config.results,
@@ -152,9 +153,9 @@ def validate_inputs(job: RelightJob, oid: str) -> dict:
 
 def check_test_split(plan: Catalog, oid: str, meta: dict, meta_path: Path) -> None:
     """Refuse an object of the training split: its split as curated (``meta.json``'s ``split``) and as the config's
-    dataset plan ``plan`` (:class:`frng.data.catalog.Catalog`) has it must both be ``test``. Raises
+    dataset plan ``plan`` (:class:`frng.plan.catalog.Catalog`) has it must both be ``test``. Raises
     :class:`RelightError` naming the object and the file."""
-    from frng.data import catalog
+    from frng.plan import catalog
 
     curated = meta.get("split")
     if isinstance(meta.get("benchmark"), dict):  # imported by `frng import` (frng/benchmarks): no dataset plan
@@ -197,7 +198,7 @@ def backbone_views(seed: int, backbone, oid: str, views, env_in: torch.Tensor, l
     BackboneCache.views`): t_geo (V, h, w, D), raw (V, H, W, 9), means/quats/scales/opacities, keep (N,) uint8,
     c2w, intr, light0.t_app (V, h, w, D), light0.sh (N, K, 3), the far-side copies back_*; light 0 = the input
     light, with the DDIM seed the cache stage uses (derived from the config's data ``seed``)."""
-    from frng.data import catalog
+    from frng.plan import catalog
     from frng.priors.cache import geometry_entry
 
     rgb, a, c2w, intr = (x.to(device) for x in (views.rgb, views.alpha, views.c2w, views.intr))
@@ -234,8 +235,8 @@ def relight_object(
     Writes into ``out_root`` (a staging folder): ``{run}/...`` folders and, for a group holding the full run and the
     backbone, ``timing.json``. Returns the timing (without ``speedup`` and the methods' entries when the group has
     neither)."""
-    from frng.data import catalog
     from frng.model.frng import FRNG
+    from frng.plan import catalog
     from frng.priors import build_idm, load_backbone
     from frng.priors.dataset import load_object
 
@@ -368,7 +369,7 @@ def relight_object(
 
 
 def shade_base(model, raster: tuple, env: torch.Tensor) -> torch.Tensor:
-    """The run ``full-base`` (:data:`frng.variants.BASE_RUN`, the quality ladder's Lambertian row): what
+    """The run ``full-base`` (:data:`frng.plan.variants.BASE_RUN`, the quality ladder's Lambertian row): what
     :meth:`frng.model.frng.FRNG.shade` renders with the decoder's residual and attenuation (and the closed-form
     specular base of ``shading.decoder_specular``) dropped, i.e. only its closed-form Lambertian base d E(n)
     (:func:`frng.render.shading.lambert_sh`, the term ``shade`` adds to the Monte-Carlo residual with
@@ -434,7 +435,7 @@ def publish(staging: Path, results: Path, oid: str) -> None:
 def relight(
     job: RelightJob, oid: str, models_dir: Path | None = None, device: str | None = None, group: str = ALL_GROUPS
 ) -> dict:
-    """Validate, relight the runs of ``group`` (:func:`frng.variants.run_groups`, default every run) into a staging
+    """Validate, relight the runs of ``group`` (:func:`frng.plan.variants.run_groups`, default every run) into a staging
     folder, publish. Returns the timing dict (see :func:`relight_object`)."""
     results = Path(job.results)
     L = Layout(results)

@@ -30,8 +30,8 @@ from tqdm import tqdm
 
 from frng import checkpoint, io
 from frng.hashing import config_digest
-from frng.layout import TrainingFolder
 from frng.losslog import LossLog
+from frng.plan.layout import TrainingFolder
 from frng.seeding import rng_state, set_rng_state
 
 PROGRESS_LOG_S = 30.0  # seconds between progress lines when stderr is a log file

@@ -1,10 +1,10 @@
 """The typed pipeline config: one frozen :class:`Config`, assembled from the section classes the components declare.
 
 Each component declares the dataclass of the config section it reads beside its own code and registers it by its
-dotted schema key (:func:`frng.sections.register`); this module imports them all, so it is the one place that knows
+dotted schema key (:func:`frng.plan.sections.register`); this module imports them all, so it is the one place that knows
 every section, and only the stage layer (``frng/stages``; tests, benchmarks) imports it. A stage builds the whole
 config once (:func:`typed`) and hands each library the section(s) it reads. ``config/schema.yaml`` is the one place
-defaults are written (:func:`frng.sections.section`; tests/test_config_typed.py).
+defaults are written (:func:`frng.plan.sections.section`; tests/test_config_typed.py).
 """
 
 from __future__ import annotations
@@ -14,7 +14,12 @@ from dataclasses import dataclass
 
 from frng.baselines.fit_settings import FitSettings
 from frng.baselines.plan import BaselinesConfig
-from frng.data.catalog import (
+from frng.metrics import EvalConfig
+from frng.model.frng import FRNGSection
+from frng.model.saliency import SaliencyConfig
+from frng.model.train import LossConfig, TrainConfig
+from frng.nn import ModelConfig
+from frng.plan.catalog import (
     EnvmapsConfig,
     LiberoConfig,
     ObjaverseConfig,
@@ -23,16 +28,11 @@ from frng.data.catalog import (
     SkiesConfig,
     StudioConfig,
 )
-from frng.metrics import EvalConfig
-from frng.model.frng import FRNGSection
-from frng.model.saliency import SaliencyConfig
-from frng.model.train import LossConfig, TrainConfig
-from frng.nn import ModelConfig
+from frng.plan.sections import register, section, section_dict
 from frng.priors.backbone_train import BackboneSection, BackboneTrainConfig
 from frng.priors.idm_train import IDMSection, IDMTrainConfig
 from frng.render.raster import RasterConfig
 from frng.render.shading import ShadingConfig
-from frng.sections import register, section, section_dict
 
 
 @register("")
@@ -95,11 +95,11 @@ SECTION_CLASSES: tuple[type, ...] = (
     TrainConfig,
     LossConfig,
 )
-"""The class of every config section (each registered under its dotted key, :data:`frng.sections.SECTIONS`)."""
+"""The class of every config section (each registered under its dotted key, :data:`frng.plan.sections.SECTIONS`)."""
 
 
 def typed(config: Config | Mapping) -> Config:
-    """The :class:`Config` of a validated config mapping (:func:`frng.config.load`, :func:`frng.config.validate`);
+    """The :class:`Config` of a validated config mapping (:func:`frng.plan.config.load`, :func:`frng.plan.config.validate`);
     a Config is returned as it is."""
     if isinstance(config, Config):
         return config

@@ -9,7 +9,7 @@ import re as _re
 from frng.benchmarks.plan import BenchmarkError as _BenchmarkError
 from frng.benchmarks.plan import entries as _benchmark_entries
 from frng.benchmarks.plan import import_flags as _import_flags
-from frng.variants import model_variants as _model_variants
+from frng.plan.variants import model_variants as _model_variants
 
 try:
     BENCHMARKS = {e["id"]: e for e in _benchmark_entries(config)}

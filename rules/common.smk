@@ -10,12 +10,12 @@ sys.path.insert(0, str(Path(workflow.basedir).parent))  # import frng without in
 from snakemake.logging import logger
 from snakemake_interface_executor_plugins.settings import ExecMode
 
-from frng import batches as frng_batches
-from frng import config as frng_config
-from frng import digests as frng_digests
-from frng.data import catalog as frng_catalog
-from frng.layout import Layout
-from frng.variants import all_variants
+from frng.plan import batches as frng_batches
+from frng.plan import config as frng_config
+from frng.plan import digests as frng_digests
+from frng.plan import catalog as frng_catalog
+from frng.plan.layout import Layout
+from frng.plan.variants import all_variants
 
 try:
     # `--config overwrite_config=true`: replace the results folder's recorded config (not part of the config)
@@ -24,13 +24,13 @@ try:
 except frng_config.ConfigError as e:
     raise WorkflowError(f"invalid config: {e}")
 try:
-    # `--config priors_batch=N`: objects per job of the batched prior rules (frng/batches.py; not part of the config)
+    # `--config priors_batch=N`: objects per job of the batched prior rules (frng/plan/batches.py; not part of the config)
     PRIORS_BATCH = frng_batches.batch_size(config)
 except ValueError as e:
     raise WorkflowError(str(e))
 
 RESULTS = config["results"]
-L = Layout(RESULTS)  # every artefact's path (frng/layout.py); rules pass their wildcards through
+L = Layout(RESULTS)  # every artefact's path (frng/plan/layout.py); rules pass their wildcards through
 ROOT = Path(workflow.basedir).parent
 # The effective config: validated, defaults filled, --config overrides applied; one per results folder. Every
 # stage reads it via `--config {CONFIG_FILE}`. It is written when jobs start (`onstart:` below: never by a dry
@@ -101,7 +101,7 @@ onstart:
         logger.info(f"effective config {outcome}: {CONFIG_FILE}")
 
 
-# The family of a generated batch rule (backbone_cache_train0 -> backbone_cache, frng/batches.py); config
+# The family of a generated batch rule (backbone_cache_train0 -> backbone_cache, frng/plan/batches.py); config
 # digests, profile settings and job counts go by it.
 rule_family = frng_batches.rule_family
 
@@ -147,7 +147,7 @@ PY = sys.executable
 
 def digest_params(rule):
     """The `params:` entry every rule declares, `config_digest` (the digest of the config keys its stage reads,
-    frng/digests.py), so that Snakemake's params trigger reruns its jobs when one of them changes (rules/digests.smk
+    frng/plan/digests.py), so that Snakemake's params trigger reruns its jobs when one of them changes (rules/digests.smk
     writes the same digest beside the results). Used as `**digest_params(name)`."""
     return {"config_digest": frng_digests.rule_digest(config, rule)}
 
@@ -171,7 +171,7 @@ PRIOR_BATCHES = frng_batches.object_batches({"train": TRAIN_IDS, "test": TEST_ID
 # GPUs per torch job: 0 on CPU (CPU clusters reject gpu > 0; see profiles/slurm-ci), else 1 (profiles raise it).
 TORCH_GPUS = 0 if config.get("device", "auto") == "cpu" else 1
 IDM_MODEL = [L.idm_model()] if config["idm"]["kind"] == "learned" else []  # the learned IDM, when there is one
-FRNG_VARIANTS = all_variants(config)  # every F-RNG variant the config asks for (frng/variants.py)
+FRNG_VARIANTS = all_variants(config)  # every F-RNG variant the config asks for (frng/plan/variants.py)
 
 
 def _up_to_date(output, inputs):
@@ -188,7 +188,7 @@ def curation_inputs(rule_name, output):
     """Input function of rules curate and curate_baselines (`output`: the job's meta.json). The env-map index orders
     the job after `frng envmaps`; where the job is otherwise up to date it is ancient, so its rewrite (whenever any
     object's maps change, e.g. an object added) reruns nothing: what the object's own maps are is its record file
-    (rule curate_record) and the rule's digest (envmaps.width, envmaps.normalize), frng.data.catalog.curate_inputs.
+    (rule curate_record) and the rule's digest (envmaps.width, envmaps.normalize), frng.plan.catalog.curate_inputs.
     Ancient only then: Snakemake 9.27 never plans a job that hangs below a rerunning job by ancient files alone,
     whatever its own reason (a missing output, a newer input)."""
 
@@ -207,7 +207,7 @@ def curation_inputs(rule_name, output):
 
 
 def write_curate_record(obj, path, log):
-    """Rule curate_record's job: the object's record file (frng.data.catalog.write_curate_record) and its log line."""
+    """Rule curate_record's job: the object's record file (frng.plan.catalog.write_curate_record) and its log line."""
     frng_catalog.write_curate_record(CATALOG, CATALOG.object(obj), path)
     Path(log).write_text(f"recorded {path}\n")
 

@@ -54,7 +54,7 @@ rule idm_train:
         "exec {params.py:q} -m frng idm-train --config {params.config:q} --out {params.out:q} > {log:q} 2>&1"
 
 
-# One job per batch of objects (frng/batches.py; `--config priors_batch=N`, default 32): each batch is its own
+# One job per batch of objects (frng/plan/batches.py; `--config priors_batch=N`, default 32): each batch is its own
 # rule, {family}_{batch} (backbone_cache_train0, ..., idm_priors_test0), declaring every object's file as an output,
 # so the files, their bytes and everything downstream stay per object. A batch reruns as a whole when one of its
 # objects' inputs changes; a stopped batch leaves only complete files (written atomically) and reruns next time.

@@ -5,7 +5,7 @@
 # the other seeds' models train. One thread per job: on the default tier's 2 cores two objects relight side by side
 # (one object: 34 s at one thread, 28 s at two, on the project's machine), so the timings are taken beside another
 # relighting job, both methods in the same job.
-from frng.variants import MAIN_GROUP, SEED_SEP, RunPlan, model_variants, seed_variant, seeded_bases
+from frng.plan.variants import MAIN_GROUP, SEED_SEP, RunPlan, model_variants, seed_variant, seeded_bases
 
 _RUN_PLAN = RunPlan.of(config)
 RELIGHT_RUNS = [r.name for r in _RUN_PLAN.runs(group=MAIN_GROUP)]

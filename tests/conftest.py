@@ -126,7 +126,7 @@ def smoke_dataset(smoke_pipeline, tmp_path_factory):
     this data)."""
     import yaml
 
-    from frng import config as frng_config
+    from frng.plan import config as frng_config
 
     cfg = yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text())
     cfg["results"] = str(smoke_pipeline)
@@ -141,7 +141,7 @@ def smoke_results(smoke_dataset, folder: Path, link=("envmaps", "objects"), **ov
     (config path, config)."""
     import yaml
 
-    from frng import config as frng_config
+    from frng.plan import config as frng_config
 
     src_path, _ = smoke_dataset
     cfg = yaml.safe_load(Path(src_path).read_text())

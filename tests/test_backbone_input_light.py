@@ -10,7 +10,7 @@ from frng.priors import backbone as bb
 def _sphere_pixels(env: torch.Tensor, albedo=(0.6, 0.4, 0.3), size: int = 48) -> tuple[torch.Tensor, torch.Tensor]:
     """A Lambertian sphere seen from +z under ``env``: pixel inputs (1, 1, H, W, 7) as pixel_inputs makes them
     (gamma-2.2 colour, alpha, world normal) and the normals (1, 1, H, W, 3)."""
-    from frng.envmap import sh_irradiance, sh_project
+    from frng.render.envmap import sh_irradiance, sh_project
 
     y, x = torch.meshgrid(torch.linspace(-1, 1, size), torch.linspace(-1, 1, size), indexing="ij")
     r2 = x**2 + y**2

@@ -20,9 +20,9 @@ def _frng(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_external_folders_give_rows_in_tables_2_and_3(smoke_pipeline, tmp_path):
-    from frng.data import catalog
     from frng.data.dataset import open_object
     from frng.metrics import read_csv
+    from frng.plan import catalog
 
     results = copy_results(smoke_pipeline, tmp_path / "results")
     cfg = yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text())

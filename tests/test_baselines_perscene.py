@@ -20,9 +20,9 @@ from frng.baselines.fit_settings import FitSettings
 from frng.baselines.perscene import GaussianSet, TrainViews, photometric_loss, psnr, ssim
 from frng.baselines.plan import dense_subset, dense_views
 from frng.data.envmaps import studio_map
+from frng.plan.sections import section
 from frng.render.project import rotmat_to_quat
 from frng.render.raster import RasterConfig
-from frng.sections import section
 
 RES = 32
 RASTER = RasterConfig.from_dict({})
@@ -225,8 +225,9 @@ def test_gsir_relights(toy):
 def _write_object(results, toy, oid: str = "toy") -> None:
     """A results folder holding what ``frng baseline-fit`` reads: the baselines' views of one object (the toy's 24
     dense views under light A, 2 target views), its meta.json with one target light (B), both env maps."""
-    from frng import envmap, io
-    from frng.layout import Layout, ObjectFolder
+    from frng import io
+    from frng.plan.layout import Layout, ObjectFolder
+    from frng.render import envmap
 
     L = Layout(results)
     train: TrainViews = toy["train"]
@@ -253,10 +254,10 @@ def _write_object(results, toy, oid: str = "toy") -> None:
 
 @pytest.mark.parametrize("method", ["3dgs", "gsir"])
 def test_stage_writes_the_contract(toy, tmp_path, method):
-    from frng import config as frng_config
     from frng import io
     from frng.baselines.fit_job import BaselineFitError, FitJob, fit_object
-    from frng.layout import RelightFolder
+    from frng.plan import config as frng_config
+    from frng.plan.layout import RelightFolder
     from frng.typedconfig import typed
 
     results = tmp_path / "results"

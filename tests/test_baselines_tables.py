@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 import torch
 
-from frng import camera, envmap, io
+from frng import camera, io
 from frng import metrics as M
 from frng.baselines import external as X
 from frng.baselines import image_based as IB
 from frng.baselines import scoring as S
 from frng.data.rig import make_view
-from frng.layout import Layout, ObjectFolder, RelightFolder
+from frng.plan.layout import Layout, ObjectFolder, RelightFolder
+from frng.render import envmap
 from frng.report import baseline_tables as BT
 from frng.stages import baseline_tables as stage_tables
 

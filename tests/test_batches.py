@@ -1,9 +1,9 @@
-"""Batches of the per-object prior rules (frng/batches.py, rules/priors.smk): every object in exactly one batch, in
+"""Batches of the per-object prior rules (frng/plan/batches.py, rules/priors.smk): every object in exactly one batch, in
 order, sizes within one of each other; the `priors_batch` switch; batch rule names map back to their family."""
 
 import pytest
 
-from frng.batches import DEFAULT_BATCH_OBJECTS, batch_size, batches, object_batches, object_outputs, rule_family
+from frng.plan.batches import DEFAULT_BATCH_OBJECTS, batch_size, batches, object_batches, object_outputs, rule_family
 
 
 @pytest.mark.parametrize("n", [0, 1, 5, 16, 31, 32, 33, 104, 900])

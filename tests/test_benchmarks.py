@@ -12,9 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from frng import camera, envmap, io
+from frng import camera, io
 from frng.benchmarks import BenchmarkError, export_object, import_scene, protocols
 from frng.benchmarks.common import map_directions
+from frng.render import envmap
 
 RES = 32
 RIG = [(0, 0), (90, 0), (180, 0), (270, 0), (45, 45), (225, 45)]

@@ -72,8 +72,8 @@ def test_smoke_tier_exported_imported_relit_scored(smoke_pipeline, tmp_path, cap
     copy of the session's smoke run (conftest.smoke_pipeline): import -> relight (the trained smoke models and the
     backbone) -> each benchmark's protocol; nothing the smoke run made is redone."""
     from frng import cli
-    from frng import config as frng_config
-    from frng.data import catalog
+    from frng.plan import catalog
+    from frng.plan import config as frng_config
 
     results = copy_results(smoke_pipeline, tmp_path / "results")
     cfg0 = _config(tmp_path, results, [])

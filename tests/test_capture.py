@@ -15,7 +15,7 @@ import pytest
 import torch
 from conftest import ROOT
 
-from frng import camera, envmap, io
+from frng import camera, io
 from frng.capture import (
     CaptureError,
     estimate_light,
@@ -25,6 +25,7 @@ from frng.capture import (
     read_light,
     rig_cameras,
 )
+from frng.render import envmap
 
 RES, DIST, FOV = 32, 4.0, 30.0
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from frng.data import catalog
+from frng.plan import catalog
 
 
 def _usable(path) -> bool:

@@ -6,16 +6,17 @@ import pandas as pd
 import pytest
 from data_helpers import frng, write_config
 
-from frng import config as frng_config
-from frng import envmap, io
+from frng import io
+from frng.plan import config as frng_config
+from frng.render import envmap
 
 pytestmark = pytest.mark.blender
 
 
 def _scene(tmp_path, **render):
-    from frng.data import catalog
     from frng.data.curate import object_scene
-    from frng.sections import config_section
+    from frng.plan import catalog
+    from frng.plan.sections import config_section
 
     cfg = frng_config.load(write_config(tmp_path / "config.yaml", tmp_path / "results", render=render))
     plan = catalog.plan(cfg)

@@ -6,7 +6,7 @@ import json
 import pytest
 import yaml
 
-from frng import config as cfg
+from frng.plan import config as cfg
 
 
 @pytest.mark.parametrize("name", ["config.yaml", "smoke.yaml", "paper.yaml"])

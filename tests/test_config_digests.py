@@ -1,7 +1,7 @@
 """Config edits rerun exactly what they affect (issue 12, problem 3).
 
 Every rule declares ``params: config_digest=`` a digest of the config keys its stage reads (``CONFIG_READS`` of
-``frng/stages/<rule>.py``, gathered by ``frng/digests.py``), so Snakemake's params trigger reruns the rules whose keys were edited and, through their
+``frng/stages/<rule>.py``, gathered by ``frng/plan/digests.py``), so Snakemake's params trigger reruns the rules whose keys were edited and, through their
 rebuilt outputs, the rules downstream; the other rules stay.
 
 The workflow test needs a results folder where every job has run with a known config, without running any stage:
@@ -20,10 +20,10 @@ import pytest
 import yaml
 from conftest import ROOT, venv_bin
 
-from frng import config as frng_config
-from frng import digests as frng_digests
-from frng.batches import DEFAULT_BATCH_OBJECTS, batches, rule_family
-from frng.variants import seeded_bases, trained_variants
+from frng.plan import config as frng_config
+from frng.plan import digests as frng_digests
+from frng.plan.batches import DEFAULT_BATCH_OBJECTS, batches, rule_family
+from frng.plan.variants import seeded_bases, trained_variants
 
 # -- the digest --------------------------------------------------------------------------------------------------
 
@@ -254,7 +254,7 @@ def test_an_edit_reruns_its_rules_and_what_follows_only(folder, key, value, expe
 
 
 def _plans(folder: Folder, edited: dict):
-    from frng.data import catalog
+    from frng.plan import catalog
 
     return (
         catalog.plan(frng_config.load(folder.write(n, c))) for n, c in (("p0.yaml", folder.config), ("p1.yaml", edited))
@@ -289,7 +289,7 @@ def test_an_added_object_reruns_its_own_curation_only(folder, tmp_path):
 
 def test_a_light_edit_reruns_the_curation_of_the_objects_it_changes(folder):
     """envmaps.skies.sun_share changes the sky maps only: the objects with a sky draw rerun, the others stay."""
-    from frng.data import catalog
+    from frng.plan import catalog
 
     edited = set_key(folder.config, "envmaps.skies.sun_share", 0.5)
     before, after = _plans(folder, edited)
@@ -301,8 +301,8 @@ def test_a_light_edit_reruns_the_curation_of_the_objects_it_changes(folder):
 
 
 def test_curate_records_are_written_and_replaced(tmp_path):
-    from frng.data import catalog
-    from frng.layout import Layout
+    from frng.plan import catalog
+    from frng.plan.layout import Layout
 
     cfg = frng_config.validate(yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text()))
     L, plan = Layout(tmp_path), catalog.plan(cfg)
@@ -345,7 +345,7 @@ def test_a_copied_folder_keeps_the_rerun_promise(folder, tmp_path, key, value):
 
 
 def test_digest_files_are_recorded_and_replaced(tmp_path):
-    from frng.layout import Layout
+    from frng.plan.layout import Layout
 
     cfg = frng_config.validate(yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text()))
     L = Layout(tmp_path)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from frng.sections import load_schema
+from frng.plan.sections import load_schema
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -1,6 +1,6 @@
 """One source of truth per config key (issue 58, item 6): each stage declares once the config sections and keys it
 reads (``CONFIG_READS`` of ``frng/stages/<rule>.py``; the bookkeeping rules without a stage in
-``frng.digests.STAGELESS_READS``), and the digests (hence the rules' ``params``, Snakemake's rerun trigger), the
+``frng.plan.digests.STAGELESS_READS``), and the digests (hence the rules' ``params``, Snakemake's rerun trigger), the
 digest files and the docs table all derive from that declaration.
 
 Fast: no Snakemake, no stage run (tests/test_config_digests.py runs the workflow's dry runs)."""
@@ -13,8 +13,8 @@ import sys
 import pytest
 from conftest import ROOT
 
-from frng import config as frng_config
-from frng import digests
+from frng.plan import config as frng_config
+from frng.plan import digests
 
 CONFIG = frng_config.load(ROOT / "config" / "config.yaml")
 LEAVES = [k for k in digests.schema_leaves() if k.split(".")[0] not in digests.NOT_DIGESTED]
@@ -52,7 +52,7 @@ def test_every_declared_key_names_a_schema_key(rule):
     assert [bad for bad in digests.unknown_digest_keys() if bad.startswith(f"{rule}: ")] == []
 
 
-# Schema keys no rule reads, and why (frng.digests.NOT_DIGESTED): everything else is declared by some rule.
+# Schema keys no rule reads, and why (frng.plan.digests.NOT_DIGESTED): everything else is declared by some rule.
 GLOBAL_KEYS = {
     "results": "where the outputs go, not what they are: a moved or copied results folder reruns nothing",
 }
@@ -67,7 +67,7 @@ def test_every_schema_key_is_declared_by_some_rule():
     assert not undeclared, "; ".join(
         f"config key {k} (config/schema.yaml) is read by no rule: add it (or its section "
         f"{k.split('.')[0]!r}) to CONFIG_READS of frng/stages/<rule>.py of every rule whose stage reads it, or to "
-        "frng.digests.NOT_DIGESTED and GLOBAL_KEYS of tests/test_config_reads.py with the reason no rule reads it"
+        "frng.plan.digests.NOT_DIGESTED and GLOBAL_KEYS of tests/test_config_reads.py with the reason no rule reads it"
         for k in undeclared
     )
 
@@ -84,9 +84,7 @@ def test_an_undeclared_schema_key_is_refused():
 
 def test_declarations_are_read_without_importing_the_stages():
     """The rule files compute the digests while planning: reading the declarations imports no stage and no torch."""
-    code = (
-        "import sys, frng.digests\nprint(sorted(m for m in sys.modules if m == 'torch' or m.startswith('frng.stages')))"
-    )
+    code = "import sys, frng.plan.digests\nprint(sorted(m for m in sys.modules if m == 'torch' or m.startswith('frng.stages')))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT).stdout
     assert out.strip() == "[]"
 
@@ -124,7 +122,7 @@ DOC = ROOT / "docs" / "provenance-and-reproducibility.md"
 
 
 def test_the_docs_table_is_the_declarations():
-    """docs/provenance-and-reproducibility.md shows what each rule reads as frng.digests.reads_table() writes it."""
+    """docs/provenance-and-reproducibility.md shows what each rule reads as frng.plan.digests.reads_table() writes it."""
     m = re.search(r"<!-- rule-reads:begin[^\n]*-->\n(.*?)<!-- rule-reads:end -->", DOC.read_text(), re.S)
     assert m, f"{DOC}: no <!-- rule-reads:begin --> ... <!-- rule-reads:end --> block"
     assert m.group(1) == digests.reads_table(), (

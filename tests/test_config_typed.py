@@ -1,4 +1,4 @@
-"""The typed config (frng/typedconfig.py ``Config``, ``typed``; frng/sections.py ``section``): one frozen dataclass per
+"""The typed config (frng/typedconfig.py ``Config``, ``typed``; frng/plan/sections.py ``section``): one frozen dataclass per
 schema section, strict (unknown keys are errors), with config/schema.yaml as the one place defaults are written: every
 object section of the schema has a registered class whose fields are its keys (a key added to the schema and not to
 its class, or the other way round, fails here)."""
@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from frng import config as fc
-from frng import digests
-from frng.sections import (
+from frng.plan import config as fc
+from frng.plan import digests
+from frng.plan.sections import (
     SECTIONS,
     ConfigError,
     as_dict,
@@ -144,9 +144,9 @@ def test_shipped_configs_round_trip(path):
 
 
 def test_config_module_stays_torch_free():
-    """frng.config, frng.digests (and the planning helpers the rule files call with the dict) import no torch."""
+    """frng.plan.config, frng.plan.digests (and the planning helpers the rule files call with the dict) import no torch."""
     code = (
-        "import sys, frng.config as fc, frng.digests, frng.data.catalog as cat, frng.variants as v; "
+        "import sys, frng.plan.config as fc, frng.plan.digests, frng.plan.catalog as cat, frng.plan.variants as v; "
         "d = fc.load('config/smoke.yaml'); cat.plan(d); v.runs(d); print('torch' in sys.modules)"
     )
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
@@ -154,7 +154,7 @@ def test_config_module_stays_torch_free():
 
 
 def test_every_config_from_dict_is_strict():
-    """No lenient copy is left: every ``from_dict`` of a config dataclass builds through frng.sections.section (or inherits frng.sections.Settings's) (the
+    """No lenient copy is left: every ``from_dict`` of a config dataclass builds through frng.plan.sections.section (or inherits frng.plan.sections.Settings's) (the
     one exception, IntrinsicPriors.from_dict, reads tensors, not a config), and nothing filters keys by the
     dataclass's fields."""
     import re
@@ -176,8 +176,8 @@ OTHER_CONSTRUCTORS = {("shading", "from_saved")}
 
 
 def test_one_constructor_per_section():
-    """A section is built one way from its mapping, ``cls.from_dict`` (given by frng.sections.register, strict, at
-    the key the class is registered under), and one way from the whole config, frng.sections.config_section."""
+    """A section is built one way from its mapping, ``cls.from_dict`` (given by frng.plan.sections.register, strict, at
+    the key the class is registered under), and one way from the whole config, frng.plan.sections.config_section."""
     config = fc.load(ROOT / "config" / "config.yaml")
     for where, cls in SECTIONS.items():
         assert "from_dict" in vars(cls), f"{where}: {cls.__name__} has no from_dict of its registration"

@@ -8,8 +8,9 @@ import math
 
 import torch
 
-from frng import camera, envmap
+from frng import camera
 from frng.model.materialformer import decode_pbr
+from frng.render import envmap
 from frng.render.shading import (
     GGX_MAX_METALLIC,
     GGX_MIN_ALBEDO,

@@ -26,7 +26,7 @@ import torch
 torch.set_num_threads({threads})
 sys.path.insert(0, {here!r})
 from test_idm_generalise import sphere_object
-from frng import config as frng_config
+from frng.plan import config as frng_config
 from frng.priors import backbone_train
 from frng.typedconfig import typed
 from frng.priors.dataset import Views

@@ -1,7 +1,7 @@
-"""frng.envmap's equirect convention (and frng.camera's OpenCV convention) match how Cycles lights a scene.
+"""frng.render.envmap's equirect convention (and frng.camera's OpenCV convention) match how Cycles lights a scene.
 
 A mirror sphere is lit by a map holding one small bright blob; the brightest pixel Cycles renders must be
-where our own ray tracing (frng.camera rays -> sphere -> reflect -> frng.envmap direction) predicts it.
+where our own ray tracing (frng.camera rays -> sphere -> reflect -> frng.render.envmap direction) predicts it.
 """
 
 import math
@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from frng import camera, envmap
+from frng import camera
+from frng.render import envmap
 
 pytestmark = pytest.mark.blender
 

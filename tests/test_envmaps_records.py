@@ -5,7 +5,7 @@ earlier runs are removed. Uses users' maps only (no sky bakes), so it runs in ab
 import numpy as np
 from data_helpers import frng, write_config
 
-from frng import envmap
+from frng.render import envmap
 
 
 def _maps(tmp_path, bad: bool):

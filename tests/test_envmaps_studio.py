@@ -7,10 +7,12 @@ import numpy as np
 import torch
 from data_helpers import frng, write_config
 
-from frng import config as frng_config
-from frng import envmap, io
-from frng.data import catalog, envmaps
-from frng.sections import schema_defaults
+from frng import io
+from frng.data import envmaps
+from frng.plan import catalog
+from frng.plan import config as frng_config
+from frng.plan.sections import schema_defaults
+from frng.render import envmap
 
 
 def _cfg(count=3, seed=0):

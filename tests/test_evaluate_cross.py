@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from frng import io
-from frng.layout import Layout, RelightFolder
+from frng.plan.layout import Layout, RelightFolder
 from frng.stages import evaluate as E
 
 

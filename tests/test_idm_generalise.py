@@ -24,7 +24,7 @@ TINY = dict(width=32, heads=2, depth=1, patch=8, pixel_features=8, near=NEAR, fa
 def trainer_config(train: dict) -> dict:
     """A validated pipeline config for the IDM trainer on the sphere: TINY's architecture, ``idm.train`` = ``train``,
     the schema's defaults for the rest (objects, envmaps and render are required but unused here)."""
-    from frng import config as frng_config
+    from frng.plan import config as frng_config
 
     return frng_config.validate(
         {

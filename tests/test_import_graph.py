@@ -2,9 +2,9 @@
 
 What counts as an edge A -> B: EVERY ``import`` / ``from ... import`` statement in module A that names a frng module
 B, wherever it stands -- at module level, under ``if TYPE_CHECKING:``, or inside a function. A ``TYPE_CHECKING``
-import is a dependency of the design (the 22-module cycle through ``frng/config.py`` hid behind one), and a
+import is a dependency of the design (the 22-module cycle through ``frng/plan/config.py`` hid behind one), and a
 function-local import that merely defers a cycle to run time is still a cycle, so neither is a way out: a cycle is
-broken by moving the shared piece to a module both can import (a leaf such as ``frng.sections``, which imports no
+broken by moving the shared piece to a module both can import (a leaf such as ``frng.plan.sections``, which imports no
 component). ``from pkg import name`` is an edge to ``pkg.name`` when that is a module, else to ``pkg``; importing
 ``a.b.c`` also runs ``a/__init__`` and ``a/b/__init__``, so those count as edges too (but a module's own parent
 packages, which are initialised before it runs). ``importlib.import_module``
@@ -110,10 +110,10 @@ def test_the_cycle_finder_finds_one():
 
 
 def test_sections_is_a_leaf_and_only_stages_assemble_the_config():
-    """frng.sections imports no frng module; frng.typedconfig (which imports every component declaring a section) is
+    """frng.plan.sections imports no frng module; frng.typedconfig (which imports every component declaring a section) is
     imported by the stage layer only -- libraries get the typed config, or their section, handed to them."""
     graph = import_graph()
-    assert graph["frng.sections"] == set()
+    assert graph["frng.plan.sections"] == set()
     importers = sorted(m for m, deps in graph.items() if "frng.typedconfig" in deps)
     outside = [m for m in importers if not m.startswith("frng.stages")]
     assert not outside, f"libraries importing frng.typedconfig: {outside}"

@@ -1,9 +1,9 @@
-"""The results layout is spelled once (frng/layout.py): the rules and the stages ask Layout for every path."""
+"""The results layout is spelled once (frng/plan/layout.py): the rules and the stages ask Layout for every path."""
 
 import re
 from pathlib import Path
 
-from frng.layout import Layout
+from frng.plan.layout import Layout
 
 ROOT = Path(__file__).resolve().parents[1]
 TOP = (
@@ -43,13 +43,13 @@ def test_rule_files_spell_no_results_paths():
         for i, line in enumerate(f.read_text().splitlines(), 1)
         if pattern.search(line)
     ]
-    assert not offenders, "results paths spelled outside frng/layout.py:\n" + "\n".join(offenders)
+    assert not offenders, "results paths spelled outside frng/plan/layout.py:\n" + "\n".join(offenders)
 
 
 def test_folders_name_the_files_layout_places():
     """The files inside a folder a stage may be pointed at elsewhere (--out, --envmaps, staging folders) are named by
     the folder classes, and Layout asks them: one spelling of each name."""
-    from frng.layout import EnvmapFolder, ObjectFolder, RelightFolder, TrainingFolder
+    from frng.plan.layout import EnvmapFolder, ObjectFolder, RelightFolder, TrainingFolder
 
     L = Layout("res")
     assert EnvmapFolder("stage").index() == "stage/index.json" and L.envmap_index() == "res/envmaps/index.json"
@@ -69,7 +69,7 @@ def test_folders_name_the_files_layout_places():
 
 
 def test_library_spells_no_file_names():
-    """No module of frng/ but frng/layout.py quotes a results file name ("meta.json", "model.pt", ...)."""
+    """No module of frng/ but frng/plan/layout.py quotes a results file name ("meta.json", "model.pt", ...)."""
     pattern = re.compile(
         r"""["'](meta|index|run|train)\.json["']|["'](model|checkpoint)\.pt["']|["']loss\.(csv|png)["']"""
         r"""|["']saliency\.npz["']"""
@@ -81,4 +81,4 @@ def test_library_spells_no_file_names():
         for i, line in enumerate(f.read_text().splitlines(), 1)
         if pattern.search(line)
     ]
-    assert not offenders, "results file names spelled outside frng/layout.py:\n" + "\n".join(offenders)
+    assert not offenders, "results file names spelled outside frng/plan/layout.py:\n" + "\n".join(offenders)

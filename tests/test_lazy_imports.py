@@ -6,18 +6,19 @@ import sys
 
 import torch
 
-from frng import camera, envmap
+from frng import camera
+from frng.render import envmap
 
 TORCH_FREE = [
     "frng.cli",
     "frng.stages.curate",
     "frng.data.curate",
-    "frng.data.catalog",
+    "frng.plan.catalog",
     "frng.data.envmaps",
     "frng.data.rig",
     "frng.camera",
-    "frng.envmap",
-    "frng.variants",
+    "frng.render.envmap",
+    "frng.plan.variants",
 ]
 
 

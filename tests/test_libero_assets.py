@@ -10,9 +10,9 @@ import importlib.util
 import pytest
 from data_helpers import frng, write_config
 
-from frng import config as frng_config
-from frng.data import catalog
 from frng.data.dataset import open_object
+from frng.plan import catalog
+from frng.plan import config as frng_config
 
 installed = importlib.util.find_spec(catalog.LIBERO_PACKAGE) is not None
 

@@ -7,8 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from frng import config as frng_config
-from frng.data import catalog, envmaps
+from frng.data import envmaps
+from frng.plan import catalog
+from frng.plan import config as frng_config
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -167,7 +168,7 @@ def test_sunny_skies_are_hard_lights():
 
     import torch
 
-    from frng import envmap
+    from frng.render import envmap
 
     h, w = 128, 256
     d = envmap.pixel_directions(h, w, dtype=torch.float64).numpy()

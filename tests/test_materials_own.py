@@ -11,9 +11,9 @@ import pytest
 from asset_writers import halves, srgb_to_linear, write_glb, write_obj, write_ply
 from data_helpers import frng, write_config
 
-from frng import config as frng_config
-from frng.data import catalog
 from frng.data.dataset import open_object
+from frng.plan import catalog
+from frng.plan import config as frng_config
 
 RED, BLUE = (230, 40, 30), (30, 60, 220)  # sRGB bytes of the texture halves (u < 0.5: RED)
 NORMAL_30 = (191, 128, 238)  # tangent-space normal (0.5, 0, 0.866): tilted 30 deg

@@ -15,7 +15,7 @@ from frng.model.saliency import (
     salient_patches,
     select_top_k,
 )
-from frng.sections import ConfigError
+from frng.plan.sections import ConfigError
 
 
 def textured_square(size=64, lo=16, hi=48, seed=0):

@@ -16,9 +16,9 @@ from asset_writers import halves, write_glb
 from conftest import ROOT, venv_bin
 from data_helpers import frng, write_config
 
-from frng import config as frng_config
-from frng.data import catalog
 from frng.data.dataset import open_object
+from frng.plan import catalog
+from frng.plan import config as frng_config
 
 UIDS = ["0123456789abcdef0123456789abcdef", "fedcba9876543210fedcba9876543210", "00000000000000000000000000000abc"]
 

@@ -4,9 +4,9 @@ import math
 
 import torch
 
-from frng import envmap
 from frng.model.frng import PIXEL_RATIO, RATIO_TRUST, pixel_map
 from frng.priors.intrinsics import IntrinsicPriors
+from frng.render import envmap
 
 
 def _hard_light(h: int = 32) -> torch.Tensor:

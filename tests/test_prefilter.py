@@ -4,7 +4,8 @@ import math
 
 import torch
 
-from frng import camera, envmap
+from frng import camera
+from frng.render import envmap
 from frng.render.prefilter import KAPPAS, lookup, prefilter, specular_base, specular_params
 from frng.render.shading import ShadingConfig
 

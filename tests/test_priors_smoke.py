@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from frng.data.catalog import plan
+from frng.plan.catalog import plan
 from frng.typedconfig import typed
 
 ROOT = Path(__file__).resolve().parent.parent

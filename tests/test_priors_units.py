@@ -209,7 +209,7 @@ def test_light_ratio_is_lambertian():
     uniform = torch.ones(1, 16, 32, 3)
     assert torch.allclose(bb.RelitLRMBackbone.light_ratio(uniform, n), torch.zeros(1, 3, 1, 1, 3), atol=1e-2)
     sky = torch.ones(1, 16, 32, 3) * 0.05
-    sky[:, :8] = 2.0  # bright upper hemisphere (row 0 = +Z in frng.envmap's convention)
+    sky[:, :8] = 2.0  # bright upper hemisphere (row 0 = +Z in frng.render.envmap's convention)
     r = bb.RelitLRMBackbone.light_ratio(sky, n).exp()
     assert r[0, 0, 0, 0, 0] > 1.5 and r[0, 1, 0, 0, 0] < 0.5  # up-facing lit, down-facing dark
     assert torch.allclose(r[0, 2], torch.ones(1, 1, 3))  # no normal: ratio 1

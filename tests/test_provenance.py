@@ -14,7 +14,7 @@ import pytest
 import yaml
 from conftest import ROOT, venv_bin
 
-from frng import config as frng_config
+from frng.plan import config as frng_config
 
 
 def snakemake(configfile, *args, targets=(), workdir=None, timeout=300):

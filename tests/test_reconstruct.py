@@ -28,8 +28,8 @@ TOLERANCE_DB = 0.5
 def smoke(request):
     """(config, test object id) of a smoke results folder with the full model, the priors and the relit test
     objects."""
-    from frng import config as frng_config
-    from frng.data import catalog
+    from frng.plan import catalog
+    from frng.plan import config as frng_config
 
     given = os.environ.get("FRNG_SMOKE_RESULTS")
     results = Path(given) if given else request.getfixturevalue("smoke_pipeline")  # conftest: the session's run
@@ -63,7 +63,7 @@ def test_folder_of_pngs_to_a_relit_turntable(smoke, tmp_path):
 
     from frng import io
     from frng.asset import load_asset
-    from frng.layout import Layout
+    from frng.plan.layout import Layout
 
     config, oid = smoke
     results = Path(config.results)

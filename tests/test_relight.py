@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from frng import config as frng_config
 from frng import io, relight
+from frng.plan import config as frng_config
 from frng.typedconfig import typed
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -38,7 +38,7 @@ def test_runs_cover_ablation_k_and_views_sweeps():
 @pytest.fixture(scope="module")
 def private_object(smoke_dataset, tmp_path_factory):
     """A results folder holding a real copy (not a link) of the smoke test object and the env maps."""
-    from frng.data import catalog
+    from frng.plan import catalog
 
     src_path, src_config = smoke_dataset
     d = tmp_path_factory.mktemp("relight_bad")
@@ -156,7 +156,7 @@ def test_bench_relight_reports_both_methods():
     assert r.returncode == 0, r.stdout + r.stderr
     rows = [json.loads(line) for line in r.stdout.strip().splitlines()]
     assert [row["resolution"] for row in rows] == [32, 48]
-    from frng import config as frng_config
+    from frng.plan import config as frng_config
     from frng.typedconfig import typed
 
     sc = typed(frng_config.load(ROOT / "config" / "smoke.yaml")).shading
@@ -193,7 +193,7 @@ def _synthetic_object(tmp_path, split):
     """A results folder with one object of the smoke plan's ``split`` whose input views are RGB-only EXRs."""
     import yaml
 
-    from frng.data import catalog
+    from frng.plan import catalog
 
     cfg = yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text())
     cfg["results"] = str(tmp_path / "results")

@@ -1,4 +1,4 @@
-"""Environment-light importance sampling and SH projection (frng.envmap): pdfs normalised, samples follow the
+"""Environment-light importance sampling and SH projection (frng.render.envmap): pdfs normalised, samples follow the
 pmf, estimates unbiased within Monte-Carlo error (4 standard errors), SH round trip."""
 
 import math
@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-from frng import envmap
+from frng.render import envmap
 from frng.render.sh import eval_sh, sh_basis
 
 

@@ -2,7 +2,7 @@
 
 import torch
 
-from frng import envmap
+from frng.render import envmap
 from frng.render.sh import sh_basis
 
 

@@ -7,8 +7,8 @@ import math
 import pytest
 import torch
 
-from frng import envmap
-from frng.render import rasterize
+from frng.plan.sections import config_section
+from frng.render import envmap, rasterize
 from frng.render.shading import (
     NeuralDecoder,
     ShadingConfig,
@@ -18,7 +18,6 @@ from frng.render.shading import (
     lambert_sh,
     shade_pixels,
 )
-from frng.sections import config_section
 
 DT = torch.float64
 

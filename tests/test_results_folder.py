@@ -20,7 +20,7 @@ import pytest
 import yaml
 from conftest import ROOT, venv_bin
 
-from frng import config as frng_config
+from frng.plan import config as frng_config
 
 
 def snakemake(configfile, *args, workdir=None, targets=()):

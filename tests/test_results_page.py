@@ -1,6 +1,6 @@
 """The generated results pages (frng/report/results_page.py, ``frng results-page``, ``frng tables --results-page``).
 
-The results tree is written here: per-image scores for every run the smoke config implies (``frng.variants.runs``),
+The results tree is written here: per-image scores for every run the smoke config implies (``frng.plan.variants.runs``),
 the priors' and the light-sensitivity CSVs and timing files, turned into tables by the pipeline's own
 ``frng.report.paper_tables.write_tables``, so the tables have the smoke tier's structure without a pipeline run.
 The committed ``docs/results.md`` and README block must have the structure (headings, table columns) a regeneration
@@ -19,9 +19,9 @@ import pandas as pd
 import pytest
 import yaml
 
-from frng import config as frng_config
 from frng import io
-from frng import variants as V
+from frng.plan import config as frng_config
+from frng.plan import variants as V
 from frng.report import results_page as RP
 from frng.report.paper_tables import LADDER_STEPS, write_tables
 

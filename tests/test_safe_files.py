@@ -305,7 +305,7 @@ def test_identical_retrain_same_model_bytes(tmp_path):
 
 
 def test_cross_key_checks():
-    from frng import config as frng_config
+    from frng.plan import config as frng_config
 
     base = frng_config.read_yaml(Path(__file__).parent.parent / "config" / "smoke.yaml")
     for section, bad, key in [

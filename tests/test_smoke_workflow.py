@@ -25,16 +25,16 @@ def _tail(text: str, n: int = 4000) -> str:
 @pytest.fixture(scope="module")
 def smoke_run(smoke_pipeline):
     """(results folder, config) of the session's smoke run (conftest.smoke_pipeline)."""
-    from frng import config as frng_config
+    from frng.plan import config as frng_config
 
     return smoke_pipeline, frng_config.load(smoke_pipeline / "config.yaml")
 
 
 def test_every_target_and_table(smoke_run):
     from frng import io
-    from frng.data import catalog
+    from frng.plan import catalog
+    from frng.plan.variants import BASE_VARIANTS, model_seed, runs, split_seed
     from frng.report.tables import TABLE_COLUMNS
-    from frng.variants import BASE_VARIANTS, model_seed, runs, split_seed
 
     results, config = smoke_run
     for name, cols in TABLE_COLUMNS.items():
@@ -77,7 +77,7 @@ def test_every_target_and_table(smoke_run):
 
 def test_figures_asset_and_report(smoke_run):
     from frng.asset import load_asset
-    from frng.data import catalog
+    from frng.plan import catalog
 
     results, config = smoke_run
     tests = catalog.plan(config).split("test")
@@ -244,8 +244,8 @@ def test_relight_groups_split_the_runs_of_training_seeds(smoke_run, tmp_path):
     import yaml
 
     from frng import io
-    from frng.data import catalog
-    from frng.variants import run_groups, runs, seed_variant, seeded_bases
+    from frng.plan import catalog
+    from frng.plan.variants import run_groups, runs, seed_variant, seeded_bases
 
     results, config = smoke_run
     res = tmp_path / "results"
@@ -298,7 +298,7 @@ def test_baselines_tables_and_views(smoke_run):
     the input light is also one of the object's target lights."""
     from frng import io
     from frng.baselines import plan as P
-    from frng.data import catalog
+    from frng.plan import catalog
 
     results, config = smoke_run
     cat = catalog.plan(config)

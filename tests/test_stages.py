@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from frng import cli
-from frng.variants import torchrun_command
+from frng.plan.variants import torchrun_command
 
 ROOT = Path(__file__).resolve().parents[1]
 STAGES_DIR = ROOT / "frng" / "stages"
@@ -50,9 +50,9 @@ NO_STAGE = {
     "(frng.io.write_file_index)",
     "training_set_priors": "Snakemake bookkeeping: likewise, the index of the training split's IDM priors",
     "config_digest": "Snakemake bookkeeping: a `run:` block recording a rule's config digest in the results folder "
-    "(frng.digests.write_rule_digest)",
+    "(frng.plan.digests.write_rule_digest)",
     "curate_record": "Snakemake bookkeeping: a `run:` block recording an object's plan entry and maps' records in "
-    "the results folder (frng.data.catalog.write_curate_record)",
+    "the results folder (frng.plan.catalog.write_curate_record)",
 }
 # stage modules without a rule, and why
 STAGES_WITHOUT_RULE = {

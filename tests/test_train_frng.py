@@ -14,7 +14,7 @@ import pytest
 import torch
 from conftest import smoke_results
 
-from frng.sections import config_section
+from frng.plan.sections import config_section
 from frng.typedconfig import typed
 
 
@@ -22,7 +22,7 @@ from frng.typedconfig import typed
 def frng_smoke(smoke_dataset, tmp_path_factory):
     """Own results folder on the session's smoke run: its data and its trained backbone with token caches (linked,
     read-only), oracle IDM priors made here."""
-    from frng.data import catalog
+    from frng.plan import catalog
     from frng.priors import cache
 
     d = tmp_path_factory.mktemp("train_smoke")
@@ -36,8 +36,8 @@ def frng_smoke(smoke_dataset, tmp_path_factory):
 
 
 def _objects(config, use_priors=True, alt_light=False):
-    from frng.data import catalog
     from frng.model.train import load_objects
+    from frng.plan import catalog
 
     res = Path(config["results"])
     ids = catalog.plan(config).split("train")
@@ -52,8 +52,8 @@ def _sections(config):
 
 def _train(config, variant, out, **kw):
     """frng.model.train.train handed the sections as the stage hands them (frng/stages/train.py)."""
-    from frng.data import catalog
     from frng.model.train import TrainRun, train
+    from frng.plan import catalog
 
     tc = typed(config)
     job = TrainRun(tc.results, tc.model_seed, tc.device, tc.idm.kind, tuple(catalog.plan(tc).split("train")))

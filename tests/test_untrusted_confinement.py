@@ -325,7 +325,7 @@ def test_photo_symlinked_out_of_the_images_folder(tmp_path):
 
 
 def test_objaverse_glb_symlinked_out_of_the_cache(tmp_path):
-    from frng.data.catalog import CatalogError, _cached_glb
+    from frng.plan.catalog import CatalogError, _cached_glb
 
     sentinel = make_sentinel(tmp_path)
     uid = "0123456789abcdef0123456789abcdef"

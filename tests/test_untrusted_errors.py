@@ -21,9 +21,10 @@ from test_benchmarks import RES
 from test_untrusted_confinement import exported  # noqa: F401 -- the exported benchmark folders (module fixture)
 from test_untrusted_outputs import _env, _run, tiny_asset
 
-from frng import cli, envmap, io
+from frng import cli, io
 from frng.asset import AssetError, AssetRenderer
 from frng.benchmarks import BenchmarkError, import_scene
+from frng.render import envmap
 
 
 def _one_line(lines: list[str], *words: str) -> str:
@@ -176,8 +177,8 @@ def test_text_file_named_png_and_huge_png(tmp_path):
 
 
 def test_all_black_photos_warn(tmp_path, capsys):
-    from frng import config as frng_config
     from frng.capture import CaptureError, reconstruct
+    from frng.plan import config as frng_config
     from frng.typedconfig import typed
 
     photos = tmp_path / "photos"
@@ -251,8 +252,8 @@ def test_full_disk_names_the_file_and_leaves_no_partial_file(tmp_path):
 def test_copied_results_folder_says_the_command(tmp_path):
     import yaml
 
-    from frng import config as frng_config
-    from frng.sections import ConfigError
+    from frng.plan import config as frng_config
+    from frng.plan.sections import ConfigError
 
     first = write_config(tmp_path / "a.yaml", tmp_path / "results")
     cfg = frng_config.load(first)

@@ -19,9 +19,10 @@ from test_benchmarks import RES
 from test_untrusted_confinement import exported  # noqa: F401 -- the exported benchmark folders (module fixture)
 from test_untrusted_outputs import tiny_asset
 
-from frng import confine, envmap, io
+from frng import confine, io
 from frng.asset import AssetError, AssetRenderer, load_asset
 from frng.benchmarks import BenchmarkError, import_scene
+from frng.render import envmap
 
 
 def _nerf(exported, tmp_path, edit):  # noqa: F811
@@ -198,8 +199,8 @@ def test_asset_renders_finite(tmp_path):
     ],
 )
 def test_config_values_are_bounded(key, value, words):
-    from frng import config
-    from frng.sections import ConfigError
+    from frng.plan import config
+    from frng.plan.sections import ConfigError
 
     base = yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text())
     c = copy.deepcopy(base)

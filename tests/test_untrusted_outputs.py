@@ -19,8 +19,9 @@ from data_helpers import write_config
 from test_benchmarks import RES, make_curated
 from test_untrusted_confinement import snapshot
 
-from frng import cli, confine, envmap
+from frng import cli, confine
 from frng.benchmarks import export_object, import_scene
+from frng.render import envmap
 
 
 def _run(argv, capsys) -> tuple[int, list[str]]:

@@ -5,8 +5,9 @@ import pytest
 import torch
 from data_helpers import frng, write_config
 
-from frng import camera, envmap, io
+from frng import camera, io
 from frng.data.dataset import open_object
+from frng.render import envmap
 
 pytestmark = pytest.mark.blender
 

@@ -1,12 +1,12 @@
-"""The one variant table (frng.variants.VARIANTS): the schema, the model, the tables and the rules all read it."""
+"""The one variant table (frng.plan.variants.VARIANTS): the schema, the model, the tables and the rules all read it."""
 
 from pathlib import Path
 
 import pytest
 import yaml
 
-from frng import config as frng_config
-from frng import variants as V
+from frng.plan import config as frng_config
+from frng.plan import variants as V
 from frng.typedconfig import typed
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -52,7 +52,7 @@ def browser_paths():
 @pytest.fixture(scope="module")
 def smoke_asset(request) -> tuple[Path, Path]:
     """(results folder, the full run's asset of its first test object)."""
-    from frng.layout import Layout, RelightFolder
+    from frng.plan.layout import Layout, RelightFolder
 
     given = os.environ.get("FRNG_SMOKE_RESULTS")
     results = Path(given) if given else request.getfixturevalue("smoke_pipeline")
@@ -222,10 +222,11 @@ def _canvas_compare(shot: np.ndarray, frame_rgb: np.ndarray, keep: np.ndarray) -
 def test_viewer_in_a_browser(smoke_asset, browser_paths, tmp_path):
     import torch
 
-    from frng import camera, envmap, io
+    from frng import camera, io
     from frng.apps.view import display
     from frng.asset import load_asset
-    from frng.layout import Layout
+    from frng.plan.layout import Layout
+    from frng.render import envmap
 
     results, asset = smoke_asset
     index = io.read_json(Layout(results).envmap_index())

@@ -18,8 +18,8 @@ import subprocess
 import pytest
 from conftest import ROOT, venv_bin
 
-from frng import config as frng_config
-from frng import digests as frng_digests
+from frng.plan import config as frng_config
+from frng.plan import digests as frng_digests
 
 SNAKEMAKE = venv_bin("snakemake")
 PAPER = ROOT / "config" / "paper.yaml"
@@ -29,8 +29,8 @@ PAPER = ROOT / "config" / "paper.yaml"
 PLAN_LIMIT_S = 26
 
 
-from frng.batches import DEFAULT_BATCH_OBJECTS, batches, rule_family  # noqa: E402
-from frng.variants import all_variants, extra_seeds, trained_variants  # noqa: E402
+from frng.plan.batches import DEFAULT_BATCH_OBJECTS, batches, rule_family  # noqa: E402
+from frng.plan.variants import all_variants, extra_seeds, trained_variants  # noqa: E402
 
 
 def n_objects(c: dict) -> int:
@@ -40,7 +40,7 @@ def n_objects(c: dict) -> int:
 
 def baseline_objects(c: dict) -> list[str]:
     from frng.baselines import plan as P
-    from frng.data import catalog
+    from frng.plan import catalog
 
     return P.baseline_objects(c, P.test_objects(catalog.plan(c)))
 
@@ -48,7 +48,7 @@ def baseline_objects(c: dict) -> list[str]:
 def baseline_view_objects(c: dict) -> list[str]:
     """The objects rule curate_baselines renders: every test object with the image-based baseline, else the
     per-scene ones (none without dense views)."""
-    from frng.data import catalog
+    from frng.plan import catalog
 
     objs = baseline_objects(c)
     return catalog.plan(c).split("test") if objs and c["baselines"]["image_based"] else objs
@@ -64,7 +64,7 @@ def n_test_objects(c: dict) -> int:
 
 
 def n_prior_batches(c: dict) -> int:
-    """Jobs of a batched prior rule (rules/priors.smk, frng/batches.py): each split cut into batches."""
+    """Jobs of a batched prior rule (rules/priors.smk, frng/plan/batches.py): each split cut into batches."""
     n_test = n_test_objects(c)
     return sum(len(batches(range(n), DEFAULT_BATCH_OBJECTS)) for n in (n_objects(c) - n_test, n_test))
 

@@ -7,9 +7,9 @@ import subprocess
 import pytest
 from conftest import ROOT, venv_bin
 
-from frng import config as frng_config
-from frng import variants as V
-from frng.data import catalog
+from frng.plan import catalog
+from frng.plan import config as frng_config
+from frng.plan import variants as V
 
 
 def dry_run(configfile, results, *extra):

@@ -17,7 +17,7 @@ What a client sees (each browser tab has its own camera and settings):
   ``--spp``, the asset's rasterizer settings; the light samples seeded as ``frng render-asset --seed 0``, so a full
   frame is the image render-asset writes for the same camera and map);
 - a map picker (the tier's test maps, the asset's input light, files given with ``--env``), a rotation slider
-  about world Z (:func:`frng.envmap.rotate_z`) and an exposure slider (EV; scales the object's radiance on screen),
+  about world Z (:func:`frng.render.envmap.rotate_z`) and an exposure slider (EV; scales the object's radiance on screen),
   the rotated map's thumbnail, and the last frame's quality, size, light samples and time;
 - "Save frame": the current camera and map rendered by ``frng render-asset`` itself (its parser and
   :func:`frng.stages.render_asset.render`) into ``{out}/frame_NNN/``: ``frame_NNN.exr`` (linear premultiplied RGBA),
@@ -26,7 +26,7 @@ What a client sees (each browser tab has its own camera and settings):
   ``view.json`` (map, rotation, exposure, samples and the render-asset command that renders it again);
 - for a relit test object (``--object``, or an ASSET that is a results folder's ``relight/full/{obj}/asset``): its
   target views and lights; picking one moves the camera to that view, picks its light and shows the ground truth,
-  F-RNG's relit image and the backbone's side by side (the results folder's images, :mod:`frng.layout`).
+  F-RNG's relit image and the backbone's side by side (the results folder's images, :mod:`frng.plan.layout`).
 
 Everything that can fail on the user's input (the asset, the maps, the config, the port) is checked before the
 server starts, as :class:`ViewError` (or the readers' :class:`~frng.asset.AssetError` /
@@ -88,8 +88,8 @@ class Light:
 
 def results_of_asset(asset: Path) -> Path | None:
     """The results folder an asset folder sits in when it is a relighting run's (``{results}/relight/{run}/{obj}/
-    asset``, :meth:`frng.layout.RelightFolder.asset`) and that folder has prepared env maps; else None."""
-    from frng.layout import Layout
+    asset``, :meth:`frng.plan.layout.RelightFolder.asset`) and that folder has prepared env maps; else None."""
+    from frng.plan.layout import Layout
 
     p = Path(asset).resolve()
     if len(p.parents) < 4 or p.parents[2].name != "relight":
@@ -108,8 +108,8 @@ def collect_lights(
     from frng import io
     from frng.capture import read_light
     from frng.data.envmaps import read_index
-    from frng.envmap import EnvMapError
-    from frng.layout import Layout
+    from frng.plan.layout import Layout
+    from frng.render.envmap import EnvMapError
 
     out: list[Light] = []
 
@@ -147,8 +147,8 @@ def collect_lights(
 
 
 def rotated(light: Light, degrees: float) -> np.ndarray:
-    """The light's map rotated about world Z by ``degrees`` (:func:`frng.envmap.rotate_z`), (He, We, 3)."""
-    from frng import envmap
+    """The light's map rotated about world Z by ``degrees`` (:func:`frng.render.envmap.rotate_z`), (He, We, 3)."""
+    from frng.render import envmap
 
     return light.image if degrees % 360.0 == 0.0 else envmap.rotate_z(light.image, degrees)
 
@@ -156,7 +156,8 @@ def rotated(light: Light, degrees: float) -> np.ndarray:
 def thumbnail(env: np.ndarray, width: int = THUMB_WIDTH) -> np.ndarray:
     """A display thumbnail of an equirect map (He, We, 3) -> uint8 (width / 2, width, 3): scaled so its 99th
     luminance percentile is white, sRGB-encoded, resized (nearest neighbour up, area down)."""
-    from frng import envmap, io
+    from frng import io
+    from frng.render import envmap
 
     lum = envmap.luminance(env)
     img = io.srgb_encode(env / max(float(np.percentile(lum, 99)), 1e-6))
@@ -330,14 +331,14 @@ def upscale(img: np.ndarray, at_least: int = TILE_MIN) -> np.ndarray:
 
 class TestObject:
     """A relit test object of a results folder: its target views (cameras), the lights it was relit under, and
-    per (view, light) the ground truth, the full F-RNG run's and the backbone's images (:mod:`frng.layout`)."""
+    per (view, light) the ground truth, the full F-RNG run's and the backbone's images (:mod:`frng.plan.layout`)."""
 
     __test__ = False  # not a pytest class
 
     def __init__(self, results: str | Path, oid: str):
         from frng import io
-        from frng.layout import Layout
-        from frng.variants import BACKBONE
+        from frng.plan.layout import Layout
+        from frng.plan.variants import BACKBONE
 
         self.layout, self.oid = Layout(results), oid
         meta_path, rec_path = Path(self.layout.object_meta(oid)), Path(self.layout.relight_record("full", oid))
@@ -498,7 +499,8 @@ class Viewer:
              exposure: float) -> Path:  # fmt: skip
         """Render the view with ``frng render-asset`` (its own parser and :func:`~frng.stages.render_asset.render`)
         into ``{out}/frame_NNN/`` (module docstring); returns that folder."""
-        from frng import envmap, io
+        from frng import io
+        from frng.render import envmap
         from frng.stages import render_asset
 
         st = self.settings
@@ -701,7 +703,7 @@ def open_viewer(
     yet: a :class:`Viewer` to :meth:`~Viewer.start`. ``asset`` or ``object_id`` (+ ``results``, the results folder
     of the config the stage read: its test maps and the object's relit images)."""
     from frng import io
-    from frng.layout import Layout, RelightFolder
+    from frng.plan.layout import Layout, RelightFolder
     from frng.stages.render_asset import turntable
 
     results = Path(results) if results is not None else None

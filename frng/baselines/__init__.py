@@ -6,6 +6,6 @@
 - the image-based baseline (each target view's own photo under the input light, decomposed by the IDM and re-shaded);
 - other methods' outputs read from files (``baselines.external``).
 
-Every baseline writes what an F-RNG run writes (:class:`frng.layout.RelightFolder`: ``run.json`` and
+Every baseline writes what an F-RNG run writes (:class:`frng.plan.layout.RelightFolder`: ``run.json`` and
 ``{light}/{view}.exr``) so one scorer reads them all.
 """

@@ -8,7 +8,7 @@ test object renders, under the object's FIRST input light,
 
 The object is built exactly as its curation built it (:func:`frng.data.curate.object_scene`: same mesh, shape and
 material draws), with the same Cycles settings (``render``). Writes ``{results}/baselines/views/{obj}/``
-(:class:`frng.layout.ObjectFolder`): ``meta.json`` (``light``, ``views: {dense, targets}``, render settings and
+(:class:`frng.plan.layout.ObjectFolder`): ``meta.json`` (``light``, ``views: {dense, targets}``, render settings and
 times), ``dense/{light}/{view}.exr`` and ``targets/{light}/{view}.exr`` (RGBA float32 linear, premultiplied, alpha
 = coverage, as curation writes), staged in ``.tmp-{obj}-*`` and renamed at the end like :func:`frng.data.curate.curate`.
 """
@@ -20,11 +20,11 @@ from pathlib import Path
 
 from frng import io
 from frng.baselines.plan import DENSE_KIND, TARGETS_KIND, dense_views
-from frng.data import catalog
 from frng.data.curate import CurationError, check_envmaps, object_scene, render_view, staged_object
 from frng.data.rig import View
 from frng.data.stopguard import NoGuard, StopGuard
-from frng.layout import EnvmapFolder
+from frng.plan import catalog
+from frng.plan.layout import EnvmapFolder
 
 META_VERSION = 1
 

@@ -11,7 +11,7 @@ docs/baselines.md). Layout of the output folder::
     {obj}/{view}/camera.json                     c2w (OpenCV), intrinsics (fx, fy, cx, cy), width, height, fov_deg, and
                                                  Neural Gaffer's pose: the 3x4 world-to-camera in Blender's camera
                                                  convention (x right, y up, looking along -z)
-    {obj}/{view}/envmaps/{light}.exr             each target light, world frame (frng.envmap: Blender's equirect
+    {obj}/{view}/envmaps/{light}.exr             each target light, world frame (frng.render.envmap: Blender's equirect
                                                  convention, Z up), linear HDR
     {obj}/{view}/envmaps_camera/{light}.exr      the same map rotated into the view's camera frame as Neural Gaffer's
                                                  preprocessing does (:func:`camera_frame_map`), linear HDR
@@ -32,9 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
-from frng import envmap, io
+from frng import io
 from frng.baselines.plan import TARGETS_KIND
-from frng.layout import ImageInputsFolder, Layout, ObjectFolder
+from frng.plan.layout import ImageInputsFolder, Layout, ObjectFolder
+from frng.render import envmap
 
 NG_MAP_SIZE = 256  # Neural Gaffer's LDR / HDR map inputs are 256 x 256 (resized from the equirect)
 OPENCV_TO_BLENDER = np.diag([1.0, -1.0, -1.0])

@@ -36,7 +36,7 @@ import numpy as np
 
 from frng import io
 from frng.baselines.plan import external_run
-from frng.layout import RelightFolder
+from frng.plan.layout import RelightFolder
 
 ENCODINGS = ("srgb", "linear")
 FAMILIES = ("dense", "image")

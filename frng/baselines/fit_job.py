@@ -29,8 +29,8 @@ import numpy as np
 from frng import io
 from frng.baselines.fit_settings import FitSettings
 from frng.baselines.plan import DENSE_KIND, dense_subset, per_scene_run
-from frng.layout import Layout, ObjectFolder, RelightFolder, TrainingFolder
-from frng.sections import TypedConfig
+from frng.plan.layout import Layout, ObjectFolder, RelightFolder, TrainingFolder
+from frng.plan.sections import TypedConfig
 
 if TYPE_CHECKING:
     from frng.render.raster import RasterConfig
@@ -121,7 +121,7 @@ def read_inputs(results: str, oid: str, views: int) -> dict:
 def read_env(path: str):
     import torch
 
-    from frng import envmap
+    from frng.render import envmap
 
     try:
         return torch.from_numpy(np.ascontiguousarray(envmap.read(path)[..., :3])).float()
@@ -135,8 +135,8 @@ def fit_object(job: FitJob, oid: str, method: str, views: int, out: Path, device
 
     from frng.baselines import gsir, splat3d
     from frng.baselines.perscene import TrainViews
-    from frng.data import catalog
     from frng.device import deterministic_kernels, resolve_device, training_threads
+    from frng.plan import catalog
 
     run = per_scene_run(method, views)
     inputs = read_inputs(job.results, oid, views)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from frng.sections import register
+from frng.plan.sections import register
 
 INITS = ("hull", "sphere")
 

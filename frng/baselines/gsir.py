@@ -17,7 +17,7 @@ code, lzhnb/GS-IR (``train.py``, ``pbr/shade.py``, ``gs_ir``'s occlusion baking)
 3. **Materials** (``baselines.fit.pbr_steps`` steps, geometry and normals frozen as GS-IR detaches them): per-Gaussian
    albedo, roughness (in [0.04, 1]) and metallic, rasterized as a G-buffer with the normals, and shaded as
    ``pbr/shade.py`` does with split-sum image-based lighting: diffuse = albedo (1 - metallic) AO E(n) / pi, with the
-   irradiance E from the map's degree-2 SH (:func:`frng.envmap.sh_irradiance`; GS-IR: a prefiltered irradiance
+   irradiance E from the map's degree-2 SH (:func:`frng.render.envmap.sh_irradiance`; GS-IR: a prefiltered irradiance
    cubemap); specular = L_pref(r, level(roughness)) (F0 A + B), F0 = 0.04 (1 - metallic) + albedo metallic, (A, B)
    from Lazarov's analytic ``envBRDF_approx`` (GS-IR's option besides its 256^2 LUT), L_pref the project's
    prefiltered map (:func:`frng.render.prefilter.prefilter`: vMF lobes of sharpness 400 / 100 / 25 / 6; level from
@@ -50,7 +50,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from frng import camera, envmap
+from frng import camera
 from frng.baselines import splat3d
 from frng.baselines.fit_settings import FitSettings
 from frng.baselines.perscene import (
@@ -62,6 +62,7 @@ from frng.baselines.perscene import (
     photometric_loss,
     render,
 )
+from frng.render import envmap
 from frng.render.prefilter import KAPPAS, lookup, prefilter
 from frng.render.raster import RasterConfig
 
@@ -109,7 +110,7 @@ class Light:
 
     @classmethod
     def of(cls, env: torch.Tensor) -> Light:
-        """env (He, We, 3) linear equirect (:mod:`frng.envmap`)."""
+        """env (He, We, 3) linear equirect (:mod:`frng.render.envmap`)."""
         assert env.ndim == 3 and env.shape[-1] == 3, env.shape
         env = env.float().contiguous()
         return cls(envmap.sh_project(env).float(), prefilter(env).float())

@@ -47,10 +47,11 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from frng import envmap, io
+from frng import io
 from frng.baselines.plan import IMAGE_BASED_RUN, TARGETS_KIND
-from frng.layout import Layout, ObjectFolder, RelightFolder
+from frng.plan.layout import Layout, ObjectFolder, RelightFolder
 from frng.priors.intrinsics import IntrinsicPriors
+from frng.render import envmap
 from frng.render.shading import ShadingConfig, ggx_shade
 
 GBUFFERS = ("idm", "oracle")  # where the re-shaded G-buffer comes from (see the module docstring)
@@ -212,10 +213,10 @@ def reshade(
 
 def reshade_object(job: ImageJob, oid: str, out: Path, gbuffer: str = "idm", device: str | None = None) -> dict:
     """Relight every target view of ``oid`` under every target light from its own photo (module docstring); write a
-    :class:`frng.layout.RelightFolder` at ``out`` (staged next to it, renamed into place at the end). ``gbuffer``:
+    :class:`frng.plan.layout.RelightFolder` at ``out`` (staged next to it, renamed into place at the end). ``gbuffer``:
     ``idm`` (the configured IDM) or ``oracle`` (the curated target-view G-buffers). Returns run.json's record."""
-    from frng.data import catalog
     from frng.device import resolve_device, synchronize
+    from frng.plan import catalog
     from frng.priors import build_idm
     from frng.priors.dataset import Views
 

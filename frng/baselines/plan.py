@@ -1,7 +1,7 @@
 """Planning of the baselines (torch-free: the rule files import it): the ``baselines`` config section, the test
 objects the per-scene baselines run on, the dense views on a sphere and their spread subsets, the run names.
 
-Run names (folders under ``{results}/relight/``, :class:`frng.layout.RelightFolder`):
+Run names (folders under ``{results}/relight/``, :class:`frng.plan.layout.RelightFolder`):
 
 - ``{method}-v{n}``: per-scene ``method`` (``3dgs`` | ``gsir``) fitted on ``n`` of the object's dense views
   (:func:`dense_subset`); relit under every target light (``gsir``) and re-rendered under the input light at the
@@ -20,7 +20,7 @@ import numpy as np
 
 from frng.baselines.fit_settings import FitSettings
 from frng.data.rig import View, make_view
-from frng.sections import register
+from frng.plan.sections import register
 
 PER_SCENE_METHODS = ("3dgs", "gsir")
 IMAGE_BASED_RUN = "idm-reshade"
@@ -77,7 +77,7 @@ def baseline_objects(config: Mapping, test_objects: list[tuple[str, str]]) -> li
 
 
 def test_objects(catalog) -> list[tuple[str, str]]:
-    """(id, planned material class) of the test split of a dataset plan (:func:`frng.data.catalog.plan`), in its
+    """(id, planned material class) of the test split of a dataset plan (:func:`frng.plan.catalog.plan`), in its
     order: what :func:`baseline_objects` picks from."""
     return [(o.id, o.material) for o in catalog.objects if o.split == "test"]
 

@@ -41,7 +41,7 @@ from frng import io
 from frng import metrics as M
 from frng.baselines.external import ExternalMethod
 from frng.baselines.plan import FRNG_NVS_RUN, FRNG_RUN, IMAGE_BASED_RUN, TARGETS_KIND
-from frng.layout import Layout, ObjectFolder, RelightFolder
+from frng.plan.layout import Layout, ObjectFolder, RelightFolder
 
 TASKS = ("relight", "nvs")
 TRAINED, FILES = "trained here", "files"

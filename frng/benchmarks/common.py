@@ -4,7 +4,7 @@ the input checks.
 A reader (``frng.benchmarks.<layout>.read``) turns a benchmark folder into a :class:`Scene`: views with OpenCV
 cameras (4x4 camera-to-world + fx, fy, cx, cy at the files' own resolution) in the benchmark's world frame, their
 images as linear straight-alpha RGB + mask arrays, and the lights as equirect maps already converted to
-:mod:`frng.envmap`'s (Blender's) convention and to the benchmark's world frame. Each module's docstring says how
+:mod:`frng.render.envmap`'s (Blender's) convention and to the benchmark's world frame. Each module's docstring says how
 its files map to that, citing the official loader. :func:`write_object` then converts once:
 
 - **Input views** (``in_00 .. in_05``, then ``in_06 ..`` up to ``render.extra_input_views`` more): chosen from the
@@ -48,9 +48,10 @@ from pathlib import Path
 
 import numpy as np
 
-from frng import confine, envmap, io
+from frng import confine, io
 from frng.benchmarks.plan import BenchmarkError, object_id  # noqa: F401
-from frng.layout import Layout, ObjectFolder
+from frng.plan.layout import Layout, ObjectFolder
+from frng.render import envmap
 
 RIG = ((0.0, 0.0), (90.0, 0.0), (180.0, 0.0), (270.0, 0.0), (45.0, 45.0), (225.0, 45.0))  # frng.data.rig
 
@@ -79,7 +80,7 @@ class Scene:
     protocol: str  # frng.benchmarks.protocols name
     train: list[View]
     test: list[View]
-    lights: dict[str, np.ndarray]  # name -> (H, 2H, 3) equirect, frng.envmap convention, benchmark world frame
+    lights: dict[str, np.ndarray]  # name -> (H, 2H, 3) equirect, frng.render.envmap convention, benchmark world frame
     input_light: str
     world_rotation: np.ndarray = field(default_factory=lambda: np.eye(3))  # applied before normalisation
     notes: dict = field(default_factory=dict)
@@ -184,7 +185,7 @@ def same_size(views: list[View]) -> None:
 
 
 def map_directions(height: int) -> np.ndarray:
-    """World direction (H, 2H, 3) of every pixel centre of a map in frng.envmap's convention."""
+    """World direction (H, 2H, 3) of every pixel centre of a map in frng.render.envmap's convention."""
     return envmap.pixel_directions(height, 2 * height, dtype=__import__("torch").float64).numpy()
 
 
@@ -205,7 +206,7 @@ def sample_map(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def blender_uv(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """frng.envmap's dir -> (u, v), numpy."""
+    """frng.render.envmap's dir -> (u, v), numpy."""
     u = np.remainder(0.5 - np.arctan2(d[..., 1], d[..., 0]) / (2 * math.pi), 1.0)
     v = np.arccos(np.clip(d[..., 2], -1, 1)) / math.pi
     return u, v

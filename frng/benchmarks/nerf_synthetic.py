@@ -10,7 +10,7 @@ centre. Images: 800 x 800 RGBA PNG, sRGB, straight alpha (composited on white by
 
 NeRF-synthetic is a novel-view benchmark with ONE light (Blender lamps, no environment map is published), so the
 import relights nothing: its test views are the targets under the same light, and F-RNG's known input light is a
-stand-in: ``--envmap FILE`` (a 2:1 map, frng.envmap convention), else ``{PATH}/../envmaps/{scene}.exr`` when it
+stand-in: ``--envmap FILE`` (a 2:1 map, frng.render.envmap convention), else ``{PATH}/../envmaps/{scene}.exr`` when it
 exists (what the writer puts there), else a constant white map of radiance 1 (recorded in ``meta.json``).
 Protocol: :func:`frng.benchmarks.protocols.nerf_synthetic` (the NeRF/TensoIR one: white background, whole image).
 
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from frng import camera, confine, envmap, io
+from frng import camera, confine, io
 from frng.benchmarks.common import (
     BenchmarkError,
     Curated,
@@ -38,6 +38,7 @@ from frng.benchmarks.common import (
     read_srgba_png,
     write_srgba_png,
 )
+from frng.render import envmap
 
 LAYOUT = "nerf-synthetic"
 PROTOCOL = "nerf-synthetic"

@@ -16,7 +16,7 @@ Official code read (github.com/StanfordORB/Stanford-ORB):
   ``phi = pi row / (H - 1)``, ``d = (-cos(theta) sin(phi), cos(phi), -sin(theta) sin(phi))`` (camera axes), and
   the world map is ``E_world(d) = E_cam(R^T d)`` with ``R`` the view's (OpenGL) camera-to-world rotation, sampled
   bilinearly (``cv2.remap``, pixel index = coordinate). :func:`camera_map_to_world` does exactly that once, into
-  :mod:`frng.envmap`'s convention; :func:`world_map_to_camera` is its inverse (the writer).
+  :mod:`frng.render.envmap`'s convention; :func:`world_map_to_camera` is its inverse (the writer).
 - ``orb/utils/test.py`` / ``orb/utils/metrics.py``: the relighting metric, :func:`frng.benchmarks.protocols.orb`.
 
 What the import takes: input views from ``transforms_train.json`` (rig-like, :mod:`frng.benchmarks.common`); the
@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from frng import camera, confine, envmap, io
+from frng import camera, confine, io
 from frng.benchmarks.common import (
     BenchmarkError,
     Curated,
@@ -58,6 +58,7 @@ from frng.benchmarks.common import (
     read_png,
     sample_map,
 )
+from frng.render import envmap
 
 LAYOUT = "orb"
 PROTOCOL = "orb"
@@ -85,7 +86,7 @@ def orb_pixel_dirs(H: int, W: int) -> np.ndarray:
 
 
 def camera_map_to_world(img: np.ndarray, c2w_gl: np.ndarray, height: int | None = None) -> np.ndarray:
-    """An ORB camera-frame map -> a world map (frng.envmap convention, ``height`` x 2 ``height``)."""
+    """An ORB camera-frame map -> a world map (frng.render.envmap convention, ``height`` x 2 ``height``)."""
     H, W = img.shape[:2]
     height = height or H
     d_world = map_directions(height)  # (h, 2h, 3)
@@ -96,7 +97,7 @@ def camera_map_to_world(img: np.ndarray, c2w_gl: np.ndarray, height: int | None 
 
 
 def world_map_to_camera(world: np.ndarray, c2w_gl: np.ndarray, height: int | None = None) -> np.ndarray:
-    """The writer's inverse: a world map (frng.envmap convention) -> ORB's camera-frame map of the view."""
+    """The writer's inverse: a world map (frng.render.envmap convention) -> ORB's camera-frame map of the view."""
     height = height or world.shape[0]
     d_cam = orb_pixel_dirs(height, 2 * height)
     d_world = d_cam @ np.asarray(c2w_gl, dtype=np.float64)[:3, :3].T

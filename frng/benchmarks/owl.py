@@ -15,7 +15,7 @@ Official code and documentation read (github.com/isl-org/objects-with-lighting):
   clipped; inverted here once: ``x = (y / 255)^2.2 / 2^exposure`` (saturated pixels stay clipped).
 - Env maps (README "Environment maps", ``utils/equirectangular.py``): ``u = 0.5 - atan2(y, x) / 2 pi``,
   ``v = asin(-z) / pi + 0.5`` = ``acos(z) / pi``: +Z at the top, +X at the centre, +Y at u = 0.25 -- exactly
-  :mod:`frng.envmap`'s convention, in the frame of ``world_to_env`` (rotation part; directions only).
+  :mod:`frng.render.envmap`'s convention, in the frame of ``world_to_env`` (rotation part; directions only).
 - Evaluation (``scripts/evaluate.py``, ``utils/metrics.py``): :func:`frng.benchmarks.protocols.owl`.
 
 World frame of the import: OWL's world rotated by the input ``world_to_env`` rotation (the env frame, Z up by
@@ -167,7 +167,7 @@ def read(path: str | Path, envmap_height: int | None = None, allow_outside: bool
 
 
 def _resize(img: np.ndarray, height: int) -> np.ndarray:
-    from frng import envmap
+    from frng.render import envmap
 
     return envmap.resize(img, 2 * height) if height and img.shape[0] != height else img
 

@@ -12,7 +12,7 @@ Official code read (github.com/Haian-Jin/TensoIR):
   ``rgb * a + (1 - a)`` and takes ``a != 0`` as the mask), plus ``albedo.png`` and ``normal.png`` (not used here).
 - ``scripts/relight_importance.py`` / ``models/relight_utils.py``: the relighting lights are ``{light}.hdr``
   equirect maps (a separate download, e.g. ``light_probes/``), world Z up, longitude from +pi at the left edge to
-  -pi at the right with +X at the centre: the same convention as :mod:`frng.envmap` (Blender's), so the maps are
+  -pi at the right with +X at the centre: the same convention as :mod:`frng.render.envmap` (Blender's), so the maps are
   used as read, no conversion.
 
 Conversion (once, here): cameras through :func:`frng.camera.c2w_from_blender`; PNGs sRGB-decoded to linear,

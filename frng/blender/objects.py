@@ -515,7 +515,7 @@ def load(
     keep_materials: bool = False,
     path: Path | None = None,
 ) -> tuple[bpy.types.Object, dict]:
-    """Build the object of a :class:`frng.data.catalog.ObjectSpec`, Z-up, normalised into ``radius``.
+    """Build the object of a :class:`frng.plan.catalog.ObjectSpec`, Z-up, normalised into ``radius``.
 
     ``keep_materials``: file meshes keep their own materials (``material: own``). ``path``: the mesh file when
     the spec names it indirectly (an Objaverse uid resolved in the local cache).
@@ -528,7 +528,7 @@ def load(
         path = mesh_path(spec, pybullet_dir, path)
         try:
             if spec.source == "libero":  # an object folder: its visual OBJs, joined
-                from frng.data.catalog import libero_meshes
+                from frng.plan.catalog import libero_meshes
 
                 parts = [import_file(f, keep_materials, root=path) for f in libero_meshes(path)]
                 if len(parts) > 1:

@@ -1,6 +1,6 @@
-"""World lighting: an equirect environment map (frng.envmap's convention) and sky baking.
+"""World lighting: an equirect environment map (frng.render.envmap's convention) and sky baking.
 
-Blender's Environment Texture node with default mapping already follows ``frng.envmap``'s equirect
+Blender's Environment Texture node with default mapping already follows ``frng.render.envmap``'s equirect
 convention (tests/test_envmap_blender.py checks it), so maps are used as written, unrotated.
 """
 
@@ -56,7 +56,7 @@ def bake_sky(
 ) -> None:
     """Render a Preetham or Hosek-Wilkie sky (sun towards +X at the given elevation) to an equirect EXR.
 
-    A panoramic equirect camera at the origin with rotation (90, 0, -90) deg reproduces frng.envmap's convention.
+    A panoramic equirect camera at the origin with rotation (90, 0, -90) deg reproduces frng.render.envmap's convention.
     Writes a multilayer EXR at ``path`` (read it with :func:`frng.blender.scene.read_passes`).
     """
     scene = bscene.new_scene((width, width // 2), spp, threads, seed=0, transparent=False)

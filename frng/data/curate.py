@@ -39,11 +39,13 @@ from pathlib import Path
 
 import numpy as np
 
-from frng import envmap, io
-from frng.data import catalog, rig
+from frng import io
+from frng.data import rig
 from frng.data.envmaps import read_index
 from frng.data.stopguard import NoGuard, StopGuard
-from frng.layout import EnvmapFolder, Layout, ObjectFolder
+from frng.plan import catalog
+from frng.plan.layout import EnvmapFolder, Layout, ObjectFolder
+from frng.render import envmap
 
 GBUFFER_CHANNELS = (
     "A",
@@ -156,7 +158,7 @@ def gbuffer_from_passes(passes: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 def own_class(spec: catalog.ObjectSpec, folder: ObjectFolder, views) -> tuple[str, str]:
     """(class, how it was chosen) of an own material: the config's ``class``, else
-    :func:`frng.data.catalog.own_material_class` of the mean roughness / metallic AOVs over the foreground
+    :func:`frng.plan.catalog.own_material_class` of the mean roughness / metallic AOVs over the foreground
     (coverage > 0.5) of the input views' G-buffers."""
     if spec.material_class is not None:
         return spec.material_class, "from the config (objects.extra[].class)"
@@ -195,7 +197,7 @@ def check_envmaps(spec: catalog.ObjectSpec, env_dir: Path) -> dict[str, dict]:
 
 
 def object_scene(plan: catalog.Catalog, objaverse: catalog.ObjaverseConfig, render: catalog.RenderConfig, spec, log):
-    """Inside Blender: a new scene holding object ``spec`` (:class:`frng.data.catalog.ObjectSpec`) with its mesh and
+    """Inside Blender: a new scene holding object ``spec`` (:class:`frng.plan.catalog.ObjectSpec`) with its mesh and
     material exactly as every curation of it builds them (the shape and material draws seeded by ``spec.seed``),
     a camera and the G-buffer passes. Returns ``(scene, camera, material record, shape record, licence,
     Objaverse provenance or None)``. Used by :func:`curate` and :func:`curate_baselines`, so the baselines' extra
@@ -270,7 +272,7 @@ def curate(
     log=print,
     guard: StopGuard | None = None,
 ) -> Path:
-    """Render object ``oid`` of the dataset plan ``plan`` (:func:`frng.data.catalog.plan`) into ``out_root/oid``
+    """Render object ``oid`` of the dataset plan ``plan`` (:func:`frng.plan.catalog.plan`) into ``out_root/oid``
     (atomically). Returns the final folder. The config's sections it reads: ``objects.objaverse`` (the Objaverse
     cache), ``render`` and ``envmaps`` (their width: the light-sampling map's resolution).
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from frng import io
-from frng.layout import Layout, ObjectFolder
+from frng.plan.layout import Layout, ObjectFolder
 
 GBUFFER_LAYOUT = {  # key -> EXR channels (see frng.data.curate.GBUFFER_CHANNELS)
     "alpha": ("A",),

@@ -1,12 +1,12 @@
 """Every environment map of the dataset plan (stage :mod:`frng.stages.envmaps`, ``frng envmaps``).
 
-For each (object, light) draw of :func:`frng.data.catalog.envmap_plan` -- a rotated copy of a base map of the light
-pool (:func:`frng.data.catalog.light_bases`): one of Blender's 8 bundled CC0 HDRIs, a Preetham / Hosek-Wilkie sky
+For each (object, light) draw of :func:`frng.plan.catalog.envmap_plan` -- a rotated copy of a base map of the light
+pool (:func:`frng.plan.catalog.light_bases`): one of Blender's 8 bundled CC0 HDRIs, a Preetham / Hosek-Wilkie sky
 baked with Cycles (lower hemisphere darkened to a 0.3-albedo ground; a sun disc added, :func:`add_sun`), a procedural studio (:func:`studio_map`: seeded
 area lights over a dim or dark background, baked at 512 px) or a user's EXR/HDR file:
 
     load the base once (resized to ROTATE_OVERSAMPLE x envmaps.width where the source is wider)
-    -> rotate by the draw's angle (frng.envmap.rotate_z) -> resize to envmaps.width (frng.envmap.resize)
+    -> rotate by the draw's angle (frng.render.envmap.rotate_z) -> resize to envmaps.width (frng.render.envmap.resize)
     -> scale so the solid-angle-weighted mean luminance is envmaps.normalize (if set) -> write
 
 Outputs (``--out``, default ``{results}/envmaps``):
@@ -31,10 +31,11 @@ from pathlib import Path
 
 import numpy as np
 
-from frng import envmap, io
-from frng.data import catalog
+from frng import io
 from frng.data.stopguard import NoGuard
-from frng.layout import EnvmapFolder
+from frng.plan import catalog
+from frng.plan.layout import EnvmapFolder
+from frng.render import envmap
 
 SKY_BAKE_WIDTH = 512  # skies are smooth; baked at this width then resized
 GROUND_ALBEDO = 0.3
@@ -128,7 +129,7 @@ def blackbody_rgb(kelvin: float) -> np.ndarray:
 
 
 def studio_map(params: dict, width: int) -> np.ndarray:
-    """A procedural studio (``catalog.studio_params``) as a linear equirect map (width/2, width, 3), frng.envmap's
+    """A procedural studio (``catalog.studio_params``) as a linear equirect map (width/2, width, 3), frng.render.envmap's
     convention: a dim or dark background (``background`` above the horizon, half of it below: a floor) plus rectangular
     area lights facing the origin, each of radiance ``strength`` x its blackbody colour, edges softened over 5% of
     their size (and at least a pixel)."""
@@ -184,7 +185,7 @@ def prepare(
     log=print,
     guard=None,
 ) -> list[dict]:
-    """Write every planned map ``specs`` (:func:`frng.data.catalog.envmap_plan`) into ``out`` (see the module
+    """Write every planned map ``specs`` (:func:`frng.plan.catalog.envmap_plan`) into ``out`` (see the module
     docstring), ``env`` the config's ``envmaps`` section, ``threads`` its ``render.threads`` (Blender's, for the
     skies). Returns the index records.
 

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from frng.layout import EnvmapFolder
+from frng.plan.layout import EnvmapFolder
 
 BLENDER_CLAMPS = (0.0, 10.0)  # Cycles' default sample_clamp_direct / sample_clamp_indirect
 TIER = "tier"
@@ -107,7 +107,7 @@ def render_images(
     log,
 ) -> list[dict]:
     """Inside Blender: every (object, light, view) under the two references and each setting; ``plan``: the dataset
-    plan (:func:`frng.data.catalog.plan`), ``render`` its render section (resolution and threads as wanted),
+    plan (:func:`frng.plan.catalog.plan`), ``render`` its render section (resolution and threads as wanted),
     ``lights``: maps of ``env_dir`` (None: each object's target lights), ``n_views``: the rig's first target views.
     With ``save_images`` every render is written as ``out/images/{obj}/{light}/{view}/{setting}.exr``. Returns one
     record per image: keys object, material, light, view, setting, spp, denoise, clamp_direct, clamp_indirect,

@@ -19,7 +19,7 @@ import numpy as np
 
 from frng import io
 from frng.data.dataset import ObjectData
-from frng.layout import Layout
+from frng.plan.layout import Layout
 
 BACKGROUND = (0.18, 0.18, 0.18)  # linear grey behind the renders
 LABEL_W = 150

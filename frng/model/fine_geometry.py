@@ -46,7 +46,7 @@ from torch import nn
 
 from frng import camera
 from frng.gaussians import RAW_CHANNELS, GaussianDecodeConfig, Gaussians, decode_raw
-from frng.sections import Settings
+from frng.plan.sections import Settings
 
 
 @dataclass

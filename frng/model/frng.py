@@ -15,7 +15,7 @@ Token layout and Gaussian order follow the contract in :mod:`frng.model` (coarse
 Gaussians in (view, row, col) order, fine ones in (view, fine token, y*p + x) order). Background Gaussians are
 dropped: coarse ones with the cache's ``keep`` (input alpha >= 0.5), fine ones with :func:`fine_keep_mask`.
 
-Variants (:func:`variant_config`, from the one table :data:`frng.variants.VARIANTS`): ``full``; ``no-fine`` (no FineGeometry, coarse tokens only); ``no-idm``
+Variants (:func:`variant_config`, from the one table :data:`frng.plan.variants.VARIANTS`): ``full``; ``no-fine`` (no FineGeometry, coarse tokens only); ``no-idm``
 (``prior_dim = 0``: no tokenizer, no prior parameters anywhere; ``reconstruct`` refuses priors); ``no-ind``
 (lambda_c = lambda_KLD = 0, training only); ``no-neural`` (MaterialFormer head ``pbr`` -> Cook-Torrance per
 Gaussian, rendered with the GGX shader through the same deferred pipeline); ``k{P}`` (top-K = P% of the patches).
@@ -34,7 +34,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from frng import envmap, io
+from frng import io
 from frng.device import bf16_ok
 from frng.gaussians import GaussianDecodeConfig, Gaussians
 from frng.model.fine_geometry import FineGeometry, FineGeometryConfig, fine_keep_mask, sample_pixels
@@ -49,7 +49,9 @@ from frng.model.materialformer import (
 )
 from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, select_top_k
 from frng.model.tokenizers import PriorTokenizer, stack_priors
-from frng.render import RasterConfig, rasterize
+from frng.plan.sections import TypedConfig, register, section, section_dict
+from frng.plan.variants import canonical_for, variant
+from frng.render import RasterConfig, envmap, rasterize
 from frng.render.decoder import shade_decoder
 from frng.render.shading import (
     COSINE_NORMAL,
@@ -60,8 +62,6 @@ from frng.render.shading import (
     ggx_shade,
     smooth_normals,
 )
-from frng.sections import TypedConfig, register, section, section_dict
-from frng.variants import canonical_for, variant
 
 MODEL_KIND = "frng"
 # FRNGConfig keys added after models were saved without them: the value that reproduces what those models did
@@ -121,7 +121,7 @@ class FRNGConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> FRNGConfig:
-        """Strict (:func:`frng.sections.section`): a model file's ``config`` with a key this code does not know, or
+        """Strict (:func:`frng.plan.sections.section`): a model file's ``config`` with a key this code does not know, or
         without one it needs, is an error naming it."""
         return section(cls, d)
 
@@ -227,9 +227,9 @@ def pixel_map(images: torch.Tensor, priors, V: int, normals: torch.Tensor, input
     for the whole model), input irradiance (gamma of E(n) / pi), the geometry normal, (IDM albedo, world normal, roughness,
     metallic)], where E(n) is
     the input light's irradiance at the shading normal n (the IDM's normal with priors, else the geometry's;
-    degree-2 SH, :func:`frng.envmap.sh_irradiance`). The input light is
+    degree-2 SH, :func:`frng.render.envmap.sh_irradiance`). The input light is
     known in F-RNG's setting; dividing it out is what lets the same decoder relight under another light."""
-    from frng import envmap
+    from frng.render import envmap
 
     rgb, a = images[..., :3].float(), images[..., 3:4].float()
     col = (rgb / a.clamp_min(1e-3)).clamp(0, 1)

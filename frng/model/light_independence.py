@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from frng.sections import Settings
+from frng.plan.sections import Settings
 
 
 @dataclass

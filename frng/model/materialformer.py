@@ -35,8 +35,8 @@ import torch
 from torch import nn
 
 from frng.nn import Transformer, unpatchify
+from frng.plan.sections import Settings
 from frng.render.shading import GGX_MAX_METALLIC, GGX_MIN_ALBEDO, GGX_MIN_ROUGHNESS
-from frng.sections import Settings
 
 PBR_CHANNELS = 8  # albedo 3, roughness 1, metallic 1, normal 3
 MIN_ROUGHNESS = GGX_MIN_ROUGHNESS

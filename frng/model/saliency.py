@@ -41,7 +41,7 @@ import torch
 import torch.nn.functional as F
 from scipy import ndimage
 
-from frng.sections import register
+from frng.plan.sections import register
 
 LUMA = (0.2126, 0.7152, 0.0722)  # Rec. 709 on linear RGB
 

@@ -44,16 +44,17 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from frng import checkpoint, distributed, envmap, io
+from frng import checkpoint, distributed, io
 from frng import training as tr
 from frng.device import autocast, bf16_ok
 from frng.hashing import data_digest, file_sha256
-from frng.layout import Layout
 from frng.memo import TensorMemo
 from frng.model.frng import FRNG, ModelSections, variant_config
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
-from frng.sections import register
-from frng.variants import canonical_for
+from frng.plan.layout import Layout
+from frng.plan.sections import register
+from frng.plan.variants import canonical_for
+from frng.render import envmap
 
 CACHE_KEYS = ("t_geo", "raw_prior", "means", "quats", "scales", "opacities", "keep", "c2w", "intr")  # + light{j}.t_app
 BACK_KEYS = tuple("back_" + k for k in ("means", "quats", "scales", "opacities", "src", "dirs"))  # when cached
@@ -81,7 +82,9 @@ class TrainConfig:
 
     steps: int
     ablation_steps: int | None
-    seeds: tuple[int, ...]  # the training seeds of full + ablations; read while planning (frng.variants.extra_seeds)
+    seeds: tuple[
+        int, ...
+    ]  # the training seeds of full + ablations; read while planning (frng.plan.variants.extra_seeds)
     lr: float
     warmup: int
     weight_decay: float

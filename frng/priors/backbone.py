@@ -72,6 +72,7 @@ from torch import nn
 from frng import camera
 from frng.gaussians import GaussianDecodeConfig, Gaussians, isotropic_raw, pixel_gaussians
 from frng.nn import PatchDetokenizer, PatchTokenizer, Transformer, timestep_embedding
+from frng.plan.sections import section
 from frng.priors.diffusion import NoiseSchedule, from_diffusion_space, to_diffusion_space
 from frng.priors.envenc import EnvTokenizer
 from frng.priors.multiview import CUE_CHANNELS, geometry_cues
@@ -79,7 +80,6 @@ from frng.priors.surfels import grid_normals, pixel_surfels
 from frng.priors.viewselect import frontal_keep
 from frng.render import rasterize
 from frng.render.sh import C0, eval_sh
-from frng.sections import section
 
 GEO_CHANNELS = 9  # distance 1, scale 3, rotation 4, opacity 1 (RelitLRM's split)
 
@@ -134,7 +134,7 @@ class BackboneConfig(BackboneArch):
 
     @classmethod
     def from_dict(cls, d: dict) -> BackboneConfig:
-        """Strict (:func:`frng.sections.section`): unknown keys are errors, missing architecture keys take the
+        """Strict (:func:`frng.plan.sections.section`): unknown keys are errors, missing architecture keys take the
         schema's defaults; ``patch`` must be given."""
         return section(cls, d, "backbone")
 
@@ -332,11 +332,11 @@ class RelitLRMBackbone(nn.Module):
 
         env (B, He, We, 3) HDR or None (unconditional: zeros); normals (B, V, H, W, 3) world frame (zero = no
         normal: ratio 1). Returns log r (B, V, H, W, 3), r = (E(n) / pi) / mean radiance of the map, per channel,
-        E from the map's degree-2 SH (:func:`frng.envmap.sh_irradiance`): r = 1 under a uniform map, and a white
+        E from the map's degree-2 SH (:func:`frng.render.envmap.sh_irradiance`): r = 1 under a uniform map, and a white
         Lambertian surface lit by the map has radiance r x its mean radiance. Clamped to [e^-4, e^2]."""
         if env is None:
             return torch.zeros_like(normals)
-        from frng.envmap import sh_irradiance, sh_project
+        from frng.render.envmap import sh_irradiance, sh_project
 
         out = []
         for b in range(env.shape[0]):
@@ -356,7 +356,7 @@ class RelitLRMBackbone(nn.Module):
         one constant albedo (its scale cancels in the ratio). pixels (B, V, H, W, 7) from :meth:`pixel_inputs` ->
         log r_in (B, V, H, W, 3) in :meth:`light_ratio`'s units (ratio 1 where there is no normal, or too few
         pixels to fit)."""
-        from frng.envmap import SH_IRRADIANCE_BANDS
+        from frng.render.envmap import SH_IRRADIANCE_BANDS
         from frng.render.sh import sh_basis
 
         assert pixels.shape[-1] == 7, pixels.shape

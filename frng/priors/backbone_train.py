@@ -44,10 +44,10 @@ from frng import training as tr
 from frng.device import autocast, bf16_ok, resolve_device
 from frng.hashing import data_digest
 from frng.memo import TensorMemo
+from frng.plan.sections import register
 from frng.priors import backbone as bb
 from frng.priors.dataset import PriorObject, Views
 from frng.priors.diffusion import to_diffusion_space
-from frng.sections import register
 from frng.seeding import seed_everything
 
 

@@ -55,13 +55,14 @@ from pathlib import Path
 
 import torch
 
-from frng import envmap, io
-from frng.data import catalog
+from frng import io
 from frng.hashing import file_sha256
-from frng.layout import Layout
+from frng.plan import catalog
+from frng.plan.layout import Layout
+from frng.plan.variants import SWEEP_VIEWS, view_counts  # noqa: F401
 from frng.priors import build_idm, load_backbone
 from frng.priors.intrinsics import IntrinsicPriors
-from frng.variants import SWEEP_VIEWS, view_counts  # noqa: F401
+from frng.render import envmap
 
 BACKBONE_CACHE_VERSION = "6"
 IDM_CACHE_VERSION = "1"

@@ -20,9 +20,9 @@ from pathlib import Path
 
 import torch
 
-from frng import envmap
 from frng.data.dataset import ObjectData, open_object
 from frng.priors.intrinsics import IntrinsicPriors
+from frng.render import envmap
 
 RIG_VIEWS = 6
 
@@ -105,5 +105,5 @@ def load_object(results: str | Path, oid: str, with_targets: bool = True, with_g
 
 def load_split(results: str | Path, ids: list[str], **kw) -> list[PriorObject]:
     """The curated objects ``ids`` under ``results`` (:func:`load_object` with ``kw``): a split of the dataset plan,
-    ``frng.data.catalog.plan(config).split(name)`` (no file scanning)."""
+    ``frng.plan.catalog.plan(config).split(name)`` (no file scanning)."""
     return [load_object(results, oid, **kw) for oid in ids]

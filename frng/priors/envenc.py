@@ -10,7 +10,7 @@ of E <= 1 and the HLG constants open; this module fixes them:
    - ``E_log = log1p(E) / log1p(max E)``           (3, in [0, 1]; dark-region emphasis, defined for E = 0)
    - ``E_hlg = HLG(E / max E)``                    (3, in [0, 1]; ITU-R BT.2100 HLG OETF, bright regions)
    - ``log(mean E) / 4``                            (1, broadcast; the absolute intensity both others drop)
-   - the pixel's unit direction (frng.envmap convention) (3)
+   - the pixel's unit direction (frng.render.envmap convention) (3)
 3. Patchify (``backbone.env_patch``) -> Linear -> GeLU -> Linear gives tokens of the model width.
 """
 
@@ -20,8 +20,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from frng import envmap
 from frng.nn import patchify
+from frng.render import envmap
 
 HLG_A, HLG_B, HLG_C = 0.17883277, 0.28466892, 0.55991073
 ENV_CHANNELS = 10

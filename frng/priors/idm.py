@@ -55,10 +55,10 @@ from torch import nn
 
 from frng import camera
 from frng.nn import PatchDetokenizer, PatchTokenizer, Transformer
+from frng.plan.sections import section
 from frng.priors.diffusion import to_diffusion_space
 from frng.priors.intrinsics import IntrinsicPriors
 from frng.priors.multiview import CUE_CHANNELS, geometry_cues
-from frng.sections import section
 
 RAW_CHANNELS = 9
 
@@ -92,7 +92,7 @@ class IDMConfig(IDMArch):
 
     @classmethod
     def from_dict(cls, d: dict) -> IDMConfig:
-        """Strict (:func:`frng.sections.section`): unknown keys are errors, missing architecture keys take the
+        """Strict (:func:`frng.plan.sections.section`): unknown keys are errors, missing architecture keys take the
         schema's defaults; ``patch``, ``near`` and ``far`` must be given."""
         return section(cls, d, "idm")
 

@@ -28,10 +28,10 @@ from frng import camera, checkpoint, io
 from frng import training as tr
 from frng.device import autocast, resolve_device
 from frng.hashing import data_digest
+from frng.plan.sections import register
 from frng.priors import idm as idm_mod
 from frng.priors import multiview
 from frng.priors.dataset import PriorObject, Views
-from frng.sections import register
 from frng.seeding import seed_everything
 
 

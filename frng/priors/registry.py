@@ -130,7 +130,7 @@ class DiffusionRendererIDMPrior:
 
 
 def _learned(idm, backbone, results: str | Path, device="cpu") -> IDMPrior:
-    from frng.layout import Layout
+    from frng.plan.layout import Layout
 
     return LearnedIDMPrior(Path(Layout(results).idm_model()), device)
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from frng import envmap
-from frng.envmap import EnvSamples
+from frng.render import envmap
+from frng.render.envmap import EnvSamples
 from frng.render.prefilter import specular_at_cameras, specular_split
 from frng.render.shading import ShadingConfig, deferred_shade, lambert_sh
 

@@ -13,7 +13,7 @@ levels, looked up at the reflected direction and interpolated between levels by 
 
 with k_s (specular colour) and the level (roughness) read from the decoder's feature channels 6:10
 (:func:`specular_params`, :func:`specular_base`). Shapes: env maps (He, We, 3) linear HDR, equirect in
-:mod:`frng.envmap`'s convention.
+:mod:`frng.render.envmap`'s convention.
 
 Parameterisations (``shading.specular_param``):
 
@@ -39,7 +39,7 @@ import weakref
 import torch
 import torch.nn.functional as F
 
-from frng import envmap
+from frng.render import envmap
 from frng.render.shading import GGX_MIN_ROUGHNESS, SPECULAR_PARAMS, face_forward, ggx_reflectance
 
 KAPPAS = (400.0, 100.0, 25.0, 6.0)  # lobe sharpness per level: ~3, 6, 11, 23 degrees (1 / sqrt(kappa) rad)

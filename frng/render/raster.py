@@ -6,11 +6,11 @@ from dataclasses import dataclass, fields
 
 import torch
 
+from frng.plan.sections import register
 from frng.render import gsplat_backend
 from frng.render.project import project_gaussians
 from frng.render.reference import rasterize_reference
 from frng.render.tiles import rasterize_tiles
-from frng.sections import register
 
 BACKENDS = ("auto", "torch", "native", "gsplat", "reference")
 

@@ -2,7 +2,7 @@
 
 Pipeline (paper, Sec. "Universal neural renderer" + supplementary): rasterize per-Gaussian neural features to a
 per-pixel feature map (:func:`frng.render.rasterize`), then for every foreground pixel p and every light sample
-k of ONE sample set shared by the whole image (:func:`frng.envmap.sample`, importance sampled by luminance)
+k of ONE sample set shared by the whole image (:func:`frng.render.envmap.sample`, importance sampled by luminance)
 
     L_o(p) = 1/K sum_k  rho(p, w_o, w_k) L(w_k) / pdf(w_k),
 
@@ -26,9 +26,10 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from frng import camera, envmap
-from frng.envmap import EnvSamples
-from frng.sections import register
+from frng import camera
+from frng.plan.sections import register
+from frng.render import envmap
+from frng.render.envmap import EnvSamples
 
 DIFFUSE_MODES = ("sh", "mc")
 SPECULAR_PARAMS = ("linear", "softplus")  # frng.render.prefilter.specular_params (that module imports this one)
@@ -239,7 +240,7 @@ def lambert_sh(
 
     maps (V, H, W, C) alpha-premultiplied decoder features (channels 0:3 a normal n, 3:6 a diffuse BRDF d, as
     :class:`NeuralDecoder` reads them), alpha (V, H, W, 1), sh_coeffs (9, 3) degree-2 SH of the env map
-    (:func:`frng.envmap.sh_project`). E(n) = int L max(0, n . w) dw from the SH (:func:`frng.envmap.sh_irradiance`;
+    (:func:`frng.render.envmap.sh_project`). E(n) = int L max(0, n . w) dw from the SH (:func:`frng.render.envmap.sh_irradiance`;
     exact for the map's l <= 2 part, which carries ~all of a cosine lobe's integral). The same integral the Monte
     Carlo estimate of ``d max(0, n . w_i)`` converges to, without its noise: at 16-32 importance samples of an HDR
     map that noise is a visible per-image error. Pixels with alpha <= alpha_eps are 0. Returns (V, H, W, 3).
@@ -370,7 +371,7 @@ def deferred_shade(
     maps: per-pixel inputs of ``reflectance``, each (V, H, W, D) as returned by :func:`frng.render.rasterize`
     (alpha-premultiplied; e.g. ``[features]`` for the neural decoder, or ``[albedo, roughness, metallic,
     normal]`` for GGX); alpha (V, H, W, 1); cameras c2w (V, 4, 4), intrinsics (V, 4); samples: one
-    :class:`~frng.envmap.EnvSamples` shared by all views, or one per view. Only pixels with alpha > alpha_eps
+    :class:`~frng.render.envmap.EnvSamples` shared by all views, or one per view. Only pixels with alpha > alpha_eps
     are decoded. With ``normalize`` the maps are divided by alpha before decoding and the radiance is
     multiplied by alpha (un-premultiply, shade, premultiply); ``background`` (3,) is composited behind.
     Returns RGB (V, H, W, 3).

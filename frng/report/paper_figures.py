@@ -21,10 +21,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from frng import envmap, io
-from frng.layout import Layout
+from frng import io
+from frng.plan.layout import Layout
+from frng.plan.variants import BACKBONE, full_and
+from frng.render import envmap
 from frng.report import figures
-from frng.variants import BACKBONE, full_and
 
 
 def _psnr_lookup(per_image: pd.DataFrame):

@@ -38,7 +38,7 @@ over the same images) with its 95% bootstrap interval over test objects (:func:`
 2000 resamples, seed 0) as ``d{metric}``, ``d{metric}_lo``, ``d{metric}_hi``, and ``better`` / ``objects``
 (objects where the row's mean PSNR is higher / all objects).
 
-Training seeds (``train.seeds``, :mod:`frng.variants`): ``vs_backbone`` and ``ablation`` average each image over
+Training seeds (``train.seeds``, :mod:`frng.plan.variants`): ``vs_backbone`` and ``ablation`` average each image over
 the seeds of every trained row (``full``, ``full@s1``, ...) before anything else, and add ``seeds``,
 ``seed_spread_psnr`` (max - min over seeds of the row's mean PSNR) and ``seed_spread_dpsnr`` (max - min over seeds
 of the row's mean PSNR difference to its reference, seed by seed where the reference has that seed). Their
@@ -58,9 +58,9 @@ import pandas as pd
 
 from frng import io
 from frng import metrics as M
+from frng.plan.variants import BACKBONE, BASE_RUN, BASE_VARIANTS, ORACLE_RUN, RIG_VIEWS, SEED_SEP, VARIANTS, split_seed
 from frng.report import stats as S
 from frng.report import tables as T
-from frng.variants import BACKBONE, BASE_RUN, BASE_VARIANTS, ORACLE_RUN, RIG_VIEWS, SEED_SEP, VARIANTS, split_seed
 
 TABLES = tuple(T.TABLE_COLUMNS)
 VARIANT_LABELS = {name: v.label for name, v in VARIANTS.items()}
@@ -453,7 +453,7 @@ OTHER_FAMILY = "other"  # a light the plan does not know (not one of its maps)
 
 def with_families(df: pd.DataFrame | None, families: Mapping[str, str]) -> pd.DataFrame | None:
     """``df`` with a ``light_family`` column: the family of each row's ``light`` (``families``: map name -> family,
-    from the dataset plan, :meth:`frng.data.catalog.Catalog.light_families`; lights it lacks are
+    from the dataset plan, :meth:`frng.plan.catalog.Catalog.light_families`; lights it lacks are
     :data:`OTHER_FAMILY`). Frames without a ``light`` column come back unchanged."""
     if df is None or "light" not in df.columns:
         return df
@@ -464,7 +464,7 @@ def with_families(df: pd.DataFrame | None, families: Mapping[str, str]) -> pd.Da
 
 def family_order(df: pd.DataFrame) -> list[str]:
     """The light families present in ``df`` (sky, hdri, studio, user, then other)."""
-    from frng.data.catalog import FAMILIES
+    from frng.plan.catalog import FAMILIES
 
     present = set(df[LIGHT_FAMILY]) if LIGHT_FAMILY in df.columns else set()
     return [f for f in (*FAMILIES, OTHER_FAMILY) if f in present]
@@ -494,7 +494,7 @@ OBJECT_SOURCE = "object_source"
 
 def vs_backbone_by_source(df: pd.DataFrame, sources: Mapping[str, str]) -> pd.DataFrame:
     """:func:`vs_backbone_table` per source of the test object (``sources``: object id -> source, from the dataset
-    plan, :meth:`frng.data.catalog.Catalog.object_sources`; objects it lacks are ``other``), sources in name order:
+    plan, :meth:`frng.plan.catalog.Catalog.object_sources`; objects it lacks are ``other``), sources in name order:
     whether F-RNG's lead holds on real assets (LIBERO, Objaverse, users') as on generated shapes. The differences and
     their intervals are computed within each source. No ``all`` rows: the ``vs_backbone`` table's."""
     df = df.assign(**{OBJECT_SOURCE: df["object"].astype(str).map(dict(sources)).fillna("other")})
@@ -560,9 +560,9 @@ def write_tables(
 ) -> dict[str, dict]:
     """Write the tables (see the module docstring). Returns {table: {"csv"|"md"|"tex": path}}. ``tier`` and
     ``background`` (the config's ``tier`` and ``eval.background``) go into the captions. ``families``: map name ->
-    light family (the dataset plan's, :meth:`frng.data.catalog.Catalog.light_families`); without it the per-family
+    light family (the dataset plan's, :meth:`frng.plan.catalog.Catalog.light_families`); without it the per-family
     tables (``*_by_light``) are not written; ``sources``: object id -> source (the plan's,
-    :meth:`frng.data.catalog.Catalog.object_sources`), without it ``vs_backbone_by_source`` is not written."""
+    :meth:`frng.plan.catalog.Catalog.object_sources`), without it ``vs_backbone_by_source`` is not written."""
     df = M.read_csv(per_image_csv)
     missing = [
         c
@@ -672,7 +672,7 @@ def _write_family_tables(tier, background, df, prior, cross, families, out_dir: 
     df, prior, cross = (with_families(d, families) for d in (df, prior, cross))
     fams = ", ".join(family_order(df))
     note = (
-        f" Per family of the target light ({fams}: the dataset plan's light families, frng.data.catalog "
+        f" Per family of the target light ({fams}: the dataset plan's light families, frng.plan.catalog "
         "FAMILIES); the differences and their intervals are computed within each family."
     )
     out = {}

@@ -7,7 +7,7 @@ parsing and orchestration, two functions::
     def run(args: argparse.Namespace) -> int | None           # do the work
 
 and, when a rule runs it, one declaration: the config sections and keys ``run`` reads (libraries included), whence
-the rule's config digest follows (:mod:`frng.digests`: read from the source, so planning imports no stage)::
+the rule's config digest follows (:mod:`frng.plan.digests`: read from the source, so planning imports no stage)::
 
     CONFIG_READS = ("@plan", "train", "!train.seeds", ...)
 

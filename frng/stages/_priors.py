@@ -7,8 +7,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from frng import config as frng_config
-from frng.layout import Layout
+from frng.plan import config as frng_config
+from frng.plan.layout import Layout
 from frng.typedconfig import typed
 
 
@@ -23,7 +23,7 @@ def run_training(args: argparse.Namespace, stage: str, folder: str, train: Calla
     """Load the config and the training split (:func:`frng.priors.dataset.load_split` with ``load_kw``), train
     with ``train(config, objects, out, steps=...)`` (the stage's adapter: it hands the trainer the sections it
     reads) and say where the model went."""
-    from frng.data import catalog
+    from frng.plan import catalog
     from frng.priors.dataset import load_split
 
     config = typed(frng_config.load(args.config))

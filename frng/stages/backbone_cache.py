@@ -1,5 +1,5 @@
 """Stage ``frng backbone-cache --object OBJ [OBJ ...]`` (rules ``backbone_cache_{batch}``, one job per batch of
-objects, :mod:`frng.batches`): cache each object's backbone tokens and Gaussians in its own file (schema:
+objects, :mod:`frng.plan.batches`): cache each object's backbone tokens and Gaussians in its own file (schema:
 :mod:`frng.priors.cache`), one after another in this process."""
 
 from __future__ import annotations
@@ -8,15 +8,15 @@ import argparse
 import time
 from pathlib import Path
 
-from frng import config as frng_config
-from frng.batches import object_outputs
-from frng.data import catalog
 from frng.device import resolve_device
-from frng.layout import Layout
+from frng.plan import catalog
+from frng.plan import config as frng_config
+from frng.plan.batches import object_outputs
+from frng.plan.layout import Layout
 from frng.priors.cache import make_backbone_cache
 from frng.typedconfig import typed
 
-# The config keys this stage reads (frng.digests: its rule's digest): the backbone model from its file; extra
+# The config keys this stage reads (frng.plan.digests: its rule's digest): the backbone model from its file; extra
 # training lights from the env-map plan, DDIM seeds, device (frng/priors/cache.py)
 CONFIG_READS = ("@envmap_plan", "device", "backbone.cache_extra_lights")
 

@@ -12,7 +12,7 @@ import argparse
 from frng.priors.backbone_train import train
 from frng.stages._priors import configure_training, run_training
 
-# The config keys this stage reads (frng.digests: its rule's digest): the training split, architecture +
+# The config keys this stage reads (frng.plan.digests: its rule's digest): the training split, architecture +
 # backbone.train, patch size, the models' seed (frng.training.train_seed: train_seed, else seed), device
 # (frng/priors/backbone_train.py)
 CONFIG_READS = ("@plan", "train_seed", "device", "backbone", "!backbone.cache_extra_lights", "model.patch_size")

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import argparse
 
-from frng import config as frng_config
 from frng.baselines.plan import FRNG_NVS_RUN
+from frng.plan import config as frng_config
 from frng.typedconfig import typed
 
-# The config keys this stage reads (frng.digests: its rule's digest): the runs planned (dense views,
+# The config keys this stage reads (frng.plan.digests: its rule's digest): the runs planned (dense views,
 # baselines.*), the protocol (frng/baselines/scoring.py)
 CONFIG_READS = ("@plan", "eval", "render.dense_views", "baselines", "benchmarks")
 
@@ -34,7 +34,7 @@ def planned(config) -> list:
     from frng.baselines import plan as P
     from frng.baselines.scoring import planned_runs
     from frng.benchmarks.plan import entries
-    from frng.data import catalog
+    from frng.plan import catalog
 
     cat = catalog.plan(config)
     tests = P.test_objects(cat)
@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     from frng import metrics as M
     from frng.baselines.external import ExternalError
     from frng.baselines.scoring import ScoringError, score
-    from frng.layout import Layout
+    from frng.plan.layout import Layout
 
     config = typed(frng_config.load(args.config))
     out = Path(args.out or Layout(config.results).metrics_dir())

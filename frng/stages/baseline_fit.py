@@ -10,12 +10,12 @@ import argparse
 import sys
 from pathlib import Path
 
-from frng import config as frng_config
 from frng.baselines.fit_job import BaselineFitError, FitJob, fit_object
 from frng.baselines.plan import PER_SCENE_METHODS
+from frng.plan import config as frng_config
 from frng.typedconfig import typed
 
-# The config keys this stage reads (frng.digests: its rule's digest): the object's views and lights (plan), the
+# The config keys this stage reads (frng.plan.digests: its rule's digest): the object's views and lights (plan), the
 # fit's budget and schedule, the rasterizer and shading, seeds, device (frng/baselines/perscene.py)
 CONFIG_READS = ("@plan", "train_seed", "device", "render", "baselines.fit", "raster", "shading")
 

@@ -14,14 +14,14 @@ from __future__ import annotations
 
 import argparse
 
-from frng import config as frng_config
 from frng.baselines.plan import FRNG_NVS_RUN
+from frng.plan import config as frng_config
 from frng.typedconfig import typed
 
 RUN = FRNG_NVS_RUN
 
 
-# The config keys this stage reads (frng.digests: its rule's digest): what `frng relight` of the main group reads
+# The config keys this stage reads (frng.plan.digests: its rule's digest): what `frng relight` of the main group reads
 # (frng/stages/relight.py)
 CONFIG_READS = ("@plan", "@relight", "!train.seeds")
 
@@ -42,13 +42,13 @@ def render_nvs(job, oid: str, out, device) -> dict:
     import torch
 
     from frng import io
-    from frng.data import catalog
-    from frng.layout import Layout, RelightFolder
     from frng.model.frng import FRNG
+    from frng.plan import catalog
+    from frng.plan.layout import Layout, RelightFolder
+    from frng.plan.variants import ALL_GROUPS
     from frng.priors import build_idm, load_backbone
     from frng.priors.dataset import load_object
     from frng.relight import RelightError, Timer, backbone_views, validate_inputs
-    from frng.variants import ALL_GROUPS
 
     L = Layout(job.results)
     meta = validate_inputs(job, oid)
@@ -123,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from frng.device import resolve_device
-    from frng.layout import Layout
+    from frng.plan.layout import Layout
     from frng.relight import RelightError, RelightJob
 
     config = typed(frng_config.load(args.config))

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import argparse
 
-from frng import config as frng_config
+from frng.plan import config as frng_config
 from frng.typedconfig import typed
 
-# The config keys this stage reads (frng.digests: its rule's digest): the IDM (registry: idm.*, backbone.near/far),
+# The config keys this stage reads (frng.plan.digests: its rule's digest): the IDM (registry: idm.*, backbone.near/far),
 # the shading, seeds, device (frng/baselines/image_based.py)
 CONFIG_READS = ("@plan", "train_seed", "device", "idm", "backbone.near", "backbone.far", "shading")
 
@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from frng.baselines.image_based import ImageBaselineError, ImageJob, reshade_object
     from frng.baselines.plan import IMAGE_BASED_RUN
     from frng.data.dataset import DatasetError
-    from frng.layout import Layout
+    from frng.plan.layout import Layout
 
     config = typed(frng_config.load(args.config))
     out = Path(args.out or Layout(config.results).relight_run(IMAGE_BASED_RUN, args.object))

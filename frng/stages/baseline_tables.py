@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import argparse
 
-from frng import config as frng_config
+from frng.plan import config as frng_config
 from frng.typedconfig import typed
 
-# The config keys this stage reads (frng.digests: its rule's digest): captions (tier), compositing
+# The config keys this stage reads (frng.plan.digests: its rule's digest): captions (tier), compositing
 # (eval.background), the runs' images for figures (frng/report/baseline_tables.py)
 CONFIG_READS = ("@plan", "tier", "eval", "render.dense_views", "baselines", "benchmarks")
 
@@ -38,7 +38,7 @@ def loader(results, runs):
 
     from frng import io
     from frng.baselines.scoring import read_prediction
-    from frng.layout import Layout, ObjectFolder
+    from frng.plan.layout import Layout, ObjectFolder
 
     by_name = {r.run: r for r in runs}
     L = Layout(results)
@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from frng import metrics as M
-    from frng.layout import Layout
+    from frng.plan.layout import Layout
     from frng.report import baseline_tables as BT
     from frng.stages.baseline_eval import planned
 

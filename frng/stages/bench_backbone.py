@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from frng import config as frng_config
+from frng.plan import config as frng_config
 from frng.stages.bench_heldout import add_bench_arguments, named_path, selected_objects, summary
 
 if TYPE_CHECKING:  # torch is imported when a benchmark runs, not by `frng bench --help`
@@ -74,7 +74,7 @@ def relit(obj, backbone, settings: BackboneSettings, seed: int, device) -> dict:
     the relight stage's DDIM seeds (``catalog.derive_seed(seed, "relight", oid, light)``)."""
     import torch
 
-    from frng.data import catalog
+    from frng.plan import catalog
 
     light_in = obj.input_lights[0]
     v = obj.inputs[light_in].select(range(obj.rig_views))  # the relight stage's main run: the rig
@@ -135,9 +135,9 @@ def run(args: argparse.Namespace) -> int:
     import torch
     from tqdm import tqdm
 
-    from frng.data import catalog
     from frng.io import read_json
-    from frng.layout import Layout
+    from frng.plan import catalog
+    from frng.plan.layout import Layout
     from frng.priors import load_backbone
     from frng.priors.backbone_settings import BackboneSettings
     from frng.priors.dataset import load_object

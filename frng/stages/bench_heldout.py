@@ -40,8 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
-from frng import config as frng_config
-from frng.variants import RIG_VIEWS, split_seed
+from frng.plan import config as frng_config
+from frng.plan.variants import RIG_VIEWS, split_seed
 
 AT = ("targets", "inputs")  # --at: where the models are scored
 SPLITS = ("test", "val")  # --split: the test split, or the validation objects (validation_objects)
@@ -51,7 +51,7 @@ ELEVATION_BANDS = (-90.0, -30.0, 0.0, 30.0, 90.0)  # degrees; the summary's targ
 
 def named_path(text: str, example: str) -> tuple[str, str]:
     """``--model NAME=REST`` -> (NAME, REST), NAME checked as the pipeline's names are (``NAME@sS``: a training seed
-    of NAME, :func:`frng.variants.split_seed`); argparse errors naming the argument (``example``: a valid one)."""
+    of NAME, :func:`frng.plan.variants.split_seed`); argparse errors naming the argument (``example``: a valid one)."""
     name, sep, rest = text.partition("=")
     if not sep or not name or not rest:
         raise argparse.ArgumentTypeError(f"--model takes NAME=PATH (e.g. {example}), got {text!r}")
@@ -69,7 +69,7 @@ def _model_arg(text: str) -> tuple[str, Path]:
 
 def seed_groups(names: list[str]) -> dict[str, list[str]]:
     """Model names grouped as training seeds of one model by the pipeline's naming (``x`` and ``x@s1`` are two seeds
-    of ``x``; :func:`frng.variants.split_seed`), in the order given: {group: [names]}."""
+    of ``x``; :func:`frng.plan.variants.split_seed`), in the order given: {group: [names]}."""
     groups: dict[str, list[str]] = {}
     for n in names:
         groups.setdefault(split_seed(n)[0], []).append(n)
@@ -97,7 +97,7 @@ def add_bench_arguments(
 
 
 def selected_objects(plan, args: argparse.Namespace, models: list[tuple[str, Path]], bench: str) -> list[str] | None:
-    """The objects ``--objects`` / ``--split`` select in the dataset plan (:class:`frng.data.catalog.Catalog`),
+    """The objects ``--objects`` / ``--split`` select in the dataset plan (:class:`frng.plan.catalog.Catalog`),
     after checking the ``models`` (name, model file) to score: None after printing an error (``frng bench {bench}:
     error: ...``) that names a repeated model name, a missing model file or the objects that are not the config's."""
 
@@ -147,7 +147,7 @@ def relit(obj, model, c2w, intr, envs: dict, seed: int, spp: int) -> dict:
     {("full", light): (Vt, H, W, 4), and ("base", light): the Lambertian base alone where the decoder has one}."""
     import torch
 
-    from frng.data import catalog
+    from frng.plan import catalog
     from frng.relight import shade_base
 
     H, W = obj.images.shape[1:3]
@@ -305,11 +305,11 @@ def run(args: argparse.Namespace) -> int:
     import torch
     from tqdm import tqdm
 
-    from frng.data import catalog
     from frng.io import read_json
-    from frng.layout import Layout, TrainingFolder
     from frng.model.frng import FRNG
     from frng.model.train import load_objects
+    from frng.plan import catalog
+    from frng.plan.layout import Layout, TrainingFolder
     from frng.typedconfig import typed
 
     if args.threads:

@@ -119,7 +119,7 @@ def synthetic_object(config: Config, res: int, n_targets: int, seed: int, dev: t
 
 def synthetic_env(height: int, seed: int, dev: torch.device) -> torch.Tensor:
     """A smooth sky-like HDR map (height, 2 * height, 3) with a sun blob (its position from ``seed``)."""
-    from frng import envmap
+    from frng.render import envmap
 
     g = torch.Generator().manual_seed(seed)
     dirs = envmap.pixel_directions(height, 2 * height)
@@ -132,8 +132,8 @@ def synthetic_env(height: int, seed: int, dev: torch.device) -> torch.Tensor:
 def build(path: str, args: argparse.Namespace, dev: torch.device) -> SimpleNamespace:
     """One config's untrained models at its architecture sizes, built once for every resolution: a namespace of
     path, config, backbone, idm, frng and shading."""
-    from frng import config as frng_config
     from frng.model.frng import FRNG, ModelSections, variant_config
+    from frng.plan import config as frng_config
     from frng.priors import backbone as backbone_mod
     from frng.priors import freeze
     from frng.priors import idm as idm_mod

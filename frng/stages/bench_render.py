@@ -43,9 +43,9 @@ def _timed(fn, dev, repeats) -> float:
 
 
 def run(args: argparse.Namespace) -> int:
-    from frng import config as cfgmod
+    from frng.plan import config as cfgmod
+    from frng.plan.sections import config_section
     from frng.render.raster import resolve_backend
-    from frng.sections import config_section
 
     cfg = cfgmod.load(args.config) if args.config else {}
     rc, sc = config_section(cfg, "raster"), config_section(cfg, "shading")
@@ -100,8 +100,7 @@ def _print(args, row, sc):
 
 
 def _measure(args, dev, kw, backend, rc, sc, size, C) -> dict:
-    from frng import envmap
-    from frng.render import rasterize
+    from frng.render import envmap, rasterize
     from frng.render.project import project_gaussians
     from frng.render.scenes import pixel_aligned_scene
     from frng.render.shading import NeuralDecoder, deferred_shade

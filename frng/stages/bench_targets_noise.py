@@ -21,9 +21,9 @@ import sys
 import time
 from pathlib import Path
 
-from frng import config as frng_config
 from frng.data import noise_floor as N
-from frng.layout import Layout
+from frng.plan import config as frng_config
+from frng.plan.layout import Layout
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -48,7 +48,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from frng.sections import config_section
+    from frng.plan.sections import config_section
 
     config = frng_config.load(args.config)
     render = config_section(config, "render")
@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     import bpy  # noqa: F401
 
-    from frng.data import catalog
+    from frng.plan import catalog
 
     plan = catalog.plan(config)
     sized = dataclasses.replace(

@@ -29,7 +29,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from frng import config as frng_config
+from frng.plan import config as frng_config
 
 MODELS = ("backbone", "frng")
 BF16 = ("off", "on")
@@ -58,8 +58,8 @@ def _step_seconds(loss_csv: Path, skip: int) -> list[float]:
 
 def _measure(config, model: str, bf16: bool, args: argparse.Namespace, out: Path) -> list[float]:
     """Run ``model``'s trainer for ``skip + steps`` steps into ``out``; the timed steps' seconds."""
-    from frng.data import catalog
-    from frng.layout import Layout, TrainingFolder
+    from frng.plan import catalog
+    from frng.plan.layout import Layout, TrainingFolder
 
     total = args.skip + args.steps + 1
     ids = catalog.plan(config).split("train")[: args.objects]

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from frng.config import ConfigError, dump, load_overlaid
+from frng.plan.config import ConfigError, dump, load_overlaid
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

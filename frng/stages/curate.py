@@ -3,8 +3,8 @@ object's views x lights and G-buffers.
 
 The work, the outputs and how a failed or stopped job cleans up: :mod:`frng.data.curate`.
 
-Torch-free: the stage builds only the config sections curation reads (:func:`frng.sections.config_section`), not
-the whole typed config (:mod:`frng.typedconfig` imports every model), and the numpy halves of :mod:`frng.envmap`
+Torch-free: the stage builds only the config sections curation reads (:func:`frng.plan.sections.config_section`), not
+the whole typed config (:mod:`frng.typedconfig` imports every model), and the numpy halves of :mod:`frng.render.envmap`
 and :mod:`frng.camera` leave torch unimported (:mod:`frng.lazytorch`): ~2.5 s of each of the ~140 jobs of a
 default-tier run (tests/test_lazy_imports.py).
 """
@@ -16,15 +16,16 @@ import sys
 import time
 from pathlib import Path
 
-from frng import config as frng_config
-from frng import envmap, io
-from frng.data import catalog
+from frng import io
 from frng.data.curate import CurationError, curate
 from frng.data.stopguard import StopGuard
-from frng.layout import Layout
-from frng.sections import config_section
+from frng.plan import catalog
+from frng.plan import config as frng_config
+from frng.plan.layout import Layout
+from frng.plan.sections import config_section
+from frng.render import envmap
 
-# The config keys this stage reads (frng.digests: its rule's digest): render.* (rig, Cycles, fur) and envmaps.width
+# The config keys this stage reads (frng.plan.digests: its rule's digest): render.* (rig, Cycles, fur) and envmaps.width
 # (frng/data/curate.py), and envmaps.normalize (the maps' scale); the object's own plan entry (its split, mesh,
 # material, seed and lights) and its maps' plan records are its record file (rule curate_record, an input named by
 # their digest; the env-map index is an ancient input: rules/curate.smk), so adding an object reruns no other

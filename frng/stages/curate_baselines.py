@@ -9,17 +9,18 @@ import sys
 import time
 from pathlib import Path
 
-from frng import config as frng_config
-from frng import envmap, io
+from frng import io
 from frng.baselines.curate import curate_baselines
 from frng.baselines.plan import baseline_objects, test_objects
-from frng.data import catalog
 from frng.data.curate import CurationError
 from frng.data.stopguard import StopGuard
-from frng.layout import Layout
-from frng.sections import config_section
+from frng.plan import catalog
+from frng.plan import config as frng_config
+from frng.plan.layout import Layout
+from frng.plan.sections import config_section
+from frng.render import envmap
 
-# The config keys this stage reads (frng.digests: its rule's digest): the object's curation settings (render.*,
+# The config keys this stage reads (frng.plan.digests: its rule's digest): the object's curation settings (render.*,
 # envmaps.width), the plan (its lights, split, material; which test objects get dense views:
 # baselines.objects_per_class); frng/baselines/curate.py
 CONFIG_READS = ("@plan", "render", "envmaps.width", "baselines.objects_per_class")

@@ -10,15 +10,15 @@ import argparse
 import sys
 from pathlib import Path
 
-from frng import config as frng_config
 from frng import io
-from frng.data import catalog
 from frng.data.dataset import DatasetError
 from frng.data.preview import write_previews
-from frng.layout import Layout
+from frng.plan import catalog
+from frng.plan import config as frng_config
+from frng.plan.layout import Layout
 from frng.typedconfig import typed
 
-# The config keys this stage reads (frng.digests: its rule's digest): the plan's object ids (frng/data/preview.py)
+# The config keys this stage reads (frng.plan.digests: its rule's digest): the plan's object ids (frng/data/preview.py)
 CONFIG_READS = ("@plan",)
 
 

@@ -10,14 +10,15 @@ import sys
 import time
 from pathlib import Path
 
-from frng import config as frng_config
-from frng import envmap, io
-from frng.data import catalog
+from frng import io
 from frng.data.envmaps import prepare
-from frng.layout import Layout
+from frng.plan import catalog
+from frng.plan import config as frng_config
+from frng.plan.layout import Layout
+from frng.render import envmap
 from frng.typedconfig import typed
 
-# The config keys this stage reads (frng.digests: its rule's digest): the env-map plan, envmaps.width/normalize,
+# The config keys this stage reads (frng.plan.digests: its rule's digest): the env-map plan, envmaps.width/normalize,
 # Blender threads of the sky bakes (frng/data/envmaps.py)
 CONFIG_READS = ("@envmap_plan", "render.threads")
 

@@ -10,15 +10,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from frng import config as frng_config
-from frng.data import catalog
 from frng.device import resolve_device
-from frng.layout import Layout
+from frng.plan import catalog
+from frng.plan import config as frng_config
+from frng.plan.layout import Layout
 from frng.priors import build_idm, load_backbone
 from frng.priors.evaluate import eval_backbone, eval_idm, mean_image
 from frng.typedconfig import typed
 
-# The config keys this stage reads (frng.digests: its rule's digest): both splits, build_idm, seeds, device; the
+# The config keys this stage reads (frng.plan.digests: its rule's digest): both splits, build_idm, seeds, device; the
 # backbone model from its file (frng/priors/evaluate.py)
 CONFIG_READS = ("@plan", "device", "idm", "!idm.train", "backbone.near", "backbone.far")
 

@@ -29,10 +29,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from frng import config as frng_config
 from frng import io
 from frng import metrics as M
-from frng.layout import Layout, RelightFolder
+from frng.plan import config as frng_config
+from frng.plan.layout import Layout, RelightFolder
 from frng.typedconfig import Config, typed
 
 PER_IMAGE = "relight_per_image.csv"
@@ -189,14 +189,14 @@ def evaluate(config: Config | dict, run_dirs: list[Path], out_dir: Path) -> tupl
 
 def run_dirs_of(config: Config | dict, objects: list[str]) -> list[Path]:
     """Every ``{results}/relight/{run}/{obj}`` folder the config plans for these test objects."""
-    from frng.variants import runs
+    from frng.plan.variants import runs
 
     L = Layout(typed(config).results)
     return [Path(L.relight_run(r.name, oid)) for oid in objects for r in runs(config)]
 
 
-# The config keys this stage reads (frng.digests: its rule's digest): eval.protocol/background and the planned
-# runs (frng/variants.py: the variants, the training seeds, whether the Lambertian-base run exists)
+# The config keys this stage reads (frng.plan.digests: its rule's digest): eval.protocol/background and the planned
+# runs (frng/plan/variants.py: the variants, the training seeds, whether the Lambertian-base run exists)
 CONFIG_READS = (
     "eval",
     "frng",
@@ -216,7 +216,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from frng.data import catalog
+    from frng.plan import catalog
 
     config = typed(frng_config.load(args.config))
     objects = args.objects or catalog.plan(config).split("test")

@@ -19,9 +19,9 @@ import argparse
 import math
 from pathlib import Path
 
-from frng import config as frng_config
 from frng import io
-from frng.layout import Layout, RelightFolder
+from frng.plan import config as frng_config
+from frng.plan.layout import Layout, RelightFolder
 from frng.typedconfig import typed
 
 TABLE_COLUMNS = ("benchmark", "protocol", "method", "psnr", "psnr_l", "ssim", "lpips", "images")
@@ -103,7 +103,7 @@ def evaluate(
     return per_image, out
 
 
-# The config keys this stage reads (frng.digests: its rule's digest): the runs and the protocol
+# The config keys this stage reads (frng.plan.digests: its rule's digest): the runs and the protocol
 CONFIG_READS = ("benchmarks", "eval", "tier")
 
 

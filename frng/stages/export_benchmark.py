@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-from frng import config as frng_config
+from frng.plan import config as frng_config
 from frng.typedconfig import typed
 
 

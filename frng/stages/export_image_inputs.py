@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-from frng import config as frng_config
+from frng.plan import config as frng_config
 from frng.typedconfig import typed
 
 
@@ -21,7 +21,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from frng.baselines.export_inputs import ExportError, export
-    from frng.data import catalog
+    from frng.plan import catalog
 
     config = typed(frng_config.load(args.config))
     objects = args.objects or catalog.plan(config).split("test")

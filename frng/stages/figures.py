@@ -9,12 +9,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from frng import config as frng_config
-from frng.layout import Layout
+from frng.plan import config as frng_config
+from frng.plan.layout import Layout
 from frng.report.paper_figures import make_figures
 from frng.typedconfig import typed
 
-# The config keys this stage reads (frng.digests: its rule's digest): patch size (saliency), the ablation variants
+# The config keys this stage reads (frng.plan.digests: its rule's digest): patch size (saliency), the ablation variants
 # (frng/report/paper_figures.py)
 CONFIG_READS = ("model.patch_size", "frng.variants")
 
@@ -26,7 +26,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from frng.data import catalog
+    from frng.plan import catalog
 
     config = typed(frng_config.load(args.config))
     objects = args.objects or catalog.plan(config).split("test")

@@ -1,5 +1,5 @@
 """Stage ``frng idm-priors --object OBJ [OBJ ...]`` (rules ``idm_priors_{batch}``, one job per batch of objects,
-:mod:`frng.batches`): each object's IDM priors for all its input views in its own file (schema:
+:mod:`frng.plan.batches`): each object's IDM priors for all its input views in its own file (schema:
 :mod:`frng.priors.cache`), one after another in this process."""
 
 from __future__ import annotations
@@ -8,14 +8,14 @@ import argparse
 import time
 from pathlib import Path
 
-from frng import config as frng_config
-from frng.batches import object_outputs
 from frng.device import resolve_device
-from frng.layout import Layout
+from frng.plan import config as frng_config
+from frng.plan.batches import object_outputs
+from frng.plan.layout import Layout
 from frng.priors.cache import make_idm_priors
 from frng.typedconfig import typed
 
-# The config keys this stage reads (frng.digests: its rule's digest): the learned IDM from its file; idm.kind and
+# The config keys this stage reads (frng.plan.digests: its rule's digest): the learned IDM from its file; idm.kind and
 # the diffusion-renderer settings (frng/priors/cache.py + build_idm), near/far, device
 CONFIG_READS = ("device", "idm", "!idm.train", "backbone.near", "backbone.far")
 

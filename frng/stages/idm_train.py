@@ -12,7 +12,7 @@ import argparse
 from frng.priors.idm_train import train
 from frng.stages._priors import configure_training, run_training
 
-# The config keys this stage reads (frng.digests: its rule's digest): the training split, the learned IDM's
+# The config keys this stage reads (frng.plan.digests: its rule's digest): the training split, the learned IDM's
 # architecture + idm.train, near/far, patch size, the models' seed, device (frng/priors/idm_train.py); not idm.kind
 # and the diffusion-renderer IDM's settings (frng/priors/__init__.py), which the learned IDM does not read
 CONFIG_READS = (

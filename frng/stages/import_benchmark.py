@@ -13,11 +13,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from frng import config as frng_config
-from frng.layout import Layout
+from frng.plan import config as frng_config
+from frng.plan.layout import Layout
 from frng.typedconfig import typed
 
-# The config keys this stage reads (frng.digests: its rule's digest): the import converts to the resolution, map
+# The config keys this stage reads (frng.plan.digests: its rule's digest): the import converts to the resolution, map
 # width and input-view count (frng/benchmarks)
 CONFIG_READS = ("benchmarks", "render.resolution", "render.extra_input_views", "envmaps.width")
 

@@ -69,8 +69,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def resolve_config(config: str | None, model: str | None):
     """The config to use: ``--config``, else the one recorded beside the model (``{results}/config.yaml``)."""
-    from frng import config as frng_config
     from frng.capture import CaptureError, results_of_model
+    from frng.plan import config as frng_config
     from frng.typedconfig import typed
 
     if config is None:
@@ -79,7 +79,7 @@ def resolve_config(config: str | None, model: str | None):
                 "give --config (a trained pipeline's config) or --model (its config.yaml is read "
                 "from the model's results folder)"
             )
-        from frng.layout import Layout
+        from frng.plan.layout import Layout
 
         config = Layout(results_of_model(Path(model))).config()
         if not Path(config).exists():

@@ -11,13 +11,13 @@ from __future__ import annotations
 import argparse
 import json
 
-from frng import config as frng_config
+from frng.plan import config as frng_config
 from frng.relight import ALL_GROUPS, BACKBONE, RelightError, RelightJob, relight
 from frng.typedconfig import typed
 
-# The config keys this stage reads (frng.digests: its rule's digest): the dataset plan (the split check) and what
+# The config keys this stage reads (frng.plan.digests: its rule's digest): the dataset plan (the split check) and what
 # relighting reads (frng/relight.py, group @relight). The rule `relight` relights the main group only
-# (frng.variants.MAIN_GROUP: the models' seed and the backbone), whose runs do not depend on the other training
+# (frng.plan.variants.MAIN_GROUP: the models' seed and the backbone), whose runs do not depend on the other training
 # seeds: it leaves train.seeds out, so that `make seeds` (train.seeds [0] -> [0, 1]) adds the relight_seed jobs
 # without rerunning the first seed's relight jobs (their outputs were identical)
 CONFIG_READS = ("@plan", "@relight", "!train.seeds")

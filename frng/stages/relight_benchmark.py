@@ -9,7 +9,7 @@ import argparse
 
 from frng.stages import relight as _relight
 
-# The config keys this stage reads (frng.digests: its rule's digest): what relighting reads (frng/relight.py) and
+# The config keys this stage reads (frng.plan.digests: its rule's digest): what relighting reads (frng/relight.py) and
 # the seed
 CONFIG_READS = ("@relight", "seed")
 

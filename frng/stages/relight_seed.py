@@ -9,7 +9,7 @@ import argparse
 
 from frng.stages import relight as _relight
 
-# The config keys this stage reads (frng.digests: its rule's digest): what `frng relight` reads, the training
+# The config keys this stage reads (frng.plan.digests: its rule's digest): what `frng relight` reads, the training
 # seeds included (the other seeds' runs)
 CONFIG_READS = ("@plan", "@relight")
 

@@ -11,13 +11,13 @@ import argparse
 import sys
 from pathlib import Path
 
-from frng import config as frng_config
-from frng.layout import Layout
+from frng.plan import config as frng_config
+from frng.plan.layout import Layout
 from frng.report.paper_tables import write_tables
 from frng.report.results_page import ResultsPageError, write_pages
 from frng.typedconfig import typed
 
-# The config keys this stage reads (frng.digests: its rule's digest): tier and eval.background in the captions
+# The config keys this stage reads (frng.plan.digests: its rule's digest): tier and eval.background in the captions
 # (frng/report/paper_tables.py), the plan (the test objects' timings, the lights' families of the per-family tables)
 CONFIG_READS = ("tier", "eval", "@plan")
 
@@ -46,7 +46,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from frng.data import catalog
+    from frng.plan import catalog
 
     config = typed(frng_config.load(args.config))
     L = Layout(config.results)

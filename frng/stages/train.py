@@ -11,17 +11,17 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from frng import config as frng_config
 from frng import distributed
-from frng.data import catalog
 from frng.io import check_file_index
-from frng.layout import Layout
 from frng.model.frng import ModelSections, variant_config
 from frng.model.train import TrainRun, train
+from frng.plan import catalog
+from frng.plan import config as frng_config
+from frng.plan.layout import Layout
+from frng.plan.variants import all_variants, canonical_variant, reads_priors, split_seed, trained_variants
 from frng.typedconfig import typed
-from frng.variants import all_variants, canonical_variant, reads_priors, split_seed, trained_variants
 
-# The config keys this stage reads (frng.digests: its rule's digest): train.* (but the seeds: a variant's seed is
+# The config keys this stage reads (frng.plan.digests: its rule's digest): train.* (but the seeds: a variant's seed is
 # its name's), the architecture (frng.* but the variant lists), decoder and training shading (not the
 # inference-only spp_infer / bf16_infer: relight takes those from the config), rasterizer, idm.kind (which priors
 # file), the training split, the models' seed, device (frng/model/train.py + variant_config)
@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     for index in indexes:
         if Path(index).exists():
             check_file_index(index)
-    # {variant}@s{seed} (train.seeds): the variant trained with train_seed = seed (frng.variants.split_seed)
+    # {variant}@s{seed} (train.seeds): the variant trained with train_seed = seed (frng.plan.variants.split_seed)
     base, seed = split_seed(args.variant)
     if seed is not None:
         config = dataclasses.replace(config, train_seed=seed)

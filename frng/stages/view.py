@@ -45,13 +45,13 @@ def run(args: argparse.Namespace) -> int:
     from frng.apps.view import ViewError, check_port, measure, open_viewer, serve
     from frng.asset import AssetError
     from frng.capture import CaptureError
-    from frng.sections import ConfigError
+    from frng.plan.sections import ConfigError
 
     stop = threading.Event()
     try:
         results = None
         if args.config is not None:
-            from frng import config as frng_config
+            from frng.plan import config as frng_config
             from frng.typedconfig import typed
 
             results = typed(frng_config.load(args.config)).results

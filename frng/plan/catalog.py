@@ -30,8 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from frng import io
-from frng.layout import Layout
-from frng.sections import TypedConfig, as_dict, config_section, register
+from frng.plan.layout import Layout
+from frng.plan.sections import TypedConfig, as_dict, config_section, register
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".gltf", ".glb")
 ENVMAP_SUFFIXES = (".exr", ".hdr")
@@ -75,7 +75,7 @@ OWN_SPECULAR_METALLIC = 0.5  # mean metallic at or above this -> specular
 @register("envmaps.skies")
 @dataclass(frozen=True)
 class SkiesConfig:
-    """The config's ``envmaps.skies`` section (frng.sections.section; defaults: config/schema.yaml)."""
+    """The config's ``envmaps.skies`` section (frng.plan.sections.section; defaults: config/schema.yaml)."""
 
     models: tuple[str, ...]
     sun_elevations_deg: tuple[float, ...]
@@ -107,7 +107,7 @@ class StudioConfig:
 @register("envmaps")
 @dataclass(frozen=True)
 class EnvmapsConfig:
-    """The config's ``envmaps`` section (frng.sections.section; defaults: config/schema.yaml). ``extra`` holds the
+    """The config's ``envmaps`` section (frng.plan.sections.section; defaults: config/schema.yaml). ``extra`` holds the
     user's entries as mappings (path, split, licence)."""
 
     width: int
@@ -126,7 +126,7 @@ class EnvmapsConfig:
 @dataclass(frozen=True)
 class RenderConfig:
     """The config's ``render`` section: Cycles settings, the camera rig (:mod:`frng.data.rig`) and the lights per
-    object (frng.sections.section; defaults: config/schema.yaml)."""
+    object (frng.plan.sections.section; defaults: config/schema.yaml)."""
 
     resolution: int
     spp: int
@@ -149,7 +149,7 @@ class RenderConfig:
 @register("objects")
 @dataclass(frozen=True)
 class ObjectsConfig:
-    """The config's ``objects`` section (frng.sections.section; defaults: config/schema.yaml). ``material_mix`` maps a
+    """The config's ``objects`` section (frng.plan.sections.section; defaults: config/schema.yaml). ``material_mix`` maps a
     material class to its fraction; ``extra`` holds the user's entries as mappings (path, split, up, material,
     licence)."""
 
@@ -463,7 +463,7 @@ class EnvMapSpec:
     base: str  # bundled name, "sky_{model}_e{elev}[_t{turbidity}]", "procstudio_{k}" or "user_{stem}"
     source: str  # "bundled" | "sky" | "studio" | "user"
     split: str  # "train" | "test"
-    rotation_deg: float  # about world Z, applied with frng.envmap.rotate_z
+    rotation_deg: float  # about world Z, applied with frng.render.envmap.rotate_z
     licence: str
     origin: str  # bundled file name, sky parameters, or the user's file path
     sky: dict | None = None  # {"model", "sun_elevation_deg", "turbidity"} for skies
@@ -1095,7 +1095,7 @@ def curate_record(catalog: Catalog, spec: ObjectSpec) -> dict:
 
 def curate_digest(catalog: Catalog, spec: ObjectSpec) -> str:
     """16 hex digits of sha256 over :func:`curate_record` (canonical JSON): names the object's record file
-    (:meth:`frng.layout.Layout.curate_record`), so a changed record names another file and reruns the job."""
+    (:meth:`frng.plan.layout.Layout.curate_record`), so a changed record names another file and reruns the job."""
     cache = catalog.__dict__.get("_curate_digests")
     if cache is None:
         cache = {}

@@ -30,7 +30,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from frng.sections import TypedConfig, as_dict
+from frng.plan.sections import TypedConfig, as_dict
 
 
 @dataclass(frozen=True)

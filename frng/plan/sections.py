@@ -29,7 +29,7 @@ from typing import Any
 
 import yaml
 
-SCHEMA_PATH = Path(__file__).resolve().parent.parent / "config" / "schema.yaml"
+SCHEMA_PATH = Path(__file__).resolve().parents[2] / "config" / "schema.yaml"
 
 
 class ConfigError(ValueError):
@@ -202,8 +202,8 @@ class Settings:
 
 # -- the config as the torch-free planning helpers receive it ---------------------------------------------------------
 #
-# The Snakemake rule files keep the validated dict, and the helpers they call while planning (frng.data.catalog,
-# frng.variants), which must not import torch, take it as well as the typed config that the stages hand them.
+# The Snakemake rule files keep the validated dict, and the helpers they call while planning (frng.plan.catalog,
+# frng.plan.variants), which must not import torch, take it as well as the typed config that the stages hand them.
 
 
 def is_typed(config: Any) -> bool:
@@ -233,5 +233,5 @@ TypedConfig = Any
 ``frng.typedconfig`` (it imports every component that declares a section). Library functions take the sections
 they read (their classes) and small typed arguments, not the whole config; what still takes it: the section
 selectors a stage calls (:func:`config_section`, ``frng.model.frng.ModelSections.of``, ``frng.relight.RelightJob.of``)
-and the torch-free planning helpers of :mod:`frng.data.catalog` and :mod:`frng.variants` (the dataset plan, the
+and the torch-free planning helpers of :mod:`frng.plan.catalog` and :mod:`frng.plan.variants` (the dataset plan, the
 variants and runs follow from many sections; the rule files call them with the validated dict)."""

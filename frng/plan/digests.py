@@ -26,8 +26,8 @@ from pathlib import Path
 from typing import Any
 
 from frng import io
-from frng.config import OVERWRITE_SWITCH
-from frng.sections import ConfigError, load_schema
+from frng.plan.config import OVERWRITE_SWITCH
+from frng.plan.sections import ConfigError, load_schema
 
 # A key is a dotted path (a whole section or one leaf); ``"!section.key"`` removes a part of a section listed (or a
 # key listed, e.g. one a group brings); ``"@group"`` stands for the keys of :data:`GROUPS`. Missing keys digest as
@@ -39,16 +39,16 @@ from frng.sections import ConfigError, load_schema
 # may be listed whole downstream at no cost (editing them reruns the upstream rule, hence this one). A section listed
 # whole covers the keys added to it later: declare by section where the stage reads most of one.
 
-STAGES_DIR = Path(__file__).resolve().parent / "stages"
+STAGES_DIR = Path(__file__).resolve().parents[1] / "stages"
 DECLARATION = "CONFIG_READS"
 """The name of a stage module's declaration: ``CONFIG_READS = ("@plan", "train", "!train.seeds", ...)``."""
 
 PLAN_KEYS: tuple[str, ...] = ("seed", "objects", "envmaps", "render.input_lights", "render.target_lights")
-"""What the dataset plan reads (frng/data/catalog.py ``plan``): env maps and their split, objects, their split,
+"""What the dataset plan reads (frng/plan/catalog.py ``plan``): env maps and their split, objects, their split,
 materials and lights. Every stage that asks the plan for a split or the object list reads these."""
 
 ENVMAP_PLAN_KEYS: tuple[str, ...] = ("seed", "envmaps", "objects", "render.input_lights", "render.target_lights")
-"""What the env-map plan reads (frng/data/catalog.py ``envmap_plan``): one map per (object, light) draw, so the
+"""What the env-map plan reads (frng/plan/catalog.py ``envmap_plan``): one map per (object, light) draw, so the
 objects and the light counts too."""
 
 RELIGHT_MODEL_KEYS: tuple[str, ...] = (
@@ -93,7 +93,7 @@ NOT_DIGESTED: dict[str, str] = {
 
 RULES_WITHOUT_DIGEST = frozenset({"all", "config_digest", "curate_record"})
 """Rules that run no stage (``config_digest`` records the others' digests in the results folder, ``curate_record``
-each object's plan entry and maps' records: frng.data.catalog.curate_record)."""
+each object's plan entry and maps' records: frng.plan.catalog.curate_record)."""
 
 
 def stage_declaration(path: str | os.PathLike) -> tuple[str, ...] | None:
@@ -155,8 +155,8 @@ def _rule_config_keys() -> dict[str, tuple[str, ...]]:
             out[path.stem] = expand(declared, str(path.relative_to(STAGES_DIR.parent.parent)))
     for rule, declared in STAGELESS_READS.items():
         if rule in out:
-            raise ConfigError(f"rule {rule}: declared by its stage and in frng.digests.STAGELESS_READS")
-        out[rule] = expand(declared, f"frng.digests.STAGELESS_READS[{rule!r}]")
+            raise ConfigError(f"rule {rule}: declared by its stage and in frng.plan.digests.STAGELESS_READS")
+        out[rule] = expand(declared, f"frng.plan.digests.STAGELESS_READS[{rule!r}]")
     return dict(sorted(out.items()))
 
 
@@ -182,22 +182,22 @@ def reads_table() -> str:
     rows = ["| rule | declared in | config keys it reads (`!`: but not) |", "|---|---|---|"]
     for rule in RULE_CONFIG_KEYS:
         if rule in STAGELESS_READS:
-            where, declared = "`frng.digests.STAGELESS_READS`", STAGELESS_READS[rule]
+            where, declared = "`frng.plan.digests.STAGELESS_READS`", STAGELESS_READS[rule]
         else:
             where, declared = f"`frng/stages/{rule}.py`", stage_declaration(STAGES_DIR / f"{rule}.py")
         rows.append(f"| `{rule}` | {where} | {', '.join(f'`{k}`' for k in declared)} |")
-    rows += ["", "| group | stands for (`frng.digests.GROUPS`) |", "|---|---|"]
+    rows += ["", "| group | stands for (`frng.plan.digests.GROUPS`) |", "|---|---|"]
     rows += [f"| `{g}` | {', '.join(f'`{k}`' for k in keys)} |" for g, keys in GROUPS.items()]
     return "\n".join(rows) + "\n"
 
 
 def _declared_where(rule: str) -> str:
-    return "frng.digests.STAGELESS_READS" if rule in STAGELESS_READS else f"frng/stages/{rule}.py ({DECLARATION})"
+    return "frng.plan.digests.STAGELESS_READS" if rule in STAGELESS_READS else f"frng/stages/{rule}.py ({DECLARATION})"
 
 
 def _undeclared(rule: str) -> str:
     return (
-        f"no {DECLARATION} in frng/stages/{rule}.py (the config keys its stage reads; frng.digests.STAGELESS_READS "
+        f"no {DECLARATION} in frng/stages/{rule}.py (the config keys its stage reads; frng.plan.digests.STAGELESS_READS "
         "for a rule that runs no stage)"
     )
 
@@ -240,7 +240,7 @@ def rule_digest(config: dict, rule: str) -> str:
 
 
 def write_rule_digest(config: dict, rule: str, path: str | os.PathLike, log: str | os.PathLike | None = None) -> Path:
-    """Write ``path`` (``{results}/.digests/{rule}-{digest}.txt``, :meth:`frng.layout.Layout.rule_digest`): the keys
+    """Write ``path`` (``{results}/.digests/{rule}-{digest}.txt``, :meth:`frng.plan.layout.Layout.rule_digest`): the keys
     rule ``rule`` reads, their values and digest; and remove the rule's other digest files, so that going back to
     an earlier config finds its file missing again (and reruns the rule). ``log``: where to say so."""
     path = Path(path)

@@ -115,7 +115,7 @@ def read(path: str | Path) -> np.ndarray:
     if img.size and float(img.max()) > MAX_RADIANCE:
         raise EnvMapError(
             f"{path}: environment map has a value of {float(img.max()):.3g}, above the limit "
-            f"{MAX_RADIANCE:g} (frng.envmap.MAX_RADIANCE; scale the map down)"
+            f"{MAX_RADIANCE:g} (frng.render.envmap.MAX_RADIANCE; scale the map down)"
         )
     return np.maximum(img, 0.0).astype(np.float32)
 

@@ -6,7 +6,7 @@ writes ``L.object_meta()`` for ``{results}/objects/{obj}/meta.json`` and a stage
 
 ::
 
-    {results}/config.yaml                         the effective config (frng.config.record)
+    {results}/config.yaml                         the effective config (frng.plan.config.record)
     .digests/{rule}-{digest}.txt                  each rule's config digest, an input of its jobs (rule config_digest)
     .lock                                         held by the snakemake running on the folder (rules/common.smk)
     envmaps/index.json, envmaps/{env}.exr         prepared environment maps (rule envmaps)
@@ -128,12 +128,12 @@ class Layout(_Folder):
 
     def rule_digest(self, rule: str = "{rule}", digest: str = "{digest}") -> str:
         """``.digests/{rule}-{digest}.txt``: the record that ``rule``'s jobs run with config digest ``digest``
-        (:func:`frng.digests.rule_digest`); every job of the rule reads it, so the digest travels with the folder."""
+        (:func:`frng.plan.digests.rule_digest`); every job of the rule reads it, so the digest travels with the folder."""
         return self._p(".digests", f"{rule}-{digest}.txt")
 
     def curate_record(self, obj: str = "{obj}", digest: str = "{digest}") -> str:
         """``.digests/objects/{obj}-{digest}.json``: what object ``obj``'s curation renders -- its plan entry and
-        its maps' plan records (:func:`frng.data.catalog.curate_record`), ``digest`` their digest; its curation job
+        its maps' plan records (:func:`frng.plan.catalog.curate_record`), ``digest`` their digest; its curation job
         reads it, so a change of them (and only of them) reruns the job, wherever the folder goes."""
         return self._p(".digests", "objects", f"{obj}-{digest}.json")
 

@@ -7,9 +7,9 @@ the offending key.
 Validation is JSON Schema 2020-12 (structure, types, ranges, unknown keys) with defaults from the schema filled in,
 followed by cross-key checks that a schema cannot express (see :func:`check_semantics`).
 
-The rest of the config's machinery lives beside it, one concept a module: :mod:`frng.sections` (a section's frozen
+The rest of the config's machinery lives beside it, one concept a module: :mod:`frng.plan.sections` (a section's frozen
 dataclass, built strictly from its mapping; a leaf), :mod:`frng.typedconfig` (the whole typed ``Config``, assembled
-from the sections the components declare), :mod:`frng.digests` (the config keys each rule reads) and
+from the sections the components declare), :mod:`frng.plan.digests` (the config keys each rule reads) and
 :mod:`frng.stages.config` (the ``frng config`` subcommand).
 """
 
@@ -24,7 +24,7 @@ from typing import Any
 
 import yaml
 
-from frng.sections import ConfigError, load_schema
+from frng.plan.sections import ConfigError, load_schema
 
 
 def _key(path) -> str:
