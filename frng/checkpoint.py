@@ -1,4 +1,4 @@
-"""Checkpoints of a training run and when one is resumed (:func:`frng.training.fit`).
+"""Checkpoints of a training run and when one is resumed (:func:`frng.training.loop.fit`).
 
 ``{out}/checkpoint.pt`` is written atomically (:func:`save`) every ``checkpoint_every`` steps and holds the model,
 optimiser, step, every random state (python, numpy, torch, CUDA, the trainer's sampling generators; per rank,

@@ -63,8 +63,8 @@ from frng.plan.catalog import Catalog
 from frng.plan.layout import Layout, RelightFolder, TrainingFolder
 from frng.plan.sections import TypedConfig
 from frng.plan.variants import ALL_GROUPS, BACKBONE, RIG_VIEWS, Run, RunPlan, model_variants, runs  # noqa: F401
-from frng.priors.backbone_train import BackboneSection
-from frng.priors.idm_train import IDMSection
+from frng.priors.backbone import BackboneSection
+from frng.priors.idm import IDMSection
 from frng.render import envmap
 from frng.render.shading import ShadingConfig
 

@@ -17,7 +17,6 @@ from frng.baselines.plan import BaselinesConfig
 from frng.metrics import EvalConfig
 from frng.model.frng import FRNGSection
 from frng.model.saliency import SaliencyConfig
-from frng.model.train import LossConfig, TrainConfig
 from frng.nn import ModelConfig
 from frng.plan.catalog import (
     EnvmapsConfig,
@@ -29,10 +28,11 @@ from frng.plan.catalog import (
     StudioConfig,
 )
 from frng.plan.sections import register, section, section_dict
-from frng.priors.backbone_train import BackboneSection, BackboneTrainConfig
-from frng.priors.idm_train import IDMSection, IDMTrainConfig
 from frng.render.raster import RasterConfig
 from frng.render.shading import ShadingConfig
+from frng.training.backbone import BackboneTrainConfig, BackboneTrainingSection
+from frng.training.frng import LossConfig, TrainConfig
+from frng.training.idm import IDMTrainConfig, IDMTrainingSection
 
 
 @register("")
@@ -50,8 +50,8 @@ class Config:
     envmaps: EnvmapsConfig
     objects: ObjectsConfig
     render: RenderConfig
-    backbone: BackboneSection
-    idm: IDMSection
+    backbone: BackboneTrainingSection
+    idm: IDMTrainingSection
     eval: EvalConfig
     raster: RasterConfig
     shading: ShadingConfig
@@ -82,9 +82,9 @@ SECTION_CLASSES: tuple[type, ...] = (
     LiberoConfig,
     ObjaverseConfig,
     RenderConfig,
-    BackboneSection,
+    BackboneTrainingSection,
     BackboneTrainConfig,
-    IDMSection,
+    IDMTrainingSection,
     IDMTrainConfig,
     EvalConfig,
     RasterConfig,

@@ -99,8 +99,9 @@ def test_unknown_nested_key_and_model_records():
     bad = fc.merge(d, {"train": {"loss": {"lambda_x": 1.0}}})
     with pytest.raises(ConfigError, match=r"^train[.]loss[.]lambda_x: unknown key"):
         typed(bad)
-    from frng.model.frng import FRNGConfig, ModelSections, variant_config
+    from frng.model.frng import FRNGConfig
     from frng.priors.backbone import BackboneConfig
+    from frng.training.frng import ModelSections, variant_config
 
     cfg, _ = variant_config(ModelSections.of(typed(d)), "full")
     assert FRNGConfig.from_dict(cfg.to_dict()) == cfg  # a model file's config loads back

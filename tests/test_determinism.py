@@ -27,7 +27,7 @@ torch.set_num_threads({threads})
 sys.path.insert(0, {here!r})
 from test_idm_generalise import sphere_object
 from frng.plan import config as frng_config
-from frng.priors import backbone_train
+from frng.training import backbone as backbone_train
 from frng.typedconfig import typed
 from frng.priors.dataset import Views
 

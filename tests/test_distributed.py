@@ -1,4 +1,4 @@
-"""frng.distributed: 2 gloo processes on CPU take the same optimizer step as one process over the global batch."""
+"""frng.training.distributed: 2 gloo processes on CPU take the same optimizer step as one process over the global batch."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 import torch
 import torch.multiprocessing as mp
 
-from frng import distributed
+from frng.training import distributed
 
 GLOBAL_BATCH = 8
 

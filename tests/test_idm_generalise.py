@@ -10,11 +10,11 @@ import numpy as np
 import torch
 
 from frng import camera
-from frng.priors import idm_train
 from frng.priors.dataset import PriorObject, Views
 from frng.priors.idm import IDMConfig, LearnedIDM, idm_loss
 from frng.priors.intrinsics import IntrinsicPriors
 from frng.priors.multiview import geometry_cues
+from frng.training import idm as idm_train
 from frng.typedconfig import typed
 
 NEAR, FAR, RADIUS = 1.0, 4.5, 0.6
@@ -104,7 +104,7 @@ def test_cue_cache_reuses_the_hull_under_another_light():
 
 
 def train_idm(config, objects, out, **kw):
-    """frng.priors.idm_train.train handed the typed config's sections (as frng/stages/idm_train.py does)."""
+    """frng.training.idm.train handed the typed config's sections (as frng/stages/idm_train.py does)."""
     b = config.backbone
     return idm_train.train(
         config.idm, config.model.patch_size, b.near, b.far, config.device, config.model_seed, objects, out, **kw

@@ -56,14 +56,15 @@ def test_idm_train_killed_then_resumed(smoke):
 
 
 def _bb(config):
-    """What frng.priors.backbone_train.train reads of the config (as frng/stages/backbone_train.py hands it)."""
+    """What frng.training.backbone.train reads of the config (as frng/stages/backbone_train.py hands it)."""
     tc = typed(config)
     return tc.backbone, tc.model.patch_size, tc.device, tc.model_seed
 
 
 def test_backbone_resume_cache_and_stale(smoke):
-    from frng.priors import backbone_train, cache
+    from frng.priors import cache
     from frng.priors.dataset import load_split
+    from frng.training import backbone as backbone_train
 
     _, config = smoke
     res = Path(config["results"])
@@ -138,8 +139,8 @@ def test_backbone_cue_cache_changes_nothing(smoke, tmp_path, monkeypatch):
     computing them every step, and the cache is used."""
     from conftest import assert_same_weights, record_instances
 
-    from frng.priors import backbone_train as bt
     from frng.priors.dataset import load_split
+    from frng.training import backbone as bt
 
     _, config = smoke
     objs = load_split(config["results"], plan(config).split("train"))
@@ -156,13 +157,13 @@ def test_backbone_overfits_one_object(smoke):
     import random
 
     from frng.priors import backbone as bb
-    from frng.priors import backbone_train as bt
     from frng.priors.dataset import load_split
+    from frng.training import backbone as bt
 
     _, config = smoke
     obj = load_split(config["results"], plan(config).split("train"))[0]
     torch.manual_seed(0)
-    model = bb.RelitLRMBackbone(bt.backbone_config(typed(config).backbone, config["model"]["patch_size"]))
+    model = bb.RelitLRMBackbone(bb.backbone_config(typed(config).backbone, config["model"]["patch_size"]))
     tcfg = bt.BackboneTrainConfig.from_dict({**config["backbone"]["train"], "bf16": False})
     opt = torch.optim.Adam(model.parameters(), lr=3e-3)
     l2 = []
@@ -183,13 +184,13 @@ def test_backbone_opacity_term_keeps_pixels_gaussians_as_opaque_as_their_pixels(
     import random
 
     from frng.priors import backbone as bb
-    from frng.priors import backbone_train as bt
     from frng.priors.dataset import load_split
+    from frng.training import backbone as bt
 
     _, config = smoke
     obj = load_split(config["results"], plan(config).split("train"))[0]
     torch.manual_seed(0)
-    model = bb.RelitLRMBackbone(bt.backbone_config(typed(config).backbone, config["model"]["patch_size"]))
+    model = bb.RelitLRMBackbone(bb.backbone_config(typed(config).backbone, config["model"]["patch_size"]))
     base = {**config["backbone"]["train"], "bf16": False, "lambda_per": 0.0}
 
     def losses(lam):

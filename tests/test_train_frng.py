@@ -1,4 +1,4 @@
-"""F-RNG training on the smoke tier (frng/model/train.py): frozen backbone gets no gradient, no-idm never reads priors,
+"""F-RNG training on the smoke tier (frng/training/frng.py): frozen backbone gets no gradient, no-idm never reads priors,
 a short run lowers the relighting loss, kill + rerun resumes. Priors: the session's smoke run's tiny backbone and
 its token caches + oracle IDM priors (G-buffers) made here, on that run's dataset (tests/conftest.py)."""
 
@@ -36,8 +36,8 @@ def frng_smoke(smoke_dataset, tmp_path_factory):
 
 
 def _objects(config, use_priors=True, alt_light=False):
-    from frng.model.train import load_objects
     from frng.plan import catalog
+    from frng.training.frng import load_objects
 
     res = Path(config["results"])
     ids = catalog.plan(config).split("train")
@@ -45,15 +45,15 @@ def _objects(config, use_priors=True, alt_light=False):
 
 
 def _sections(config):
-    from frng.model.frng import ModelSections
+    from frng.training.frng import ModelSections
 
     return ModelSections.of(typed(config))
 
 
 def _train(config, variant, out, **kw):
-    """frng.model.train.train handed the sections as the stage hands them (frng/stages/train.py)."""
-    from frng.model.train import TrainRun, train
+    """frng.training.frng.train handed the sections as the stage hands them (frng/stages/train.py)."""
     from frng.plan import catalog
+    from frng.training.frng import TrainRun, train
 
     tc = typed(config)
     job = TrainRun(tc.results, tc.model_seed, tc.device, tc.idm.kind, tuple(catalog.plan(tc).split("train")))
@@ -63,7 +63,7 @@ def _train(config, variant, out, **kw):
 def _fixed_loss(model, objects, config) -> float:
     """Mean L_2 (the training loss's term, over the training background) over every object's first two target
     views of each target light, fixed light-sample seeds, no gradient."""
-    from frng.model.train import l2_loss
+    from frng.training.frng import l2_loss
 
     bg = config_section(config, "train").background
     vals = []
@@ -85,8 +85,8 @@ def _fixed_loss(model, objects, config) -> float:
 
 
 def test_frozen_backbone_gets_no_gradient(frng_smoke):
-    from frng.model.train import StepLoss, build_model
     from frng.priors import load_backbone
+    from frng.training.frng import StepLoss, build_model
 
     _, config = frng_smoke
     res = Path(config["results"])
@@ -121,7 +121,7 @@ def test_light_independence_sees_the_inputs_under_the_second_input_light(frng_sm
     light (no second photos: tokens only), so the re-lit photos here are the inputs halved under a target light."""
     from dataclasses import replace
 
-    from frng.model.train import StepLoss, build_model
+    from frng.training.frng import StepLoss, build_model
 
     _, config = frng_smoke
     res = Path(config["results"])
@@ -196,7 +196,7 @@ def test_pixel_memo_changes_nothing(frng_smoke, tmp_path, monkeypatch):
     making them every step, and the memo is used."""
     from conftest import assert_same_weights, record_instances
 
-    from frng.model import train as train_mod
+    from frng.training import frng as train_mod
 
     _, config = frng_smoke
     objs = _objects(config, alt_light=True)  # both image sets (L_ind on the second input light's pixels)
@@ -213,8 +213,8 @@ STEPS = 80  # the smoke tier's 20 steps only start the descent
 def test_training_overfits_one_object(frng_smoke, tmp_path):
     """F-RNG fits one object: its fixed-sample relighting L_2 falls well below where the untrained model (already a
     Lambertian relighting of its input views) starts."""
-    from frng.model import train as train_mod
     from frng.model.frng import FRNG
+    from frng.training import frng as train_mod
 
     _, config = frng_smoke
     # the architecture's capacity to fit, measured on every pixel either image covers (train.l2_pixels: union):
@@ -239,7 +239,7 @@ def test_training_overfits_one_object(frng_smoke, tmp_path):
 def test_no_neural_ablation_starts_at_the_same_lambertian_relighting(frng_smoke):
     """The no-neural (GGX) variant's pixel head starts where the full model's does -- a rough dielectric of albedo
     pi c / E(n) with the pixel's normal -- so the ablation compares appearance models, not initialisations."""
-    from frng.model import train as train_mod
+    from frng.training import frng as train_mod
 
     _, config = frng_smoke
     config = {**config, "train": {**config["train"], "l2_pixels": "union"}}  # every pixel either image covers
@@ -330,7 +330,7 @@ def test_train_killed_then_resumed(frng_smoke, tmp_path):
 
 
 def test_l2_loss_composites_over_the_training_background():
-    from frng.model.train import l2_loss
+    from frng.training.frng import l2_loss
 
     tgt = torch.zeros(1, 4, 4, 4)
     tgt[..., :3], tgt[..., 3] = 0.2, 1.0
@@ -345,7 +345,7 @@ def test_l2_loss_composites_over_the_training_background():
 def test_l2_pixels_target_ignores_over_coverage():
     """train.l2_pixels: target averages over the target's foreground only (the metric's mask): a render that also
     covers background pixels is not pulled towards the white background there; union counts those pixels."""
-    from frng.model.train import l2_loss
+    from frng.training.frng import l2_loss
 
     tgt = torch.zeros(1, 4, 4, 4)
     tgt[:, :2, :, :3], tgt[:, :2, :, 3] = 0.3, 1.0  # top half opaque
@@ -360,7 +360,7 @@ def test_l2_pixels_target_ignores_over_coverage():
 def test_alpha_loss_counts_faint_stray_coverage():
     """train.loss.lambda_alpha's term: zero for the target's own alpha, and it sees faint coverage outside the
     silhouette (alpha < 0.5 everywhere there) that the target-foreground L_2 ignores."""
-    from frng.model.train import alpha_loss, l2_loss
+    from frng.training.frng import alpha_loss, l2_loss
 
     tgt = torch.zeros(1, 4, 4, 4)
     tgt[:, :2, :, :3], tgt[:, :2, :, 3] = 0.3, 1.0
@@ -374,8 +374,8 @@ def test_alpha_loss_counts_faint_stray_coverage():
 def test_fine_gaussians_stay_inside_the_silhouettes(frng_smoke):
     """frng.fine_in_hull: the fine Gaussians a reconstruction keeps all project onto every input view's (dilated)
     silhouette; without it the untrained fine detokenizer puts some off the object (the haze of the renders)."""
-    from frng.model.train import build_model
     from frng.priors.multiview import inside_silhouettes
+    from frng.training.frng import build_model
 
     _, config = frng_smoke
     res = Path(config["results"])

@@ -1,4 +1,4 @@
-"""The one training loop (frng.training.fit) behind frng backbone-train / idm-train / train: honest resume.
+"""The one training loop (frng.training.loop.fit) behind frng backbone-train / idm-train / train: honest resume.
 
 - a run killed with SIGKILL (and its loss.csv deleted, as Snakemake does with a failed job's outputs) and rerun
   ends bit-identical to an uninterrupted run, weights and loss.csv (every step 1..N, but the wall-clock column);
@@ -25,8 +25,8 @@ import torch.multiprocessing as mp
 from test_idm_generalise import TINY, sphere_object, train_idm, trainer_config
 
 from frng import io
-from frng import training as tr
-from frng.priors import idm_train
+from frng.training import idm as idm_train
+from frng.training import loop as tr
 from frng.typedconfig import typed
 
 HERE = Path(__file__).resolve().parent
@@ -70,7 +70,7 @@ import torch
 sys.path.insert(0, {here!r})
 torch.set_num_threads({threads})
 from frng import io
-from frng.priors import idm_train
+from frng.training import idm as idm_train
 import test_training_loop as t
 
 save = io.save_torch
@@ -149,12 +149,12 @@ def test_finished_checkpoint_trains_again(tmp_path, monkeypatch, keep_model):
 
 
 def _toy_fit(out: Path, total: int, stop_after=None, info=None, nan_at=None) -> Path:
-    """A small MLP fitted by :func:`frng.training.fit` on batches drawn from its own ``random.Random``, with
+    """A small MLP fitted by :func:`frng.training.loop.fit` on batches drawn from its own ``random.Random``, with
     dropout (the global torch generator, seeded per rank): what a resume must restore. ``info``: this rank of a
-    process group (DDP through :func:`frng.distributed.fit_hooks`). ``nan_at``: that step's loss is NaN."""
+    process group (DDP through :func:`frng.training.distributed.fit_hooks`). ``nan_at``: that step's loss is NaN."""
     import random
 
-    from frng import distributed
+    from frng.training import distributed
 
     rank = info.rank if info else 0
     torch.manual_seed(7)
@@ -201,7 +201,7 @@ def test_nonfinite_step_makes_no_update(tmp_path, monkeypatch):
 
 
 def _ddp_worker(rank: int, world: int, port: int, out: str, stop_after) -> None:
-    from frng import distributed
+    from frng.training import distributed
 
     torch.set_num_threads(1)
     env = {

@@ -20,7 +20,7 @@ def test_schema_enum_is_the_table():
 
 
 def test_variant_config_applies_the_table():
-    from frng.model.frng import ModelSections, variant_config
+    from frng.training.frng import ModelSections, variant_config
 
     config = frng_config.load(ROOT / "config" / "smoke.yaml")
     sections = ModelSections.of(typed(config))

@@ -15,7 +15,7 @@ Token layout and Gaussian order follow the contract in :mod:`frng.model` (coarse
 Gaussians in (view, row, col) order, fine ones in (view, fine token, y*p + x) order). Background Gaussians are
 dropped: coarse ones with the cache's ``keep`` (input alpha >= 0.5), fine ones with :func:`fine_keep_mask`.
 
-Variants (:func:`variant_config`, from the one table :data:`frng.plan.variants.VARIANTS`): ``full``; ``no-fine`` (no FineGeometry, coarse tokens only); ``no-idm``
+Variants (:func:`frng.training.frng.variant_config`, from the one table :data:`frng.plan.variants.VARIANTS`): ``full``; ``no-fine`` (no FineGeometry, coarse tokens only); ``no-idm``
 (``prior_dim = 0``: no tokenizer, no prior parameters anywhere; ``reconstruct`` refuses priors); ``no-ind``
 (lambda_c = lambda_KLD = 0, training only); ``no-neural`` (MaterialFormer head ``pbr`` -> Cook-Torrance per
 Gaussian, rendered with the GGX shader through the same deferred pipeline); ``k{P}`` (top-K = P% of the patches).
@@ -29,7 +29,6 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import torch
 from torch import nn
@@ -38,7 +37,6 @@ from frng import io
 from frng.device import bf16_ok
 from frng.gaussians import GaussianDecodeConfig, Gaussians
 from frng.model.fine_geometry import FineGeometry, FineGeometryConfig, fine_keep_mask, sample_pixels
-from frng.model.light_independence import LightIndependenceConfig
 from frng.model.materialformer import (
     MaterialFormerConfig,
     MaterialHead,
@@ -49,8 +47,7 @@ from frng.model.materialformer import (
 )
 from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, select_top_k
 from frng.model.tokenizers import PriorTokenizer, stack_priors
-from frng.plan.sections import TypedConfig, register, section, section_dict
-from frng.plan.variants import canonical_for, variant
+from frng.plan.sections import register, section
 from frng.render import RasterConfig, envmap, rasterize
 from frng.render.decoder import shade_decoder
 from frng.render.shading import (
@@ -72,7 +69,7 @@ SAVED_DEFAULTS = {"fine_in_hull": False}
 @dataclass(frozen=True)
 class FRNGSection:
     """The config's ``frng`` section: the variants to train and the architecture (see config/README.md; defaults:
-    config/schema.yaml). :func:`variant_config` turns it into a variant's :class:`FRNGConfig`."""
+    config/schema.yaml). :func:`frng.training.frng.variant_config` turns it into a variant's :class:`FRNGConfig`."""
 
     variants: tuple[str, ...]
     k_sweep: tuple[float, ...]
@@ -92,7 +89,7 @@ class FRNGSection:
 @dataclass
 class FRNGConfig:
     """Architecture of one F-RNG variant (everything needed to rebuild it from ``model.pt``). Not a config section:
-    :func:`variant_config` sets every field from the config (and the frozen backbone), so none has a default."""
+    :func:`frng.training.frng.variant_config` sets every field from the config (and the frozen backbone), so none has a default."""
 
     patch: int
     geo_dim: int  # the backbone's token width (T_geo and T_app)
@@ -742,81 +739,4 @@ class FRNG(nn.Module):
         return self.shade(self.rasterize(rec, c2w, intr, height, width), env, spp, generator, spp_grad)
 
 
-# -- variants from the pipeline config --------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class ModelSections:
-    """The config sections an F-RNG variant's model is built from (:func:`variant_config`,
-    :func:`frng.model.train.build_model`); a stage picks them out of the typed config (:meth:`of`)."""
-
-    frng: FRNGSection
-    shading: ShadingConfig
-    raster: RasterConfig
-    patch_size: int  # model.patch_size
-    # not imported here: frng.model.train imports this module, frng.priors.backbone_train all of frng.priors
-    # (frng.priors.backbone_train.BackboneSection: the token width and near/far/max_radius_px when no frozen
-    # backbone is given; frng.model.train.LossConfig: the L_ind weights)
-    backbone: Any
-    loss: Any  # train.loss
-
-    @classmethod
-    def of(cls, config: TypedConfig) -> ModelSections:
-        """The sections of the typed config (``frng.typedconfig.Config``)."""
-        return cls(
-            frng=config.frng,
-            shading=config.shading,
-            raster=config.raster,
-            patch_size=config.model.patch_size,
-            backbone=config.backbone,
-            loss=config.train.loss,
-        )
-
-
-def variant_config(
-    sections: ModelSections, name: str, backbone_cfg: dict | None = None
-) -> tuple[FRNGConfig, LightIndependenceConfig]:
-    """(architecture, L_ind weights) of a variant from the config's model sections.
-
-    ``backbone_cfg``: the frozen backbone's architecture dict (its ``model.pt`` ``config``); the token width and
-    near/far/max_radius_px come from it (default: the config's ``backbone`` section).
-    """
-    from frng.priors.backbone import BackboneConfig
-
-    f, sh = sections.frng, sections.shading
-    bb = BackboneConfig.from_saved(backbone_cfg) if backbone_cfg else sections.backbone
-    cfg = FRNGConfig(
-        patch=sections.patch_size,
-        geo_dim=bb.width,
-        prior_dim=f.prior_dim,
-        fine=True,
-        top_k=f.top_k_percent / 100.0,
-        upsample=f.upsample,
-        hidden=f.hidden,
-        depth=f.depth,
-        heads=f.heads,
-        feature_dim=f.feature_dim,
-        head="neural",
-        decoder_width=sh.decoder_width,
-        decoder_depth=sh.decoder_depth,
-        dir_freqs=sh.dir_freqs,
-        near=bb.near,
-        far=bb.far,
-        max_radius_px=bb.max_radius_px,
-        saliency=section_dict(f.saliency, "frng.saliency"),
-        pixel_head=f.pixel_head,
-        decoder_cosine=sh.decoder_cosine,
-        decoder_attenuation=sh.decoder_cosine and sh.decoder_attenuation,
-        back_completion=f.back_completion,
-        decoder_specular=sh.decoder_cosine and sh.decoder_specular,
-        fine_in_hull=f.fine_in_hull,
-    )
-    loss = sections.loss
-    ind = LightIndependenceConfig(
-        lambda_c=loss.lambda_c, lambda_kld=loss.lambda_kld, temperature=loss.temperature, pixels=loss.ind_pixels
-    )
-    v = variant(canonical_for(name, f.top_k_percent))
-    return replace(cfg, **v.arch), replace(ind, **v.loss)
-
-
-__all__ = ["FRNG", "FRNGConfig", "ModelSections", "Reconstruction", "variant_config"]
+__all__ = ["FRNG", "FRNGConfig", "Reconstruction"]

@@ -75,7 +75,7 @@ class ObjectFolder(_Folder):
 
 
 class TrainingFolder(_Folder):
-    """What a training run writes into its ``--out`` folder (:func:`frng.training.fit`): the backbone's, the IDM's,
+    """What a training run writes into its ``--out`` folder (:func:`frng.training.loop.fit`): the backbone's, the IDM's,
     an F-RNG variant's."""
 
     def model(self) -> str:

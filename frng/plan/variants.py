@@ -37,7 +37,7 @@ from frng.plan.sections import TypedConfig, as_dict
 class Variant:
     """One F-RNG variant: what the paper's ablation table calls it and how it differs from the full model.
 
-    arch: FRNGConfig fields replaced (:func:`frng.model.frng.variant_config`); loss: LightIndependenceConfig fields
+    arch: FRNGConfig fields replaced (:func:`frng.training.frng.variant_config`); loss: LightIndependenceConfig fields
     replaced; reads_priors: whether its reconstruction reads the IDM's priors (the ``train`` rule of a variant that
     does not never waits for them)."""
 

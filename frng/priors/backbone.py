@@ -63,7 +63,7 @@ same as mixing x0-hats); guidance 1.0 runs only the conditional pass.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from typing import NamedTuple
 
 import torch
@@ -87,7 +87,7 @@ GEO_CHANNELS = 9  # distance 1, scale 3, rotation 4, opacity 1 (RelitLRM's split
 @dataclass(frozen=True)
 class BackboneArch:
     """The architecture keys of the config's ``backbone`` section (defaults: config/schema.yaml), shared by the
-    section (:class:`frng.priors.backbone_train.BackboneSection`) and a model's architecture record (:class:`BackboneConfig`)."""
+    section (:class:`BackboneSection`) and a model's architecture record (:class:`BackboneConfig`)."""
 
     width: int
     heads: int
@@ -150,6 +150,32 @@ class BackboneConfig(BackboneArch):
     @property
     def sh_coeffs(self) -> int:
         return (self.sh_degree + 1) ** 2
+
+
+@dataclass(frozen=True)
+class BackboneSection(BackboneArch):
+    """The config's ``backbone`` section as inference reads it: the architecture, the registry name and the extra lights
+    of the token cache. The config holds :class:`frng.training.backbone.BackboneTrainingSection`, which adds the
+    training (``backbone.train``)."""
+
+    kind: str
+    cache_extra_lights: int
+
+
+def backbone_config(backbone: BackboneSection, patch_size: int) -> BackboneConfig:
+    """The backbone architecture of the config's ``backbone`` section with the patch size (``model.patch_size``)."""
+    arch = {f.name: getattr(backbone, f.name) for f in fields(BackboneArch)}
+    return BackboneConfig(**arch, patch=patch_size)
+
+
+def ray_distance_target(obj_gbuffer_depth: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor) -> torch.Tensor:
+    """Camera-z depth (V, H, W, 1) -> distance along each pixel's unit ray (V, H, W, 1)."""
+    from frng import camera
+
+    V, H, W, _ = obj_gbuffer_depth.shape
+    _, d = camera.pixel_rays(c2w, intr, H, W)
+    cos = (d * c2w[:, None, None, :3, 2]).sum(-1, keepdim=True)  # ray direction . camera forward
+    return obj_gbuffer_depth / cos.clamp_min(1e-6)
 
 
 class BackboneGeometry(NamedTuple):
@@ -251,7 +277,7 @@ class RelitLRMBackbone(nn.Module):
 
         images: (B, V, H, W, 3) linear premultiplied RGB; alpha (B, V, H, W, 1); c2w: (B, V, 4, 4); intr: (B, V, 4).
         cues: what :meth:`prior_raw` returns for these inputs, when the caller kept it from an earlier call (the
-        backbone's training reuses the rig views' cues, :class:`frng.priors.backbone_train.CueCache`); None:
+        backbone's training reuses the rig views' cues, :class:`frng.training.backbone.CueCache`); None:
         computed here. Returns T_geo (B, V, h, w, D), raw (B, V, H, W, 9), the multi-view prior's part of raw
         (B, V, H, W, 9; zeros with ``cues: false``), so that ``raw - prior`` is what the GeoDetokenizer added, and
         the world-frame hull normals (B, V, H, W, 3; zeros with ``cues: false``) the light cue reads.

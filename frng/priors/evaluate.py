@@ -90,7 +90,7 @@ def gt_depth_gaussians(rig, gbuffer, footprint_px: float, decode_cfg):
     :func:`frng.gaussians.isotropic_raw`."""
     from frng import camera
     from frng.gaussians import Gaussians, isotropic_raw, pixel_gaussians
-    from frng.priors.backbone_train import ray_distance_target
+    from frng.priors.backbone import ray_distance_target
     from frng.priors.surfels import surfel_shapes
 
     V, H, W = rig.alpha.shape[:3]

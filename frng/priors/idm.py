@@ -47,7 +47,7 @@ Every kind returns :class:`frng.priors.intrinsics.IntrinsicPriors` (shapes and c
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 
 import torch
 import torch.nn.functional as F
@@ -66,7 +66,7 @@ RAW_CHANNELS = 9
 @dataclass(frozen=True)
 class IDMArch:
     """The learned IDM's architecture keys of the config's ``idm`` section (defaults: config/schema.yaml), shared by
-    the section (:class:`frng.priors.idm_train.IDMSection`) and a model's architecture record (:class:`IDMConfig`)."""
+    the section (:class:`IDMSection`) and a model's architecture record (:class:`IDMConfig`)."""
 
     width: int
     heads: int
@@ -98,6 +98,25 @@ class IDMConfig(IDMArch):
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+@dataclass(frozen=True)
+class IDMSection(IDMArch):
+    """The config's ``idm`` section as inference reads it: which IDM (``kind``), the learned one's architecture and
+    the DiffusionRenderer adapter's settings. The config holds :class:`frng.training.idm.IDMTrainingSection`, which
+    adds the training (``idm.train``)."""
+
+    kind: str
+    diffusion_renderer_dir: str | None
+    normal_space: str
+    depth_invert: bool
+
+
+def idm_config(idm: IDMSection, patch_size: int, near: float, far: float) -> IDMConfig:
+    """The learned IDM's architecture of the config's ``idm`` section with the patch size (``model.patch_size``) and
+    near/far (the backbone's)."""
+    arch = {f.name: getattr(idm, f.name) for f in fields(IDMArch)}
+    return IDMConfig(**arch, patch=patch_size, near=near, far=far)
 
 
 class PixelHead(nn.Module):

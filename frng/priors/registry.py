@@ -149,8 +149,8 @@ def _diffusion_renderer(idm, backbone, results: str | Path, device="cpu") -> IDM
 
 def build_idm(idm, backbone, results: str | Path, device="cpu", kind: str | None = None) -> IDMPrior:
     """The IDM of ``kind`` (default ``idm.kind``) from the config's ``idm`` section
-    (:class:`frng.priors.idm_train.IDMSection`), its ``backbone`` section
-    (:class:`frng.priors.backbone_train.BackboneSection`: near/far) and the results folder (the learned IDM's model
+    (:class:`frng.training.idm.IDMSection`), its ``backbone`` section
+    (:class:`frng.training.backbone.BackboneSection`: near/far) and the results folder (the learned IDM's model
     file). The sections are not annotated: their modules import this one's package."""
     kind = kind or idm.kind
     if kind not in IDMS:

@@ -2,19 +2,19 @@
 then freeze it.
 
 The training step, the loss and the outputs (``model.pt``, ``checkpoint.pt``, ``loss.csv/png``, ``train.json``):
-:mod:`frng.priors.backbone_train`; the loop: :func:`frng.training.fit`.
+:mod:`frng.training.backbone`; the loop: :func:`frng.training.loop.fit`.
 """
 
 from __future__ import annotations
 
 import argparse
 
-from frng.priors.backbone_train import train
 from frng.stages._priors import configure_training, run_training
+from frng.training.backbone import train
 
 # The config keys this stage reads (frng.plan.digests: its rule's digest): the training split, architecture +
-# backbone.train, patch size, the models' seed (frng.training.train_seed: train_seed, else seed), device
-# (frng/priors/backbone_train.py)
+# backbone.train, patch size, the models' seed (frng.training.loop.train_seed: train_seed, else seed), device
+# (frng/training/backbone.py)
 CONFIG_READS = ("@plan", "train_seed", "device", "backbone", "!backbone.cache_extra_lights", "model.patch_size")
 
 
@@ -23,7 +23,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def train_sections(config, objects, out, steps=None):
-    """:func:`frng.priors.backbone_train.train` handed the sections it reads of the typed config."""
+    """:func:`frng.training.backbone.train` handed the sections it reads of the typed config."""
     return train(config.backbone, config.model.patch_size, config.device, config.model_seed, objects, out, steps=steps)
 
 

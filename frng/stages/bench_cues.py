@@ -2,7 +2,7 @@
 geometry_cues`: the visual-hull plane sweep, V^2 H W K bilinear reads) per call, per image size.
 
 The backbone computes them for its input views at every training step; the rig views' cues are kept between steps
-(:class:`frng.priors.backbone_train.CueCache`), so about half the steps (those that sample the 6 rig views) skip
+(:class:`frng.training.backbone.CueCache`), so about half the steps (those that sample the 6 rig views) skip
 this cost. Synthetic input (no data needed): the paper's rig (:func:`frng.render.scenes.paper_rig`) looking at a
 sphere whose silhouettes are the masks. Median of ``--repeats`` after a warm-up (:func:`frng.device.median_time`).
 """

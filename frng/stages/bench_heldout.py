@@ -6,7 +6,7 @@ What it does per test object (``catalog.plan(config).split("test")``; ``--split 
 :func:`validation_objects`, for choices that must not look at the test objects; or ``--objects``) and model:
 
 1. reads the object's CACHED backbone tokens and IDM priors (``{results}/backbone/cache``, ``{results}/idm/priors``,
-   what the pipeline's cache rules wrote for the test split; :func:`frng.model.train.load_objects`, the training
+   what the pipeline's cache rules wrote for the test split; :func:`frng.training.frng.load_objects`, the training
    loader) instead of running the backbone and the IDM live as ``frng relight`` does (the test split's caches are
    the same tensors: same DDIM seeds);
 2. reconstructs from ``--views`` input views, rasterizes the target views once and shades them under every target
@@ -142,7 +142,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def relit(obj, model, c2w, intr, envs: dict, seed: int, spp: int) -> dict:
-    """One model's renders of one :class:`frng.model.train.TrainObject` at cameras c2w (Vt, 4, 4), intr (Vt, 4)
+    """One model's renders of one :class:`frng.training.frng.TrainObject` at cameras c2w (Vt, 4, 4), intr (Vt, 4)
     (rasterized once) under each of ``envs`` (light name -> HDR map), with ``frng relight``'s light-sample seeds:
     {("full", light): (Vt, H, W, 4), and ("base", light): the Lambertian base alone where the decoder has one}."""
     import torch
@@ -167,7 +167,7 @@ def relit(obj, model, c2w, intr, envs: dict, seed: int, spp: int) -> dict:
 def score_object(
     obj, models: dict, target_lights: list[str], view_names: list[str], seed: int, spp: int, protocol: str, background
 ) -> list:
-    """Per-image rows of one :class:`frng.model.train.TrainObject` (test object) under each of ``models`` (name ->
+    """Per-image rows of one :class:`frng.training.frng.TrainObject` (test object) under each of ``models`` (name ->
     loaded :class:`frng.model.frng.FRNG`): ``model``, ``decoder`` (``full`` / ``base``), ``light``, ``view``
     (``view_names``: the target views in the order of the object's cameras), psnr/ssim/lpips and
     ``psnr_other_light``."""
@@ -307,9 +307,9 @@ def run(args: argparse.Namespace) -> int:
 
     from frng.io import read_json
     from frng.model.frng import FRNG
-    from frng.model.train import load_objects
     from frng.plan import catalog
     from frng.plan.layout import Layout, TrainingFolder
+    from frng.training.frng import load_objects
     from frng.typedconfig import typed
 
     if args.threads:

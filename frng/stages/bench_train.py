@@ -2,8 +2,8 @@
 and with bf16 autocast off / on, on the machine it runs on (named in the first line).
 
 Each measurement is a separate process (the thread count is fixed before torch runs an op,
-:func:`frng.device.training_threads`) that runs the real trainer (:func:`frng.priors.backbone_train.train`,
-:func:`frng.model.train.train`) for ``--skip + --steps`` steps on the first ``--objects`` training objects of the
+:func:`frng.device.training_threads`) that runs the real trainer (:func:`frng.training.backbone.train`,
+:func:`frng.training.frng.train`) for ``--skip + --steps`` steps on the first ``--objects`` training objects of the
 config's results folder, in a temporary folder, and reports the median of the last ``--steps`` steps' times (from its
 ``loss.csv``). It needs the folder's curated data (backbone) and, for F-RNG, its backbone model and caches: run it
 after ``make reproduce`` (or ``make smoke`` with ``--config config/smoke.yaml``). Nothing is written under the
@@ -66,8 +66,8 @@ def _measure(config, model: str, bf16: bool, args: argparse.Namespace, out: Path
     if not ids:
         raise SystemExit(f"frng bench train: the config's training split is empty ({config.results})")
     if model == "backbone":
-        from frng.priors.backbone_train import train
         from frng.priors.dataset import load_split
+        from frng.training.backbone import train
 
         tcfg = dataclasses.replace(config.backbone.train, bf16=bf16, perceptual_after=0, checkpoint_every=total + 1)
         section = dataclasses.replace(config.backbone, train=tcfg)
@@ -81,8 +81,7 @@ def _measure(config, model: str, bf16: bool, args: argparse.Namespace, out: Path
             steps=total,
         )
     else:
-        from frng.model.frng import ModelSections
-        from frng.model.train import TrainRun, train
+        from frng.training.frng import ModelSections, TrainRun, train
 
         backbone = Path(Layout(config.results).backbone_model())
         if not backbone.is_file():

@@ -2,7 +2,7 @@
 rank): train one F-RNG variant on the training split from the frozen priors' caches.
 
 The loss, the step and the outputs (``model.pt``, ``checkpoint.pt``, ``loss.csv/png``, ``train.json``):
-:mod:`frng.model.train`; the loop: :func:`frng.training.fit`; ranks: :mod:`frng.distributed`.
+:mod:`frng.training.frng`; the loop: :func:`frng.training.loop.fit`; ranks: :mod:`frng.training.distributed`.
 """
 
 from __future__ import annotations
@@ -11,20 +11,19 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from frng import distributed
 from frng.io import check_file_index
-from frng.model.frng import ModelSections, variant_config
-from frng.model.train import TrainRun, train
 from frng.plan import catalog
 from frng.plan import config as frng_config
 from frng.plan.layout import Layout
 from frng.plan.variants import all_variants, canonical_variant, reads_priors, split_seed, trained_variants
+from frng.training import distributed
+from frng.training.frng import ModelSections, TrainRun, train, variant_config
 from frng.typedconfig import typed
 
 # The config keys this stage reads (frng.plan.digests: its rule's digest): train.* (but the seeds: a variant's seed is
 # its name's), the architecture (frng.* but the variant lists), decoder and training shading (not the
 # inference-only spp_infer / bf16_infer: relight takes those from the config), rasterizer, idm.kind (which priors
-# file), the training split, the models' seed, device (frng/model/train.py + variant_config)
+# file), the training split, the models' seed, device (frng/training/frng.py + variant_config)
 CONFIG_READS = (
     "@plan",
     "train_seed",

@@ -279,9 +279,9 @@ def all_gather(obj: Any, info: DistInfo) -> list:
 
 
 def fit_hooks(info: DistInfo):
-    """The data-parallel hooks of :func:`frng.training.fit` for this process: logs averaged over ranks, random
+    """The data-parallel hooks of :func:`frng.training.loop.fit` for this process: logs averaged over ranks, random
     states and data digests gathered from every rank, files written by rank 0."""
-    from frng.training import FitHooks
+    from frng.training.loop import FitHooks
 
     return FitHooks(
         rank=info.rank,

@@ -2,7 +2,7 @@
 :func:`fit` runs a :class:`Trainer` -- the trainer's model, optimiser and three named hooks (one step, saving the
 model, ``train.json``) -- and owns the rest: resume, LR schedule (:func:`cosine_lr`), clipping with the non-finite-step
 skip, the loss log, progress bar, checkpoints and ``train.json``. Data parallelism plugs in as :class:`FitHooks`
-(:func:`frng.distributed.fit_hooks`).
+(:func:`frng.training.distributed.fit_hooks`).
 
 What the loop uses lives beside it, one module per concept: :mod:`frng.device` (device, bf16, threads),
 :mod:`frng.seeding` (seeds, random states), :mod:`frng.hashing` (file, data and fingerprint digests),
@@ -70,7 +70,7 @@ def _noop() -> None:
 @dataclass
 class FitHooks:
     """What a data-parallel trainer plugs into :func:`fit` (the defaults are a single process); see
-    :func:`frng.distributed.fit_hooks`. ``reduce_logs``: this rank's step logs -> the logs of the whole step
+    :func:`frng.training.distributed.fit_hooks`. ``reduce_logs``: this rank's step logs -> the logs of the whole step
     (every rank gets them); ``gather``: a picklable object of this rank -> the list of every rank's, in rank
     order (a collective: every rank calls it); ``barrier``: wait for every rank. Rank 0 writes every file."""
 
@@ -272,7 +272,7 @@ def fit(
     return path
 
 
-# -- the priors' trainers (:mod:`frng.priors.backbone_train`, :mod:`frng.priors.idm_train`) -----------------------
+# -- the priors' trainers (:mod:`frng.training.backbone`, :mod:`frng.training.idm`) -----------------------
 
 
 def check_training_split(objects: list, stage: str) -> None:

@@ -26,21 +26,20 @@ objects' own (training-pool) lights.
 
 Outputs in ``--out`` (default ``{results}/backbone``): ``model.pt`` (frozen weights + config + sha256 recorded by
 caches), ``checkpoint.pt`` (resume), ``loss.csv``, ``loss.png``, ``train.json`` (steps, wall time, device).
-The loop is :func:`frng.training.fit`: rerunning the command after an interruption resumes from the last
+The loop is :func:`frng.training.loop.fit`: rerunning the command after an interruption resumes from the last
 checkpoint when the config and data are unchanged; after a finished run it trains again.
 """
 
 from __future__ import annotations
 
 import random
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 import torch.nn.functional as F
 
 from frng import checkpoint, io
-from frng import training as tr
 from frng.device import autocast, bf16_ok, resolve_device
 from frng.hashing import data_digest
 from frng.memo import TensorMemo
@@ -49,6 +48,7 @@ from frng.priors import backbone as bb
 from frng.priors.dataset import PriorObject, Views
 from frng.priors.diffusion import to_diffusion_space
 from frng.seeding import seed_everything
+from frng.training import loop as tr
 
 
 @register("backbone.train")
@@ -74,35 +74,17 @@ class BackboneTrainConfig:
     checkpoint_every: int
 
 
-@register("backbone")
-@dataclass(frozen=True)
-class BackboneSection(bb.BackboneArch):
-    """The config's ``backbone`` section: the architecture, the registry name, the extra lights of the token cache and
-    the training (``backbone.train``; :class:`BackboneTrainConfig`)."""
-
-    kind: str
-    cache_extra_lights: int
-    train: BackboneTrainConfig
-
-
-def backbone_config(backbone: BackboneSection, patch_size: int) -> bb.BackboneConfig:
-    """The backbone architecture of the config's ``backbone`` section with the patch size (``model.patch_size``)."""
-    arch = {f.name: getattr(backbone, f.name) for f in fields(bb.BackboneArch)}
-    return bb.BackboneConfig(**arch, patch=patch_size)
-
-
 def _gamma(rgb: torch.Tensor) -> torch.Tensor:
     return (to_diffusion_space(rgb) + 1.0) / 2.0
 
 
-def ray_distance_target(obj_gbuffer_depth: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor) -> torch.Tensor:
-    """Camera-z depth (V, H, W, 1) -> distance along each pixel's unit ray (V, H, W, 1)."""
-    from frng import camera
+@register("backbone")
+@dataclass(frozen=True)
+class BackboneTrainingSection(bb.BackboneSection):
+    """The config's whole ``backbone`` section: what inference reads (:class:`frng.priors.backbone.BackboneSection`)
+    and the training (``backbone.train``; :class:`BackboneTrainConfig`)."""
 
-    V, H, W, _ = obj_gbuffer_depth.shape
-    _, d = camera.pixel_rays(c2w, intr, H, W)
-    cos = (d * c2w[:, None, None, :3, 2]).sum(-1, keepdim=True)  # ray direction . camera forward
-    return obj_gbuffer_depth / cos.clamp_min(1e-6)
+    train: BackboneTrainConfig
 
 
 def sample_views(obj: PriorObject, rng: random.Random) -> tuple[str, list[int]]:
@@ -184,7 +166,7 @@ def step_loss(
     if obj.gbuffer is not None and tcfg.lambda_depth > 0:
         gb = obj.gbuffer.select(torch.as_tensor(idx))
         fg = (gb.mask.to(device) > 0.5).float()
-        dist_t = ray_distance_target(gb.depth.to(device), c2w_in, intr_in)
+        dist_t = bb.ray_distance_target(gb.depth.to(device), c2w_in, intr_in)
         w = torch.sigmoid(raw[..., 0:1])
         dist_p = cfg.near * (1 - w) + cfg.far * w
         losses["depth"] = ((dist_p - dist_t).abs() * fg).sum() / fg.sum().clamp_min(1.0) / (cfg.far - cfg.near)
@@ -205,7 +187,7 @@ LOSS_NAMES = ["total", "l2", "alpha", "depth", "opacity", "perceptual"]
 
 
 def train(
-    backbone: BackboneSection,
+    backbone: BackboneTrainingSection,
     patch_size: int,
     device: str,
     seed: int,
@@ -215,7 +197,7 @@ def train(
     stop_after: int | None = None,
     cue_cache: bool = True,
 ) -> Path:
-    """Train (or resume, :func:`frng.training.fit`) the backbone on ``objects`` (training split only); returns the
+    """Train (or resume, :func:`frng.training.loop.fit`) the backbone on ``objects`` (training split only); returns the
     model path.
 
     ``stop_after``: stop (after checkpointing) once this many steps have run in this call -- for tests of
@@ -226,7 +208,7 @@ def train(
     tr.check_training_split(objects, "backbone-train")
     tcfg = backbone.train
     total = steps or tcfg.steps
-    cfg = backbone_config(backbone, patch_size)
+    cfg = bb.backbone_config(backbone, patch_size)
     device = resolve_device(device)
     seed_everything(seed, device)
     model = bb.RelitLRMBackbone(cfg).to(device)

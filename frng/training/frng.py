@@ -5,7 +5,7 @@ Loss (supplement, "Model and training details")::
 
     L = lambda_1 L_2 + lambda_per L_per + L_ind,      (lambda_c, lambda_KLD, lambda_1, lambda_per) = (0.2, 0.2, 1.0, 0.5)
 
-One step = ``train.batch`` objects (split over ranks under torchrun/srun, :mod:`frng.distributed`); per object:
+One step = ``train.batch`` objects (split over ranks under torchrun/srun, :mod:`frng.training.distributed`); per object:
 
 1. read from memory what the caches hold (never the backbone): the V-view backbone entry (T_geo, per-pixel
    Gaussians, keep, cameras, T_app per cached light), its IDM priors (not even opened for ``no-idm``) and its
@@ -30,35 +30,110 @@ One step = ``train.batch`` objects (split over ranks under torchrun/srun, :mod:`
 The frozen backbone is loaded once, only to copy its GeoDetokenizer into the FineGeoDetokenizer (and for its
 architecture); it is never run and gets no gradient. Outputs in ``--out`` (default ``{results}/models/{variant}``):
 ``model.pt`` (:meth:`FRNG.save`), ``checkpoint.pt`` (resume: rerunning the same command continues an unfinished
-run of the same config and data, :func:`frng.training.fit`), ``loss.csv``, ``loss.png``, ``train.json`` (steps,
+run of the same config and data, :func:`frng.training.loop.fit`), ``loss.csv``, ``loss.png``, ``train.json`` (steps,
 training seed, wall time, device, step time). Seeds are fixed
-(``frng.training.train_seed``: ``train_seed``, else ``seed``); AdamW with linear warm-up + cosine decay; bf16 autocast for the networks (``train.bf16``).
+(``frng.training.loop.train_seed``: ``train_seed``, else ``seed``); AdamW with linear warm-up + cosine decay; bf16 autocast for the networks (``train.bf16``).
 """
 
 from __future__ import annotations
 
 import random
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import torch
 from torch import nn
 
-from frng import checkpoint, distributed, io
-from frng import training as tr
+from frng import checkpoint, io
 from frng.device import autocast, bf16_ok
 from frng.hashing import data_digest, file_sha256
 from frng.memo import TensorMemo
-from frng.model.frng import FRNG, ModelSections, variant_config
+from frng.model.frng import FRNG, FRNGConfig, FRNGSection
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
 from frng.plan.layout import Layout
-from frng.plan.sections import register
-from frng.plan.variants import canonical_for
+from frng.plan.sections import TypedConfig, register, section_dict
+from frng.plan.variants import canonical_for, variant
+from frng.priors.backbone import BackboneSection
 from frng.render import envmap
+from frng.render.raster import RasterConfig
+from frng.render.shading import ShadingConfig
+from frng.training import distributed
+from frng.training import loop as tr
 
 CACHE_KEYS = ("t_geo", "raw_prior", "means", "quats", "scales", "opacities", "keep", "c2w", "intr")  # + light{j}.t_app
 BACK_KEYS = tuple("back_" + k for k in ("means", "quats", "scales", "opacities", "src", "dirs"))  # when cached
 LOSS_NAMES = ["total", "l2", "alpha", "perceptual", "ind", "ind_cos", "ind_kld"]
+
+
+@dataclass(frozen=True)
+class ModelSections:
+    """The config sections an F-RNG variant's model is built from (:func:`variant_config`,
+    :func:`frng.training.frng.build_model`); a stage picks them out of the typed config (:meth:`of`)."""
+
+    frng: FRNGSection
+    shading: ShadingConfig
+    raster: RasterConfig
+    patch_size: int  # model.patch_size
+    backbone: BackboneSection  # the token width and near/far/max_radius_px when no frozen backbone is given
+    loss: LossConfig  # train.loss: the L_ind weights
+
+    @classmethod
+    def of(cls, config: TypedConfig) -> ModelSections:
+        """The sections of the typed config (``frng.typedconfig.Config``)."""
+        return cls(
+            frng=config.frng,
+            shading=config.shading,
+            raster=config.raster,
+            patch_size=config.model.patch_size,
+            backbone=config.backbone,
+            loss=config.train.loss,
+        )
+
+
+def variant_config(
+    sections: ModelSections, name: str, backbone_cfg: dict | None = None
+) -> tuple[FRNGConfig, LightIndependenceConfig]:
+    """(architecture, L_ind weights) of a variant from the config's model sections.
+
+    ``backbone_cfg``: the frozen backbone's architecture dict (its ``model.pt`` ``config``); the token width and
+    near/far/max_radius_px come from it (default: the config's ``backbone`` section).
+    """
+    from frng.priors.backbone import BackboneConfig
+
+    f, sh = sections.frng, sections.shading
+    bb = BackboneConfig.from_saved(backbone_cfg) if backbone_cfg else sections.backbone
+    cfg = FRNGConfig(
+        patch=sections.patch_size,
+        geo_dim=bb.width,
+        prior_dim=f.prior_dim,
+        fine=True,
+        top_k=f.top_k_percent / 100.0,
+        upsample=f.upsample,
+        hidden=f.hidden,
+        depth=f.depth,
+        heads=f.heads,
+        feature_dim=f.feature_dim,
+        head="neural",
+        decoder_width=sh.decoder_width,
+        decoder_depth=sh.decoder_depth,
+        dir_freqs=sh.dir_freqs,
+        near=bb.near,
+        far=bb.far,
+        max_radius_px=bb.max_radius_px,
+        saliency=section_dict(f.saliency, "frng.saliency"),
+        pixel_head=f.pixel_head,
+        decoder_cosine=sh.decoder_cosine,
+        decoder_attenuation=sh.decoder_cosine and sh.decoder_attenuation,
+        back_completion=f.back_completion,
+        decoder_specular=sh.decoder_cosine and sh.decoder_specular,
+        fine_in_hull=f.fine_in_hull,
+    )
+    loss = sections.loss
+    ind = LightIndependenceConfig(
+        lambda_c=loss.lambda_c, lambda_kld=loss.lambda_kld, temperature=loss.temperature, pixels=loss.ind_pixels
+    )
+    v = variant(canonical_for(name, f.top_k_percent))
+    return replace(cfg, **v.arch), replace(ind, **v.loss)
 
 
 @register("train.loss")

@@ -11,7 +11,7 @@ data, so :class:`CueCache` keeps those of the all-views samples in memory: the h
 cameras, identical under every input light, so it is computed once per object; only the light-dependent photo
 agreement channel is recomputed per (object, light). Random subsets are computed per step.
 
-The loop is :func:`frng.training.fit` (resume, schedule, clipping at ``grad_clip`` with no update on a non-finite
+The loop is :func:`frng.training.loop.fit` (resume, schedule, clipping at ``grad_clip`` with no update on a non-finite
 gradient norm, checkpoints). Outputs in ``--out`` (default ``{results}/idm``): ``model.pt``, ``checkpoint.pt``
 (resume), ``loss.csv``, ``loss.png``, ``train.json``.
 """
@@ -19,13 +19,12 @@ gradient norm, checkpoints). Outputs in ``--out`` (default ``{results}/idm``): `
 from __future__ import annotations
 
 import random
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
 from frng import camera, checkpoint, io
-from frng import training as tr
 from frng.device import autocast, resolve_device
 from frng.hashing import data_digest
 from frng.plan.sections import register
@@ -33,6 +32,7 @@ from frng.priors import idm as idm_mod
 from frng.priors import multiview
 from frng.priors.dataset import PriorObject, Views
 from frng.seeding import seed_everything
+from frng.training import loop as tr
 
 
 @register("idm.train")
@@ -55,22 +55,11 @@ class IDMTrainConfig:
 
 @register("idm")
 @dataclass(frozen=True)
-class IDMSection(idm_mod.IDMArch):
-    """The config's ``idm`` section: which IDM (``kind``), the learned one's architecture, the DiffusionRenderer
-    adapter's settings and the training (``idm.train``; :class:`IDMTrainConfig`)."""
+class IDMTrainingSection(idm_mod.IDMSection):
+    """The config's whole ``idm`` section: what inference reads (:class:`frng.priors.idm.IDMSection`) and the training
+    (``idm.train``; :class:`IDMTrainConfig`)."""
 
-    kind: str
-    diffusion_renderer_dir: str | None
-    normal_space: str
-    depth_invert: bool
     train: IDMTrainConfig
-
-
-def idm_config(idm: IDMSection, patch_size: int, near: float, far: float) -> idm_mod.IDMConfig:
-    """The learned IDM's architecture of the config's ``idm`` section with the patch size (``model.patch_size``) and
-    near/far (the backbone's)."""
-    arch = {f.name: getattr(idm, f.name) for f in fields(idm_mod.IDMArch)}
-    return idm_mod.IDMConfig(**arch, patch=patch_size, near=near, far=far)
 
 
 def sample_views(obj: PriorObject, rng: random.Random, all_views: float) -> tuple[str, list[int]]:
@@ -140,7 +129,7 @@ LOSS_NAMES = ["total", "normal", "depth", "albedo", "roughness", "metallic"]
 
 
 def train(
-    idm: IDMSection,
+    idm: IDMTrainingSection,
     patch_size: int,
     near: float,
     far: float,
@@ -151,14 +140,14 @@ def train(
     steps: int | None = None,
     stop_after: int | None = None,
 ) -> Path:
-    """Train (or resume, :func:`frng.training.fit`) the learned IDM; returns the model path (or the checkpoint
+    """Train (or resume, :func:`frng.training.loop.fit`) the learned IDM; returns the model path (or the checkpoint
     when stopped early). ``idm``: the config's ``idm`` section; ``patch_size``: ``model.patch_size``; ``near``,
     ``far``: ``backbone.near``/``far``; ``device``: the config's; ``seed``: the models' seed (``train_seed``, else
     ``seed``; the IDM trains with ``seed + 1``)."""
     tr.check_training_split(objects, "idm-train")
     tcfg = idm.train
     total = steps or tcfg.steps
-    cfg = idm_config(idm, patch_size, near, far)
+    cfg = idm_mod.idm_config(idm, patch_size, near, far)
     device = resolve_device(device)
     seed_everything(seed + 1, device)
     model = idm_mod.LearnedIDM(cfg).to(device)
