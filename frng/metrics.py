@@ -342,3 +342,9 @@ def aggregate(df, by: Sequence[str], metrics: Sequence[str] = METRICS):
     if "protocol" in df.columns and "protocol" not in by:
         out["protocol"] = df["protocol"].iloc[0] if len(df) else None
     return out
+
+
+def other_light(lights: list[str], light: str) -> str:
+    """The light an image rendered for ``light`` is scored against in the light-sensitivity check: the next one in
+    the object's list of test lights (cyclic); ``light`` itself when it is the only one."""
+    return lights[(lights.index(light) + 1) % len(lights)]

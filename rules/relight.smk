@@ -1,4 +1,4 @@
-# Relighting of the held-out objects (frng/relight.py): ONE job per test object runs every F-RNG run of the models'
+# Relighting of the held-out objects (frng/apps/relight.py): ONE job per test object runs every F-RNG run of the models'
 # seed (ablation variants, K sweep, #views sweep of the full model) and the backbone baseline, so that both are timed
 # side by side in the same job and the paper-scale DAG grows by the number of test objects only; each other training
 # seed (train.seeds) relights in its own job per object (rule relight_seed), so the first seed's runs relight while

@@ -1,4 +1,4 @@
-"""Relightable asset format (frng.asset): exact round trip, a standard PLY header, validation, atomic writes."""
+"""Relightable asset format (frng.apps.asset): exact round trip, a standard PLY header, validation, atomic writes."""
 
 import json
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from frng.asset import (
+from frng.apps.asset import (
     BASE_PROPERTIES,
     AssetError,
     load_asset,

@@ -1,4 +1,4 @@
-"""frng.capture and the render side of assets, without trained models: photos, masks, camera files, framing, the
+"""frng.apps.capture and the render side of assets, without trained models: photos, masks, camera files, framing, the
 light estimate, every bad input of `frng reconstruct` / `frng render-asset` (one line naming the file), and a
 synthetic asset rendered to views and a turntable GIF."""
 
@@ -16,7 +16,7 @@ import torch
 from conftest import ROOT
 
 from frng import camera, io
-from frng.capture import (
+from frng.apps.capture import (
     CaptureError,
     estimate_light,
     load_images,
@@ -317,7 +317,7 @@ def test_maps_not_2to1_or_not_finite_name_the_file(tmp_path):
 
 def synthetic_asset(folder: Path, version_bump: bool = False) -> Path:
     """A small neural asset: a ball of Gaussians with a cosine decoder (normal + diffuse in the features)."""
-    from frng.asset import render_settings, save_asset
+    from frng.apps.asset import render_settings, save_asset
     from frng.gaussians import Gaussians
     from frng.render import RasterConfig
     from frng.render.shading import NeuralDecoder, ShadingConfig

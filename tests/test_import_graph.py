@@ -1,4 +1,6 @@
-"""No import cycle among the ``frng`` modules (issue 26): the graph is built from the sources with ``ast``.
+"""The package's floor plan, checked on its import graph (built from the sources with ``ast``): no import cycle among
+the ``frng`` modules (issue 26), none between its packages either (no arrow back up), stages import no stage, only the
+stages and the typed config import a trainer, the models do not plan (issue 58).
 
 What counts as an edge A -> B: EVERY ``import`` / ``from ... import`` statement in module A that names a frng module
 B, wherever it stands -- at module level, under ``if TYPE_CHECKING:``, or inside a function. A ``TYPE_CHECKING``
@@ -117,3 +119,62 @@ def test_sections_is_a_leaf_and_only_stages_assemble_the_config():
     importers = sorted(m for m, deps in graph.items() if "frng.typedconfig" in deps)
     outside = [m for m in importers if not m.startswith("frng.stages")]
     assert not outside, f"libraries importing frng.typedconfig: {outside}"
+
+
+def _unit(module: str) -> str:
+    """The floor-plan unit of a module: its top-level subpackage (``frng.render``), or the root module itself."""
+    return ".".join(module.split(".")[:2])
+
+
+def test_no_arrow_runs_back_up_between_packages():
+    """Collapsed to the package's units (subpackages and root modules), the graph still has no cycle: a package
+    that imports another is never imported back by it (the arrows run one way, top to bottom)."""
+    units: dict[str, set[str]] = {}
+    for a, deps in import_graph().items():
+        units.setdefault(_unit(a), set()).update(_unit(b) for b in deps if _unit(b) != _unit(a))
+    cycle = find_cycle(units)
+    assert cycle is None, "packages import each other: " + " -> ".join(cycle)
+
+
+def test_stages_import_no_stage():
+    """A stage is arguments and orchestration around the libraries; what two stages share lives in a library or in
+    a private helper of the stage layer (``frng.stages._name``, not a stage: no rule runs it)."""
+    bad = [
+        f"{a} -> {b}"
+        for a, deps in import_graph().items()
+        if a.startswith("frng.stages.")
+        for b in deps
+        if b.startswith("frng.stages.") and not b.rpartition(".")[2].startswith("_")
+    ]
+    assert not bad, bad
+
+
+def test_models_and_applications_import_no_trainer():
+    """Only the stages, the typed config (which assembles every section) and the trainers themselves import a trainer
+    (``frng.training``): a model file loads and relights without the training code."""
+    allowed = ("frng.stages", "frng.training", "frng.typedconfig")
+    bad = [
+        f"{a} -> {b}"
+        for a, deps in import_graph().items()
+        if not a.startswith(allowed)
+        for b in deps
+        if b == "frng.training" or b.startswith("frng.training.")
+    ]
+    assert not bad, bad
+
+
+def test_models_do_not_plan():
+    """The models (``frng.model``) know their architecture records, not the pipeline's variants or results layout."""
+    graph = import_graph()
+    bad = [
+        f"{a} -> {b}"
+        for a, deps in graph.items()
+        if a == "frng.model" or a.startswith("frng.model.")
+        for b in deps & {"frng.plan.variants", "frng.plan.layout"}
+    ]
+    assert not bad, bad
+
+
+def test_the_floor_plan_rules_catch_a_violation():
+    assert find_cycle({"frng.a": {"frng.b"}, "frng.b": {"frng.a"}}) == ["frng.a", "frng.b", "frng.a"]
+    assert _unit("frng.render.envmap") == "frng.render" and _unit("frng.metrics") == "frng.metrics"

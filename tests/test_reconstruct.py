@@ -41,7 +41,7 @@ def smoke(request):
 def test_capture_of_a_test_object_reproduces_relight(smoke, tmp_path):
     import pandas as pd
 
-    from frng.capture import measure
+    from frng.apps.capture import measure
 
     config, oid = smoke
     df = pd.DataFrame(measure(typed(config), oid, tmp_path))
@@ -62,7 +62,7 @@ def test_folder_of_pngs_to_a_relit_turntable(smoke, tmp_path):
     import imageio.v3 as iio
 
     from frng import io
-    from frng.asset import load_asset
+    from frng.apps.asset import load_asset
     from frng.plan.layout import Layout
 
     config, oid = smoke
@@ -124,7 +124,7 @@ def test_turntable_video_writes_gif_and_mp4(tmp_path):
     count and the upscaled size; a frame of 40 px is upscaled by an integer factor to >= VIDEO_MIN_SIZE."""
     import imageio.v3 as iio
 
-    from frng.stages.render_asset import VIDEO_MIN_SIZE, check_video, write_video
+    from frng.apps.render_asset import VIDEO_MIN_SIZE, check_video, write_video
 
     check_video("mp4")  # the plugin is installed: no error
     rng = np.random.default_rng(0)

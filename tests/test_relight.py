@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from frng import io, relight
+from frng import io
+from frng.apps import relight
 from frng.plan import config as frng_config
 from frng.typedconfig import typed
 

@@ -247,7 +247,7 @@ def test_rgb_only_views_are_refused(tmp_path):
 
 
 def test_safetensors_outputs_follow_the_umask(tmp_path):
-    from frng.asset import DECODER_FILE, save_asset
+    from frng.apps.asset import DECODER_FILE, save_asset
     from frng.gaussians import Gaussians
     from frng.priors.cache import _save
 
@@ -366,7 +366,7 @@ def test_huge_header_exr_says_so(tmp_path):
 
 
 def test_ascii_ply_parse_error_names_the_file(tmp_path):
-    from frng.asset import AssetError, read_ply
+    from frng.apps.asset import AssetError, read_ply
 
     path = tmp_path / "bad.ply"
     path.write_text(

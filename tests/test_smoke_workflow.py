@@ -76,7 +76,7 @@ def test_every_target_and_table(smoke_run):
 
 
 def test_figures_asset_and_report(smoke_run):
-    from frng.asset import load_asset
+    from frng.apps.asset import load_asset
     from frng.plan import catalog
 
     results, config = smoke_run

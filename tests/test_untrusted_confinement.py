@@ -312,7 +312,7 @@ def test_blender_import_refuses_an_outside_texture(tmp_path):
 
 
 def test_photo_symlinked_out_of_the_images_folder(tmp_path):
-    from frng.capture import CaptureError, load_images
+    from frng.apps.capture import CaptureError, load_images
 
     sentinel = make_sentinel(tmp_path)
     photos = tmp_path / "photos"

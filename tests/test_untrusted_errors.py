@@ -22,7 +22,7 @@ from test_untrusted_confinement import exported  # noqa: F401 -- the exported be
 from test_untrusted_outputs import _env, _run, tiny_asset
 
 from frng import cli, io
-from frng.asset import AssetError, AssetRenderer
+from frng.apps.asset import AssetError, AssetRenderer
 from frng.benchmarks import BenchmarkError, import_scene
 from frng.render import envmap
 
@@ -77,7 +77,7 @@ def test_debug_shows_the_traceback(tmp_path, capsys, monkeypatch):
     argv = ["render-asset", asset, "--env", _env(tmp_path / "e.exr"), "--out", tmp_path / "o", "--resolution", 8000]
     code, lines = _run(argv, capsys)
     _one_line(lines, "--resolution 8000: must be 1..2048")
-    from frng.capture import CaptureError
+    from frng.apps.capture import CaptureError
 
     with pytest.raises(CaptureError, match="--resolution 8000"):
         cli.main(["--debug", *map(str, argv)])
@@ -162,7 +162,7 @@ def _png_header(path, width: int, height: int):
 
 
 def test_text_file_named_png_and_huge_png(tmp_path):
-    from frng.capture import CaptureError, read_image
+    from frng.apps.capture import CaptureError, read_image
 
     text = tmp_path / "photo.png"
     text.write_text("not an image\n")
@@ -177,7 +177,7 @@ def test_text_file_named_png_and_huge_png(tmp_path):
 
 
 def test_all_black_photos_warn(tmp_path, capsys):
-    from frng.capture import CaptureError, reconstruct
+    from frng.apps.capture import CaptureError, reconstruct
     from frng.plan import config as frng_config
     from frng.typedconfig import typed
 

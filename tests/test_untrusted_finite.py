@@ -20,7 +20,7 @@ from test_untrusted_confinement import exported  # noqa: F401 -- the exported be
 from test_untrusted_outputs import tiny_asset
 
 from frng import confine, io
-from frng.asset import AssetError, AssetRenderer, load_asset
+from frng.apps.asset import AssetError, AssetRenderer, load_asset
 from frng.benchmarks import BenchmarkError, import_scene
 from frng.render import envmap
 
@@ -123,7 +123,7 @@ def test_asset_decoder_int_weights_and_ply_bounds(tmp_path):
     with pytest.raises(AssetError, match=rf"decoder\.safetensors: tensor '{k}' has dtype torch.int32"):
         load_asset(asset)
 
-    from frng.asset import read_ply, write_ply
+    from frng.apps.asset import read_ply, write_ply
 
     asset = tiny_asset(tmp_path / "b")
     fields = read_ply(asset / "gaussians.ply")
@@ -134,7 +134,7 @@ def test_asset_decoder_int_weights_and_ply_bounds(tmp_path):
 
 
 def test_asset_with_no_gaussians(tmp_path):
-    from frng.asset import read_ply, write_ply
+    from frng.apps.asset import read_ply, write_ply
 
     asset = tiny_asset(tmp_path / "a")
     fields = {k: v[:0] for k, v in read_ply(asset / "gaussians.ply").items()}

@@ -154,8 +154,8 @@ def test_failed_reimport_keeps_the_previous_import(nerf_scene, tmp_path, monkeyp
 
 
 def tiny_asset(folder, n: int = 64, c: int = 4, **meta):
-    """A renderable asset (Gaussians in the unit sphere, a small decoder) written with frng.asset.save_asset."""
-    from frng.asset import save_asset
+    """A renderable asset (Gaussians in the unit sphere, a small decoder) written with frng.apps.asset.save_asset."""
+    from frng.apps.asset import save_asset
     from frng.gaussians import Gaussians
     from frng.render.shading import NeuralDecoder
 

@@ -223,8 +223,8 @@ def test_viewer_in_a_browser(smoke_asset, browser_paths, tmp_path):
     import torch
 
     from frng import camera, io
+    from frng.apps.asset import load_asset
     from frng.apps.view import display
-    from frng.asset import load_asset
     from frng.plan.layout import Layout
     from frng.render import envmap
 

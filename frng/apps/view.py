@@ -1,8 +1,8 @@
-"""``frng view``: an interactive relighting viewer in the browser for a relightable asset (:mod:`frng.asset`).
+"""``frng view``: an interactive relighting viewer in the browser for a relightable asset (:mod:`frng.apps.asset`).
 
 A local web server on ``127.0.0.1`` built on viser (pinned in requirements.txt): the browser shows viser's viewport
 with its orbit / zoom / pan camera; every camera or light change is rendered on the server by the asset's own
-decoder (:class:`frng.asset.AssetRenderer`, the path ``frng render-asset`` renders with; no training code) and sent
+decoder (:class:`frng.apps.asset.AssetRenderer`, the path ``frng render-asset`` renders with; no training code) and sent
 back as the viewport's background image. On a headless machine: ``ssh -L 8080:127.0.0.1:8080 HOST`` and open
 ``http://127.0.0.1:8080`` locally.
 
@@ -20,7 +20,7 @@ What a client sees (each browser tab has its own camera and settings):
   about world Z (:func:`frng.render.envmap.rotate_z`) and an exposure slider (EV; scales the object's radiance on screen),
   the rotated map's thumbnail, and the last frame's quality, size, light samples and time;
 - "Save frame": the current camera and map rendered by ``frng render-asset`` itself (its parser and
-  :func:`frng.stages.render_asset.render`) into ``{out}/frame_NNN/``: ``frame_NNN.exr`` (linear premultiplied RGBA),
+  :func:`frng.apps.render_asset.render`) into ``{out}/frame_NNN/``: ``frame_NNN.exr`` (linear premultiplied RGBA),
   ``frame_NNN.png`` (sRGB, straight alpha) and ``cameras.json`` (the ``--cameras`` format) as render-asset writes
   them, ``light.exr`` (the map as rotated), ``display.png`` (the frame as shown: exposure, background) and
   ``view.json`` (map, rotation, exposure, samples and the render-asset command that renders it again);
@@ -29,8 +29,8 @@ What a client sees (each browser tab has its own camera and settings):
   F-RNG's relit image and the backbone's side by side (the results folder's images, :mod:`frng.plan.layout`).
 
 Everything that can fail on the user's input (the asset, the maps, the config, the port) is checked before the
-server starts, as :class:`ViewError` (or the readers' :class:`~frng.asset.AssetError` /
-:class:`~frng.capture.CaptureError`): one line, nothing left running.
+server starts, as :class:`ViewError` (or the readers' :class:`~frng.apps.asset.AssetError` /
+:class:`~frng.apps.capture.CaptureError`): one line, nothing left running.
 """
 
 from __future__ import annotations
@@ -104,9 +104,9 @@ def collect_lights(
     """The picker's maps, in order: the files given (``--env``), the asset's input light (``input_light.exr`` of
     ``frng reconstruct``, else the results' object's first input light), then the results folder's test maps (one
     per test base map).
-    Raises :class:`~frng.capture.CaptureError` (a map missing, unreadable or not 2:1) or :class:`ViewError`."""
+    Raises :class:`~frng.apps.capture.CaptureError` (a map missing, unreadable or not 2:1) or :class:`ViewError`."""
     from frng import io
-    from frng.capture import read_light
+    from frng.apps.capture import read_light
     from frng.data.envmaps import read_index
     from frng.plan.layout import Layout
     from frng.render.envmap import EnvMapError
@@ -233,12 +233,12 @@ def camera_record(name: str, c2w: np.ndarray, intr: np.ndarray, width: int, heig
 
 
 class FrameRenderer:
-    """An asset folder rendered frame by frame: :class:`frng.asset.AssetRenderer`'s ``rasterize`` then ``shade``
+    """An asset folder rendered frame by frame: :class:`frng.apps.asset.AssetRenderer`'s ``rasterize`` then ``shade``
     (what its ``render`` and ``frng render-asset`` do), the light samples seeded as render-asset's ``--seed``; the
     rasterized feature maps are kept while only the light changes. One frame at a time (a lock)."""
 
     def __init__(self, asset: str | Path, device: str = "auto"):
-        from frng.asset import AssetRenderer
+        from frng.apps.asset import AssetRenderer
         from frng.device import resolve_device
 
         try:
@@ -497,11 +497,11 @@ class Viewer:
 
     def save(self, c2w: np.ndarray, intr: np.ndarray, width: int, height: int, label: str, rotation: float,
              exposure: float) -> Path:  # fmt: skip
-        """Render the view with ``frng render-asset`` (its own parser and :func:`~frng.stages.render_asset.render`)
+        """Render the view with ``frng render-asset`` (its own parser and :func:`~frng.apps.render_asset.render`)
         into ``{out}/frame_NNN/`` (module docstring); returns that folder."""
         from frng import io
+        from frng.apps import render_asset
         from frng.render import envmap
-        from frng.stages import render_asset
 
         st = self.settings
         with self._save_lock:
@@ -703,8 +703,8 @@ def open_viewer(
     yet: a :class:`Viewer` to :meth:`~Viewer.start`. ``asset`` or ``object_id`` (+ ``results``, the results folder
     of the config the stage read: its test maps and the object's relit images)."""
     from frng import io
+    from frng.apps.render_asset import turntable
     from frng.plan.layout import Layout, RelightFolder
-    from frng.stages.render_asset import turntable
 
     results = Path(results) if results is not None else None
     test_object = None
@@ -717,7 +717,7 @@ def open_viewer(
         asset = RelightFolder(Layout(results).relight_run("full", object_id)).asset()
     elif asset is None:
         raise ViewError("give an ASSET folder (asset.json, gaussians.ply, decoder.safetensors) or --object OBJ")
-    from frng.stages.render_asset import MAX_RESOLUTION, MAX_SPP
+    from frng.apps.render_asset import MAX_RESOLUTION, MAX_SPP
 
     top = MAX_RESOLUTION // MAX_ASPECT  # a frame's width stays within what render-asset renders (Save frame)
     if resolution is not None and not 8 <= resolution <= top:

@@ -281,3 +281,21 @@ def score(
     df = df[list(COLUMNS) + [c for c in df.columns if c not in COLUMNS]]
     tf = M.to_frame(timing).reindex(columns=list(TIMING_COLUMNS))
     return M.write_csv(df, out_dir / "baselines_per_image.csv"), M.write_csv(tf, out_dir / "baselines_timing.csv")
+
+
+def planned(config) -> list:
+    """The runs the config plans (:func:`frng.baselines.scoring.planned_runs` over the dataset plan's test split)."""
+    from frng.baselines import plan as P
+    from frng.baselines.scoring import planned_runs
+    from frng.benchmarks.plan import entries
+    from frng.plan import catalog
+
+    cat = catalog.plan(config)
+    tests = P.test_objects(cat)
+    per_scene = P.baseline_objects(config.to_dict(), tests)
+    image = config.baselines.image_based
+    # as rules/baselines.smk's BASELINE_VIEW_IDS: every test object when the image-based baseline runs (and there are
+    # per-scene objects), else the per-scene objects
+    view_objects = [oid for oid, _ in tests] if image and per_scene else per_scene
+    bench = [e["id"] for e in entries(config.to_dict())]
+    return planned_runs(config, [oid for oid, _ in tests], per_scene, view_objects, benchmark_objects=bench)

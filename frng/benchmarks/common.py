@@ -28,7 +28,7 @@ its files map to that, citing the official loader. :func:`write_object` then con
   ``render.resolution`` by area averaging (intrinsics scaled and shifted accordingly), written as linear float32
   premultiplied RGBA EXR with alpha = the mask (the contract of ``config/README.md``, "Dataset layout on disk").
 - **Lights**: each map resized to ``envmaps.width`` and written to ``{results}/envmaps/{light}.exr`` (where
-  :mod:`frng.relight` reads every light), light names prefixed by the object id.
+  :mod:`frng.apps.relight` reads every light), light names prefixed by the object id.
 
 Nothing half-imported looks complete: the object is written to ``objects/.tmp-{id}-*`` (its lights too, in a
 ``.envmaps/`` folder there) and moved into place once everything is written (``meta.json`` last): the lights first,

@@ -407,7 +407,7 @@ class FRNG(nn.Module):
         return model.to(device).eval()
 
     def decoder_meta(self) -> dict:
-        """Decoder architecture for the asset format (:mod:`frng.asset`): width, depth, input_encoding."""
+        """Decoder architecture for the asset format (:mod:`frng.apps.asset`): width, depth, input_encoding."""
         enc = "raw" if self.cfg.dir_freqs == 0 else f"raw+sincos{self.cfg.dir_freqs}"
         return {
             "width": self.cfg.decoder_width,

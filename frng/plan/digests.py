@@ -64,7 +64,7 @@ RELIGHT_MODEL_KEYS: tuple[str, ...] = (
     "train.seeds",
     "train_seed",
 )
-"""What relighting one object with the trained models reads (frng/relight.py): the runs (frng.*, idm.kind,
+"""What relighting one object with the trained models reads (frng/apps/relight.py): the runs (frng.*, idm.kind,
 render.extra_input_views, train.seeds), the resolution check, build_idm, shading.spp_infer and the inference
 shading, seeds, device."""
 

@@ -1,5 +1,5 @@
 """The universal neural decoder's deferred shading: the one sequence that training, relighting
-(:class:`frng.model.FRNG`) and ``frng render-asset`` (:class:`frng.asset.AssetRenderer`) run.
+(:class:`frng.model.FRNG`) and ``frng render-asset`` (:class:`frng.apps.asset.AssetRenderer`) run.
 
 Beside :mod:`frng.render.shading` (the estimator, the closed-form Lambertian base) and :mod:`frng.render.prefilter`
 (the specular base), which it combines.
@@ -29,7 +29,7 @@ def shade_decoder(
     spp_grad: int | None = None,
 ) -> torch.Tensor:
     """The universal neural decoder's deferred shading under an env map: the one sequence :class:`frng.model.FRNG`
-    (training, relighting) and :class:`frng.asset.AssetRenderer` (``frng render-asset``) both run.
+    (training, relighting) and :class:`frng.apps.asset.AssetRenderer` (``frng render-asset``) both run.
 
     A cosine decoder with ``cfg.diffuse == 'sh'`` gets its Lambertian base in closed form (degree-2 SH irradiance of
     ``env``) and Monte Carlo only for its residual, with the specular base (``specular``: the decoder has one) inside

@@ -29,24 +29,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def planned(config) -> list:
-    """The runs the config plans (:func:`frng.baselines.scoring.planned_runs` over the dataset plan's test split)."""
-    from frng.baselines import plan as P
-    from frng.baselines.scoring import planned_runs
-    from frng.benchmarks.plan import entries
-    from frng.plan import catalog
-
-    cat = catalog.plan(config)
-    tests = P.test_objects(cat)
-    per_scene = P.baseline_objects(config.to_dict(), tests)
-    image = config.baselines.image_based
-    # as rules/baselines.smk's BASELINE_VIEW_IDS: every test object when the image-based baseline runs (and there are
-    # per-scene objects), else the per-scene objects
-    view_objects = [oid for oid, _ in tests] if image and per_scene else per_scene
-    bench = [e["id"] for e in entries(config.to_dict())]
-    return planned_runs(config, [oid for oid, _ in tests], per_scene, view_objects, benchmark_objects=bench)
-
-
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -57,6 +39,8 @@ def run(args: argparse.Namespace) -> int:
 
     config = typed(frng_config.load(args.config))
     out = Path(args.out or Layout(config.results).metrics_dir())
+    from frng.baselines.scoring import planned
+
     runs = planned(config)
     if args.no_frng_nvs:
         runs = [r for r in runs if r.run != FRNG_NVS_RUN]

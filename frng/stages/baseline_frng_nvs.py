@@ -1,11 +1,11 @@
 """Stage ``frng baseline-frng-nvs --object OBJ [--out DIR]`` (rule ``baseline_frng_nvs``): F-RNG's novel-view synthesis
 for the views table -- the ``full`` model reconstructed from the object's 6 rig views (live backbone tokens and IDM
-priors, as ``frng relight`` does: :func:`frng.relight.backbone_views`, :func:`frng.priors.build_idm`) and rendered
+priors, as ``frng relight`` does: :func:`frng.apps.relight.backbone_views`, :func:`frng.priors.build_idm`) and rendered
 under the object's INPUT light at its target views. Writes the run folder ``{results}/relight/full-nvs/{obj}`` (or
 ``--out``): ``{input_light}/{view}.exr`` (linear premultiplied RGBA) and ``run.json`` (reconstruction and rendering
 times); the relight stage's own outputs are not touched. Staged and renamed into place at the end.
 
-Config keys read: those of ``frng relight`` (:class:`frng.relight.RelightJob`: ``results``, ``seed``, ``device``,
+Config keys read: those of ``frng relight`` (:class:`frng.apps.relight.RelightJob`: ``results``, ``seed``, ``device``,
 ``render.resolution``, ``shading.*``, ``idm.*``, ``backbone.*``, the runs of ``frng.variants`` (the ``full`` run's
 variant, views and K) and the dataset plan); reads ``{results}/models/full/model.pt``, ``{results}/backbone/model.pt``,
 the IDM's model and ``{results}/baselines/views/{obj}/meta.json`` (the input light and the target cameras)."""
@@ -42,13 +42,13 @@ def render_nvs(job, oid: str, out, device) -> dict:
     import torch
 
     from frng import io
+    from frng.apps.relight import RelightError, Timer, backbone_views, validate_inputs
     from frng.model.frng import FRNG
     from frng.plan import catalog
     from frng.plan.layout import Layout, RelightFolder
     from frng.plan.variants import ALL_GROUPS
     from frng.priors import build_idm, load_backbone
     from frng.priors.dataset import load_object
-    from frng.relight import RelightError, Timer, backbone_views, validate_inputs
 
     L = Layout(job.results)
     meta = validate_inputs(job, oid)
@@ -122,9 +122,9 @@ def run(args: argparse.Namespace) -> int:
     import tempfile
     from pathlib import Path
 
+    from frng.apps.relight import RelightError, RelightJob
     from frng.device import resolve_device
     from frng.plan.layout import Layout
-    from frng.relight import RelightError, RelightJob
 
     config = typed(frng_config.load(args.config))
     job = RelightJob.of(config)

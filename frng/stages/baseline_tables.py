@@ -64,9 +64,9 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from frng import metrics as M
+    from frng.baselines.scoring import planned
     from frng.plan.layout import Layout
     from frng.report import baseline_tables as BT
-    from frng.stages.baseline_eval import planned
 
     config = typed(frng_config.load(args.config))
     L = Layout(config.results)

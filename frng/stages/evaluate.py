@@ -16,7 +16,7 @@ scale, foreground PSNR/SSIM; ``plain``: whole image, no scaling) and ``eval.back
   every image of the runs in :data:`SENSITIVITY_RUNS` (the backbone, F-RNG's ``full``) and the ground truth itself
   (run ``ground-truth``), each rendered for test light ``light``, scored against the ground truth of ANOTHER test
   light of the same object and view, ``scored_against`` = the next light in the object's list (cyclic,
-  :func:`other_light`); same protocol and columns as the per-image CSV. The ground truth's rows scored against
+  :func:`frng.metrics.other_light`); same protocol and columns as the per-image CSV. The ground truth's rows scored against
   their own light (``scored_against == light``) are there too, so its right-light score is a CSV row as well.
   Objects with a single test light have no such rows.
 
@@ -31,6 +31,7 @@ from pathlib import Path
 
 from frng import io
 from frng import metrics as M
+from frng.metrics import other_light
 from frng.plan import config as frng_config
 from frng.plan.layout import Layout, RelightFolder
 from frng.typedconfig import Config, typed
@@ -104,17 +105,11 @@ def evaluate_run(results: Path, run_dir: Path, protocol: str, background, device
     return rows
 
 
-def other_light(lights: list[str], light: str) -> str:
-    """The light an image rendered for ``light`` is scored against in the light-sensitivity check: the next one in
-    the object's list of test lights (cyclic); ``light`` itself when it is the only one."""
-    return lights[(lights.index(light) + 1) % len(lights)]
-
-
 def cross_light_run(
     results: Path, run_dir: Path, protocol: str, background, device: str = "cpu", ground_truth: bool = False
 ) -> list[dict]:
     """Light-sensitivity rows of one run folder (see the module docstring): each image scored against the ground
-    truth of :func:`other_light`. ``ground_truth``: score the ground truth of the run's images instead of the
+    truth of :func:`frng.metrics.other_light`. ``ground_truth``: score the ground truth of the run's images instead of the
     run's renders (run ``ground-truth``), against the other light and against its own."""
     info = io.read_json(RelightFolder(run_dir).record())
     oid = info["object"]

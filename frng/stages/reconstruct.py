@@ -1,7 +1,7 @@
 """Stage ``frng reconstruct --images DIR --out ASSET`` (no rule: run by hand on your own photos): 2-10 photos of one
-object -> a relightable asset folder (:mod:`frng.asset`) that ``frng render-asset`` relights without the model.
+object -> a relightable asset folder (:mod:`frng.apps.asset`) that ``frng render-asset`` relights without the model.
 
-Images, masks, cameras, framing and the light estimate: :mod:`frng.capture`. The model is a trained pipeline's:
+Images, masks, cameras, framing and the light estimate: :mod:`frng.apps.capture`. The model is a trained pipeline's:
 ``--model`` (default ``{results}/models/full/model.pt`` of the config) and ``--config`` (default: the
 ``config.yaml`` recorded in the results folder the model lives in, ``{results}/models/full/model.pt`` ->
 ``{results}/config.yaml``), which gives the architecture, the resolution, the training rig and the priors.
@@ -35,7 +35,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--framing",
         choices=["auto", "keep", "object"],
         default="auto",
-        help="rig photos: keep the framing (square crop) or crop around the object (frng.capture)",
+        help="rig photos: keep the framing (square crop) or crop around the object (frng.apps.capture)",
     )
     parser.add_argument("--name", help="object id recorded in the asset (default: the images folder's name)")
     parser.add_argument("--model", help="F-RNG model file (default {results}/models/full/model.pt)")
@@ -63,13 +63,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="OBJ",
         nargs="+",
         help="instead: score reconstruct + render-asset on curated test objects against `frng "
-        "relight` (frng.capture.measure); writes {out}/measure.csv and prints the means",
+        "relight` (frng.apps.capture.measure); writes {out}/measure.csv and prints the means",
     )
 
 
 def resolve_config(config: str | None, model: str | None):
     """The config to use: ``--config``, else the one recorded beside the model (``{results}/config.yaml``)."""
-    from frng.capture import CaptureError, results_of_model
+    from frng.apps.capture import CaptureError, results_of_model
     from frng.plan import config as frng_config
     from frng.typedconfig import typed
 
@@ -88,11 +88,11 @@ def resolve_config(config: str | None, model: str | None):
 
 
 def measure_table(config, oids: list[str], out: Path) -> str:
-    """:func:`frng.capture.measure` over ``oids``; per-image rows to ``{out}/measure.csv``; returns the per-setting
+    """:func:`frng.apps.capture.measure` over ``oids``; per-image rows to ``{out}/measure.csv``; returns the per-setting
     means (over objects, lights and views) with the PSNR difference to ``relight`` as Markdown."""
     import pandas as pd
 
-    from frng.capture import measure
+    from frng.apps.capture import measure
 
     rows = []
     for oid in oids:
@@ -111,8 +111,8 @@ def measure_table(config, oids: list[str], out: Path) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from frng import cli
-    from frng.asset import AssetError
-    from frng.capture import CaptureError, export_object, parse_grid, reconstruct
+    from frng.apps.asset import AssetError
+    from frng.apps.capture import CaptureError, export_object, parse_grid, reconstruct
 
     try:
         config = resolve_config(args.config, args.model)

@@ -1,6 +1,6 @@
 """Stage ``frng view ASSET [--env MAP ...] [--port N]`` / ``frng view --object OBJ --config C`` (no rule: run by
 hand): an interactive relighting viewer in the browser on ``127.0.0.1`` (:mod:`frng.apps.view`, viser), rendering
-the asset with its own decoder (:class:`frng.asset.AssetRenderer`) on CUDA when there is one, else the CPU.
+the asset with its own decoder (:class:`frng.apps.asset.AssetRenderer`) on CUDA when there is one, else the CPU.
 
 Maps: the files given with ``--env`` (EXR/HDR, 2:1), the asset's input light, and the test maps of the tier (the
 results folder the asset sits in, or ``--config``'s). ``--object``: a relit test object of ``--config``'s results
@@ -42,9 +42,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from frng.apps.asset import AssetError
+    from frng.apps.capture import CaptureError
     from frng.apps.view import ViewError, check_port, measure, open_viewer, serve
-    from frng.asset import AssetError
-    from frng.capture import CaptureError
     from frng.plan.sections import ConfigError
 
     stop = threading.Event()

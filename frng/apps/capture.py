@@ -1,7 +1,7 @@
 """Captures: your own photos in, a relightable asset out (``frng reconstruct``; rendering: ``frng render-asset``).
 
 A capture is 2-10 photos of one object (:data:`MIN_VIEWS`, :data:`MAX_VIEWS`), taken under one unknown light.
-This module turns them into what the F-RNG reconstruction path reads (:func:`frng.relight.backbone_views`, the IDM,
+This module turns them into what the F-RNG reconstruction path reads (:func:`frng.apps.relight.backbone_views`, the IDM,
 :meth:`frng.model.frng.FRNG.reconstruct`): square views at the model's resolution, their masks, OpenCV cameras on
 the training rig's sphere, and an input light. Every bad input is a :class:`CaptureError` whose message names the
 file at fault; nothing is written before all inputs passed.
@@ -771,7 +771,7 @@ def reconstruct(
     force: bool = False,
     allow_outside: bool = False,
 ) -> dict:
-    """Photos -> an asset folder ``out`` (:mod:`frng.asset`, plus ``input_light.exr`` and ``contact_sheet.png``).
+    """Photos -> an asset folder ``out`` (:mod:`frng.apps.asset`, plus ``input_light.exr`` and ``contact_sheet.png``).
 
     ``config``: the pipeline config the model was trained with (architecture, resolution, rig, priors' files);
     ``model``: the F-RNG model file (default ``{results}/models/full/model.pt``). The backbone and the IDM are the
@@ -785,10 +785,10 @@ def reconstruct(
     out of their folders."""
     import torch
 
-    from frng.asset import RIG_KEY, render_settings, save_asset
+    from frng.apps.asset import RIG_KEY, render_settings, save_asset
+    from frng.apps.relight import Timer, backbone_views
     from frng.device import resolve_device
     from frng.plan.layout import Layout, TrainingFolder
-    from frng.relight import Timer, backbone_views
 
     cfg = config
     rc = cfg.render
@@ -973,7 +973,7 @@ def measure(config, oid: str, work: str | Path, views: int = 6, settings=None) -
     import torch
 
     from frng import metrics
-    from frng.asset import AssetRenderer
+    from frng.apps.asset import AssetRenderer
     from frng.plan import catalog
     from frng.plan.layout import Layout
 

@@ -379,13 +379,13 @@ def ply_fields_to_gaussians(
             i = int(np.argmax(out))
             raise AssetError(
                 f"{source}: field {k!r} (log scale) is {float(fields[k][i]):g} at row {i}, outside "
-                f"{list(LOG_SCALE_RANGE)} (frng.asset.LOG_SCALE_RANGE; the object lies in the unit sphere)"
+                f"{list(LOG_SCALE_RANGE)} (frng.apps.asset.LOG_SCALE_RANGE; the object lies in the unit sphere)"
             )
     for k in ("x", "y", "z"):
         if len(fields[k]) and float(np.abs(fields[k]).max()) > MAX_COORDINATE:
             raise AssetError(
                 f"{source}: field {k!r} has a position of {float(np.abs(fields[k]).max()):g}, beyond "
-                f"{MAX_COORDINATE:g} (frng.asset.MAX_COORDINATE; the object lies in the unit sphere)"
+                f"{MAX_COORDINATE:g} (frng.apps.asset.MAX_COORDINATE; the object lies in the unit sphere)"
             )
     col = lambda *names: np.stack([np.asarray(fields[k], np.float64) for k in names], axis=1)  # noqa: E731
     t32 = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))  # noqa: E731

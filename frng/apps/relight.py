@@ -14,7 +14,7 @@ What one job does (one test object, all runs, so the paper-scale DAG stays at on
 4. the baseline: the backbone relit under each target light (one full DDIM pass per light, then rendering the
    target views; timed per light), at the same views and resolution;
 5. writes, per run, ``{results}/relight/{run}/{obj}/{light}/{view}.exr`` (linear premultiplied RGBA) and
-   ``run.json``; the full run also keeps its relightable asset (``asset/``, :mod:`frng.asset`) and its
+   ``run.json``; the full run also keeps its relightable asset (``asset/``, :mod:`frng.apps.asset`) and its
    saliency (``saliency.npz``: ``saliency`` (V, H, W), ``patch_idx`` (V, n), ``image`` (V, H, W, 4)); and
    ``{results}/relight/timing/{obj}.json`` with both methods' costs side by side.
 
@@ -389,7 +389,7 @@ def shade_base(model, raster: tuple, env: torch.Tensor) -> torch.Tensor:
 
 def _save_full_extras(folder: Path, model, rec, p: dict, oid: str, run: Run) -> None:
     """The full run's relightable asset and its saliency (for the figures)."""
-    from frng.asset import render_settings, save_asset
+    from frng.apps.asset import render_settings, save_asset
 
     if rec.features is not None:
         meta = {
