@@ -4,7 +4,14 @@
 # into its own folder instead of training it twice.
 # Other training seeds (train.seeds) are variants too: `full@s1`, `no-fine@s1`, ... (frng/plan/variants.py), each its own
 # `train` job with train_seed = 1 (the stage reads the suffix); the K sweep is not repeated per seed.
-from frng.plan.variants import all_variants, canonical_variant, reads_priors, split_seed, torchrun_command, trained_variants
+from frng.plan.variants import (
+    all_variants,
+    canonical_variant,
+    reads_priors,
+    split_seed,
+    torchrun_command,
+    trained_variants,
+)
 
 FRNG_TRAINED = trained_variants(config)
 FRNG_ALIASES = [v for v in all_variants(config) if canonical_variant(config, v) != v]

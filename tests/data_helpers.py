@@ -44,3 +44,32 @@ def frng(*args: str, check: bool = True) -> subprocess.CompletedProcess:
     if check and proc.returncode != 0:
         raise AssertionError(f"frng {' '.join(args)} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
     return proc
+
+
+def kill_at_first_checkpoint(cmd: list[str], out: Path) -> int:
+    """Start a training command, SIGKILL its process group as soon as ``out/checkpoint.pt`` exists (at most 120 s),
+    check that no model was written, and return the checkpoint's step."""
+    import os
+    import signal
+    import time
+
+    import torch
+
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    ckpt = out / "checkpoint.pt"
+    deadline = time.time() + 120
+    while not ckpt.exists() and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert ckpt.exists() and not (out / "model.pt").exists()
+    return torch.load(ckpt, weights_only=False)["step"]
+
+
+def protocol_scores(psnr: float, ssim: float = 0.5, lpips: float = 0.1, scale=(1.0, 1.0, 1.0), brightness=None) -> dict:
+    """The score columns of a per-image metrics row (frng.metrics): psnr, ssim, lpips, the aligned protocol's per-channel
+    ``scale_*`` and, unless ``brightness`` is None, the ``brightness_*`` ratios."""
+    row = dict(psnr=psnr, ssim=ssim, lpips=lpips, **{f"scale_{c}": float(v) for c, v in zip("rgb", scale)})
+    if brightness is not None:
+        row.update({f"brightness_{c}": float(v) for c, v in zip("rgb", brightness)})
+    return row

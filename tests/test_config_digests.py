@@ -93,38 +93,18 @@ def test_check_rule_digests_names_each_problem():
 
 # -- the workflow: one edit per stage, the dry run's job list ----------------------------------------------------
 
-RULES = {
-    "envmaps",
-    "curate",
-    "dataset_preview",
-    "backbone_train",
-    "idm_train",
-    "backbone_cache",
-    "idm_priors",
-    "eval_backbone",
-    "training_set_caches",
-    "training_set_priors",
-    "train",
-    "model_alias",
-    "relight",
-    "evaluate",
-    "tables",
-    "figures",
-    *("curate_baselines", "baseline_fit", "baseline_image", "baseline_frng_nvs", "baseline_eval", "baseline_tables"),
-}
+# the F-RNG models and everything made from them
+FROM_TRAIN = {"train", "model_alias", "relight", "evaluate", "tables", "figures"}
 # the baselines' scoring and tables, after anything they compare changed
 BASELINE_SCORES = {"baseline_eval", "baseline_tables"}
-# F-RNG's novel views (rule baseline_frng_nvs) come from the full model, the backbone and the IDM
-AFTER_TRAIN = {
-    "train",
-    "model_alias",
-    "relight",
-    "evaluate",
-    "tables",
-    "figures",
-    "baseline_frng_nvs",
-    *BASELINE_SCORES,
+RULES = {
+    *("envmaps", "curate", "dataset_preview", "backbone_train", "idm_train", "backbone_cache", "idm_priors"),
+    *("eval_backbone", "training_set_caches", "training_set_priors"),
+    *FROM_TRAIN,
+    *("curate_baselines", "baseline_fit", "baseline_image", "baseline_frng_nvs", *BASELINE_SCORES),
 }
+# F-RNG's novel views (rule baseline_frng_nvs) come from the full model, the backbone and the IDM
+AFTER_TRAIN = {*FROM_TRAIN, "baseline_frng_nvs", *BASELINE_SCORES}
 
 # (key, new value) -> the rules whose jobs rerun ("all" left out); the smoke tier: learned IDM, 8 trained variants
 CASES = [

@@ -38,7 +38,8 @@ def _step(model: torch.nn.Module, x: torch.Tensor, y: torch.Tensor) -> float:
     return loss.item()
 
 
-def _worker(rank: int, world: int, port: int, out: str) -> None:
+def gloo_init(rank: int, world: int, port: int):
+    """One rank of a CPU (gloo) process group on this machine, one thread: ``distributed.init``'s info."""
     torch.set_num_threads(1)
     env = {
         "RANK": str(rank),
@@ -48,6 +49,11 @@ def _worker(rank: int, world: int, port: int, out: str) -> None:
         "MASTER_PORT": str(port),
     }
     info = distributed.init(device="cpu", environ=env, timeout_s=60)
+    return info
+
+
+def _worker(rank: int, world: int, port: int, out: str) -> None:
+    info = gloo_init(rank, world, port)
     try:
         assert info.backend == "gloo" and info.world_size == world and info.rank == rank
         model = distributed.wrap(_model(), info)

@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pandas as pd
+from data_helpers import protocol_scores
 
 from frng import metrics as M
 from frng.report.paper_tables import LADDER_STEPS, ladder_table
@@ -16,15 +17,7 @@ def _rows(n, psnr, scale, **kw):
             object=f"o{i % 2}",
             light="l0",
             view=f"v{i}",
-            psnr=psnr + 0.1 * i,
-            ssim=0.5,
-            lpips=0.1,
-            scale_r=scale,
-            scale_g=1.0,
-            scale_b=1.0,
-            brightness_r=scale,
-            brightness_g=scale,
-            brightness_b=1.0,
+            **protocol_scores(psnr + 0.1 * i, scale=(scale, 1.0, 1.0), brightness=(scale, scale, 1.0)),
         )
         for i in range(n)
     ]
@@ -115,15 +108,7 @@ def test_light_sensitivity_rows_are_right_minus_wrong_light():
                 object=o,
                 light=l,
                 view="v0",
-                psnr=p + k,
-                ssim=0.6,
-                lpips=0.1,
-                scale_r=1.0,
-                scale_g=1.0,
-                scale_b=1.0,
-                brightness_r=1.0,
-                brightness_g=1.0,
-                brightness_b=1.0,
+                **protocol_scores(p + k, ssim=0.6, brightness=(1.0, 1.0, 1.0)),
             )
             for r, p in (("backbone", 17.0), ("full", 18.0))
             for k, o in enumerate(("o0", "o1"))
@@ -164,12 +149,7 @@ def test_lambertian_table_per_material_class():
                     object=o,
                     light=l,
                     view="v0",
-                    psnr=base + shift + i,
-                    ssim=0.5,
-                    lpips=0.1,
-                    scale_r=1.0,
-                    scale_g=1.0,
-                    scale_b=1.0,
+                    **protocol_scores(base + shift + i),
                 )
                 for i, l in enumerate(("l0", "l1"))
             ]

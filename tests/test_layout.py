@@ -37,13 +37,7 @@ def test_rule_files_spell_no_results_paths():
     layout (e.g. "objects/{obj}/meta.json") would be a second spelling of it."""
     pattern = re.compile(r"""["'](""" + "|".join(TOP) + r""")/""")
     files = [*(ROOT / "rules").glob("*.smk"), ROOT / "workflow" / "Snakefile"]
-    offenders = [
-        f"{f.name}:{i}: {line.strip()}"
-        for f in files
-        for i, line in enumerate(f.read_text().splitlines(), 1)
-        if pattern.search(line)
-    ]
-    assert not offenders, "results paths spelled outside frng/plan/layout.py:\n" + "\n".join(offenders)
+    _assert_no_match(files, pattern, "results paths")
 
 
 def test_folders_name_the_files_layout_places():
@@ -74,11 +68,14 @@ def test_library_spells_no_file_names():
         r"""["'](meta|index|run|train)\.json["']|["'](model|checkpoint)\.pt["']|["']loss\.(csv|png)["']"""
         r"""|["']saliency\.npz["']"""
     )
-    files = [f for f in (ROOT / "frng").rglob("*.py") if f.name != "layout.py"]
+    _assert_no_match([f for f in (ROOT / "frng").rglob("*.py") if f.name != "layout.py"], pattern, "results file names")
+
+
+def _assert_no_match(files: list[Path], pattern: re.Pattern, what: str) -> None:
     offenders = [
         f"{f.relative_to(ROOT)}:{i}: {line.strip()}"
         for f in files
         for i, line in enumerate(f.read_text().splitlines(), 1)
         if pattern.search(line)
     ]
-    assert not offenders, "results file names spelled outside frng/plan/layout.py:\n" + "\n".join(offenders)
+    assert not offenders, f"{what} spelled outside frng/plan/layout.py:\n" + "\n".join(offenders)

@@ -2,15 +2,13 @@
 kill + resume of training, caches with stale-hash refusal, and models beating trivial baselines."""
 
 import csv
-import os
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 import torch
+from data_helpers import kill_at_first_checkpoint
 
 from frng.plan.catalog import plan
 from frng.typedconfig import typed
@@ -38,15 +36,7 @@ def test_idm_train_killed_then_resumed(smoke):
     path, config = smoke
     out = Path(config["results"]) / "idm"
     cmd = [sys.executable, "-m", "frng", "idm-train", "--config", str(path), "--out", str(out)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    ckpt = out / "checkpoint.pt"
-    deadline = time.time() + 120
-    while not ckpt.exists() and time.time() < deadline and proc.poll() is None:
-        time.sleep(0.2)
-    os.killpg(proc.pid, signal.SIGKILL)
-    proc.wait()
-    assert ckpt.exists() and not (out / "model.pt").exists()
-    saved = torch.load(ckpt, weights_only=False)["step"]
+    saved = kill_at_first_checkpoint(cmd, out)
     steps_total = config["idm"]["train"]["steps"]
     assert 0 < saved < steps_total
     subprocess.run(cmd, check=True, capture_output=True)

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from data_helpers import protocol_scores
 
 from frng import io
 from frng.plan import config as frng_config
@@ -32,17 +33,7 @@ T0 = 1_700_000_000.0
 
 
 def _scores(psnr: float) -> dict:
-    return dict(
-        psnr=psnr,
-        ssim=0.4 + psnr / 100,
-        lpips=0.3 - psnr / 100,
-        scale_r=1.1,
-        scale_g=0.9,
-        scale_b=1.0,
-        brightness_r=1.2,
-        brightness_g=1.0,
-        brightness_b=0.8,
-    )
+    return protocol_scores(psnr, 0.4 + psnr / 100, 0.3 - psnr / 100, (1.1, 0.9, 1.0), (1.2, 1.0, 0.8))
 
 
 def write_results(folder: Path) -> Path:

@@ -108,6 +108,7 @@ def test_interrupted_run_resumes(cluster, tmp_path):
     run1 = subprocess.Popen(
         _snakemake(*cfg, "slow_s=300", workdir=wd), cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, text=True
     )
+    job = None
     try:
         done = lambda o: (wd / "objects" / o / "meta.json").exists()  # noqa: E731
         # c's job is mid-way: its first file is written, the job still runs
@@ -121,13 +122,8 @@ def test_interrupted_run_resumes(cluster, tmp_path):
         job = _wait(lambda: c_log.exists() and c_log.read_text().split()[-1:], 30, "c's SLURM job id")[0]
         running = {j["id"]: j["state"] for j in cluster.jobs()}
         assert running.get(job) == "RUNNING", (job, running)
-        subprocess.run(["scancel", job], check=True, timeout=20)
-        rc1 = run1.wait(timeout=240)
     finally:
-        if run1.poll() is None:
-            run1.terminate()
-            run1.wait(timeout=60)
-        log.close()
+        rc1 = _cancel_and_stop(run1, log, job, 240)
     out1 = (tmp_path / "run1.log").read_text()
     assert rc1 != 0, _tail(out1)
     # no output that looks complete: the killed job's outputs are removed (or at least its last file never written)
@@ -204,7 +200,7 @@ def test_smoke_workflow_on_slurm(cluster, tmp_path):
     # run 1: once one object is curated, cancel a curate job that is running (mid-way) for another
     log = (tmp_path / "run1.log").open("w")
     run1 = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, text=True)
-    cancelled = None
+    job = cancelled = None
     try:
 
         def running_unfinished():
@@ -217,13 +213,8 @@ def test_smoke_workflow_on_slurm(cluster, tmp_path):
             return None
 
         job, cancelled = _wait(running_unfinished, 360, "a finished object and a running curate job", run1)
-        subprocess.run(["scancel", job], check=True, timeout=20)
-        rc1 = run1.wait(timeout=900)  # a hang guard: snakemake finishes the running jobs, then stops
     finally:
-        if run1.poll() is None:
-            run1.terminate()
-            run1.wait(timeout=60)
-        log.close()
+        rc1 = _cancel_and_stop(run1, log, job, 900)  # a hang guard: snakemake finishes the running jobs, then stops
     out1 = (tmp_path / "run1.log").read_text()
     assert rc1 != 0, _tail(out1)
     assert not meta(cancelled).exists(), f"cancelled object {cancelled} looks complete\n{_tail(out1)}"
@@ -257,3 +248,19 @@ def test_smoke_workflow_on_slurm(cluster, tmp_path):
         timeout=180,
     )
     assert "Nothing to be done" in again.stdout + again.stderr, _tail(again)
+
+
+def _cancel_and_stop(run: subprocess.Popen, log, job: str | None, timeout: float) -> int | None:
+    """Cancel SLURM job ``job`` (None: it was never found) and wait for the snakemake run to stop by itself; terminate
+    it if it has not (a failed wait). Returns its exit status, None if it had to be terminated."""
+    rc = None
+    try:
+        if job is not None:
+            subprocess.run(["scancel", job], check=True, timeout=20)
+            rc = run.wait(timeout=timeout)
+    finally:
+        if run.poll() is None:
+            run.terminate()
+            run.wait(timeout=60)
+        log.close()
+    return rc

@@ -3,8 +3,6 @@ a short run lowers the relighting loss, kill + rerun resumes. Priors: the sessio
 its token caches + oracle IDM priors (G-buffers) made here, on that run's dataset (tests/conftest.py)."""
 
 import csv
-import os
-import signal
 import subprocess
 import sys
 import time
@@ -13,6 +11,7 @@ from pathlib import Path
 import pytest
 import torch
 from conftest import smoke_results
+from data_helpers import kill_at_first_checkpoint
 
 from frng.plan.sections import config_section
 from frng.typedconfig import typed
@@ -312,15 +311,7 @@ def test_train_killed_then_resumed(frng_smoke, tmp_path):
         "--out",
         str(out),
     ]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    ckpt = out / "checkpoint.pt"
-    deadline = time.time() + 120
-    while not ckpt.exists() and time.time() < deadline and proc.poll() is None:
-        time.sleep(0.2)
-    os.killpg(proc.pid, signal.SIGKILL)
-    proc.wait()
-    assert ckpt.exists() and not (out / "model.pt").exists()
-    saved = torch.load(ckpt, weights_only=False)["step"]
+    saved = kill_at_first_checkpoint(cmd, out)
     assert 0 < saved < steps
     subprocess.run(cmd, check=True, capture_output=True)
     assert (out / "model.pt").exists()

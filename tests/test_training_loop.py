@@ -201,17 +201,11 @@ def test_nonfinite_step_makes_no_update(tmp_path, monkeypatch):
 
 
 def _ddp_worker(rank: int, world: int, port: int, out: str, stop_after) -> None:
+    from test_distributed import gloo_init
+
     from frng.training import distributed
 
-    torch.set_num_threads(1)
-    env = {
-        "RANK": str(rank),
-        "WORLD_SIZE": str(world),
-        "LOCAL_RANK": str(rank),
-        "MASTER_ADDR": "127.0.0.1",
-        "MASTER_PORT": str(port),
-    }
-    info = distributed.init(device="cpu", environ=env, timeout_s=60)
+    info = gloo_init(rank, world, port)
     try:
         _toy_fit(Path(out), 8, stop_after=stop_after, info=info)
     finally:

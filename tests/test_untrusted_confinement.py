@@ -343,3 +343,16 @@ def test_allow_outside_from_the_config():
 
     assert import_flags({"id": "orb-a", "options": {"allow_outside": True}}) == "--allow-outside"
     assert import_flags({"id": "orb-a", "options": {"allow_outside": False}}) == ""
+
+
+def edit_orb_frames(exported, tmp_path, transforms: str, frame: int, field: str, value) -> tuple[Path, Path]:
+    """A copy of the exported ORB scene with one field of one frame of ``transforms`` (e.g. "transforms_train.json")
+    set to ``value``: (the scene folder, the edited file)."""
+    src = exported["orb"]
+    shutil.copytree(src.parent.parent, tmp_path / "orb")
+    scene = tmp_path / "orb" / "blender_HDR" / src.name
+    path = scene / transforms
+    meta = json.loads(path.read_text())
+    meta["frames"][frame][field] = value
+    path.write_text(json.dumps(meta))
+    return scene, path

@@ -18,7 +18,7 @@ import pytest
 import torch
 from data_helpers import write_config
 from test_benchmarks import RES
-from test_untrusted_confinement import exported  # noqa: F401 -- the exported benchmark folders (module fixture)
+from test_untrusted_confinement import edit_orb_frames, exported  # noqa: F401 -- the exported benchmark folders (module fixture)
 from test_untrusted_outputs import _env, _run, tiny_asset
 
 from frng import cli, io
@@ -197,13 +197,7 @@ def test_all_black_photos_warn(tmp_path, capsys):
 
 
 def test_importer_fields_of_the_wrong_type(exported, tmp_path):  # noqa: F811
-    src = exported["orb"]
-    shutil.copytree(src.parent.parent, tmp_path / "orb")
-    scene = tmp_path / "orb" / "blender_HDR" / src.name
-    tr = scene / "transforms_train.json"
-    meta = json.loads(tr.read_text())
-    meta["frames"][2]["file_path"] = 7
-    tr.write_text(json.dumps(meta))
+    scene, tr = edit_orb_frames(exported, tmp_path, "transforms_train.json", 2, "file_path", 7)
     with pytest.raises(
         BenchmarkError, match=rf"^{tr}: field 'frames\[2\]\.file_path' must be a non-empty string, got 7"
     ):

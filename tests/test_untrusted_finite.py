@@ -16,7 +16,7 @@ import torch
 import yaml
 from conftest import ROOT
 from test_benchmarks import RES
-from test_untrusted_confinement import exported  # noqa: F401 -- the exported benchmark folders (module fixture)
+from test_untrusted_confinement import edit_orb_frames, exported  # noqa: F401 -- the exported benchmark folders (module fixture)
 from test_untrusted_outputs import tiny_asset
 
 from frng import confine, io
@@ -58,13 +58,7 @@ def test_nan_transform_matrix_is_named_not_an_empty_mask(exported, tmp_path):  #
 
 
 def test_orb_camera_angle_of_a_novel_frame(exported, tmp_path):  # noqa: F811
-    src = exported["orb"]
-    shutil.copytree(src.parent.parent, tmp_path / "orb")
-    scene = tmp_path / "orb" / "blender_HDR" / src.name
-    nv = scene / "transforms_novel.json"
-    meta = json.loads(nv.read_text())
-    meta["frames"][0]["camera_angle_x"] = 0
-    nv.write_text(json.dumps(meta))
+    scene, nv = edit_orb_frames(exported, tmp_path, "transforms_novel.json", 0, "camera_angle_x", 0)
     with pytest.raises(BenchmarkError, match=r"field 'frames\[0\]\.camera_angle_x' must be a field of view"):
         import_scene("orb", scene, tmp_path / "r", RES, 32)
 

@@ -139,17 +139,8 @@ class FRNGConfig:
         return SaliencyConfig.from_dict({**self.saliency, "top_k": self.top_k})
 
     def materialformer_config(self) -> MaterialFormerConfig:
-        return MaterialFormerConfig(
-            geo_dim=self.geo_dim,
-            app_dim=self.geo_dim,
-            prior_dim=self.prior_dim,
-            hidden=self.hidden,
-            depth=self.depth,
-            heads=self.heads,
-            patch=self.patch,
-            feature_dim=self.feature_dim,
-            head=self.head,
-        )
+        same = ("prior_dim", "hidden", "depth", "heads", "patch", "feature_dim", "head")
+        return MaterialFormerConfig(geo_dim=self.geo_dim, app_dim=self.geo_dim, **{k: getattr(self, k) for k in same})
 
 
 @dataclass

@@ -168,38 +168,21 @@ def _measure(args, dev, kw, backend, rc, sc, size, C) -> dict:
         smp_tr = envmap.EnvSamples(*(t.float().to(dev) for t in smp_tr))
         fg = int((a > sc.alpha_eps).sum())
 
+        def shade(maps, samples, **kw):  # the deferred pass of this scene, with the config's chunks
+            chunks = dict(alpha_eps=sc.alpha_eps, chunk=sc.chunk_pixels, chunk_pairs=sc.chunk_pairs)
+            return deferred_shade(dec, maps, a, s["c2w"], s["intrinsics"], samples, **chunks, **kw)
+
         def shade_inf():  # as FRNG.shade at inference: pair-chunked, bf16 when shading.bf16_infer
             with (
                 torch.no_grad(),
                 torch.autocast(dev.type, dtype=torch.bfloat16, enabled=sc.bf16_infer and bf16_ok(dev)),
             ):
-                deferred_shade(
-                    dec,
-                    [f],
-                    a,
-                    s["c2w"],
-                    s["intrinsics"],
-                    smp_inf,
-                    alpha_eps=sc.alpha_eps,
-                    chunk=sc.chunk_pixels,
-                    chunk_pairs=sc.chunk_pairs,
-                )
+                shade([f], smp_inf)
 
         fd = f.detach().requires_grad_()
 
         def shade_train():
-            out = deferred_shade(
-                dec,
-                [fd],
-                a,
-                s["c2w"],
-                s["intrinsics"],
-                smp_tr,
-                spp_grad=sc.spp_grad,
-                alpha_eps=sc.alpha_eps,
-                chunk=sc.chunk_pixels,
-                chunk_pairs=sc.chunk_pairs,
-            )
+            out = shade([fd], smp_tr, spp_grad=sc.spp_grad)
             out.sum().backward()
 
         reps = max(1, args.repeats // 2)

@@ -102,31 +102,23 @@ def variant_config(
 
     f, sh = sections.frng, sections.shading
     bb = BackboneConfig.from_saved(backbone_cfg) if backbone_cfg else sections.backbone
+
+    def same(section, *keys: str) -> dict:  # FRNGConfig fields named as the section's keys
+        return {k: getattr(section, k) for k in keys}
+
     cfg = FRNGConfig(
+        **same(f, "prior_dim", "upsample", "hidden", "depth", "heads", "feature_dim", "pixel_head"),
+        **same(f, "back_completion", "fine_in_hull"),
+        **same(sh, "decoder_width", "decoder_depth", "dir_freqs", "decoder_cosine"),
+        **same(bb, "near", "far", "max_radius_px"),
         patch=sections.patch_size,
         geo_dim=bb.width,
-        prior_dim=f.prior_dim,
         fine=True,
         top_k=f.top_k_percent / 100.0,
-        upsample=f.upsample,
-        hidden=f.hidden,
-        depth=f.depth,
-        heads=f.heads,
-        feature_dim=f.feature_dim,
         head="neural",
-        decoder_width=sh.decoder_width,
-        decoder_depth=sh.decoder_depth,
-        dir_freqs=sh.dir_freqs,
-        near=bb.near,
-        far=bb.far,
-        max_radius_px=bb.max_radius_px,
         saliency=section_dict(f.saliency, "frng.saliency"),
-        pixel_head=f.pixel_head,
-        decoder_cosine=sh.decoder_cosine,
         decoder_attenuation=sh.decoder_cosine and sh.decoder_attenuation,
-        back_completion=f.back_completion,
         decoder_specular=sh.decoder_cosine and sh.decoder_specular,
-        fine_in_hull=f.fine_in_hull,
     )
     loss = sections.loss
     ind = LightIndependenceConfig(
