@@ -7,7 +7,7 @@ Modules
 - :mod:`.fine_geometry`       Sec. 4.1 latent-interpolated fine-grained geometry (Bilinear, FineGeoDetokenizer)
 - :mod:`.materialformer`      Sec. 4.2.1 MaterialFormer + MatDetokenizer (neural features or Cook-Torrance head)
 - :mod:`.light_independence`  Sec. 4.2.2 L_ind = lambda_c * C + lambda_KLD * KL
-- :mod:`.train`               training one variant: L_2, L_per, L_ind, one step, the trainer (stage ``frng train``)
+- its trainer: :mod:`frng.training.frng` (L_2, L_per, L_ind, one step; stage ``frng train``)
 - :mod:`frng.gaussians`       raw per-pixel parameters -> Gaussians (shared with the backbone)
 
 Token layout contract (shared with the backbone, :mod:`frng.priors.backbone`)

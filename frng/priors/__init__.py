@@ -2,7 +2,8 @@
 
 This package only re-exports: the registries (``backbone.kind`` / ``idm.kind`` in the config -> an implementation;
 plug in another with :func:`register_backbone` / :func:`register_idm`) and the IDM adapters live in
-:mod:`frng.priors.registry`; the models, trainers and caches in the submodules.
+:mod:`frng.priors.registry`; the models, their config sections and caches in the submodules (their trainers in
+:mod:`frng.training`).
 """
 
 from frng.priors.registry import (

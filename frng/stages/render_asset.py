@@ -13,8 +13,8 @@ __all__ = ["configure", "run"]
 def run(args: argparse.Namespace) -> int:
     from frng import cli
     from frng.apps.render_asset import render
-    from frng.asset import AssetError
-    from frng.capture import CaptureError
+    from frng.apps.asset import AssetError
+    from frng.apps.capture import CaptureError
 
     try:
         info = render(args)
