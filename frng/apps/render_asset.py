@@ -30,7 +30,8 @@ MAX_VIEWS = 1000  # the most views one call renders (--turntable N or a camera f
 MAX_SPP = 4096  # the most light samples per pixel (--spp, or the asset's shading.spp_infer)
 
 
-def configure(parser: argparse.ArgumentParser) -> None:
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The arguments of ``frng render-asset`` (its stage, and the viewer's "Save frame", which runs it in-process)."""
     parser.add_argument("asset", help="asset folder (asset.json, gaussians.ply, decoder.safetensors)")
     parser.add_argument("--env", required=True, help="equirect environment map (EXR/HDR, 2:1)")
     parser.add_argument("--out", required=True, help="output folder")

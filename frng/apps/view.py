@@ -519,7 +519,7 @@ class Viewer:
             argv += ["--device", str(self.frames.device), "--seed", str(st.seed)]
             argv += ["--spp", str(st.spp)] if st.spp else []
             parser = argparse.ArgumentParser(prog="frng render-asset")
-            render_asset.configure(parser)
+            render_asset.add_arguments(parser)
             with self.frames._lock:  # one render at a time on the device
                 render_asset.render(parser.parse_args(argv))
             os.replace(light_file, folder / "light.exr")

@@ -8,7 +8,9 @@ What one job does, the runs, the outputs and the timing file: :mod:`frng.apps.re
 
 from __future__ import annotations
 
-from frng.stages._relight import configure, run
+import argparse
+
+from frng.stages import _relight
 
 # The config keys this stage reads (frng.plan.digests: its rule's digest): the dataset plan (the split check) and what
 # relighting reads (frng/apps/relight.py, group @relight). The rule `relight` relights the main group only
@@ -17,4 +19,10 @@ from frng.stages._relight import configure, run
 # without rerunning the first seed's relight jobs (their outputs were identical)
 CONFIG_READS = ("@plan", "@relight", "!train.seeds")
 
-__all__ = ["configure", "run"]
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    _relight.configure(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    return _relight.run(args)

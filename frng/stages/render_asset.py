@@ -5,19 +5,20 @@ from __future__ import annotations
 
 import argparse
 
-from frng.apps.render_asset import configure
+from frng.apps import render_asset
 
-__all__ = ["configure", "run"]
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    render_asset.add_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     from frng import cli
-    from frng.apps.render_asset import render
     from frng.apps.asset import AssetError
     from frng.apps.capture import CaptureError
 
     try:
-        info = render(args)
+        info = render_asset.render(args)
     except (CaptureError, AssetError) as e:
         if cli.DEBUG:  # `frng --debug`: the traceback
             raise
