@@ -1,6 +1,6 @@
-"""The dataset: plan (catalog, camera rig, env-map split), curation, contact sheets, reader.
+"""The dataset: camera rig, env maps, curation, contact sheets, reader. What gets rendered (objects, splits,
+materials, lights, seeds) is the torch-free plan, :mod:`frng.plan.catalog`.
 
-- :mod:`frng.plan.catalog`  -- what gets rendered (objects, splits, materials, lights, seeds); no bpy, fast
 - :mod:`frng.data.rig`      -- camera rig: 6 input views (+ extras) and random target views
 - :mod:`frng.data.envmaps`  -- bundled HDRIs + baked skies, rotated, split (stage :mod:`frng.stages.envmaps`)
 - :mod:`frng.data.curate`   -- one Blender process renders one object (stage :mod:`frng.stages.curate`)

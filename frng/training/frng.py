@@ -53,7 +53,7 @@ from frng.model.light_independence import LightIndependenceConfig, light_indepen
 from frng.plan.layout import Layout
 from frng.plan.sections import TypedConfig, register, section_dict
 from frng.plan.variants import canonical_for, variant
-from frng.priors.backbone import BackboneSection
+from frng.priors.backbone import BackboneConfig, BackboneSection
 from frng.render import envmap
 from frng.render.raster import RasterConfig
 from frng.render.shading import ShadingConfig
@@ -98,8 +98,6 @@ def variant_config(
     ``backbone_cfg``: the frozen backbone's architecture dict (its ``model.pt`` ``config``); the token width and
     near/far/max_radius_px come from it (default: the config's ``backbone`` section).
     """
-    from frng.priors.backbone import BackboneConfig
-
     f, sh = sections.frng, sections.shading
     bb = BackboneConfig.from_saved(backbone_cfg) if backbone_cfg else sections.backbone
 
