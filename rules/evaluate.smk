@@ -1,4 +1,4 @@
-# Evaluation (frng/stages/evaluate.py), the paper's tables and figures (stages frng/stages/{tables,figures}.py, drawn
+# Evaluation (frng/stages/evaluate.py, frng/apps/scoring.py), the paper's tables and figures (stages frng/stages/{tables,figures}.py, drawn
 # by frng/report/).
 # Tables and figures are wrapped in report(...) for `snakemake --report` (captions in workflow/report/).
 import shlex

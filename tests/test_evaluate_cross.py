@@ -1,4 +1,4 @@
-"""frng.stages.evaluate's light-sensitivity CSV: each image scored against the ground truth of the next test light."""
+"""frng.apps.scoring's light-sensitivity CSV: each image scored against the ground truth of the next test light."""
 
 from pathlib import Path
 
@@ -7,8 +7,8 @@ import pytest
 
 from frng import io
 from frng import metrics as M
+from frng.apps import scoring as E
 from frng.plan.layout import Layout, RelightFolder
-from frng.stages import evaluate as E
 
 
 def _img(value, shadow, size=32):
