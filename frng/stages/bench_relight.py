@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections.abc import Iterator
 from contextlib import nullcontext
 from dataclasses import replace
 from pathlib import Path
@@ -272,8 +273,9 @@ def measure(m: SimpleNamespace, res: int, args: argparse.Namespace, dev: torch.d
     }
 
 
-def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> list[dict]:
-    """Every ``--resolution`` of one config, after one untimed warm-up pass at two patches a side."""
+def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> Iterator[dict]:
+    """Every ``--resolution`` of one config, after one untimed warm-up pass at two patches a side; each row as soon
+    as it is measured (at the paper's sizes on a CPU one resolution takes minutes)."""
     m = build(path, args, dev)
     patch = int(m.config.model.patch_size)
     measure(m, 2 * patch, args, dev, passes=1)  # warm-up: the same code paths, seconds instead of minutes
@@ -294,7 +296,8 @@ def bench_config(path: str, args: argparse.Namespace, dev: torch.device) -> list
         "matmul_peak_gflops": peak,
         "matmul_shape": f"({int(sc.chunk_pairs)}, {width}) @ ({width}, {width}) {str(dtype).replace('torch.', '')}",
     }
-    return [{**head, **measure(m, res, args, dev, args.passes)} for res in args.resolution]
+    for res in args.resolution:
+        yield {**head, **measure(m, res, args, dev, args.passes)}
 
 
 def run(args: argparse.Namespace) -> int:
