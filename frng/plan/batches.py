@@ -59,6 +59,13 @@ def rule_family(name: str) -> str:
     return m.group(1) if m else name
 
 
+def add_batch_arguments(parser, what: str, kind: str, default: str) -> None:
+    """``--object A B ...`` (required) and ``--out FA FB ...`` of a batch stage (:func:`object_outputs` reads them):
+    ``what`` it does to an object, the ``kind`` of file it writes and the ``default`` path, for the help."""
+    parser.add_argument("--object", nargs="+", required=True, metavar="OBJ", help=f"the object(s) to {what}")
+    parser.add_argument("--out", nargs="+", help=f"{kind} file per object, in --object order (default {default})")
+
+
 def object_outputs(objects: Sequence[str], outs: Sequence[str] | None, default) -> list[str]:
     """The output file of each object of a batch stage (``--object A B ... --out FA FB ...``): ``outs`` in the
     same order, or ``default(obj)`` for each when none are given."""

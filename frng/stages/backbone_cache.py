@@ -11,7 +11,7 @@ from pathlib import Path
 from frng.device import resolve_device
 from frng.plan import catalog
 from frng.plan import config as frng_config
-from frng.plan.batches import object_outputs
+from frng.plan.batches import add_batch_arguments, object_outputs
 from frng.plan.layout import Layout
 from frng.priors.cache import make_backbone_cache
 from frng.typedconfig import typed
@@ -23,13 +23,8 @@ CONFIG_READS = ("@envmap_plan", "device", "backbone.cache_extra_lights")
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)
-    parser.add_argument("--object", nargs="+", required=True, metavar="OBJ", help="the object(s) to cache")
+    add_batch_arguments(parser, "cache", "cache", "{results}/backbone/cache/{obj}.safetensors")
     parser.add_argument("--model", help="backbone model file (default {results}/backbone/model.pt)")
-    parser.add_argument(
-        "--out",
-        nargs="+",
-        help="cache file per object, in --object order (default {results}/backbone/cache/{obj}.safetensors)",
-    )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from frng.device import resolve_device
 from frng.plan import config as frng_config
-from frng.plan.batches import object_outputs
+from frng.plan.batches import add_batch_arguments, object_outputs
 from frng.plan.layout import Layout
 from frng.priors.cache import make_idm_priors
 from frng.typedconfig import typed
@@ -22,13 +22,8 @@ CONFIG_READS = ("device", "idm", "!idm.train", "backbone.near", "backbone.far")
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)
-    parser.add_argument("--object", nargs="+", required=True, metavar="OBJ", help="the object(s) to make priors for")
+    add_batch_arguments(parser, "make priors for", "priors", "{results}/priors/idm/{obj}.safetensors")
     parser.add_argument("--kind", help="override idm.kind")
-    parser.add_argument(
-        "--out",
-        nargs="+",
-        help="priors file per object, in --object order (default {results}/priors/idm/{obj}.safetensors)",
-    )
 
 
 def run(args: argparse.Namespace) -> int:
