@@ -320,3 +320,15 @@ def get(config: dict, dotted: str) -> Any:
 def add_config_argument(parser: argparse.ArgumentParser) -> None:
     """The ``--config`` option every stage shares."""
     parser.add_argument("--config", required=True, help="pipeline config YAML (validated against config/schema.yaml)")
+
+
+def add_test_objects_argument(parser: argparse.ArgumentParser) -> None:
+    """The ``--objects`` option of the stages that work on the held-out objects (:func:`heldout_objects` reads it)."""
+    parser.add_argument("--objects", nargs="*", help="test objects (default: the config's test split)")
+
+
+def heldout_objects(config, objects: list[str] | None) -> list[str]:
+    """``--objects`` as given, else the config's test split (:func:`frng.plan.catalog.plan`)."""
+    from frng.plan import catalog
+
+    return list(objects) if objects else catalog.plan(config).split("test")

@@ -28,15 +28,14 @@ CONFIG_READS = (
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)
-    parser.add_argument("--objects", nargs="*", help="test objects (default: the config's test split)")
+    frng_config.add_test_objects_argument(parser)
     parser.add_argument("--out", help="metrics folder (default {results}/metrics)")
 
 
 def run(args: argparse.Namespace) -> int:
-    from frng.plan import catalog
 
     config = typed(frng_config.load(args.config))
-    objects = args.objects or catalog.plan(config).split("test")
+    objects = frng_config.heldout_objects(config, args.objects)
     out = Path(args.out or Layout(config.results).metrics_dir())
     per_image, summary = evaluate(config.results, config.eval, run_dirs_of(config, objects), out)
     print(f"evaluate ({config.eval.protocol} protocol): wrote {per_image}, {summary} and {out / CROSS_LIGHT}")

@@ -16,15 +16,14 @@ from frng.typedconfig import typed
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)
     parser.add_argument("--out", required=True, help="output folder")
-    parser.add_argument("--objects", nargs="*", help="test objects (default: the config's test split)")
+    frng_config.add_test_objects_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     from frng.baselines.export_inputs import ExportError, export
-    from frng.plan import catalog
 
     config = typed(frng_config.load(args.config))
-    objects = args.objects or catalog.plan(config).split("test")
+    objects = frng_config.heldout_objects(config, args.objects)
     try:
         index = export(config.results, objects, args.out)
     except ExportError as e:

@@ -21,15 +21,14 @@ CONFIG_READS = ("model.patch_size", "frng.variants")
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)
-    parser.add_argument("--objects", nargs="*", help="test objects (default: the config's test split)")
+    frng_config.add_test_objects_argument(parser)
     parser.add_argument("--out", help="figures folder (default {results}/figures)")
 
 
 def run(args: argparse.Namespace) -> int:
-    from frng.plan import catalog
 
     config = typed(frng_config.load(args.config))
-    objects = args.objects or catalog.plan(config).split("test")
+    objects = frng_config.heldout_objects(config, args.objects)
     out = Path(args.out or Layout(config.results).figures_dir())
     for p in make_figures(config.results, config.model.patch_size, config.frng.variants, objects, out):
         print(f"figures: wrote {p}")
