@@ -158,3 +158,29 @@ def test_rows_csv_aggregate(tmp_path):
     mixed.loc[0, "protocol"] = "plain"
     with pytest.raises(ValueError, match="mix protocols"):
         M.aggregate(mixed, ["variant"])
+
+
+def test_interior_drops_the_rim_only():
+    mask = np.zeros((12, 12), bool)
+    mask[1:11, 1:11] = True  # a 10 x 10 square
+    inner = M.interior(mask)
+    assert inner.sum() == 6 * 6 and inner[3:9, 3:9].all()
+    assert M.interior(mask, rim_px=0).sum() == 100
+    thin = np.zeros((12, 12), bool)
+    thin[5:8, :] = True  # 3 px wide, touching the left and right image borders
+    assert not M.interior(thin).any()
+    wall = np.ones((6, 6), bool)  # the image border is not a silhouette
+    assert M.interior(wall).all()
+
+
+def test_psnr_interior_ignores_silhouette_errors():
+    gt = _scene()
+    pred = gt.copy()
+    fg = gt[..., 3] > 0.5
+    rim = fg & ~M.interior(fg)
+    pred[rim, :3] = 0.0  # the outline wrong, the interior exact
+    m = M.evaluate_pair(pred, gt)
+    assert m["psnr"] < 25 and m["psnr_interior"] == 100.0
+    strip = np.zeros((40, 40, 4), np.float32)
+    strip[5:35, 10:13] = 1.0  # 3 px wide: no interior
+    assert math.isnan(M.evaluate_pair(strip, strip)["psnr_interior"])

@@ -242,7 +242,7 @@ def test_tables_per_light_family(tmp_path):
     assert np.isclose(ab.iloc[1]["dpsnr"], -0.3) and np.isclose(ab.iloc[3]["dpsnr"], -0.8)
     prior = pd.DataFrame([dict(r, task="relight", method="gt-depth+oracle-colour") for r in _per_image("x", "x", 3.0)])
     lad = P.ladder_by_light(df, P.with_families(prior, families))
-    assert list(lad.columns[:9]) == list(T.TABLE_COLUMNS["ladder_by_light"])
+    assert list(lad.columns[: len(T.TABLE_COLUMNS["ladder_by_light"])]) == list(T.TABLE_COLUMNS["ladder_by_light"])
     assert set(lad["light_family"]) == {"sky", "studio"}
     assert list(lad[lad["light_family"] == "sky"]["step"]) == ["a", "d", "e"]  # the prior's rows by family too
     e = lad[(lad["step"] == "e") & (lad["light_family"] == "studio")].iloc[0]

@@ -6,8 +6,8 @@ the ground truth (``{results}/objects/{obj}/targets/{light}/{view}.exr``), score
 scale, foreground PSNR/SSIM; ``plain``: whole image, no scaling) and ``eval.background``, and writes
 
 - ``{results}/metrics/relight_per_image.csv``: one row per image, columns ``dataset`` (the object's material
-  class: diffuse / specular / fur), ``object, run, method, variant, views, k, light, view, psnr, ssim, lpips,
-  protocol``, the protocol's ``scale_r/g/b``, the ratio of means ``brightness_r/g/b`` and ``fg_fraction``;
+  class: diffuse / specular / fur), ``object, run, method, variant, views, k, light, view, psnr, psnr_interior
+  (the foreground without its silhouette rim), ssim, lpips, protocol``, the protocol's ``scale_r/g/b``, the ratio of means ``brightness_r/g/b`` and ``fg_fraction``;
 - ``{results}/metrics/relight_summary.csv``: means per ``run`` (plus ``n``), via :func:`frng.metrics.aggregate`,
   ``scale_log2`` (:func:`frng.metrics.scale_log2`: how much colour repair the aligned protocol did per run) and
   ``brightness_log2`` (:func:`frng.metrics.brightness_log2`: how far off the brightness is, by the ratio of means).
@@ -49,6 +49,7 @@ COLUMNS = (
     "light",
     "view",
     "psnr",
+    "psnr_interior",
     "ssim",
     "lpips",
     "protocol",

@@ -1,7 +1,7 @@
 """Quality of the frozen priors on held-out (test) objects, beside trivial baselines.
 
 Backbone (``{results}/metrics/backbone.csv``, one row per image, columns ``task, method, object, light, view,
-psnr, ssim, lpips``), metrics from :func:`frng.metrics.evaluate_pair` with the ``aligned`` protocol (per-channel
+psnr, psnr_interior, ssim, lpips``), metrics from :func:`frng.metrics.evaluate_pair` with the ``aligned`` protocol (per-channel
 least-squares scale, foreground PSNR/SSIM, white background, sRGB-encoded):
 
 - ``nvs``: reconstruction from the 6 rig views under the object's input light, one DDIM pass under that light,
@@ -48,7 +48,7 @@ def _score(pred: np.ndarray, gt: np.ndarray) -> dict:
     from frng.metrics import evaluate_pair
 
     m = evaluate_pair(pred, gt, protocol="aligned")
-    return {k: m[k] for k in ("psnr", "ssim", "lpips", "scale_r", "scale_g", "scale_b")}
+    return {k: m[k] for k in ("psnr", "psnr_interior", "ssim", "lpips", "scale_r", "scale_g", "scale_b")}
 
 
 def oracle_colour_render(

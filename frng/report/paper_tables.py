@@ -383,7 +383,9 @@ def sensitivity_rows(df: pd.DataFrame, cross: pd.DataFrame | None) -> list[dict]
 
 def ladder_table(df: pd.DataFrame, prior: pd.DataFrame, cross: pd.DataFrame | None = None) -> pd.DataFrame:
     """The quality ladder (rows of :data:`LADDER_STEPS` present in the inputs): where the dB go, on the held-out
-    relighting images (row c: the held-out input-light views). ``scale_log2``: :func:`frng.metrics.scale_log2`;
+    relighting images (row c: the held-out input-light views). ``psnr_interior``: the mean of the per-image
+    ``psnr_interior`` (:func:`frng.metrics.evaluate_pair`: the foreground without its silhouette rim; NaN for
+    inputs written before it was recorded); ``scale_log2``: :func:`frng.metrics.scale_log2`;
     ``brightness_log2``: :func:`frng.metrics.brightness_log2` (relighting rows only).
     LPIPS where the input has it (prior evaluations written before it was recorded leave it NaN). Relighting rows
     with a reference step (``vs``) carry the paired difference to it; then the light-sensitivity rows
@@ -402,6 +404,7 @@ def ladder_table(df: pd.DataFrame, prior: pd.DataFrame, cross: pd.DataFrame | No
             "step": step,
             "what": what,
             **image_means(sub),
+            "psnr_interior": sub["psnr_interior"].mean() if "psnr_interior" in sub else np.nan,
             "scale_log2": M.scale_log2(sub),
             "brightness_log2": M.brightness_log2(sub),
         }
@@ -624,7 +627,9 @@ def write_tables(
         footer_best=False,
         caption=(
             f"Quality ladder: where the dB go. Aligned protocol on the held-out relighting images (row c: the "
-            f"held-out input-light views); scale_log2 = median over images and channels of |log2| of the "
+            f"held-out input-light views); PSNR interior = the same PSNR over the foreground without its "
+            f"{M.RIM_PX} px silhouette rim (where the geometry's outline decides the error); "
+            f"scale_log2 = median over images and channels of |log2| of the "
             f"per-channel least-squares scale the protocol applied; brightness_log2 = the same of the ratio of "
             f"means (ground truth over prediction). Row g: F-RNG rendered with its decoder's closed-form Lambertian "
             f"base alone. Rows s: each method's render for one test light scored against the ground truth of another "

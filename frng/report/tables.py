@@ -47,7 +47,7 @@ TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
     "views": ("views", "psnr", "ssim", "lpips"),
     "k": ("k_percent", "psnr", "ssim", "lpips"),
     "timing": ("method", "reconstruction_s", "relight_ms_per_image", "resolution", "spp"),
-    "ladder": ("step", "what", "n", "psnr", "ssim", "lpips", "scale_log2", "brightness_log2"),
+    "ladder": ("step", "what", "n", "psnr", "psnr_interior", "ssim", "lpips", "scale_log2", "brightness_log2"),
     "lambertian": ("dataset", "method", "n", "psnr", "ssim", "lpips", "scale_log2", "brightness_log2"),
     # per family of the target light (sky / hdri / studio; frng/report/paper_tables.py)
     "vs_backbone_by_light": ("light_family", "method", "psnr", "ssim", "lpips"),
@@ -60,6 +60,7 @@ TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
         "what",
         "n",
         "psnr",
+        "psnr_interior",
         "ssim",
         "lpips",
         "scale_log2",
@@ -80,6 +81,7 @@ SEED_COLUMNS = ("seeds", "seed_spread_psnr", "seed_spread_dpsnr")
 # Displayed decimals per column (others: 3 for floats, none for integers).
 DECIMALS: dict[str, int] = {
     "psnr": 2,
+    "psnr_interior": 2,
     "ssim": 3,
     "lpips": 3,
     "reconstruction_s": 2,
@@ -97,6 +99,7 @@ DECIMALS: dict[str, int] = {
 
 HEADERS: dict[str, str] = {
     "psnr": "PSNR",
+    "psnr_interior": "PSNR interior",
     "ssim": "SSIM",
     "lpips": "LPIPS",
     "dataset": "Dataset",

@@ -21,6 +21,8 @@ SPLITS = ("test", "val")  # --split: the test split, or the validation objects (
 VAL_EVERY = 5  # the validation objects: every fifth of the sorted training split
 
 
+SCORES = ("psnr", "psnr_interior", "ssim", "lpips")  # the per-image columns of frng.metrics.evaluate_pair kept
+
 ELEVATION_BANDS = (-90.0, -30.0, 0.0, 30.0, 90.0)  # degrees; the summary's target-view elevation bands
 
 
@@ -149,7 +151,7 @@ def score_object(
                 cross = M.psnr_pair(pred[k], gts[wrong][k], protocol=protocol, background=background)
                 rows.append(
                     {"object": obj.id, "model": name, "decoder": decoder, "light": light, "view": view_names[k]}
-                    | {key: m[key] for key in ("psnr", "ssim", "lpips")}
+                    | {key: m[key] for key in SCORES}
                     | {"psnr_other_light": cross if wrong != light else float("nan")}
                 )
     return rows
@@ -181,7 +183,7 @@ def score_inputs(obj, models: dict, results, seed: int, spp: int, protocol: str,
                 m = M.evaluate_pair(pred[k], gts[light][k], protocol=protocol, background=background)
                 rows.append(
                     {"object": obj.id, "model": name, "decoder": decoder, "light": light, "view": obj.view_names[k]}
-                    | {key: m[key] for key in ("psnr", "ssim", "lpips")}
+                    | {key: m[key] for key in SCORES}
                     | {"psnr_other_light": float("nan"), "case": "reconstruction" if light == light_in else "relight"}
                 )
     return rows
@@ -203,6 +205,7 @@ def summary(df, names: list[str]) -> str:
             "model": name,
             "images": len(d),
             "psnr": d["psnr"].mean(),
+            "psnr_interior": d["psnr_interior"].mean() if "psnr_interior" in d else float("nan"),
             "ssim": d["ssim"].mean(),
             "lpips": d["lpips"].mean(),
             "base_psnr": base["psnr"].mean() if len(base) else float("nan"),

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from frng.plan import config as frng_config
-from frng.stages._heldout import add_bench_arguments, named_path, selected_objects, summary
+from frng.stages._heldout import SCORES, add_bench_arguments, named_path, selected_objects, summary
 
 if TYPE_CHECKING:  # torch is imported when a benchmark runs, not by `frng bench --help`
     from frng.priors.backbone_settings import BackboneSettings
@@ -124,7 +124,7 @@ def score_object(obj, backbones: dict, seed: int, protocol: str, background, dev
                 cross = M.psnr_pair(pred[k], gts[wrong][k], protocol=protocol, background=background)
                 rows.append(
                     {"object": obj.id, "model": name, "decoder": "full", "light": light, "view": view}
-                    | {key: m[key] for key in ("psnr", "ssim", "lpips")}
+                    | {key: m[key] for key in SCORES}
                     | {"psnr_other_light": cross if wrong != light else float("nan")}
                 )
     return rows
