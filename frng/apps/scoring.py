@@ -7,7 +7,8 @@ scale, foreground PSNR/SSIM; ``plain``: whole image, no scaling) and ``eval.back
 
 - ``{results}/metrics/relight_per_image.csv``: one row per image, columns ``dataset`` (the object's material
   class: diffuse / specular / fur), ``object, run, method, variant, views, k, light, view, psnr, psnr_interior
-  (the foreground without its silhouette rim), ssim, lpips, protocol``, the protocol's ``scale_r/g/b``, the ratio of means ``brightness_r/g/b`` and ``fg_fraction``;
+  (the foreground without its silhouette rim), ssim, lpips, protocol``, the protocol's ``scale_r/g/b``, the ratio
+  of means ``brightness_r/g/b`` and ``fg_fraction``;
 - ``{results}/metrics/relight_summary.csv``: means per ``run`` (plus ``n``), via :func:`frng.metrics.aggregate`,
   ``scale_log2`` (:func:`frng.metrics.scale_log2`: how much colour repair the aligned protocol did per run) and
   ``brightness_log2`` (:func:`frng.metrics.brightness_log2`: how far off the brightness is, by the ratio of means).

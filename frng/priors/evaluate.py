@@ -1,8 +1,8 @@
 """Quality of the frozen priors on held-out (test) objects, beside trivial baselines.
 
 Backbone (``{results}/metrics/backbone.csv``, one row per image, columns ``task, method, object, light, view,
-psnr, psnr_interior, ssim, lpips``), metrics from :func:`frng.metrics.evaluate_pair` with the ``aligned`` protocol (per-channel
-least-squares scale, foreground PSNR/SSIM, white background, sRGB-encoded):
+psnr, psnr_interior, ssim, lpips``), metrics from :func:`frng.metrics.evaluate_pair` with the ``aligned`` protocol
+(per-channel least-squares scale, foreground PSNR/SSIM, white background, sRGB-encoded):
 
 - ``nvs``: reconstruction from the 6 rig views under the object's input light, one DDIM pass under that light,
   rendered at the held-out extra input views (``in_06 ..``, same light, never fed to the model);
