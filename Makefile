@@ -28,7 +28,7 @@ $(STAMP): requirements.lock requirements.txt pyproject.toml
 	$(PY) -m pip install -q --no-deps --no-build-isolation -e .
 	touch $(STAMP)
 
-$(NATIVE): $(STAMP) frng/render/csrc/composite.cpp frng/render/native.py
+$(NATIVE): $(STAMP) frng/render/csrc/composite.cpp frng/render/csrc/hull.cpp frng/render/native.py
 	$(PY) -m frng.render.native --build || true
 	@mkdir -p $(@D) && touch $@
 

@@ -36,5 +36,5 @@ def test_bench_train_times_both_trainers_on_the_smoke_data(smoke_pipeline, tmp_p
     assert r.returncode == 0, r.stderr[-2000:]
     rows = [json.loads(line) for line in r.stdout.splitlines()]
     assert [(x["model"], x["threads"], x["bf16"]) for x in rows] == [("backbone", 1, "off"), ("frng", 1, "off")]
-    assert all(x["step_ms"] > 0 and x["steps"] == 2 and x["speedup"] == 1.0 for x in rows)
+    assert all(x["step_ms"] > 0 and x["step_ms_mean"] > 0 and x["steps"] == 2 and x["speedup"] == 1.0 for x in rows)
     assert sorted(p for p in smoke_pipeline.rglob("*")) == before  # nothing written under the results folder

@@ -138,3 +138,36 @@ def test_inside_silhouettes_is_the_visual_hull():
     edge = torch.tensor([[0.0, 0.0, R_SPHERE + 0.7 * footprint]])  # beside the level views' silhouettes
     assert inside_silhouettes(edge, alpha, c2w, intr, dilate_px=2).all()
     assert not inside_silhouettes(edge, alpha, c2w, intr, dilate_px=0).all()
+
+
+def test_native_hull_sweep_is_the_reference_bit_for_bit():
+    """The C++ occupancy kernel (frng/render/csrc/hull.cpp) returns the same floats as the PyTorch reference: soft
+    mask edges (bilinear weights matter), samples behind some cameras (a camera inside the bounding sphere), any
+    thread count; and the cues built on it are the same bytes."""
+    import pytest
+
+    from frng.priors.multiview import occupancy, rays_occupancy
+    from frng.render import native
+
+    if not native.available():
+        pytest.skip(f"the C++ kernels do not build here: {native.reason()}")
+    rgb, alpha, c2w, intr, _, _ = _sphere_views(40)
+    soft = torch.nn.functional.avg_pool2d(alpha.permute(0, 3, 1, 2), 3, stride=1, padding=1).permute(0, 2, 3, 1)
+    c2w = c2w.clone()
+    c2w[5, :3, 3] *= 0.35  # this camera sits inside the sweep's sphere: part of every other view's rays is behind it
+    ref, t, o, d = occupancy(soft, c2w, intr, bins=32, kernel="torch")
+    assert (ref > 0).any() and ((ref > 0) & (ref < 1)).any()
+    threads = torch.get_num_threads()
+    try:
+        for n in (1, 2):
+            torch.set_num_threads(n)
+            assert torch.equal(occupancy(soft, c2w, intr, bins=32, kernel="native")[0], ref)
+    finally:
+        torch.set_num_threads(threads)
+    # rays that leave the image of some view and rays of empty pixels: still the reference's values
+    R = o.reshape(-1, 3)[::7]
+    args = (soft, R, d.reshape(-1, 3)[::7], t.reshape(-1, 32)[::7], c2w, intr)
+    assert torch.equal(rays_occupancy(*args, kernel="native"), rays_occupancy(*args, kernel="torch"))
+    a = geometry_cues(rgb, soft, c2w, intr, near=1.0, far=4.5, kernel="native")
+    b = geometry_cues(rgb, soft, c2w, intr, near=1.0, far=4.5, kernel="torch")
+    assert all(torch.equal(a[k], b[k]) for k in a)

@@ -62,12 +62,11 @@ def sample_image(
     return out[:, :, 0].permute(0, 2, 1).reshape(V, *lead, C)
 
 
-def project_rays(o: torch.Tensor, d: torch.Tensor, t: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor):
-    """Project the points o + t d of R rays at K distances into V cameras, using that a ray's homogeneous image
-    coordinates are affine in t (two 3x4 products per ray and camera instead of one per point).
+def ray_homogeneous(o: torch.Tensor, d: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor):
+    """Each ray's homogeneous image coordinates in each camera, affine in the distance t: h = A + t B.
 
-    o, d (R, 3); t (R, K); c2w (V, 4, 4); intr (V, 4). Returns uv (V, R, K, 2) pixel coordinates and camera-frame
-    z (V, R, K)."""
+    o, d (R, 3); c2w (V, 4, 4); intr (V, 4). Returns A, B (V, R, 3); the pixel is (h0 / h2, h1 / h2), h2 the
+    camera-frame z."""
     w2c = torch.linalg.inv(c2w)[:, :3]  # (V, 3, 4)
     Kmat = torch.zeros(c2w.shape[0], 3, 3, device=c2w.device, dtype=c2w.dtype)
     Kmat[:, 0, 0], Kmat[:, 1, 1], Kmat[:, 0, 2], Kmat[:, 1, 2], Kmat[:, 2, 2] = (
@@ -80,8 +79,19 @@ def project_rays(o: torch.Tensor, d: torch.Tensor, t: torch.Tensor, c2w: torch.T
     P = Kmat @ w2c  # (V, 3, 4)
     A = torch.einsum("vij,rj->vri", P[:, :, :3], o) + P[:, None, :, 3]  # (V, R, 3)
     B = torch.einsum("vij,rj->vri", P[:, :, :3], d)
+    return A, B
+
+
+def project_rays(o: torch.Tensor, d: torch.Tensor, t: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor):
+    """Project the points o + t d of R rays at K distances into V cameras, using that a ray's homogeneous image
+    coordinates are affine in t (:func:`ray_homogeneous`: two 3x4 products per ray and camera instead of one per
+    point).
+
+    o, d (R, 3); t (R, K); c2w (V, 4, 4); intr (V, 4). Returns uv (V, R, K, 2) pixel coordinates and camera-frame
+    z (V, R, K)."""
+    A, B = ray_homogeneous(o, d, c2w, intr)
     # h = A + t B, (V, R, K, 3), one coordinate at a time (the same arithmetic per element, a third of the memory
-    # traffic: this is the hot loop of the backbone's training step, `frng bench cues`)
+    # traffic)
     tt = t[None]
     z = A[:, :, None, 2] + tt * B[:, :, None, 2]
     zs = torch.where(z.abs() < 1e-9, torch.full_like(z, 1e-9), z)
@@ -114,20 +124,31 @@ def inside_silhouettes(
 def sweep_samples(c2w: torch.Tensor, intr: torch.Tensor, height: int, width: int, bins: int, radius: float):
     """Sample distances (V, H, W, K) inside the bounding sphere and the ray origins/directions (V, H, W, 3)."""
     o, d = camera.pixel_rays(c2w, intr, height, width)
+    return sweep_distances(o, d, bins, radius), o, d
+
+
+def sweep_distances(o: torch.Tensor, d: torch.Tensor, bins: int, radius: float) -> torch.Tensor:
+    """``bins`` sample distances (..., K) of rays o, d (..., 3), evenly spaced where they cross the bounding sphere
+    (bin centres)."""
     t0, t1, _ = ray_sphere(o, d, radius)
-    s = (torch.arange(bins, device=c2w.device, dtype=c2w.dtype) + 0.5) / bins
-    t = t0[..., None] + (t1 - t0)[..., None] * s
-    return t, o, d
+    s = (torch.arange(bins, device=o.device, dtype=o.dtype) + 0.5) / bins
+    return t0[..., None] + (t1 - t0)[..., None] * s
 
 
 def occupancy(
-    alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, bins: int = 48, radius: float = 1.05
+    alpha: torch.Tensor,
+    c2w: torch.Tensor,
+    intr: torch.Tensor,
+    bins: int = 48,
+    radius: float = 1.05,
+    kernel: str = "auto",
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Soft visual hull along every input pixel's ray.
 
     alpha (V, H, W, 1) masks; c2w (V, 4, 4); intr (V, 4). Returns occupancy (V, H, W, K) in [0, 1], the sample
     distances t (V, H, W, K), ray origins and unit directions (V, H, W, 3). Only rays of pixels with some coverage
-    (alpha > 0.02; the pixel's own mask bounds the hull) are swept; the others have occupancy 0."""
+    (alpha > 0.02; the pixel's own mask bounds the hull) are swept; the others have occupancy 0. ``kernel``: as
+    :func:`rays_occupancy`."""
     V, H, W, _ = alpha.shape
     assert c2w.shape == (V, 4, 4) and intr.shape == (V, 4), (c2w.shape, intr.shape)
     c2w, intr = c2w.float(), intr.float()
@@ -135,10 +156,49 @@ def occupancy(
     fg = alpha[..., 0] > 0.02
     occ = torch.zeros(V, H, W, bins, device=alpha.device)
     if fg.any():
-        uv, z = project_rays(o[fg], d[fg], t[fg], c2w, intr)  # (V, R, K, 2), (V, R, K)
-        a = sample_image(alpha.float(), uv.reshape(V, -1, 2))[..., 0] * (z.reshape(V, -1) > 0)  # (V_src, R*K)
-        occ[fg] = a.min(dim=0).values.reshape(-1, bins)
+        occ[fg] = rays_occupancy(alpha, o[fg], d[fg], t[fg], c2w, intr, kernel)
     return occ, t, o, d
+
+
+def rays_occupancy(
+    alpha: torch.Tensor,
+    o: torch.Tensor,
+    d: torch.Tensor,
+    t: torch.Tensor,
+    c2w: torch.Tensor,
+    intr: torch.Tensor,
+    kernel: str = "auto",
+) -> torch.Tensor:
+    """Visual-hull occupancy (R, K) of rays o, d (R, 3) at distances t (R, K): the minimum over the V views of
+    each view's mask (alpha (V, H, W, 1)) read bilinearly where a sample projects, 0 behind a camera.
+
+    ``kernel``: "torch" (:func:`occupancy_reference`, every view at every sample), "native" (the C++ kernel
+    ``frng/render/csrc/hull.cpp``: a sample stops at the first view that rules it out; the same values up to the
+    bilinear weights' float rounding, ~5e-6), "auto" (native on CPU when the extension loads,
+    :func:`frng.render.native.available`). This sweep is the hot loop of the backbone's training step (``frng
+    bench cues``)."""
+    assert kernel in ("auto", "torch", "native"), kernel
+    if kernel == "auto":
+        from frng.render import native
+
+        kernel = "native" if alpha.device.type == "cpu" and native.available() else "torch"
+    if kernel == "torch":
+        return occupancy_reference(alpha, o, d, t, c2w, intr)
+    from frng.render import native
+
+    A, B = ray_homogeneous(o, d, c2w.float(), intr.float())
+    return native.hull_occupancy(alpha[..., 0], A, B, t)
+
+
+def occupancy_reference(
+    alpha: torch.Tensor, o: torch.Tensor, d: torch.Tensor, t: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor
+) -> torch.Tensor:
+    """The minimum over the V views of each view's mask, read bilinearly where the samples o + t d project (0
+    behind a camera): occupancy (R, K) of rays o, d (R, 3) at distances t (R, K); alpha (V, H, W, 1)."""
+    V = alpha.shape[0]
+    uv, z = project_rays(o, d, t, c2w, intr)  # (V, R, K, 2), (V, R, K)
+    a = sample_image(alpha.float(), uv.reshape(V, -1, 2))[..., 0] * (z.reshape(V, -1) > 0)  # (V_src, R*K)
+    return a.min(dim=0).values.reshape(t.shape)
 
 
 def hull_distance(
@@ -331,6 +391,7 @@ def geometry_cues(
     far: float,
     bins: int = 48,
     radius: float = 1.05,
+    kernel: str = "auto",
 ) -> dict[str, torch.Tensor]:
     """Per-pixel geometry cues of one object's input views (no gradients; the inputs are data).
 
@@ -338,11 +399,18 @@ def geometry_cues(
     Returns ``distance`` (V, H, W, 1) hull distance along the unit ray (world units; ``far`` off the hull),
     ``normal`` (V, H, W, 3) camera-frame normal of the hull depth map, ``agreement`` (V, H, W, 1),
     ``hit`` (V, H, W, 1) 1 where the ray enters the hull, and ``features`` (V, H, W, CUE_CHANNELS) =
-    [(distance - near) / (far - near), normal, agreement, hit] for the networks."""
+    [(distance - near) / (far - near), normal, agreement, hit] for the networks. ``kernel``: the hull sweep's, as
+    :func:`rays_occupancy` (the same bytes either way)."""
     V, H, W, _ = rgb.shape
     assert alpha.shape == (V, H, W, 1), alpha.shape
-    occ, t, o, d = occupancy(alpha, c2w, intr, bins, radius)
-    dist, hit = hull_distance(occ, t, far)
+    c2w, intr = c2w.float(), intr.float()
+    o, d = camera.pixel_rays(c2w, intr, H, W)
+    fg = alpha[..., 0] > 0.02  # as occupancy(): only these rays are swept, the others miss the hull
+    dist = torch.full((V, H, W), far, device=rgb.device)
+    hit = torch.zeros(V, H, W, dtype=torch.bool, device=rgb.device)
+    if fg.any():
+        t = sweep_distances(o[fg], d[fg], bins, radius)  # (R, K)
+        dist[fg], hit[fg] = hull_distance(rays_occupancy(alpha, o[fg], d[fg], t, c2w, intr, kernel), t, far)
     pts = o + d * dist[..., None]
     normal = depth_normals(pts, c2w, hit)
     agree = photo_agreement(rgb.float(), alpha.float(), pts, c2w, intr, dist)
@@ -361,7 +429,11 @@ __all__ = [
     "hull_distance",
     "occupancy",
     "photo_agreement",
+    "occupancy_reference",
     "project_rays",
+    "ray_homogeneous",
+    "rays_occupancy",
+    "sweep_distances",
     "ray_sphere",
     "sample_image",
     "sweep_samples",

@@ -1,11 +1,14 @@
-"""The tile rasterizer's fused C++ (OpenMP) CPU kernels (``frng/render/csrc/composite.cpp``): build, load, wrappers.
+"""The project's C++ (OpenMP) CPU kernels: the tile rasterizer's (``frng/render/csrc/composite.cpp``) and the
+visual hull's sweep (``csrc/hull.cpp``); build, load, wrappers.
 
 :func:`composite_tiles` is a drop-in for :func:`frng.render.tiles.composite_tiles` on CPU: the same inputs and
 outputs, the same alpha rule (constants from :mod:`frng.render.project`), forward and 3DGS-style backward fused per
 tile, parallel over tiles with torch's thread count and deterministic (per-worker gradient buffers summed in a fixed
 order: the same thread count gives the same bytes). float32 (AVX2 or baseline x86-64 code, chosen at load time, the
 same bits either way) and float64. :func:`bin_tiles` builds the rows of :func:`frng.render.tiles.bin_pairs`'s
-tile table by a counting sort (bit for bit the same rows, concatenated instead of padded).
+tile table by a counting sort (bit for bit the same rows, concatenated instead of padded). :func:`hull_occupancy`
+is the backbone's multi-view cue sweep (:func:`frng.priors.multiview.rays_occupancy`), the same floats as its
+PyTorch reference.
 
 One difference from the PyTorch compositor: early termination is per pixel (a pixel stops right after the
 Gaussian that takes its transmittance below ``min_transmittance``), where the PyTorch path stops a whole tile
@@ -41,7 +44,8 @@ import torch
 from frng.render.project import ALPHA_MAX, ALPHA_MIN, SIGMA_CUTOFF
 
 NAME = "frng_composite"
-SOURCE = Path(__file__).parent / "csrc" / "composite.cpp"
+SOURCE = Path(__file__).parent / "csrc" / "composite.cpp"  # the rasterizer's kernels and the module's bindings
+SOURCES = (SOURCE, SOURCE.parent / "hull.cpp")  # + the visual hull's occupancy (frng.priors.multiview.occupancy)
 # -ffp-contract=off: forward and backward must recompute bit-identical alphas (the backward re-takes the cut-off
 # decisions); -fno-trapping-math lets the alpha loop vectorise (no FP exception is observed; values unchanged);
 # -fopenmp for ATen's at::parallel_for (the library then shares torch's libgomp)
@@ -54,7 +58,9 @@ _state: dict = {}  # "module" once loaded, "error" once a load failed (tried onc
 def build_dir() -> Path:
     """Folder of the built library: ``<repo>/build/native/<torch>-<python>-<hash>`` in a checkout (the repository's
     .gitignore covers /build/), ``frng/render/csrc/build/...`` in an installed package."""
-    digest = hashlib.sha256(SOURCE.read_bytes() + " ".join(CFLAGS + LDFLAGS).encode()).hexdigest()[:12]
+    digest = hashlib.sha256(
+        b"".join(p.read_bytes() for p in SOURCES) + " ".join(CFLAGS + LDFLAGS).encode()
+    ).hexdigest()[:12]
     tag = f"torch{torch.__version__}-py{sys.version_info[0]}{sys.version_info[1]}-{digest}"
     repo = Path(__file__).resolve().parents[2]
     root = repo / "build" if (repo / "pyproject.toml").exists() else SOURCE.parent / "build"
@@ -92,7 +98,7 @@ def _compile():
     try:
         module = cpp_extension.load(
             name=NAME,
-            sources=[str(SOURCE)],
+            sources=[str(p) for p in SOURCES],
             extra_cflags=list(CFLAGS),  # copies: load() appends to the lists it is given
             extra_ldflags=list(LDFLAGS),
             build_directory=str(tmp),
@@ -146,7 +152,7 @@ def available() -> bool:
         load()
     except Exception:
         warnings.warn(
-            f"frng.render.native: C++ rasterizer kernels unavailable, using the PyTorch ones ({_state['error']})",
+            f"frng.render.native: C++ kernels unavailable, using the PyTorch ones ({_state['error']})",
             stacklevel=2,
         )
         return False
@@ -222,6 +228,20 @@ def bin_tiles(mean2d, extent, inst, TY, TX, tile):
     assert mean2d.shape == (V, N, 2) and extent.shape == (V, N, 2) and inst.dim() == 1, (mean2d.shape, extent.shape)
     m = mean2d.detach().reshape(V * N, 2).contiguous()
     return load().bin_tiles(m, extent.to(m.dtype).reshape(V * N, 2).contiguous(), inst.long(), V, N, TY, TX, tile)
+
+
+def hull_occupancy(alpha: torch.Tensor, A: torch.Tensor, B: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """The visual hull's occupancy along rays in C++ (``csrc/hull.cpp``; the reference is
+    :func:`frng.priors.multiview.occupancy_reference`): per sample the minimum over views of the mask read
+    bilinearly where it projects, 0 behind a camera.
+
+    alpha (V, H, W) masks; A, B (V, R, 3) the rays' homogeneous image coordinates h = A + t B
+    (:func:`frng.priors.multiview.ray_homogeneous`); t (R, K) sample distances. Returns (R, K) float32."""
+    V, R = A.shape[:2]
+    assert alpha.dim() == 3 and alpha.shape[0] == V, (alpha.shape, A.shape)
+    assert A.shape == (V, R, 3) and B.shape == A.shape and t.dim() == 2 and t.shape[0] == R, (A.shape, B.shape, t.shape)
+    f = [x.detach().float().contiguous() for x in (alpha, A, B, t)]
+    return load().hull_occupancy(*f)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -22,6 +22,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--views", type=int, default=6)
     parser.add_argument("--bins", type=int, default=48, help="samples per ray (backbone.hull_bins)")
     parser.add_argument("--repeats", type=int, default=5, help="timed runs per measurement (median reported)")
+    parser.add_argument(
+        "--kernel",
+        nargs="+",
+        default=["auto"],
+        choices=["auto", "torch", "native"],
+        help="the hull sweep's kernel(s) (frng.priors.multiview.rays_occupancy; the same bytes either way)",
+    )
     parser.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
     parser.add_argument("--json", action="store_true", help="one JSON object per line")
@@ -47,11 +54,14 @@ def run(args: argparse.Namespace) -> int:
     dev = resolve_device(args.device)
     if not args.json:
         print(f"# frng bench cues: device={dev} threads={torch.get_num_threads()} views={args.views} bins={args.bins}")
-    for size in args.sizes:
+    for size, kernel in [(s, k) for s in args.sizes for k in args.kernel]:
         views = [t.to(dev) for t in sphere_views(size, args.views)]
-        sec, _ = median_time(lambda v=views: geometry_cues(*v, 1.0, 4.5, args.bins), dev, args.repeats)
+        sec, _ = median_time(
+            lambda v=views, k=kernel: geometry_cues(*v, 1.0, 4.5, args.bins, kernel=k), dev, args.repeats
+        )
         row = dict(
             size=size,
+            kernel=kernel,
             views=args.views,
             bins=args.bins,
             device=str(dev),
@@ -63,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
             print(json.dumps(row), flush=True)
         else:
             print(
-                f"{size:4d}px x{args.views}  fg {row['fg_fraction']:.2f}  geometry_cues {row['ms']:8.1f} ms", flush=True
+                f"{size:4d}px x{args.views}  fg {row['fg_fraction']:.2f}  {kernel:6s}  geometry_cues {row['ms']:8.1f} ms",
+                flush=True,
             )
     return 0

@@ -1,6 +1,7 @@
 // Fused CPU kernels of the tile rasterizer (frng/render/native.py builds and wraps them; frng/render/tiles.py holds
 // the PyTorch versions they replace and documents the inputs): front-to-back compositing of every tile, forward and
-// backward, and the binning's tile table (bin_tiles, at the end).
+// backward, and the binning's tile table (bin_tiles, at the end). The module's bindings at the end also expose
+// hull.cpp's kernel.
 //
 // Inputs (all contiguous, CPU; float32 or float64 for the floating ones):
 //   params (M+1, 6)  mx, my, conic a, b, c, opacity per instance in absolute pixel coordinates; row M = sentinel
@@ -504,6 +505,10 @@ std::vector<at::Tensor> bin_tiles(const at::Tensor& mean2d, const at::Tensor& ex
 
 }  // namespace
 
+namespace frng {
+at::Tensor hull_occupancy(const at::Tensor& alpha, const at::Tensor& A, const at::Tensor& B, const at::Tensor& t);
+}  // namespace frng (hull.cpp)
+
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("bin_tiles", &bin_tiles,
         "(ids (L,) int64: each tile's instance positions in depth order, tile after tile; counts (T,)) from "
@@ -513,4 +518,7 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
         "pixel's last processed entry of its tile's row)");
   m.def("backward", &composite_backward,
         "Gradients (d_params (M+1, 6), d_f_inst (M+1, D)) of composite_forward's outputs");
+  m.def("hull_occupancy", &frng::hull_occupancy,
+        "Visual-hull occupancy (R, K): per ray sample the minimum over views of the bilinear mask read where it "
+        "projects, from masks (V, H, W), A, B (V, R, 3) and distances t (R, K) (hull.cpp)");
 }
