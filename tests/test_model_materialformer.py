@@ -179,3 +179,20 @@ def test_light_independence_adds_the_per_gaussian_payload():
     assert loss > tokens_only
     loss.backward()
     assert m1.grad.abs().sum() > 0 and m2.grad.abs().sum() > 0
+
+
+def test_kept_rows_gather_what_the_reference_path_gathers():
+    """One index_select with kept_rows = slice, unpatchify and the two keep-mask gathers (coarse, then fine)."""
+    from frng.model.materialformer import kept_rows
+
+    V, h, w, p, M, C = 3, 2, 4, 3, 5, 7
+    P = p * p
+    g = torch.randn(V * h * w + V * M, P, C)
+    gen = torch.Generator().manual_seed(0)
+    keep_c = torch.rand(V * h * p * w * p, generator=gen) > 0.4
+    keep_f = torch.rand(V * M * P, generator=gen) > 0.6
+    coarse, fine = split_sequence(g[None], V, h, w)
+    ref = torch.cat([coarse_features_to_pixels(coarse[0], p).reshape(-1, C)[keep_c], fine[0].reshape(-1, C)[keep_f]])
+    assert torch.equal(g.reshape(-1, C).index_select(0, kept_rows(keep_c, keep_f, V, h, w, p)), ref)
+    ref_c = coarse_features_to_pixels(coarse[0], p).reshape(-1, C)[keep_c]
+    assert torch.equal(g.reshape(-1, C)[kept_rows(keep_c, None, V, h, w, p)], ref_c)

@@ -29,7 +29,8 @@ One object has V input views of H x W pixels; patch size p (8); patch grid h = H
 - MaterialFormer sequence: ``(B, L, D)`` with L = V*h*w coarse tokens then V*M fine tokens
   (:func:`.materialformer.to_sequence` / :func:`.materialformer.split_sequence`); every token -> p*p Gaussians
   (MatDetokenizer output ``(B, L, p*p, F)``). Coarse per-Gaussian features map to the pixel order of the coarse
-  Gaussians with :func:`.materialformer.coarse_features_to_pixels`; fine ones reshape to (V*M*p*p, F) directly.
+  Gaussians with :func:`.materialformer.coarse_features_to_pixels`; fine ones reshape to (V*M*p*p, F) directly
+  (:func:`.materialformer.kept_rows`: the kept ones of both as rows of the flattened output, one gather).
 - Final object = ``Gaussians.cat([coarse, fine])`` with features ``cat([coarse_feats (V*H*W, F), fine_feats])``;
   background Gaussians can be dropped with the input alpha (coarse: per pixel, as the backbone's ``keep``;
   fine: :func:`.fine_geometry.fine_keep_mask`).

@@ -40,9 +40,8 @@ from frng.model.fine_geometry import FineGeometry, FineGeometryConfig, fine_keep
 from frng.model.materialformer import (
     MaterialFormerConfig,
     MaterialHead,
-    coarse_features_to_pixels,
     decode_pbr,
-    split_sequence,
+    kept_rows,
     to_sequence,
 )
 from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, select_top_k
@@ -516,7 +515,10 @@ class FRNG(nn.Module):
         geo_seq = geo_seq.expand(B, -1, -1)
         prior_seq = None if prior_seq is None else prior_seq.expand(B, -1, -1)
         t_mat, g_mat = self.material(geo_seq, app_seq, prior_seq)  # (B, L, hid), (B, L, P, C)
-        g_coarse, g_fine = split_sequence(g_mat.float(), V, h, w)
+        if (g_mat.shape[1] - V * h * w) % V:
+            raise ValueError(f"sequence of {g_mat.shape[1]} tokens does not hold {V} views of {h}x{w} coarse + fine")
+        rows = kept_rows(keep_c, keep_f, V, h, w, self.cfg.patch)  # the kept Gaussians' rows of g_mat[b]
+        g_rows = g_mat.reshape(B, -1, g_mat.shape[-1])  # (B, L * P, C)
         pix_b = [None] * B
         if self.pixel_head is not None:  # per-Gaussian pixel inputs, same order as the kept Gaussians below
             maps = self.pixel_maps(bv, images_b, envs_b, priors) if pixel_maps is None else pixel_maps
@@ -531,12 +533,10 @@ class FRNG(nn.Module):
         back = self._back_completion(bv, keep_c)
         out = []
         for b in range(B):
-            feats = [coarse_features_to_pixels(g_coarse[b], self.cfg.patch).reshape(-1, g_mat.shape[-1])[keep_c]]
+            raw = g_rows[b].index_select(0, rows).float()  # coarse pixels, then fine Gaussians
             parts = [coarse[keep_c]]
             if fine is not None:
-                feats.append(g_fine[b].reshape(-1, g_mat.shape[-1])[keep_f])
                 parts.append(fine.gaussians[keep_f])
-            raw = torch.cat(feats)
             if self.pixel_head is not None:
                 raw = self.pixel_head(raw, pix_b[b])
             n_front = raw.shape[0]

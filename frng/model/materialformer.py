@@ -185,6 +185,25 @@ def coarse_features_to_pixels(features: torch.Tensor, patch: int) -> torch.Tenso
     return unpatchify(features.reshape(*lead, h, w, P * Fd), patch, Fd)
 
 
+def kept_rows(keep_coarse: torch.Tensor, keep_fine: torch.Tensor | None, views: int, h: int, w: int, patch: int):
+    """Rows of a per-token output flattened to (L * P, C) (:func:`to_sequence` order, P = patch^2 Gaussians per
+    coarse token) that hold the kept Gaussians' features: first the kept coarse pixels in pixel order (what
+    ``coarse_features_to_pixels(split_sequence(.)[0]).reshape(-1, C)[keep_coarse]`` reads), then the kept fine
+    Gaussians (``split_sequence(.)[1].reshape(-1, C)[keep_fine]``). One ``index_select`` with these rows replaces
+    the slice, the unpatchify permutation and the two mask gathers (and their backward's full-size zero fills).
+
+    keep_coarse (V * H * W,) bool, H = h * patch; keep_fine (V * M * P,) bool or None. Returns (N_kept,) int64."""
+    H, W, P = h * patch, w * patch, patch * patch
+    assert keep_coarse.shape == (views * H * W,), (keep_coarse.shape, views, H, W)
+    n = keep_coarse.nonzero()[:, 0]
+    v, yx = n // (H * W), n % (H * W)
+    y, x = yx // W, yx % W
+    rows = ((v * h + y // patch) * w + x // patch) * P + (y % patch) * patch + x % patch
+    if keep_fine is None:
+        return rows
+    return torch.cat([rows, views * h * w * P + keep_fine.nonzero()[:, 0]])
+
+
 __all__ = [
     "MIN_ROUGHNESS",
     "PBR_CHANNELS",
@@ -194,6 +213,7 @@ __all__ = [
     "MaterialHead",
     "coarse_features_to_pixels",
     "decode_pbr",
+    "kept_rows",
     "split_sequence",
     "to_sequence",
 ]
