@@ -707,7 +707,8 @@ def _write_family_tables(tier, background, df, prior, cross, families, out_dir: 
         best_within=[LIGHT_FAMILY],
         caption=(
             "Quality ladder per light family (the ladder table's steps and light-sensitivity rows s, each family's "
-            f"images only; row c: the input light's family).{note} {DIFF_NOTE} The models' own training seed. "
+            f"images only; row c: the input light's family; PSNR interior: PSNR over the foreground without its "
+            f"{M.RIM_PX} px silhouette rim).{note} {DIFF_NOTE} The models' own training seed. "
             f"Tier {tier}."
         ),
     )
