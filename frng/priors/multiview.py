@@ -173,8 +173,8 @@ def rays_occupancy(
     each view's mask (alpha (V, H, W, 1)) read bilinearly where a sample projects, 0 behind a camera.
 
     ``kernel``: "torch" (:func:`occupancy_reference`, every view at every sample), "native" (the C++ kernel
-    ``frng/render/csrc/hull.cpp``: a sample stops at the first view that rules it out; the same values up to the
-    bilinear weights' float rounding, ~5e-6), "auto" (native on CPU when the extension loads,
+    ``frng/render/csrc/hull.cpp``: a sample stops at the first view that rules it out; the same floats, its bilinear
+    reads copy grid_sample's arithmetic), "auto" (native on CPU when the extension loads,
     :func:`frng.render.native.available`). This sweep is the hot loop of the backbone's training step (``frng
     bench cues``)."""
     assert kernel in ("auto", "torch", "native"), kernel

@@ -257,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         load()
     except Exception:
-        print(f"frng.render.native: build failed ({_state['error']}); the PyTorch rasterizer kernels will be used")
+        print(f"frng.render.native: build failed ({_state['error']}); the PyTorch kernels will be used")
         return 1
     print(f"frng.render.native: {_library()}")
     return 0
