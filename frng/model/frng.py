@@ -515,10 +515,9 @@ class FRNG(nn.Module):
         geo_seq = geo_seq.expand(B, -1, -1)
         prior_seq = None if prior_seq is None else prior_seq.expand(B, -1, -1)
         t_mat, g_mat = self.material(geo_seq, app_seq, prior_seq)  # (B, L, hid), (B, L, P, C)
-        if (g_mat.shape[1] - V * h * w) % V:
-            raise ValueError(f"sequence of {g_mat.shape[1]} tokens does not hold {V} views of {h}x{w} coarse + fine")
         rows = kept_rows(keep_c, keep_f, V, h, w, self.cfg.patch)  # the kept Gaussians' rows of g_mat[b]
-        g_rows = g_mat.reshape(B, -1, g_mat.shape[-1])  # (B, L * P, C)
+        g_rows = g_mat.reshape(B, -1, g_mat.shape[-1])  # (B, L * P, C): coarse tokens' Gaussians, then fine ones
+        assert g_rows.shape[1] == keep_c.numel() + (0 if keep_f is None else keep_f.numel()), (g_mat.shape, V, h, w)
         pix_b = [None] * B
         if self.pixel_head is not None:  # per-Gaussian pixel inputs, same order as the kept Gaussians below
             maps = self.pixel_maps(bv, images_b, envs_b, priors) if pixel_maps is None else pixel_maps

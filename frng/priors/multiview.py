@@ -177,15 +177,13 @@ def rays_occupancy(
     reads copy grid_sample's arithmetic), "auto" (native on CPU when the extension loads,
     :func:`frng.render.native.available`). This sweep is the hot loop of the backbone's training step (``frng
     bench cues``)."""
+    from frng.render import native
+
     assert kernel in ("auto", "torch", "native"), kernel
     if kernel == "auto":
-        from frng.render import native
-
         kernel = "native" if alpha.device.type == "cpu" and native.available() else "torch"
     if kernel == "torch":
         return occupancy_reference(alpha, o, d, t, c2w, intr)
-    from frng.render import native
-
     A, B = ray_homogeneous(o, d, c2w.float(), intr.float())
     return native.hull_occupancy(alpha[..., 0], A, B, t)
 

@@ -51,8 +51,8 @@ inline float bilinear(const float* img, int64_t H, int64_t W, float x, float y) 
   return std::fma(mask_at(img, H, W, y0 + 1, x0 + 1), se, std::fma(mask_at(img, H, W, y0 + 1, x0), sw, acc));
 }
 
-// compiled for CPUs with FMA (the hardware instruction) and for baseline x86-64 (std::fma in software), the loader picking the one
-// the CPU runs; the same bits either way (a fused multiply-add has one rounding)
+// compiled for CPUs with FMA (the hardware instruction) and for baseline x86-64 (std::fma in software), the loader
+// picking the one the CPU runs; the same bits either way (a fused multiply-add has one rounding)
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && !defined(FRNG_NO_CLONES)
 #define FRNG_HULL_CLONES __attribute__((target_clones("fma", "default")))
 #else
