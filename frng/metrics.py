@@ -27,6 +27,8 @@ light leaves a global colour scale ambiguous):
   ``psnr_interior`` (a diagnostic beside it, not a protocol): the same over the foreground eroded by
   :data:`RIM_PX` pixels, i.e. without the silhouette's rim, where the geometry's outline decides the error (at the
   default tier's 96 px the 2 px rim is ~20 % of the foreground and ~half of the squared error);
+  ``silhouette_iou`` (a diagnostic of the geometry, both protocols): intersection over union of the prediction's
+  silhouette (alpha > 0.5) and the mask (:func:`silhouette_iou`);
 - SSIM: the SSIM map (see below) averaged over foreground pixels only (the 11x11 windows of pixels near the
   silhouette still overlap the background);
 - LPIPS: the whole composited image (a CNN's receptive field cannot be masked meaningfully; background pixels
@@ -196,6 +198,15 @@ def interior(mask: np.ndarray, rim_px: int = RIM_PX) -> np.ndarray:
     return binary_erosion(mask, iterations=rim_px, border_value=1) if rim_px > 0 else mask
 
 
+def silhouette_iou(pred: np.ndarray, mask: np.ndarray) -> float:
+    """Intersection over union of the prediction's silhouette (alpha > 0.5; (H, W, 4) linear premultiplied RGBA, or
+    (H, W, 3) read as opaque) and the foreground ``mask`` (H, W) bool; 1.0 when both are empty."""
+    sil = _as_rgba(pred, "pred")[..., 3] > 0.5
+    mask = np.asarray(mask, bool)
+    union = int(np.count_nonzero(sil | mask))
+    return float(np.count_nonzero(sil & mask) / union) if union else 1.0
+
+
 def ssim(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None) -> float:
     """SSIM of (H, W, 3) images in [0, 1] (settings in :data:`SSIM_KWARGS`).
 
@@ -244,9 +255,10 @@ def evaluate_pair(
     """All metrics of one prediction against its ground truth, under ``protocol`` (see the module docstring).
 
     pred, gt: (H, W, 4) linear premultiplied RGBA (or (H, W, 3)), float; mask: (H, W) bool or None (gt alpha >
-    0.5). Returns ``{"psnr", "psnr_interior", "ssim", "lpips", "protocol", "scale_r", "scale_g", "scale_b",
-    "brightness_r", "brightness_g", "brightness_b", "fg_fraction"}`` (``psnr_interior``: PSNR over
-    :func:`interior` of the mask, both protocols; NaN when the foreground has no interior).
+    0.5). Returns ``{"psnr", "psnr_interior", "silhouette_iou", "ssim", "lpips", "protocol", "scale_r", "scale_g",
+    "scale_b", "brightness_r", "brightness_g", "brightness_b", "fg_fraction"}`` (``psnr_interior``: PSNR over
+    :func:`interior` of the mask, both protocols; NaN when the foreground has no interior; ``silhouette_iou``:
+    :func:`silhouette_iou` of the prediction against the mask).
     """
     p, g, mask, scales = prepare(pred, gt, mask, protocol, background)
     bright = channel_brightness(_as_rgba(pred, "pred")[..., :3], _as_rgba(gt, "gt")[..., :3], mask)
@@ -255,6 +267,7 @@ def evaluate_pair(
     return {
         "psnr": psnr(p, g, region),
         "psnr_interior": psnr(p, g, inner) if inner.any() else math.nan,
+        "silhouette_iou": silhouette_iou(pred, mask),
         "ssim": ssim(p, g, region),
         "lpips": lpips(p, g, lpips_net, device),
         "protocol": protocol,

@@ -184,3 +184,16 @@ def test_psnr_interior_ignores_silhouette_errors():
     strip = np.zeros((40, 40, 4), np.float32)
     strip[5:35, 10:13] = 1.0  # 3 px wide: no interior
     assert math.isnan(M.evaluate_pair(strip, strip)["psnr_interior"])
+
+
+def test_silhouette_iou_counts_the_renders_outline_against_the_mask():
+    gt = np.zeros((32, 32, 4), np.float32)
+    gt[8:12, 8:12] = (0.3, 0.3, 0.3, 1.0)  # 16 foreground pixels
+    fat = np.zeros_like(gt)
+    fat[8:12, 8:14] = (0.3, 0.3, 0.3, 1.0)  # 24 pixels: the 16 plus 8 outside
+    assert M.evaluate_pair(gt, gt)["silhouette_iou"] == 1.0
+    assert M.evaluate_pair(fat, gt)["silhouette_iou"] == 16 / 24
+    faint = fat.copy()
+    faint[:, 12:, 3] = 0.4  # outside, but below the silhouette's threshold
+    assert M.silhouette_iou(faint, gt[..., 3] > 0.5) == 1.0
+    assert M.silhouette_iou(np.zeros_like(gt), np.zeros((32, 32), bool)) == 1.0

@@ -141,3 +141,16 @@ def test_ceiling_surfels_cover_a_grazing_surface_seen_from_above():
     inner = _inner(alpha, uv)
     assert inner.numel() > 20
     assert float(inner.min()) > 0.5, f"holes in the covered region: min alpha {float(inner.min()):.3f}"
+
+
+def test_ladder_depth_error_is_the_mean_distance_error_on_the_rigs_foreground():
+    """frng.priors.evaluate.depth_error: 0 for the ground-truth-depth Gaussians, the offset for Gaussians moved along
+    their rays by it, and background pixels (no G-buffer depth) do not count."""
+    from frng.priors.evaluate import depth_error
+
+    rig, gbuffer = _plane_gbuffer(elevation_deg=40.0)
+    gauss, _ = gt_depth_gaussians(rig, gbuffer, PIXEL_STD, GaussianDecodeConfig())
+    assert abs(depth_error(gauss.means, rig, gbuffer)) < 1e-5
+    o, d = camera.pixel_rays(rig.c2w, rig.intr, 32, 32)
+    behind = gauss.means + 0.1 * d.reshape(-1, 3)  # every Gaussian 0.1 farther along its ray, background ones too
+    assert abs(depth_error(behind, rig, gbuffer) - 0.1) < 1e-4

@@ -51,6 +51,7 @@ COLUMNS = (
     "view",
     "psnr",
     "psnr_interior",
+    "silhouette_iou",
     "ssim",
     "lpips",
     "protocol",

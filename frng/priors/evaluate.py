@@ -1,7 +1,7 @@
 """Quality of the frozen priors on held-out (test) objects, beside trivial baselines.
 
 Backbone (``{results}/metrics/backbone.csv``, one row per image, columns ``task, method, object, light, view,
-psnr, psnr_interior, ssim, lpips``), metrics from :func:`frng.metrics.evaluate_pair` with the ``aligned`` protocol
+psnr, psnr_interior, silhouette_iou, ssim, lpips, depth_error``), metrics from :func:`frng.metrics.evaluate_pair` with the ``aligned`` protocol
 (per-channel least-squares scale, foreground PSNR/SSIM, white background, sRGB-encoded):
 
 - ``nvs``: reconstruction from the 6 rig views under the object's input light, one DDIM pass under that light,
@@ -17,7 +17,10 @@ psnr, psnr_interior, ssim, lpips``), metrics from :func:`frng.metrics.evaluate_p
   allows. Oracle colouring rewards small Gaussians inside the silhouettes more than true depth (each splat
   resamples the target image where it lands), so the backbone's row can score above the ground-truth-depth row.
 
-Every row also records the aligned protocol's per-channel scales (``scale_r, scale_g, scale_b``).
+Every row also records the aligned protocol's per-channel scales (``scale_r, scale_g, scale_b``) and
+``depth_error`` (:func:`depth_error`: the geometry's mean absolute distance error against the G-buffer at the rig's
+input pixels, per object, world units): the backbone's for its own and its oracle-colour rows, 0 for the
+ground-truth-depth row, NaN for the mean image.
 
 IDM (``{results}/metrics/idm.csv``, one row per object and method): on each test object's input views
 (foreground of the G-buffer), ``normal_deg`` (mean angular error), ``albedo_psnr`` (linear albedo, foreground),
@@ -48,7 +51,9 @@ def _score(pred: np.ndarray, gt: np.ndarray) -> dict:
     from frng.metrics import evaluate_pair
 
     m = evaluate_pair(pred, gt, protocol="aligned")
-    return {k: m[k] for k in ("psnr", "psnr_interior", "ssim", "lpips", "scale_r", "scale_g", "scale_b")}
+    return {
+        k: m[k] for k in ("psnr", "psnr_interior", "silhouette_iou", "ssim", "lpips", "scale_r", "scale_g", "scale_b")
+    }
 
 
 def oracle_colour_render(
@@ -112,6 +117,24 @@ def gt_depth_gaussians(rig, gbuffer, footprint_px: float, decode_cfg):
     return surfels, keep
 
 
+def depth_error(means: torch.Tensor, rig, gbuffer) -> float:
+    """Mean absolute error (world units; objects live in the unit sphere) of per-pixel Gaussians' distances along
+    their pixels' rays against the G-buffer's, over the rig's foreground pixels that have G-buffer depth.
+
+    means (V*H*W, 3) on the rig's pixel grid (view, row, col order); rig: the input views (c2w (V, 4, 4), intr
+    (V, 4), alpha (V, H, W, 1)); gbuffer: their G-buffers (depth (V, H, W, 1) camera z, mask)."""
+    from frng import camera
+    from frng.priors.backbone import ray_distance_target
+
+    V, H, W = rig.alpha.shape[:3]
+    assert means.shape == (V * H * W, 3), (means.shape, rig.alpha.shape)
+    o, _ = camera.pixel_rays(rig.c2w.float(), rig.intr.float(), H, W)
+    t = (means.float().reshape(V, H, W, 3) - o).norm(dim=-1)
+    t_gt = ray_distance_target(gbuffer.depth, rig.c2w, rig.intr)[..., 0]
+    fg = (rig.alpha[..., 0] >= 0.5) & (gbuffer.mask[..., 0] > 0.5) & (gbuffer.depth[..., 0] > 0)
+    return float((t - t_gt).abs()[fg].mean()) if bool(fg.any()) else math.nan
+
+
 def mean_image(train_objects: list[PriorObject]) -> np.ndarray:
     imgs = [torch.cat([v.rgb, v.alpha], -1) for o in train_objects for v in o.targets.values()]
     return torch.cat(imgs).mean(0).numpy()
@@ -133,12 +156,11 @@ def eval_backbone(seed: int, model, test: list[PriorObject], mean_img: np.ndarra
         rgb, a, c2w, intr = (x.to(device) for x in (rig.rgb, rig.alpha, rig.c2w, rig.intr))
         H, W = rgb.shape[1:3]
         t_geo, _, gauss, keep, _, pixels = model.reconstruct(rgb, a, c2w, intr, obj.envs[light_in].to(device))
-        gt_gauss, gt_keep = gt_depth_gaussians(
-            rig,
-            obj.gbuffer.select(torch.arange(obj.rig_views)),
-            PIXEL_STD,
-            model.decode_config(),
-        )
+        rig_gbuffer = obj.gbuffer.select(torch.arange(obj.rig_views))
+        gt_gauss, gt_keep = gt_depth_gaussians(rig, rig_gbuffer, PIXEL_STD, model.decode_config())
+        geo_error = {"depth_error": depth_error(gauss.means.cpu(), rig, rig_gbuffer)}
+        depth_errors = {"backbone": geo_error, "backbone-geometry+oracle-colour": geo_error}
+        depth_errors["gt-depth+oracle-colour"] = {"depth_error": 0.0}
         mr = model.cfg.max_radius_px
         for i, (task, light, out) in enumerate(jobs):
             g = torch.Generator(device=device).manual_seed(seed + i)
@@ -153,10 +175,12 @@ def eval_backbone(seed: int, model, test: list[PriorObject], mean_img: np.ndarra
             for k, name in enumerate(out.names):
                 gt = _rgba(out.rgb[k], out.alpha[k])
                 base = {"task": task, "object": obj.id, "light": light, "view": name}
-                rows.append(base | {"method": "backbone"} | _score(_rgba(pred[k], pa[k]), gt))
-                rows.append(base | {"method": "mean-image"} | _score(mean_img, gt))
-                for method, (o_rgb, o_a) in oracle.items():
-                    rows.append(base | {"method": method} | _score(_rgba(o_rgb[k], o_a[k]), gt))
+                scored = {"backbone": _score(_rgba(pred[k], pa[k]), gt), "mean-image": _score(mean_img, gt)}
+                scored |= {method: _score(_rgba(o_rgb[k], o_a[k]), gt) for method, (o_rgb, o_a) in oracle.items()}
+                for method, scores in scored.items():
+                    rows.append(
+                        base | {"method": method} | scores | depth_errors.get(method, {"depth_error": math.nan})
+                    )
     return rows
 
 

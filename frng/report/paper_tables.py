@@ -385,7 +385,9 @@ def ladder_table(df: pd.DataFrame, prior: pd.DataFrame, cross: pd.DataFrame | No
     """The quality ladder (rows of :data:`LADDER_STEPS` present in the inputs): where the dB go, on the held-out
     relighting images (row c: the held-out input-light views). ``psnr_interior``: the mean of the per-image
     ``psnr_interior`` (:func:`frng.metrics.evaluate_pair`: the foreground without its silhouette rim; NaN for
-    inputs written before it was recorded); ``scale_log2``: :func:`frng.metrics.scale_log2`;
+    inputs written before it was recorded); ``silhouette_iou``: the mean of the per-image
+    :func:`frng.metrics.silhouette_iou` (NaN likewise); ``depth_error``: the mean of the prior rows' per-object
+    :func:`frng.priors.evaluate.depth_error` (the relighting runs' rows: NaN); ``scale_log2``: :func:`frng.metrics.scale_log2`;
     ``brightness_log2``: :func:`frng.metrics.brightness_log2` (relighting rows only).
     LPIPS where the input has it (prior evaluations written before it was recorded leave it NaN). Relighting rows
     with a reference step (``vs``) carry the paired difference to it; then the light-sensitivity rows
@@ -405,6 +407,8 @@ def ladder_table(df: pd.DataFrame, prior: pd.DataFrame, cross: pd.DataFrame | No
             "what": what,
             **image_means(sub),
             "psnr_interior": sub["psnr_interior"].mean() if "psnr_interior" in sub else np.nan,
+            "silhouette_iou": sub["silhouette_iou"].mean() if "silhouette_iou" in sub else np.nan,
+            "depth_error": sub["depth_error"].mean() if "depth_error" in sub else np.nan,
             "scale_log2": M.scale_log2(sub),
             "brightness_log2": M.brightness_log2(sub),
         }
@@ -628,7 +632,10 @@ def write_tables(
         caption=(
             f"Quality ladder: where the dB go. Aligned protocol on the held-out relighting images (row c: the "
             f"held-out input-light views); PSNR interior = the same PSNR over the foreground without its "
-            f"{M.RIM_PX} px silhouette rim (where the geometry's outline decides the error); "
+            f"{M.RIM_PX} px silhouette rim (where the geometry's outline decides the error); silhouette IoU = "
+            f"intersection over union of the render's silhouette (alpha > 0.5) and the ground truth's; depth error = "
+            f"mean |distance - G-buffer distance| of the geometry's per-pixel Gaussians along the input pixels' rays "
+            f"(world units, objects in the unit sphere; F-RNG's coarse geometry is the backbone's); "
             f"scale_log2 = median over images and channels of |log2| of the "
             f"per-channel least-squares scale the protocol applied; brightness_log2 = the same of the ratio of "
             f"means (ground truth over prediction). Row g: F-RNG rendered with its decoder's closed-form Lambertian "
@@ -708,7 +715,7 @@ def _write_family_tables(tier, background, df, prior, cross, families, out_dir: 
         caption=(
             "Quality ladder per light family (the ladder table's steps and light-sensitivity rows s, each family's "
             f"images only; row c: the input light's family; PSNR interior: PSNR over the foreground without its "
-            f"{M.RIM_PX} px silhouette rim).{note} {DIFF_NOTE} The models' own training seed. "
+            f"{M.RIM_PX} px silhouette rim; silhouette IoU: of the render's alpha > 0.5 and the ground truth's).{note} {DIFF_NOTE} The models' own training seed. "
             f"Tier {tier}."
         ),
     )

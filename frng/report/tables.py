@@ -47,7 +47,19 @@ TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
     "views": ("views", "psnr", "ssim", "lpips"),
     "k": ("k_percent", "psnr", "ssim", "lpips"),
     "timing": ("method", "reconstruction_s", "relight_ms_per_image", "resolution", "spp"),
-    "ladder": ("step", "what", "n", "psnr", "psnr_interior", "ssim", "lpips", "scale_log2", "brightness_log2"),
+    "ladder": (
+        "step",
+        "what",
+        "n",
+        "psnr",
+        "psnr_interior",
+        "silhouette_iou",
+        "depth_error",
+        "ssim",
+        "lpips",
+        "scale_log2",
+        "brightness_log2",
+    ),
     "lambertian": ("dataset", "method", "n", "psnr", "ssim", "lpips", "scale_log2", "brightness_log2"),
     # per family of the target light (sky / hdri / studio; frng/report/paper_tables.py)
     "vs_backbone_by_light": ("light_family", "method", "psnr", "ssim", "lpips"),
@@ -61,6 +73,7 @@ TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
         "n",
         "psnr",
         "psnr_interior",
+        "silhouette_iou",
         "ssim",
         "lpips",
         "scale_log2",
@@ -82,6 +95,8 @@ SEED_COLUMNS = ("seeds", "seed_spread_psnr", "seed_spread_dpsnr")
 DECIMALS: dict[str, int] = {
     "psnr": 2,
     "psnr_interior": 2,
+    "silhouette_iou": 3,
+    "depth_error": 3,
     "ssim": 3,
     "lpips": 3,
     "reconstruction_s": 2,
@@ -100,6 +115,8 @@ DECIMALS: dict[str, int] = {
 HEADERS: dict[str, str] = {
     "psnr": "PSNR",
     "psnr_interior": "PSNR interior",
+    "silhouette_iou": "silhouette IoU",
+    "depth_error": "depth error",
     "ssim": "SSIM",
     "lpips": "LPIPS",
     "dataset": "Dataset",
@@ -146,9 +163,14 @@ LATEX_PREAMBLE_NOTE = (
 def direction(column: str) -> str | None:
     """ "max", "min" or None (not a metric column) for a column name."""
     c = column.lower()
-    if c in ("psnr", "ssim") or c.startswith(("psnr_", "ssim_")) or "speedup" in c:
+    if c in ("psnr", "ssim", "silhouette_iou") or c.startswith(("psnr_", "ssim_")) or "speedup" in c:
         return "max"
-    if c == "lpips" or c.startswith("lpips_") or c.endswith(("_s", "_ms", "_ms_per_image")) or "time" in c:
+    if (
+        c in ("lpips", "depth_error")
+        or c.startswith("lpips_")
+        or c.endswith(("_s", "_ms", "_ms_per_image"))
+        or "time" in c
+    ):
         return "min"
     return None
 
