@@ -329,3 +329,33 @@ def test_baselines_tables_and_views(smoke_run):
         for run in P.per_scene_runs(config):
             rec = io.read_json(results / "relight" / run / oid / "run.json")
             assert rec["fit_seconds"] > 0 and rec["final_loss"] < rec["first_loss"], (run, rec)
+
+
+def test_idm_priors_of_a_test_object_come_from_its_rig_views_only(smoke_run):
+    """The IDM attends across the views it is given and cuts their visual hull, so the cached priors of a test object
+    with extra input views are made from the rig's views alone (what a 6-view run gets, live, in relighting), and
+    they differ from the first 6 of priors made from all its input views (the leak the cache had)."""
+    import torch
+
+    from frng.plan import catalog
+    from frng.plan.layout import Layout
+    from frng.priors.cache import load_idm_priors
+    from frng.priors.dataset import load_object
+    from frng.priors.registry import LearnedIDMPrior
+    from frng.training.frng import live_idm_priors
+
+    results, config = smoke_run
+    L = Layout(results)
+    oid = catalog.plan(config).split("test")[0]
+    obj = load_object(results, oid, with_targets=False, with_gbuffer=False)
+    light = obj.input_lights[0]
+    views = obj.inputs[light]
+    assert len(views) > obj.rig_views, "the smoke tier's test objects have extra input views"
+    cached, meta = load_idm_priors(L.idm_priors(oid), L.idm_model())
+    assert meta["view_names"] == views.names[: obj.rig_views]
+    idm = LearnedIDMPrior(L.idm_model())
+    live = live_idm_priors(idm, results, oid, light, views.names[: obj.rig_views])
+    from_all = idm.priors(oid, views).select(slice(0, obj.rig_views))
+    for k, v in cached.as_dict().items():
+        torch.testing.assert_close(live.as_dict()[k], v, rtol=0, atol=1e-5)
+    assert not torch.allclose(from_all.depth, cached.depth, atol=1e-4), "the other views should change the priors"

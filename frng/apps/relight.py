@@ -259,25 +259,29 @@ def relight_object(
     spp = int(job.shading.spp_infer)
     backbone = load_backbone(backbone_path, device)
 
-    # live priors per view count (shared by every run with that V)
+    # live priors per view count (shared by every run with that V). The IDM sees exactly the run's V input views: it
+    # attends across the views it is given and cuts their visual hull, so priors made from all of the object's input
+    # views would hand a V-view run the other views' silhouettes and colours
     prepared: dict[int, dict] = {}
     with torch.no_grad():
-        with Timer(device) as t_idm:
-            pri_all = idm.priors(oid, views_all, obj.gbuffer)
         for V in sorted({r.views for r in the_runs}):
             v = views_all.select(range(V))
+            gbuffer = obj.gbuffer.select(slice(0, V)) if obj.gbuffer is not None else None
+            with Timer(device) as t_idm:
+                priors = idm.priors(oid, v, gbuffer)
             with Timer(device) as t_bb:
                 bv = backbone_views(job.seed, backbone, oid, v, obj.envs[light_in], light_in, device)
             images = torch.cat([v.rgb, v.alpha], -1).to(device)
             prepared[V] = {
                 "bv": bv,
                 "images": images,
-                "priors": pri_all.select(slice(0, V)).to(device),
+                "priors": priors.to(device),
                 "names": v.names,
                 "backbone_s": t_bb.s,
+                "idm_s": t_idm.s,
             }
-            if obj.gbuffer is not None:
-                prepared[V]["oracle"] = obj.gbuffer.select(slice(0, V)).to(device)
+            if gbuffer is not None:
+                prepared[V]["oracle"] = gbuffer.to(device)
 
     timing: dict = {
         "object": oid,
@@ -286,7 +290,7 @@ def relight_object(
         "spp": spp,
         "target_views": len(t_names),
         "lights": len(lights),
-        "idm_s": t_idm.s,
+        "idm_s": {V: p["idm_s"] for V, p in prepared.items()},
     }
     loaded: dict[str, object] = {}
     for run in the_runs:
@@ -337,7 +341,7 @@ def relight_object(
             raster_ms = 1000.0 * t_ras.s / len(t_names)
             # per image: shading under its light + the rasterization amortised over the lights of this job
             per_light_ms = [ms + raster_ms / len(lights) for ms in shade_ms]
-            rec_s = t_rec.s + p["backbone_s"] + t_idm.s
+            rec_s = t_rec.s + p["backbone_s"] + p["idm_s"]
             if run.name == "full":
                 _save_full_extras(folder, model, rec, p, oid, run)
         info = asdict(run) | {

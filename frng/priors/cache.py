@@ -237,14 +237,20 @@ def make_idm_priors(
     idm_section, backbone_section, results: str | Path, oid: str, out: Path, device="cpu", kind: str | None = None
 ) -> Path:
     """The IDM's priors of object ``oid`` (curated under ``results``) into ``out``; the IDM of ``kind`` (default
-    ``idm.kind``) from the config's ``idm`` and ``backbone`` sections (:func:`frng.priors.build_idm`)."""
+    ``idm.kind``) from the config's ``idm`` and ``backbone`` sections (:func:`frng.priors.build_idm`).
+
+    The IDM sees the rig's views only (the paper's 6), what training and the default relighting give F-RNG: it
+    attends across the views it is given and cuts their visual hull, so priors made from an object's extra input
+    views too would hand a 6-view run their silhouettes and colours. Other view counts take live priors
+    (:func:`frng.training.frng.load_objects`, :mod:`frng.apps.relight`)."""
     from frng.priors.dataset import load_object
 
     idm = build_idm(idm_section, backbone_section, results, device, kind)
     obj = load_object(results, oid, with_targets=False, with_gbuffer=idm.kind == "oracle")
     light = obj.input_lights[0]
-    views = obj.inputs[light]
-    pri = idm.priors(oid, views, obj.gbuffer)
+    views = obj.inputs[light].select(range(obj.rig_views))
+    gbuffer = obj.gbuffer.select(slice(0, obj.rig_views)) if obj.gbuffer is not None else None
+    pri = idm.priors(oid, views, gbuffer)
     sha = file_sha256(idm.model_path) if idm.kind == "learned" else ""
     meta = {
         "version": IDM_CACHE_VERSION,

@@ -223,12 +223,13 @@ def constant_priors(train_objects: list[PriorObject], views, gt: IntrinsicPriors
 
 def eval_idm(idm, test: list[PriorObject], train_objects: list[PriorObject]) -> list[dict]:
     rows = []
-    for obj in test:
-        views = obj.inputs[obj.input_lights[0]]
-        pred = idm.priors(obj.id, views, obj.gbuffer)
-        rows.append({"object": obj.id, "method": f"idm-{idm.kind}"} | idm_scores(pred, obj.gbuffer))
+    for obj in test:  # on the rig's views, as the models get them (frng.priors.cache.make_idm_priors)
+        views = obj.inputs[obj.input_lights[0]].select(range(obj.rig_views))
+        gbuffer = obj.gbuffer.select(torch.arange(obj.rig_views))
+        pred = idm.priors(obj.id, views, gbuffer)
+        rows.append({"object": obj.id, "method": f"idm-{idm.kind}"} | idm_scores(pred, gbuffer))
         rows.append(
             {"object": obj.id, "method": "constant"}
-            | idm_scores(constant_priors(train_objects, views, obj.gbuffer), obj.gbuffer)
+            | idm_scores(constant_priors(train_objects, views, gbuffer), gbuffer)
         )
     return rows

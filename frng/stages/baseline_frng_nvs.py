@@ -80,9 +80,9 @@ def render_nvs(job, oid: str, out, device) -> dict:
     model = FRNG.load(model_path, device).set_inference_shading(job.shading)
     with torch.no_grad():
         with Timer(device) as t_rec:
-            pri = idm.priors(oid, obj.inputs[obj.input_lights[0]], obj.gbuffer).select(slice(0, run.views)).to(device)
-            if run.priors == "oracle":
-                pri = obj.gbuffer.select(slice(0, run.views)).to(device)
+            gbuffer = obj.gbuffer.select(slice(0, run.views)) if obj.gbuffer is not None else None
+            # the IDM sees exactly the run's input views (frng.priors.cache.make_idm_priors says why)
+            pri = (gbuffer if run.priors == "oracle" else idm.priors(oid, views, gbuffer)).to(device)
             bv = backbone_views(
                 job.seed, backbone, oid, views, obj.envs[obj.input_lights[0]], obj.input_lights[0], device
             )

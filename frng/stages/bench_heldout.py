@@ -103,6 +103,9 @@ def run(args: argparse.Namespace) -> int:
     loaded = {n: FRNG.load(p, dev).set_inference_shading(config.shading) for n, p in models.items()}
     uses_priors = any(m.cfg.uses_priors for m in loaded.values())
     spp = int(config.shading.spp_infer)
+    from frng.priors import build_idm
+
+    idm = build_idm(config.idm, config.backbone, config.results, dev) if uses_priors else None
     print(
         f"# frng bench heldout: {len(objects)} objects"
         f"{'' if args.objects else f' ({args.split})'}, {args.views} views, at the {args.at[:-1]} views, "
@@ -114,7 +117,9 @@ def run(args: argparse.Namespace) -> int:
     proto, bg = config.eval.protocol, config.eval.background
     for oid in tqdm(objects, desc="heldout", file=sys.stderr):
         try:
-            (obj,) = load_objects(config.results, config.idm.kind, [oid], L.backbone_model(), uses_priors, args.views)
+            (obj,) = load_objects(
+                config.results, config.idm.kind, [oid], L.backbone_model(), uses_priors, args.views, idm=idm
+            )
         except KeyError as e:  # a cache without that view count (training objects hold the rig's only)
             print(f"frng bench heldout: error: {oid}: {e.args[0]}", file=sys.stderr)
             return 2

@@ -191,6 +191,19 @@ class TrainObject:
     view_names: list  # the V input views' names (the cache's), in the order of ``images``
 
 
+def live_idm_priors(idm, results: str | Path, oid: str, light: str, names: list[str]):
+    """The priors of ``idm`` (a :func:`frng.priors.build_idm` prior) for object ``oid``'s input views ``names`` under
+    ``light``, made from exactly those views (IntrinsicPriors (V, H, W, C) on the CPU)."""
+    from frng.priors.dataset import load_object
+
+    obj = load_object(results, oid, with_targets=False, with_gbuffer=idm.kind == "oracle")
+    views = obj.inputs[light]
+    rows = [views.names.index(n) for n in names]
+    gbuffer = obj.gbuffer.select(torch.as_tensor(rows)) if obj.gbuffer is not None else None
+    with torch.no_grad():
+        return idm.priors(oid, views.select(rows), gbuffer).to("cpu")
+
+
 def load_objects(
     results: str | Path,
     idm_kind: str,
@@ -199,9 +212,13 @@ def load_objects(
     use_priors: bool,
     V: int,
     alt_light: bool = False,
+    idm=None,
 ) -> list[TrainObject]:
     """Read caches + curated images of ``ids`` under ``results``. IDM priors are opened only when ``use_priors``
-    (``idm_kind``: the config's ``idm.kind``; the learned IDM's priors are checked against its model file).
+    (``idm_kind``: the config's ``idm.kind``; the learned IDM's priors are checked against its model file); where the
+    cached priors are of other views than the V read here (the cache holds the rig's, :func:`frng.priors.cache.
+    make_idm_priors`), they are made live by ``idm`` (a :func:`frng.priors.build_idm` prior) from exactly those V
+    views, since the IDM's priors of a view depend on the other views it is given; without ``idm`` that is an error.
     ``alt_light``: also the input views under the object's second input light (L_ind's re-lit evidence)."""
     from frng.data.dataset import open_object
     from frng.priors.cache import load_backbone_cache, load_idm_priors
@@ -217,12 +234,18 @@ def load_objects(
         views = {k: allv[k] for k in CACHE_KEYS + tuple(k for k in BACK_KEYS if k in allv)}
         views.update({f"light{j}.t_app": allv[f"light{j}.t_app"] for j in range(lights)})
         priors = None
-        if use_priors:
-            priors, _ = load_idm_priors(L.idm_priors(oid), idm_model)
-            priors = priors.select(slice(0, V))
         obj = open_object(L.root, oid)
         light_in = cache.meta["input_light"]
         names = cache.meta["view_names"][str(V)]
+        if use_priors:
+            priors, pmeta = load_idm_priors(L.idm_priors(oid), idm_model)
+            if list(pmeta["view_names"]) != list(names):
+                if idm is None:
+                    raise ValueError(
+                        f"{L.idm_priors(oid)}: IDM priors of views {pmeta['view_names']}, not of the {V} views "
+                        f"{list(names)} read here; pass an IDM to make them live"
+                    )
+                priors = live_idm_priors(idm, results, oid, light_in, list(names))
         images = obj.images("inputs", light_in, names, torch=True)
         if light_in not in envs:
             envs[light_in] = torch.from_numpy(envmap.read(obj.envmap_path(light_in, L.root))).float()
