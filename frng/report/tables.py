@@ -41,44 +41,35 @@ import pandas as pd
 
 from frng.io import atomic_path
 
+# the quality ladder's columns (frng.report.paper_tables.ladder_table); its per-light-family table adds the family
+LADDER_COLUMNS = (
+    "step",
+    "what",
+    "n",
+    "psnr",
+    "psnr_interior",
+    "silhouette_iou",
+    "depth_error",
+    "ssim",
+    "lpips",
+    "scale_log2",
+    "brightness_log2",
+)
+
 TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
     "vs_backbone": ("dataset", "method", "psnr", "ssim", "lpips"),
     "ablation": ("variant", "psnr", "ssim", "lpips"),
     "views": ("views", "psnr", "ssim", "lpips"),
     "k": ("k_percent", "psnr", "ssim", "lpips"),
     "timing": ("method", "reconstruction_s", "relight_ms_per_image", "resolution", "spp"),
-    "ladder": (
-        "step",
-        "what",
-        "n",
-        "psnr",
-        "psnr_interior",
-        "silhouette_iou",
-        "depth_error",
-        "ssim",
-        "lpips",
-        "scale_log2",
-        "brightness_log2",
-    ),
+    "ladder": LADDER_COLUMNS,
     "lambertian": ("dataset", "method", "n", "psnr", "ssim", "lpips", "scale_log2", "brightness_log2"),
     # per family of the target light (sky / hdri / studio; frng/report/paper_tables.py)
     "vs_backbone_by_light": ("light_family", "method", "psnr", "ssim", "lpips"),
     # per source of the test object (procedural shapes, LIBERO's modelled assets, Objaverse, the user's)
     "vs_backbone_by_source": ("object_source", "method", "psnr", "ssim", "lpips"),
     "ablation_by_light": ("light_family", "variant", "psnr", "ssim", "lpips"),
-    "ladder_by_light": (
-        "light_family",
-        "step",
-        "what",
-        "n",
-        "psnr",
-        "psnr_interior",
-        "silhouette_iou",
-        "ssim",
-        "lpips",
-        "scale_log2",
-        "brightness_log2",
-    ),
+    "ladder_by_light": ("light_family", *(c for c in LADDER_COLUMNS if c != "depth_error")),  # depth: per object
 }
 
 DIFF_METRICS = ("psnr", "ssim", "lpips")
