@@ -341,8 +341,7 @@ def test_idm_priors_of_a_test_object_come_from_its_rig_views_only(smoke_run):
     from frng.plan.layout import Layout
     from frng.priors.cache import load_idm_priors
     from frng.priors.dataset import load_object
-    from frng.priors.registry import LearnedIDMPrior
-    from frng.training.frng import live_idm_priors
+    from frng.priors.registry import LearnedIDMPrior, view_priors
 
     results, config = smoke_run
     L = Layout(results)
@@ -354,7 +353,7 @@ def test_idm_priors_of_a_test_object_come_from_its_rig_views_only(smoke_run):
     cached, meta = load_idm_priors(L.idm_priors(oid), L.idm_model())
     assert meta["view_names"] == views.names[: obj.rig_views]
     idm = LearnedIDMPrior(L.idm_model())
-    live = live_idm_priors(idm, results, oid, light, views.names[: obj.rig_views])
+    live = view_priors(idm, obj, light, range(obj.rig_views))
     from_all = idm.priors(oid, views).select(slice(0, obj.rig_views))
     for k, v in cached.as_dict().items():
         torch.testing.assert_close(live.as_dict()[k], v, rtol=0, atol=1e-5)

@@ -237,7 +237,7 @@ def relight_object(
     neither)."""
     from frng.model.frng import FRNG
     from frng.plan import catalog
-    from frng.priors import build_idm, load_backbone
+    from frng.priors import build_idm, load_backbone, view_priors
     from frng.priors.dataset import load_object
 
     idm = build_idm(job.idm, job.backbone, job.results, device)
@@ -259,16 +259,13 @@ def relight_object(
     spp = int(job.shading.spp_infer)
     backbone = load_backbone(backbone_path, device)
 
-    # live priors per view count (shared by every run with that V). The IDM sees exactly the run's V input views: it
-    # attends across the views it is given and cuts their visual hull, so priors made from all of the object's input
-    # views would hand a V-view run the other views' silhouettes and colours
+    # live priors per view count (shared by every run with that V), from exactly the run's V views (view_priors)
     prepared: dict[int, dict] = {}
     with torch.no_grad():
         for V in sorted({r.views for r in the_runs}):
             v = views_all.select(range(V))
-            gbuffer = obj.gbuffer.select(slice(0, V)) if obj.gbuffer is not None else None
             with Timer(device) as t_idm:
-                priors = idm.priors(oid, v, gbuffer)
+                priors = view_priors(idm, obj, light_in, range(V))
             with Timer(device) as t_bb:
                 bv = backbone_views(job.seed, backbone, oid, v, obj.envs[light_in], light_in, device)
             images = torch.cat([v.rgb, v.alpha], -1).to(device)
@@ -280,8 +277,8 @@ def relight_object(
                 "backbone_s": t_bb.s,
                 "idm_s": t_idm.s,
             }
-            if gbuffer is not None:
-                prepared[V]["oracle"] = gbuffer.to(device)
+            if obj.gbuffer is not None:
+                prepared[V]["oracle"] = obj.gbuffer.select(slice(0, V)).to(device)
 
     timing: dict = {
         "object": oid,

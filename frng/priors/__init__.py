@@ -18,6 +18,7 @@ from frng.priors.registry import (
     load_backbone,
     register_backbone,
     register_idm,
+    view_priors,
 )
 
 __all__ = [
@@ -32,4 +33,5 @@ __all__ = [
     "load_backbone",
     "register_backbone",
     "register_idm",
+    "view_priors",
 ]

@@ -60,7 +60,7 @@ from frng.hashing import file_sha256
 from frng.plan import catalog
 from frng.plan.layout import Layout
 from frng.plan.variants import SWEEP_VIEWS, view_counts  # noqa: F401
-from frng.priors import build_idm, load_backbone
+from frng.priors import build_idm, load_backbone, view_priors
 from frng.priors.intrinsics import IntrinsicPriors
 from frng.render import envmap
 
@@ -240,17 +240,15 @@ def make_idm_priors(
     ``idm.kind``) from the config's ``idm`` and ``backbone`` sections (:func:`frng.priors.build_idm`).
 
     The IDM sees the rig's views only (the paper's 6), what training and the default relighting give F-RNG: it
-    attends across the views it is given and cuts their visual hull, so priors made from an object's extra input
-    views too would hand a 6-view run their silhouettes and colours. Other view counts take live priors
-    (:func:`frng.training.frng.load_objects`, :mod:`frng.apps.relight`)."""
+    attends across the views it is given (:func:`frng.priors.registry.view_priors`). Other view counts take live
+    priors (:func:`frng.training.frng.load_objects`, :mod:`frng.apps.relight`)."""
     from frng.priors.dataset import load_object
 
     idm = build_idm(idm_section, backbone_section, results, device, kind)
     obj = load_object(results, oid, with_targets=False, with_gbuffer=idm.kind == "oracle")
     light = obj.input_lights[0]
     views = obj.inputs[light].select(range(obj.rig_views))
-    gbuffer = obj.gbuffer.select(slice(0, obj.rig_views)) if obj.gbuffer is not None else None
-    pri = idm.priors(oid, views, gbuffer)
+    pri = view_priors(idm, obj, light, range(obj.rig_views))
     sha = file_sha256(idm.model_path) if idm.kind == "learned" else ""
     meta = {
         "version": IDM_CACHE_VERSION,

@@ -40,6 +40,7 @@ import torch
 
 from frng.priors.dataset import PriorObject
 from frng.priors.intrinsics import IntrinsicPriors
+from frng.priors.registry import view_priors
 from frng.priors.surfels import PIXEL_STD
 
 
@@ -226,7 +227,7 @@ def eval_idm(idm, test: list[PriorObject], train_objects: list[PriorObject]) -> 
     for obj in test:  # on the rig's views, as the models get them (frng.priors.cache.make_idm_priors)
         views = obj.inputs[obj.input_lights[0]].select(range(obj.rig_views))
         gbuffer = obj.gbuffer.select(torch.arange(obj.rig_views))
-        pred = idm.priors(obj.id, views, gbuffer)
+        pred = view_priors(idm, obj, obj.input_lights[0], range(obj.rig_views))
         rows.append({"object": obj.id, "method": f"idm-{idm.kind}"} | idm_scores(pred, gbuffer))
         rows.append(
             {"object": obj.id, "method": "constant"}

@@ -84,6 +84,18 @@ class IDMPrior(Protocol):
         G-buffers of the same views (IntrinsicPriors) where available."""
 
 
+def view_priors(idm: IDMPrior, obj, light: str, rows):
+    """The priors of ``idm`` for the input views ``rows`` (indices into the views of ``obj``, a
+    :class:`frng.priors.dataset.PriorObject`, under input light ``light``), made from exactly those views.
+
+    The IDM attends across the views it is given and cuts their visual hull, so a view's priors depend on the
+    others: priors made from more of the object's views and cut afterwards would hand a run the other views'
+    silhouettes and colours (docs/priors.md). Returns IntrinsicPriors (len(rows), H, W, C) on the IDM's device."""
+    rows = list(rows)
+    gbuffer = obj.gbuffer.select(torch.as_tensor(rows)) if obj.gbuffer is not None else None
+    return idm.priors(obj.id, obj.inputs[light].select(rows), gbuffer)
+
+
 class LearnedIDMPrior:
     kind = "learned"
 

@@ -47,7 +47,7 @@ def render_nvs(job, oid: str, out, device) -> dict:
     from frng.plan import catalog
     from frng.plan.layout import Layout, RelightFolder
     from frng.plan.variants import ALL_GROUPS
-    from frng.priors import build_idm, load_backbone
+    from frng.priors import build_idm, load_backbone, view_priors
     from frng.priors.dataset import load_object
 
     L = Layout(job.results)
@@ -80,9 +80,10 @@ def render_nvs(job, oid: str, out, device) -> dict:
     model = FRNG.load(model_path, device).set_inference_shading(job.shading)
     with torch.no_grad():
         with Timer(device) as t_rec:
-            gbuffer = obj.gbuffer.select(slice(0, run.views)) if obj.gbuffer is not None else None
-            # the IDM sees exactly the run's input views (frng.priors.cache.make_idm_priors says why)
-            pri = (gbuffer if run.priors == "oracle" else idm.priors(oid, views, gbuffer)).to(device)
+            if run.priors == "oracle":
+                pri = obj.gbuffer.select(slice(0, run.views)).to(device)
+            else:  # from exactly the run's input views
+                pri = view_priors(idm, obj, obj.input_lights[0], range(run.views)).to(device)
             bv = backbone_views(
                 job.seed, backbone, oid, views, obj.envs[obj.input_lights[0]], obj.input_lights[0], device
             )

@@ -86,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
     from frng.model.frng import FRNG
     from frng.plan import catalog
     from frng.plan.layout import Layout, TrainingFolder
+    from frng.priors import build_idm
     from frng.training.frng import load_objects
     from frng.typedconfig import typed
 
@@ -103,8 +104,6 @@ def run(args: argparse.Namespace) -> int:
     loaded = {n: FRNG.load(p, dev).set_inference_shading(config.shading) for n, p in models.items()}
     uses_priors = any(m.cfg.uses_priors for m in loaded.values())
     spp = int(config.shading.spp_infer)
-    from frng.priors import build_idm
-
     idm = build_idm(config.idm, config.backbone, config.results, dev) if uses_priors else None
     print(
         f"# frng bench heldout: {len(objects)} objects"

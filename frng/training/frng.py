@@ -191,19 +191,6 @@ class TrainObject:
     view_names: list  # the V input views' names (the cache's), in the order of ``images``
 
 
-def live_idm_priors(idm, results: str | Path, oid: str, light: str, names: list[str]):
-    """The priors of ``idm`` (a :func:`frng.priors.build_idm` prior) for object ``oid``'s input views ``names`` under
-    ``light``, made from exactly those views (IntrinsicPriors (V, H, W, C) on the CPU)."""
-    from frng.priors.dataset import load_object
-
-    obj = load_object(results, oid, with_targets=False, with_gbuffer=idm.kind == "oracle")
-    views = obj.inputs[light]
-    rows = [views.names.index(n) for n in names]
-    gbuffer = obj.gbuffer.select(torch.as_tensor(rows)) if obj.gbuffer is not None else None
-    with torch.no_grad():
-        return idm.priors(oid, views.select(rows), gbuffer).to("cpu")
-
-
 def load_objects(
     results: str | Path,
     idm_kind: str,
@@ -221,7 +208,9 @@ def load_objects(
     views, since the IDM's priors of a view depend on the other views it is given; without ``idm`` that is an error.
     ``alt_light``: also the input views under the object's second input light (L_ind's re-lit evidence)."""
     from frng.data.dataset import open_object
+    from frng.priors import view_priors
     from frng.priors.cache import load_backbone_cache, load_idm_priors
+    from frng.priors.dataset import load_object
 
     L = Layout(results)
     idm_model = L.idm_model() if idm_kind == "learned" else None
@@ -245,7 +234,10 @@ def load_objects(
                         f"{L.idm_priors(oid)}: IDM priors of views {pmeta['view_names']}, not of the {V} views "
                         f"{list(names)} read here; pass an IDM to make them live"
                     )
-                priors = live_idm_priors(idm, results, oid, light_in, list(names))
+                pobj = load_object(results, oid, with_targets=False, with_gbuffer=idm.kind == "oracle")
+                rows = [pobj.inputs[light_in].names.index(n) for n in names]
+                with torch.no_grad():
+                    priors = view_priors(idm, pobj, light_in, rows).to("cpu")
         images = obj.images("inputs", light_in, names, torch=True)
         if light_in not in envs:
             envs[light_in] = torch.from_numpy(envmap.read(obj.envmap_path(light_in, L.root))).float()
