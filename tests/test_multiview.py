@@ -171,3 +171,21 @@ def test_native_hull_sweep_is_the_reference_bit_for_bit():
     a = geometry_cues(rgb, soft, c2w, intr, near=1.0, far=4.5, kernel="native")
     b = geometry_cues(rgb, soft, c2w, intr, near=1.0, far=4.5, kernel="torch")
     assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_inside_silhouettes_unseen_views_say_nothing():
+    """With ``unseen_inside`` a view that a point projects outside of (or lies behind) does not cull it; a view that
+    sees it on its background still does."""
+    _, alpha, c2w, intr, _, _ = _sphere_views()
+    p = torch.tensor([[0.0, 9.0, 0.0]])  # far out along the axis of views 1 and 3: view 3 sees it behind the sphere
+    uv, z = camera.project(p, c2w, intr)
+    W = alpha.shape[2]
+    seen = ((z > 0) & (uv[..., 0] >= 0) & (uv[..., 0] < W) & (uv[..., 1] >= 0) & (uv[..., 1] < W))[:, 0]
+    assert seen.tolist() == [False, False, False, True, False, False]  # view 1 has it behind, the rest out of frame
+    assert not inside_silhouettes(p, alpha, c2w, intr).any()  # by default the views that cannot see it cull it
+    assert inside_silhouettes(p, alpha, c2w, intr, unseen_inside=True).all()  # view 3 sees it on the sphere
+    hole = alpha.clone()
+    hole[3, 20:28, 20:28] = 0.0  # view 3 now sees background there
+    assert not inside_silhouettes(p, hole, c2w, intr, unseen_inside=True).any()
+    off = torch.tensor([[R_SPHERE * 1.5, 0.0, 0.0]])  # beside the sphere in views 1 and 3
+    assert not inside_silhouettes(off, alpha, c2w, intr, unseen_inside=True).any()

@@ -128,6 +128,46 @@ def test_training_renders_the_inference_geometry_with_gradients():
     (out.means[kept].sum() + out.scales[kept].sum() + out.opacities[kept].sum()).backward()
     assert means.grad is not None and means.grad[kept].abs().sum() > 0
     assert opac.grad is not None and torch.equal(opac.grad[kept], torch.ones(int(kept.sum())))
-    off = bb.build(dict(tiny, den_views=2, surfels=False, view_select=False))
+    off = bb.build(dict(tiny, den_views=2, surfels=False, view_select=False, silhouette_cull=False))
     same, same_keep = off.inference_geometry(g, keep, c2w, intr)
     assert same is g and same_keep is keep
+
+
+def test_silhouette_cull_drops_floaters_only():
+    """``backbone.silhouette_cull``: per-pixel Gaussians of a sphere seen by 8 views, on its surface, are all rendered;
+    the ones whose depth is pushed off the surface along their own ray (a silhouette pixel that took the
+    background's distance) land on another view's background and are not; without the key they are."""
+    from frng.gaussians import Gaussians
+    from frng.priors import backbone as bb
+
+    V, H, R = 8, 24, 0.5
+    intr = torch.tensor(camera.intrinsics_from_fov(50, H, H), dtype=torch.float32).expand(V, 4).clone()
+    c2w = torch.stack(
+        [torch.tensor(camera.look_at(camera.spherical_to_cartesian(45.0 * i, 30.0 * (i % 2), 2.6))) for i in range(V)]
+    ).float()
+    o, d = camera.pixel_rays(c2w, intr, H, H)
+    b = (o * d).sum(-1)
+    disc = b * b - (o * o).sum(-1) + R * R
+    fg = disc > 0
+    t = torch.where(fg, -b - disc.clamp_min(0).sqrt(), torch.full_like(b, 2.6))
+    t = t.reshape(-1).clone()
+    g = torch.Generator().manual_seed(0)
+    floaters = fg.reshape(-1) & (torch.rand(t.shape, generator=g) < 0.05)
+    t[floaters] += 1.5  # beyond the far side of the sphere (diameter 1): off the object
+    means = o.reshape(-1, 3) + d.reshape(-1, 3) * t[:, None]
+    N = means.shape[0]
+    gauss = Gaussians(means, torch.tensor([1.0, 0, 0, 0]).expand(N, 4), torch.full((N, 3), 0.01), torch.ones(N))
+    tiny = {"width": 32, "heads": 2, "geo_depth": 1, "app_depth": 1, "env_height": 8, "sh_degree": 1, "patch": 8}
+    keep = fg.reshape(-1)
+    rendered = {}
+    for on in (False, True):
+        m = bb.build(dict(tiny, surfels=False, view_select=False, silhouette_cull=on)).eval()
+        rendered[on] = m.inference_geometry(gauss, keep, c2w, intr)[1]
+    assert torch.equal(rendered[False], keep)
+    assert not (rendered[True] & floaters).any()  # every floater is off some view's silhouette
+    assert (rendered[True] == (keep & ~floaters)).float().mean() > 0.999  # and the surface stays
+    assert bb.BackboneConfig.from_saved(
+        {**tiny, **bb.build(tiny).cfg.to_dict(), "silhouette_cull": True}
+    ).silhouette_cull
+    saved = {k: v for k, v in bb.build(tiny).cfg.to_dict().items() if k != "silhouette_cull"}
+    assert not bb.BackboneConfig.from_saved(saved).silhouette_cull  # models saved before the key: off

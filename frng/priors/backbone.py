@@ -75,7 +75,7 @@ from frng.nn import PatchDetokenizer, PatchTokenizer, Transformer, timestep_embe
 from frng.plan.sections import section
 from frng.priors.diffusion import NoiseSchedule, from_diffusion_space, to_diffusion_space
 from frng.priors.envenc import EnvTokenizer
-from frng.priors.multiview import CUE_CHANNELS, geometry_cues
+from frng.priors.multiview import CUE_CHANNELS, geometry_cues, inside_silhouettes
 from frng.priors.surfels import grid_normals, pixel_surfels
 from frng.priors.viewselect import frontal_keep
 from frng.render import rasterize
@@ -113,6 +113,7 @@ class BackboneArch:
     surfels: bool  # inference: the per-pixel Gaussians become pixel-footprint surfels (frng.priors.surfels)
     hull_fill: bool  # caches: Gaussians on the visual hull's surface no input view saw (frng.priors.hullfill)
     view_select: bool  # inference: a surface seen by several views keeps its most frontal layer (priors.viewselect)
+    silhouette_cull: bool  # inference: Gaussians outside another input view's silhouette are not rendered
 
 
 # Architecture keys that came after models were already saved -> the behaviour those models were trained with.
@@ -122,6 +123,7 @@ SAVED_DEFAULTS = {
     "surfels": False,
     "hull_fill": False,
     "view_select": False,
+    "silhouette_cull": False,
 }
 
 
@@ -558,15 +560,24 @@ class RelitLRMBackbone(nn.Module):
     ) -> tuple[Gaussians, torch.Tensor]:
         """What :meth:`reconstruct` renders of the per-pixel Gaussians (N = V*H*W; keep (N,) bool: the foreground
         pixels'; c2w (V, 4, 4), intr (V, 4)): with ``surfels`` their pixels' surfels (:mod:`frng.priors.surfels`),
-        with ``view_select`` keep less the layers another view sees more squarely (:mod:`frng.priors.viewselect`).
-        Both read the normals of the Gaussians' depth maps, taken without gradient (training with
+        with ``view_select`` keep less the layers another view sees more squarely (:mod:`frng.priors.viewselect`),
+        with ``silhouette_cull`` less the Gaussians another input view sees on its background (outside the visual
+        hull: a foreground pixel's depth that fell off the surface, e.g. at a silhouette where the pixel mixes the
+        object's and the background's distances, renders as a floater or an epipolar streak in every other view).
+        The first two read the normals of the Gaussians' depth maps, taken without gradient (training with
         ``backbone.train.inference_geometry`` moves the means, not the surfels' planes). Returns (gaussians, keep)."""
-        if not (self.cfg.surfels or self.cfg.view_select):
+        c = self.cfg
+        if not (c.surfels or c.view_select or c.silhouette_cull):
             return gauss, keep
         with torch.no_grad():  # surfels keep the means: the selection reads the same points either way
-            depth_n = grid_normals(gauss.means, keep, c2w)
-            rendered = frontal_keep(gauss.means, keep, c2w, intr, depth_n) if self.cfg.view_select else keep
-        if self.cfg.surfels:
+            depth_n = grid_normals(gauss.means, keep, c2w) if c.surfels or c.view_select else None
+            rendered = frontal_keep(gauss.means, keep, c2w, intr, depth_n) if c.view_select else keep
+            if c.silhouette_cull:
+                V = c2w.shape[0]
+                H = W = int(round((keep.shape[0] // V) ** 0.5))
+                masks = keep.reshape(V, H, W).float()  # keep = the input alpha >= 0.5
+                rendered = rendered & inside_silhouettes(gauss.means, masks, c2w, intr, unseen_inside=True)
+        if c.surfels:
             gauss = pixel_surfels(gauss, keep, c2w, intr, depth_n)
         return gauss, rendered
 

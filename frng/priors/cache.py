@@ -22,6 +22,7 @@ key                             shape           meaning
 ``v{V}.means`` / ``quats`` /    (N, 3)/(N, 4)/  decoded per-pixel Gaussians, N = V*H*W in (view, row, col)
 ``scales`` / ``opacities``      (N, 3)/(N,)     order (quats (w, x, y, z), scales = std devs); opacity 0 where
                                                 another view covers the pixel more squarely (backbone.view_select)
+                                                or sees it on its background (backbone.silhouette_cull)
 ``v{V}.keep``                   (N,) uint8      1 where the input pixel is foreground (alpha >= 0.5)
 ``v{V}.c2w`` / ``v{V}.intr``    (V, 4, 4)/(V,4) the input cameras
 ``v{V}.back_means`` / ``quats``  (M, 3)/(M, 4)/  far-side copies of per-pixel Gaussians where no input view sees
@@ -116,7 +117,8 @@ def geometry_entry(model, recon: tuple, alpha: torch.Tensor, c2w: torch.Tensor, 
     V = c2w.shape[0]
     assert alpha.shape[0] == V and c2w.shape == (V, 4, 4) and intr.shape == (V, 4), (alpha.shape, c2w.shape, intr.shape)
     # ``keep`` is every foreground pixel's Gaussian (F-RNG reads their features and the far-side copies' sources);
-    # the ones the backbone does not render (frontal view selection, ``backbone.view_select``) get opacity 0
+    # the ones the backbone does not render (frontal view selection, ``backbone.view_select``; off the visual hull,
+    # ``backbone.silhouette_cull``) get opacity 0
     fg = alpha.reshape(-1) >= 0.5
     return {
         "t_geo": t_geo[0].float(),

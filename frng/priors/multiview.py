@@ -101,15 +101,22 @@ def project_rays(o: torch.Tensor, d: torch.Tensor, t: torch.Tensor, c2w: torch.T
 
 
 def inside_silhouettes(
-    points: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, dilate_px: int = 1
+    points: torch.Tensor,
+    alpha: torch.Tensor,
+    c2w: torch.Tensor,
+    intr: torch.Tensor,
+    dilate_px: int = 1,
+    unseen_inside: bool = False,
 ) -> torch.Tensor:
     """Which points lie inside the visual hull of the input views: in front of every camera and projected onto a
     foreground pixel (alpha > 0.5, the mask dilated by ``dilate_px`` pixels for the masks' own edge error) of every
-    view. A point outside one view's silhouette cannot be on the object.
+    view. A point outside one view's silhouette cannot be on the object. ``unseen_inside``: a view the point is
+    behind or projects outside of says nothing about it (an object larger than a view's frame keeps its parts
+    beyond that frame); by default such a point is outside.
 
     points (N, 3) world; alpha (V, H, W) or (V, H, W, 1) masks; c2w (V, 4, 4); intr (V, 4). Returns (N,) bool."""
     a = alpha[..., 0] if alpha.dim() == 4 else alpha
-    V = a.shape[0]
+    V, H, W = a.shape
     assert points.dim() == 2 and points.shape[-1] == 3, points.shape
     assert c2w.shape == (V, 4, 4) and intr.shape == (V, 4), (c2w.shape, intr.shape, a.shape)
     fg = (a > 0.5).float()[:, None]
@@ -117,8 +124,9 @@ def inside_silhouettes(
         fg = F.max_pool2d(fg, 2 * dilate_px + 1, stride=1, padding=dilate_px)
     fg = fg.permute(0, 2, 3, 1)  # (V, H, W, 1)
     uv, z = camera.project(points.float(), c2w.float(), intr.float())  # (V, N, 2), (V, N)
-    on_fg = sample_image(fg, uv, mode="nearest")[..., 0] > 0.5  # (V, N); 0 outside the image
-    return (on_fg & (z > 0)).all(dim=0)
+    seen = (z > 0) & (uv[..., 0] >= 0) & (uv[..., 0] < W) & (uv[..., 1] >= 0) & (uv[..., 1] < H)
+    on_fg = (sample_image(fg, uv, mode="nearest")[..., 0] > 0.5) & seen  # (V, N)
+    return (on_fg | ~seen if unseen_inside else on_fg).all(dim=0)
 
 
 def sweep_samples(c2w: torch.Tensor, intr: torch.Tensor, height: int, width: int, bins: int, radius: float):
