@@ -66,6 +66,16 @@ def test_other_surface_is_not_the_same_point():
     assert not dominated(means, normals, keep, c2w, intr).any()
 
 
+def _ring(V: int, H: int):
+    """V cameras 2.6 away around the origin, 45 degrees apart, alternately level and 30 degrees up, 50-degree field
+    of H x H pixels: c2w (V, 4, 4), intr (V, 4) and their pixel rays o, d (V, H, H, 3)."""
+    intr = torch.tensor(camera.intrinsics_from_fov(50, H, H), dtype=torch.float32).expand(V, 4).clone()
+    c2w = torch.stack(
+        [torch.tensor(camera.look_at(camera.spherical_to_cartesian(45.0 * i, 30.0 * (i % 2), 2.6))) for i in range(V)]
+    ).float()
+    return (c2w, intr, *camera.pixel_rays(c2w, intr, H, H))
+
+
 def test_backbone_and_cache_agree_on_what_is_rendered():
     """A tiny untrained backbone on a sphere seen by 8 views: with ``view_select`` its reconstruction renders fewer
     Gaussians than the foreground pixels; the cache entry keeps every foreground pixel (F-RNG reads their features)
@@ -74,11 +84,7 @@ def test_backbone_and_cache_agree_on_what_is_rendered():
     from frng.priors.cache import geometry_entry
 
     V, H = 8, 16
-    intr = torch.tensor(camera.intrinsics_from_fov(50, H, H), dtype=torch.float32).expand(V, 4).clone()
-    c2w = torch.stack(
-        [torch.tensor(camera.look_at(camera.spherical_to_cartesian(45.0 * i, 30.0 * (i % 2), 2.6))) for i in range(V)]
-    ).float()
-    o, d = camera.pixel_rays(c2w, intr, H, H)
+    c2w, intr, o, d = _ring(V, H)
     b = (o * d).sum(-1)
     alpha = ((b * b - (o * o).sum(-1) + 0.25) > 0).float()[..., None]
     imgs = torch.full((V, H, H, 3), 0.5) * alpha
@@ -141,11 +147,7 @@ def test_silhouette_cull_drops_floaters_only():
     from frng.priors import backbone as bb
 
     V, H, R = 8, 24, 0.5
-    intr = torch.tensor(camera.intrinsics_from_fov(50, H, H), dtype=torch.float32).expand(V, 4).clone()
-    c2w = torch.stack(
-        [torch.tensor(camera.look_at(camera.spherical_to_cartesian(45.0 * i, 30.0 * (i % 2), 2.6))) for i in range(V)]
-    ).float()
-    o, d = camera.pixel_rays(c2w, intr, H, H)
+    c2w, intr, o, d = _ring(V, H)
     b = (o * d).sum(-1)
     disc = b * b - (o * o).sum(-1) + R * R
     fg = disc > 0
