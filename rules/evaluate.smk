@@ -18,6 +18,7 @@ _TABLE_CAPTIONS = {
     "vs_backbone_by_source": "F-RNG vs backbone per object source",
     "ablation_by_light": "ablation per light family",
     "ladder_by_light": "quality ladder per light family",
+    "ladder_by_class": "quality ladder per material class",
 }
 # The default tier's tables also write the repository's generated results page and the README's results block
 # (frng/report/results_page.py), so that `make reproduce` rewrites them; other tiers write neither.

@@ -300,3 +300,35 @@ def test_vs_backbone_per_object_source(tmp_path):
     other = P.vs_backbone_by_source(pd.DataFrame(rows), {"o0": "procedural"})
     assert list(other["object_source"]) == ["other", "other", "procedural", "procedural"]
     assert np.isclose(other.iloc[0]["dpsnr"], 1.25)  # o1 (+1.0) and o2 (+1.5) together
+
+
+def test_ladder_per_material_class(tmp_path):
+    """The ladder per material class: each class's objects only (the prior rows follow their object's class), the
+    geometry columns kept, the paired differences within the class; write_tables writes it beside the others."""
+    from frng.report import paper_tables as P
+
+    rows = []
+    for run, variant, shift in (("backbone", "backbone", 0.0), ("full", "full", 1.0)):
+        rows += _per_image(run, variant, shift, objects=("o0", "o1"), dataset="diffuse")
+        rows += _per_image(run, variant, 2 * shift, objects=("o2",), dataset="specular")
+    df = pd.DataFrame(rows)
+    prior = pd.DataFrame(
+        [
+            dict(
+                r,
+                task="relight",
+                method="backbone-geometry+oracle-colour",
+                depth_error=0.1 * (1 + (r["object"] == "o2")),
+            )
+            for r in _per_image("x", "x", 3.0)
+        ]
+    )
+    lad = P.ladder_by_class(df, prior)
+    assert list(lad.columns[: len(T.TABLE_COLUMNS["ladder_by_class"])]) == list(T.TABLE_COLUMNS["ladder_by_class"])
+    assert list(zip(lad["dataset"], lad["step"])) == [(c, s) for c in ("diffuse", "specular") for s in "bde"]
+    b = lad[lad["step"] == "b"].set_index("dataset")
+    assert np.isclose(b.loc["diffuse", "depth_error"], 0.1) and np.isclose(b.loc["specular", "depth_error"], 0.2)
+    assert b.loc["diffuse", "n"] == 4 and b.loc["specular", "n"] == 2  # o0, o1 x 2 lights; o2 x 2 lights
+    e = lad[lad["step"] == "e"].set_index("dataset")
+    assert np.isclose(e.loc["diffuse", "dpsnr"], 1.0) and np.isclose(e.loc["specular", "dpsnr"], 2.0)
+    assert e.loc["diffuse", "objects"] == 2 and e.loc["specular", "objects"] == 1

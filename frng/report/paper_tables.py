@@ -27,6 +27,8 @@ table            rows                                                reference r
                  family of the target light (``light_family``: sky,
                  hdri, studio, user; the dataset plan's
                  ``EnvMapSpec.family``, passed as ``families``)
+``ladder_by_     ``ladder`` per material class (``dataset``), its    as in the ladder, within the class
+class``          geometry columns per class
 ``vs_backbone_   ``vs_backbone`` per source of the test object       the backbone, same source
 by_source``      (``object_source``: procedural, primitives, pybullet,
                  libero, objaverse, user: ``ObjectRecord.source``)
@@ -539,6 +541,25 @@ def ladder_by_light(df: pd.DataFrame, prior: pd.DataFrame, cross: pd.DataFrame |
     return out.reindex(columns=main + rest).reset_index(drop=True)
 
 
+def ladder_by_class(df: pd.DataFrame, prior: pd.DataFrame, cross: pd.DataFrame | None = None) -> pd.DataFrame:
+    """:func:`ladder_table` for each material class (``dataset``: diffuse, fur, specular, ...; rows: class, then step;
+    the light-sensitivity rows ``s*`` included): where each class's dB go, and how far its geometry is from the
+    G-buffer (``silhouette_iou``, ``depth_error``). The prior rows carry no class: an object's class is the one its
+    relighting rows have."""
+    classes = df.groupby("object")["dataset"].first() if len(df) else pd.Series(dtype=object)
+    parts = []
+    for ds in sorted(set(classes)):
+        objs = set(classes.index[classes == ds])
+        pick = lambda d, objs=objs: None if d is None else d[d["object"].isin(objs)]  # noqa: E731
+        t = ladder_table(pick(df), pick(prior), pick(cross))
+        if len(t):
+            parts.append(t.assign(dataset=ds))
+    out = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=["dataset"])
+    main = list(T.TABLE_COLUMNS["ladder_by_class"])
+    rest = [c for c in ["vs", *T.diff_columns()] if c in out.columns]
+    return out.reindex(columns=main + rest).reset_index(drop=True)
+
+
 def timing_table(timings: list[dict]) -> pd.DataFrame:
     rows = []
     for m in ("F-RNG", BACKBONE):
@@ -651,6 +672,7 @@ def write_tables(
         "specular base dropped), per material class; differences: base minus F-RNG.",
         df[df["run"].isin(["full", BASE_RUN])],
     )
+    out |= _class_tables(out_dir, tier, df, prior, cross)
     if families is not None:
         out |= _write_family_tables(tier, background, df, prior, cross, families, out_dir, seed_note)
     if sources is not None:
@@ -720,3 +742,22 @@ def _write_family_tables(tier, background, df, prior, cross, families, out_dir: 
         ),
     )
     return out
+
+
+def _class_tables(out_dir: Path, tier: str, df: pd.DataFrame, prior: pd.DataFrame, cross) -> dict:
+    """The per-material-class ladder (:func:`ladder_by_class`), written beside the other tables."""
+    return {
+        "ladder_by_class": _write(
+            out_dir,
+            "ladder_by_class",
+            ladder_by_class(df, prior, cross),
+            best_within=["dataset"],
+            caption=(
+                "Quality ladder per material class (the ladder table's steps and light-sensitivity rows s, each "
+                f"class's objects only; PSNR interior: PSNR over the foreground without its {M.RIM_PX} px silhouette "
+                "rim; silhouette IoU: of the render's alpha > 0.5 and the ground truth's; depth error: the mean "
+                "|ray distance - G-buffer distance| of the geometry's per-pixel Gaussians at the input views' "
+                f"pixels, world units, per object). {DIFF_NOTE} The models' own training seed. Tier {tier}."
+            ),
+        )
+    }

@@ -66,6 +66,7 @@ TABLE_TITLES: dict[str, str] = {
     "vs_backbone_by_source": "F-RNG vs the backbone per object source (generated shapes / real assets)",
     "ablation_by_light": "Ablations per light family",
     "ladder_by_light": "Quality ladder per light family",
+    "ladder_by_class": "Quality ladder per material class (geometry: silhouette IoU, depth error)",
     "vs_dense": "Per-scene baselines on dense views (the paper's Table 2)",
     "vs_image_based": "Image-based relighting baselines (the paper's Table 3)",
     "views_nvs": "Novel views from fewer views",

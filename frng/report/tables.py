@@ -70,6 +70,8 @@ TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
     "vs_backbone_by_source": ("object_source", "method", "psnr", "ssim", "lpips"),
     "ablation_by_light": ("light_family", "variant", "psnr", "ssim", "lpips"),
     "ladder_by_light": ("light_family", *(c for c in LADDER_COLUMNS if c != "depth_error")),  # depth: per object
+    # per material class of the test object (the per-image ``dataset``): its geometry's IoU and depth error too
+    "ladder_by_class": ("dataset", *LADDER_COLUMNS),
 }
 
 DIFF_METRICS = ("psnr", "ssim", "lpips")
