@@ -672,7 +672,19 @@ def write_tables(
         "specular base dropped), per material class; differences: base minus F-RNG.",
         df[df["run"].isin(["full", BASE_RUN])],
     )
-    out |= _class_tables(out_dir, tier, df, prior, cross)
+    out["ladder_by_class"] = _write(
+        out_dir,
+        "ladder_by_class",
+        ladder_by_class(df, prior, cross),
+        best_within=["dataset"],
+        caption=(
+            "Quality ladder per material class (the ladder table's steps and light-sensitivity rows s, each "
+            f"class's objects only; PSNR interior: PSNR over the foreground without its {M.RIM_PX} px silhouette "
+            "rim; silhouette IoU: of the render's alpha > 0.5 and the ground truth's; depth error: the mean "
+            "|ray distance - G-buffer distance| of the geometry's per-pixel Gaussians at the input views' "
+            f"pixels, world units, per object). {DIFF_NOTE} The models' own training seed. Tier {tier}."
+        ),
+    )
     if families is not None:
         out |= _write_family_tables(tier, background, df, prior, cross, families, out_dir, seed_note)
     if sources is not None:
@@ -742,22 +754,3 @@ def _write_family_tables(tier, background, df, prior, cross, families, out_dir: 
         ),
     )
     return out
-
-
-def _class_tables(out_dir: Path, tier: str, df: pd.DataFrame, prior: pd.DataFrame, cross) -> dict:
-    """The per-material-class ladder (:func:`ladder_by_class`), written beside the other tables."""
-    return {
-        "ladder_by_class": _write(
-            out_dir,
-            "ladder_by_class",
-            ladder_by_class(df, prior, cross),
-            best_within=["dataset"],
-            caption=(
-                "Quality ladder per material class (the ladder table's steps and light-sensitivity rows s, each "
-                f"class's objects only; PSNR interior: PSNR over the foreground without its {M.RIM_PX} px silhouette "
-                "rim; silhouette IoU: of the render's alpha > 0.5 and the ground truth's; depth error: the mean "
-                "|ray distance - G-buffer distance| of the geometry's per-pixel Gaussians at the input views' "
-                f"pixels, world units, per object). {DIFF_NOTE} The models' own training seed. Tier {tier}."
-            ),
-        )
-    }

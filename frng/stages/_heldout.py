@@ -21,13 +21,8 @@ SPLITS = ("test", "val")  # --split: the test split, or the validation objects (
 VAL_EVERY = 5  # the validation objects: every fifth of the sorted training split
 
 
-SCORES = (
-    "psnr",
-    "psnr_interior",
-    "silhouette_iou",
-    "ssim",
-    "lpips",
-)  # the per-image columns of frng.metrics.evaluate_pair kept
+# the per-image columns of frng.metrics.evaluate_pair kept
+SCORES = ("psnr", "psnr_interior", "silhouette_iou", "ssim", "lpips")
 
 ELEVATION_BANDS = (-90.0, -30.0, 0.0, 30.0, 90.0)  # degrees; the summary's target-view elevation bands
 
