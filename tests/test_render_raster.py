@@ -38,7 +38,7 @@ def _scene(N=80, C=4, seed=0):
 
 def _grads(outs, params, seed=1):
     g = torch.Generator().manual_seed(seed)
-    loss = sum((o * torch.randn(o.shape, generator=g, dtype=o.dtype)).sum() for o in outs)
+    loss = sum((o * torch.randn(o.shape, generator=g, dtype=o.dtype).to(o.device)).sum() for o in outs)
     return torch.autograd.grad(loss, params)
 
 

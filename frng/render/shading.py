@@ -309,9 +309,18 @@ def ggx_diffuse_brdf(albedo, metallic, normal, wo) -> torch.Tensor:
     return (1.0 - F_v) * (1.0 - metallic) * albedo / math.pi * (nv > 0).to(albedo.dtype)
 
 
+# The chunk sizes of ``shading`` are the CPU's (a 16k-pair chunk keeps the 4 x 256 decoder's activations in cache); on
+# CUDA both are multiplied by this. A 16k-pair chunk is ~6 GFLOP of decoder, microseconds on a GPU, so the per-chunk
+# launches and syncs set the time: at 512 px on an H200 the shading ran at 2 % of the card's bf16 matmul rate
+# (docs/performance.md "On a GPU"). 64x: 1M pairs, ~0.5 GB of bf16 activations per decoder layer.
+CUDA_CHUNK_SCALE = 64
+
+
 def _estimate(reflectance, per_pixel, wo, samples: EnvSamples, chunk: int, chunk_pairs: int | None) -> torch.Tensor:
     w = (samples.radiance / samples.pdf[:, None]).to(wo.dtype)  # (K, 3)
     wi = samples.dirs.to(wo.dtype)
+    if wo.is_cuda:
+        chunk, chunk_pairs = chunk * CUDA_CHUNK_SCALE, chunk_pairs and chunk_pairs * CUDA_CHUNK_SCALE
     if chunk_pairs:  # (pixel, sample) pairs per chunk: keeps the decoder's activations cache-sized for any spp
         chunk = max(1, min(chunk, chunk_pairs // max(1, wi.shape[0])))
     outs = []
