@@ -15,7 +15,7 @@ SNAKEMAKE := $(VENV)/bin/snakemake --snakefile workflow/Snakefile --profile prof
 # message for these names neither).
 CHECK = $(PY) -m frng config --check
 
-.PHONY: reproduce seeds test setup smoke dry-run lint format bench clean-results
+.PHONY: reproduce seeds test setup smoke dry-run lint format bench gpu-check clean-results
 
 setup: $(STAMP) $(NATIVE)
 
@@ -67,6 +67,12 @@ format: $(STAMP)
 	$(VENV)/bin/ruff check --fix $(LINT_PY)
 	$(VENV)/bin/ruff format $(LINT_PY)
 	$(VENV)/bin/snakefmt $(LINT_SMK)
+
+# On a CUDA machine (the CUDA build of torch, and gsplat: docs/performance.md "On a GPU"): the gpu-marked tests
+# (CUDA paths CPU runs cannot check; skipped without CUDA) and the paper-size relighting bench at 256 and 512 px.
+gpu-check: $(STAMP)
+	$(PY) -m pytest -q -m gpu tests
+	$(VENV)/bin/frng bench relight --configs config/paper.yaml --resolution 256 512 --passes 1 --lights 1 --device cuda
 
 bench: $(STAMP) $(NATIVE)
 	$(VENV)/bin/frng bench render

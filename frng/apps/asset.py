@@ -705,7 +705,7 @@ class AssetRenderer:
         sc = self.shading
         spp = spp or sc.spp_infer
         env = torch.as_tensor(env).float()
-        seed = 0 if generator is None else int(torch.randint(0, 2**31 - 1, (1,), generator=generator, device=generator.device))
+        seed = envmap.sample_seed(generator)
         samples = envmap.sample(envmap.importance_sampler(env.detach().to(self.device)), spp, sc.sampling, seed)
         with torch.no_grad(), torch.autocast(maps.device.type, dtype=torch.bfloat16, enabled=self.bf16):
             rgb = shade_decoder(self.decoder, maps, alpha, c2w, intr, env, samples, sc, self.specular)

@@ -630,7 +630,7 @@ class FRNG(nn.Module):
 
     def light_samples(self, env: torch.Tensor, spp: int, generator: torch.Generator | None = None):
         """Importance samples of an (He, We, 3) env map (one set for the whole image), on the model's device."""
-        seed = 0 if generator is None else int(torch.randint(0, 2**31 - 1, (1,), generator=generator, device=generator.device))
+        seed = envmap.sample_seed(generator)
         sampler = envmap.importance_sampler(env.detach().to(self.device))
         return envmap.sample(sampler, spp, self.shading_cfg.sampling, seed)
 

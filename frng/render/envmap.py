@@ -220,6 +220,14 @@ def unit_square_samples(n: int, method: str = "sobol", seed: int = 0, device=Non
     return u.clamp(0.0, 1.0 - 1e-12).to(device)
 
 
+def sample_seed(generator: torch.Generator | None) -> int:
+    """The seed of one image's light-sample set (:func:`sample`) drawn from ``generator`` (0 without one), on the
+    generator's own device (a CUDA generator cannot draw on the CPU)."""
+    if generator is None:
+        return 0
+    return int(torch.randint(0, 2**31 - 1, (1,), generator=generator, device=generator.device))
+
+
 def sample(sampler: EnvSampler, n: int, method: str = "sobol", seed: int = 0) -> EnvSamples:
     """Draw n light directions by importance (one fixed set for a whole image). Float64 on the map's device."""
     H, W = sampler.pmf.shape

@@ -112,9 +112,9 @@ def relit(obj, model, c2w, intr, envs: dict, seed: int, spp: int) -> dict:
         raster = model.rasterize(rec, c2w, intr, H, W)
         for light, env in envs.items():
             g = torch.Generator().manual_seed(catalog.derive_seed(seed, "relight-frng", obj.id, light))
-            renders["full", light] = model.shade(raster, env, spp, generator=g).float().numpy()
+            renders["full", light] = model.shade(raster, env, spp, generator=g).float().cpu().numpy()
             if model.cfg.head == "neural" and model.decoder.cosine:
-                renders["base", light] = shade_base(model, raster, env).float().numpy()
+                renders["base", light] = shade_base(model, raster, env).float().cpu().numpy()
     return renders
 
 
