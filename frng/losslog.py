@@ -40,7 +40,7 @@ class LossLog:
                 w.writerow({k: r.get(k, "") for k in self.fields})
 
     def append(self, step: int, elapsed: float, values: dict[str, float]) -> None:
-        row = {"step": step, "elapsed_s": f"{elapsed:.2f}"}
+        row = {"step": step, "elapsed_s": f"{elapsed:.3f}"}
         row.update({k: f"{float(v):.6g}" for k, v in values.items()})
         self.rows.append(row)
         with open(self.csv, "a", newline="") as f:
