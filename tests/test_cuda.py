@@ -6,6 +6,7 @@ import sys
 
 import pytest
 import torch
+from test_render_shading import random_ggx_pixels
 
 from frng.render.envmap import EnvSamples
 from frng.render.shading import CUDA_CHUNK_SCALE, ggx_reflectance, shade_pixels
@@ -26,22 +27,13 @@ def test_relighting_runs_on_cuda(root):
 
 def test_shading_on_cuda_matches_cpu():
     """The Monte-Carlo estimate at CUDA's chunk sizes (x CUDA_CHUNK_SCALE) equals the CPU's, float64."""
-    g = torch.Generator().manual_seed(0)
     P, K = 3 * CUDA_CHUNK_SCALE + 5, 40
+    wo, params = random_ggx_pixels(P, seed=0)
+    g = torch.Generator().manual_seed(1)
     dt = torch.float64
-    wo = torch.nn.functional.normalize(
-        torch.rand(P, 3, generator=g, dtype=dt) + torch.tensor([0, 0, 0.5], dtype=dt), dim=-1
-    )
-    params = [
-        torch.rand(P, 3, generator=g, dtype=dt),
-        torch.rand(P, 1, generator=g, dtype=dt) * 0.9 + 0.1,
-        torch.rand(P, 1, generator=g, dtype=dt),
-        torch.nn.functional.normalize(torch.randn(P, 3, generator=g, dtype=dt), dim=-1),
-    ]
     dirs = torch.nn.functional.normalize(torch.randn(K, 3, generator=g, dtype=dt), dim=-1)
-    samples = EnvSamples(
-        dirs=dirs, pdf=torch.full((K,), 1 / (4 * torch.pi), dtype=dt), radiance=torch.rand(K, 3, generator=g, dtype=dt)
-    )
+    radiance = torch.rand(K, 3, generator=g, dtype=dt)
+    samples = EnvSamples(dirs=dirs, pdf=torch.full((K,), 1 / (4 * torch.pi), dtype=dt), radiance=radiance)
     cpu = shade_pixels(ggx_reflectance, params, wo, samples, chunk=7, chunk_pairs=64)
     cuda_samples = EnvSamples(*(t.cuda() for t in samples))
     gpu = shade_pixels(ggx_reflectance, [p.cuda() for p in params], wo.cuda(), cuda_samples, chunk=7, chunk_pairs=64)

@@ -269,21 +269,26 @@ def test_shading_config_from_config():
     )
 
 
+def random_ggx_pixels(P: int, seed: int, dtype=DT) -> tuple[torch.Tensor, list[torch.Tensor]]:
+    """P random pixels for :func:`ggx_reflectance`: view directions wo (P, 3) in the upper hemisphere and the
+    parameter maps [albedo (P, 3), roughness (P, 1), metallic (P, 1), normal (P, 3)]."""
+    g = torch.Generator().manual_seed(seed)
+    up = torch.tensor([0, 0, 0.5], dtype=dtype)
+    wo = torch.nn.functional.normalize(torch.rand(P, 3, generator=g, dtype=dtype) + up, dim=-1)
+    params = [
+        torch.rand(P, 3, generator=g, dtype=dtype),
+        torch.rand(P, 1, generator=g, dtype=dtype) * 0.9 + 0.1,
+        torch.rand(P, 1, generator=g, dtype=dtype),
+        torch.nn.functional.normalize(torch.randn(P, 3, generator=g, dtype=dtype), dim=-1),
+    ]
+    return wo, params
+
+
 def test_chunking_leaves_the_estimate_unchanged():
     """Chunk sizes only bound memory (and set the speed: on CUDA they are scaled by CUDA_CHUNK_SCALE): any chunking
     of pixels and (pixel, sample) pairs gives the same per-pixel estimate."""
     q = _furnace_quadrature(6)
-    g = torch.Generator().manual_seed(3)
-    P = 37
-    wo = torch.nn.functional.normalize(
-        torch.rand(P, 3, generator=g, dtype=DT) + torch.tensor([0, 0, 0.5], dtype=DT), dim=-1
-    )
-    params = [
-        torch.rand(P, 3, generator=g, dtype=DT),
-        torch.rand(P, 1, generator=g, dtype=DT) * 0.9 + 0.1,
-        torch.rand(P, 1, generator=g, dtype=DT),
-        torch.nn.functional.normalize(torch.randn(P, 3, generator=g, dtype=DT), dim=-1),
-    ]
+    wo, params = random_ggx_pixels(37, seed=3)
     whole = shade_pixels(ggx_reflectance, params, wo, q)
     for chunk, pairs in [(1, None), (5, None), (4096, 3 * q.dirs.shape[0]), (4096, 1)]:
         assert torch.allclose(
