@@ -310,7 +310,7 @@ def ggx_diffuse_brdf(albedo, metallic, normal, wo) -> torch.Tensor:
 
 
 # The chunk sizes of ``shading`` are the CPU's (a 16k-pair chunk keeps the 4 x 256 decoder's activations in cache); on
-# CUDA both are multiplied by this. A 16k-pair chunk is ~6 GFLOP of decoder, microseconds on a GPU, so the per-chunk
+# CUDA both are multiplied by this. A 16k-pair chunk is ~6 GFLOP of decoder, ~0.1 ms on a GPU, so the per-chunk
 # launches and syncs set the time: at 512 px on an H200 the shading ran at 2 % of the card's bf16 matmul rate
 # (docs/performance.md "On a GPU"). 64x: 1M pairs, ~0.5 GB of bf16 activations per decoder layer.
 CUDA_CHUNK_SCALE = 64
