@@ -32,6 +32,10 @@ STAGES: dict[str, tuple[str, str]] = {
         "frng.stages.dataset_preview",
         "PNG contact sheet per curated object (views x lights + G-buffers)",
     ),
+    "noise-floor": (
+        "frng.stages.noise_floor",
+        "the curated targets' noise floor against high-spp renders of the same views (the quality ladder's step 0)",
+    ),
     "bench": ("frng.stages.bench", "benchmarks: rasterizer, shading, relighting"),
     "backbone-train": ("frng.stages.backbone_train", "train the RelitLRM-style backbone (training split), then freeze"),
     "idm-train": ("frng.stages.idm_train", "train the learned IDM on the training split's G-buffers"),

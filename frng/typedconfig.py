@@ -21,6 +21,7 @@ from frng.nn import ModelConfig
 from frng.plan.catalog import (
     EnvmapsConfig,
     LiberoConfig,
+    NoiseFloorConfig,
     ObjaverseConfig,
     ObjectsConfig,
     RenderConfig,
@@ -82,6 +83,7 @@ SECTION_CLASSES: tuple[type, ...] = (
     LiberoConfig,
     ObjaverseConfig,
     RenderConfig,
+    NoiseFloorConfig,
     BackboneTrainingSection,
     BackboneTrainConfig,
     IDMTrainingSection,

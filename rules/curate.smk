@@ -69,10 +69,41 @@ rule dataset_preview:
         "exec {params.py:q} -m frng dataset preview --config {params.config:q} --out {params.out:q} > {log:q} 2>&1"
 
 
+# The targets' noise floor (the quality ladder's step 0): the first test object of each class rendered as curation
+# renders its targets and as a high-spp reference (render.noise_floor; views 0: no such rule's output is asked for)
+NOISE_FLOOR = [L.metrics("noise_floor")] if _RENDER["noise_floor"]["views"] > 0 else []
+
+
+rule noise_floor:
+    input:
+        index=L.envmap_index(),
+    output:
+        csv=L.metrics("noise_floor"),
+    log:
+        L.log("noise_floor"),
+    conda:
+        "../envs/blender.yaml"
+    threads: _RENDER["threads"]
+    resources:
+        mem_mb=2500,
+        runtime=60,
+    params:
+        **stage_params("noise_floor"),
+        envmaps=lambda wildcards, input: os.path.dirname(input.index),
+    message:
+        "The targets' noise floor: {views} target view(s) of one test object per class against {spp}-spp renders".format(
+            views=_RENDER["noise_floor"]["views"], spp=2 * _RENDER["noise_floor"]["reference_spp"]
+        )
+    shell:
+        "exec {params.py:q} -m frng noise-floor --config {params.config:q} --envmaps {params.envmaps:q} "
+        "--out {output.csv:q} > {log:q} 2>&1"
+
+
 # the record files are targets too: Snakemake makes a missing input only for a job that runs anyway (the target makes
 # curate_record run, and then the object's curation)
 add_targets(
     *expand(L.object_meta(), obj=OBJECT_IDS),
     *expand(L.preview(), obj=OBJECT_IDS),
     *(L.curate_record(o.id, frng_catalog.curate_digest(CATALOG, o)) for o in CATALOG.objects),
+    *NOISE_FLOOR,
 )

@@ -65,6 +65,7 @@ rule tables:
         cross=rules.evaluate.output.cross,
         timing=expand(rules.relight.output.timing, obj=TEST_IDS),
         prior=rules.eval_backbone.output.backbone,
+        noise=NOISE_FLOOR,  # the ladder's step 0 (rules/curate.smk), when the config asks for it
         # what the results page shows (default tier only: other tiers make tables and figures side by side)
         ablation_figure=L.figure("ablation.png") if RESULTS_PAGE_ARGS else [],
         # Tables 2-3 and the views table, when the config runs the baselines
@@ -92,11 +93,13 @@ rule tables:
         **stage_params("tables"),
         out=lambda wildcards, output: os.path.dirname(output[0]),
         page=RESULTS_PAGE_ARGS,
+        noise=" ".join(f"--noise-floor {shlex.quote(f)}" for f in NOISE_FLOOR),
     message:
         "The paper's tables: {names}".format(names=", ".join(TABLE_NAMES))
     shell:
         "exec {params.py:q} -m frng tables --config {params.config:q} --metrics {input.per_image:q} --timing {input.timing:q} "
-        "--prior-metrics {input.prior:q} --cross-light {input.cross:q} --out {params.out:q} {params.page} > {log:q} 2>&1"
+        "--prior-metrics {input.prior:q} --cross-light {input.cross:q} {params.noise} --out {params.out:q} {params.page} "
+        "> {log:q} 2>&1"
 
 
 rule figures:

@@ -99,7 +99,7 @@ FROM_TRAIN = {"train", "model_alias", "relight", "evaluate", "tables", "figures"
 BASELINE_SCORES = {"baseline_eval", "baseline_tables"}
 RULES = {
     *("envmaps", "curate", "dataset_preview", "backbone_train", "idm_train", "backbone_cache", "idm_priors"),
-    *("eval_backbone", "training_set_caches", "training_set_priors"),
+    *("eval_backbone", "training_set_caches", "training_set_priors", "noise_floor"),
     *FROM_TRAIN,
     *("curate_baselines", "baseline_fit", "baseline_image", "baseline_frng_nvs", *BASELINE_SCORES),
 }
@@ -131,7 +131,9 @@ CASES = [
     ),
     # a second training seed (`make seeds`): its models and their relighting, not the first seed's `relight` jobs
     ("train.seeds", [0, 1], {"train", "relight_seed", "evaluate", "tables", "figures"}),
-    ("eval.protocol", "plain", {"evaluate", "tables", "figures", *BASELINE_SCORES}),
+    ("eval.protocol", "plain", {"evaluate", "noise_floor", "tables", "figures", *BASELINE_SCORES}),
+    # the targets' noise floor (the ladder's step 0) alone: no curation, no model
+    ("render.noise_floor.reference_spp", 64, {"noise_floor", "tables"}),
     ("tier", "custom", {"tables", "baseline_tables"}),
     # the fits, their scores and tables (the tables rule waits for them only where it writes the results page)
     ("baselines.fit.steps", 61, {"baseline_fit", *BASELINE_SCORES}),

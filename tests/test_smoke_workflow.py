@@ -56,11 +56,21 @@ def test_every_target_and_table(smoke_run):
     assert len(per_image) == len(tests) * len(runs(config)) * n_lights * n_views
     assert per_image["psnr"].between(0, 100).all() and per_image["ssim"].between(-1, 1).all()
     assert per_image["lpips"].between(0, 2).all()
-    ladder = pd.read_csv(results / "tables" / "ladder.csv")
-    assert {"a", "b", "c", "d", "e", "f"} <= set(ladder["step"]), list(ladder["step"])
+    ladder = pd.read_csv(results / "tables" / "ladder.csv", dtype={"step": str})
+    assert {"0", "a", "b", "c", "d", "e", "f"} <= set(ladder["step"]), list(ladder["step"])
     # e/f/g carry their paired difference and its interval; the Lambertian-base run is scored per class
     by = ladder.set_index("step")
     assert "g" in by.index and (by.loc[["e", "f", "g"], "dpsnr_lo"] <= by.loc[["e", "f", "g"], "dpsnr_hi"]).all()
+    # row 0, the targets' noise floor (rule noise_floor): each class's first test object, its target lights and the
+    # rig's first render.noise_floor.views target views, closer to a clean render than any model comes to them
+    noise = pd.read_csv(results / "metrics" / "noise_floor.csv")
+    nf = config["render"]["noise_floor"]
+    assert (
+        by.loc["0", "n"]
+        == len(noise[noise["setting"] == "tier"])
+        == (len(set(noise["object"])) * n_lights * min(nf["views"], n_views))
+    )
+    assert by.loc["0", "psnr"] > by.loc["e", "psnr"] + 5, by["psnr"].to_dict()
     assert {"all"} <= set(pd.read_csv(results / "tables" / "lambertian.csv")["dataset"])
     cross = pd.read_csv(results / "metrics" / "relight_cross_light.csv")
     if n_lights > 1:

@@ -21,6 +21,7 @@ STAGES_DIR = ROOT / "frng" / "stages"
 RULE_STAGES = {
     "envmaps": "frng.stages.envmaps",
     "curate": "frng.stages.curate",
+    "noise_floor": "frng.stages.noise_floor",
     "dataset_preview": "frng.stages.dataset_preview",
     "backbone_train": "frng.stages.backbone_train",
     "idm_train": "frng.stages.idm_train",
@@ -123,7 +124,7 @@ def test_every_rule_is_mapped_once():
     assert not set(RULE_STAGES) & set(NO_STAGE)
     assert rules == set(RULE_STAGES) | set(NO_STAGE), (
         f"rules without an entry here: {sorted(rules - set(RULE_STAGES) - set(NO_STAGE))}; "
-        f"entries without a rule: {sorted(set(RULE_STAGES) | set(NO_STAGE) - rules)}"
+        f"entries without a rule: {sorted((set(RULE_STAGES) | set(NO_STAGE)) - rules)}"
     )
 
 

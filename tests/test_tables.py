@@ -332,3 +332,66 @@ def test_ladder_per_material_class(tmp_path):
     e = lad[lad["step"] == "e"].set_index("dataset")
     assert np.isclose(e.loc["diffuse", "dpsnr"], 1.0) and np.isclose(e.loc["specular", "dpsnr"], 2.0)
     assert e.loc["diffuse", "objects"] == 2 and e.loc["specular", "objects"] == 1
+
+
+def test_ladder_step_0_is_the_targets_noise_floor(tmp_path):
+    """`frng noise-floor`'s CSV (frng.data.noise_floor.ladder_rows of its scored renders) becomes the ladder's first
+    row, step 0, in the ladder and its per-class and per-family parts: the tier's targets against the high-spp
+    reference, with their metrics; the reference's own half-against-half rows and the raw reference rows stay out."""
+    from frng import io
+    from frng.data import noise_floor as N
+    from frng.report import paper_tables as P
+
+    assert N.LADDER_METHODS[N.TIER] == P.TARGETS_METHOD
+    scored = []
+    for o, psnr in (("o0", 36.0), ("o2", 34.0)):
+        for setting, value in ((N.REFERENCE, None), (N.HALF, 45.0), (N.TIER, psnr)):
+            row = dict(object=o, material="diffuse", light="l0", view="v0", setting=setting, spp=32, seconds=0.4)
+            if value is not None:
+                row |= dict(
+                    psnr=value, ssim=0.95, lpips=0.005, protocol="aligned", scale_r=1.0, scale_g=1.0, scale_b=1.0
+                )
+            scored.append(row)
+    ladder_rows = N.ladder_rows(scored)
+    assert [(r["method"], r["task"]) for r in ladder_rows] == [
+        ("high-spp-reference-half", "relight"),
+        (P.TARGETS_METHOD, "relight"),
+    ] * 2
+    noise_csv = tmp_path / "noise_floor.csv"
+    pd.DataFrame(ladder_rows).to_csv(noise_csv, index=False)
+
+    rows = _per_image("backbone", "backbone", 0.0) + _per_image("full", "full", 1.0)
+    per_image = tmp_path / "per_image.csv"
+    pd.DataFrame(rows).to_csv(per_image, index=False)
+    prior_csv = tmp_path / "backbone.csv"
+    pd.DataFrame([dict(r, task="relight", method="gt-depth+oracle-colour") for r in _per_image("x", "x", 3.0)]).to_csv(
+        prior_csv, index=False
+    )
+    timing = tmp_path / "t.json"
+    io.write_json(
+        timing,
+        {
+            "device": "cpu",
+            "resolution": 32,
+            "spp": 16,
+            "F-RNG": {"reconstruction_s": 1.0, "relight_ms_per_image": 20.0},
+            "backbone": {"reconstruction_s": 1.0, "relight_ms_per_image": 40.0},
+        },
+    )
+    common = ("custom", [1, 1, 1], per_image, [timing], tmp_path / "tables", prior_csv)
+    out = P.write_tables(*common, families={"l0": "sky", "l1": "studio"}, noise_csv=noise_csv)
+    ladder = pd.read_csv(out["ladder"]["csv"], dtype={"step": str})
+    assert list(ladder["step"]) == ["0", "a", "d", "e"]
+    zero = ladder.iloc[0]
+    assert zero["n"] == 2 and np.isclose(zero["psnr"], 35.0) and np.isclose(zero["lpips"], 0.005)
+    assert "noise floor" in zero["what"] and "row 0" in out["ladder"]["md"].read_text()
+    by_class = pd.read_csv(out["ladder_by_class"]["csv"], dtype={"step": str})
+    assert list(by_class["step"][:2]) == ["0", "a"] and np.isclose(by_class.iloc[0]["psnr"], 35.0)
+    by_light = pd.read_csv(out["ladder_by_light"]["csv"], dtype={"step": str})
+    sky = by_light[by_light["light_family"] == "sky"]
+    assert list(sky["step"][:2]) == ["0", "a"] and "0" not in set(
+        by_light[by_light["light_family"] == "studio"]["step"]
+    )
+    # without the CSV (a config with render.noise_floor.views 0) the ladder starts at step a
+    plain = P.write_tables(*common[:4], tmp_path / "plain", prior_csv)
+    assert pd.read_csv(plain["ladder"]["csv"], dtype={"step": str})["step"].iloc[0] == "a"

@@ -100,6 +100,7 @@ def render_images(
     objects: list[str],
     lights: list[str] | None,
     n_views: int,
+    n_lights: int | None,
     reference_spp: int,
     settings: list[Sampling],
     out: Path,
@@ -109,7 +110,8 @@ def render_images(
     """Inside Blender: every (object, light, view) under the two references and each setting; ``plan``: the dataset
     plan (:func:`frng.plan.catalog.plan`), ``render`` its render section (resolution and threads as wanted),
     ``lights``: maps of ``env_dir`` (None: each object's target lights), ``n_views``: the rig's first target views.
-    With ``save_images`` every render is written as ``out/images/{obj}/{light}/{view}/{setting}.exr``. Returns one
+    ``n_lights``: with ``lights`` None, only each object's first ``n_lights`` target lights (None: all). With
+    ``save_images`` every render is written as ``out/images/{obj}/{light}/{view}/{setting}.exr``. Returns one
     record per image: keys object, material, light, view, setting, spp, denoise, clamp_direct, clamp_indirect,
     seconds, rgba ((H, W, 4) float32); the references' settings are ``reference`` (seed + 1) and ``reference-half``
     (seed + 2), the settings' seed the object's own."""
@@ -132,7 +134,7 @@ def render_images(
         _, targets = rig.object_views(rig_rng, render)
         views = targets[:n_views]
         scene, cam, *_ = object_scene(plan, objaverse, render, spec, log)
-        for light in lights or spec.target_lights:
+        for light in lights or spec.target_lights[:n_lights]:
             path = Path(folder.envmap(light))
             if not path.is_file():
                 raise FileNotFoundError(f"{path}: no such env map (--lights / --envmaps)")
@@ -166,11 +168,12 @@ def render_images(
     return records
 
 
-def score(records: list[dict], protocol: str) -> list[dict]:
+def score(records: list[dict], protocol: str, background=None) -> list[dict]:
     """The rows of ``renders.csv``: each setting's record scored against the mean of the two reference renders of
-    its (object, light, view), ``reference-half`` against ``reference`` (the ``reference`` rows carry seconds
-    only)."""
-    from frng.metrics import evaluate_pair
+    its (object, light, view), ``reference-half`` against ``reference``, with every per-image metric of
+    :func:`frng.metrics.evaluate_pair` (the ``reference`` rows carry seconds only); ``background``: the metrics'
+    (None: :data:`frng.metrics.DEFAULT_BACKGROUND`)."""
+    from frng.metrics import DEFAULT_BACKGROUND, evaluate_pair
 
     key = lambda r: (r["object"], r["light"], r["view"])  # noqa: E731
     first = {key(r): r["rgba"] for r in records if r["setting"] == REFERENCE}
@@ -180,10 +183,27 @@ def score(records: list[dict], protocol: str) -> list[dict]:
         row = {k: v for k, v in r.items() if k != "rgba"}
         if r["setting"] != REFERENCE:
             ref = first[key(r)] if r["setting"] == HALF else 0.5 * (first[key(r)] + second[key(r)])
-            m = evaluate_pair(r["rgba"], ref, protocol=protocol)
-            row |= {k: m[k] for k in ("psnr", "ssim", "lpips")}
+            m = evaluate_pair(r["rgba"], ref, protocol=protocol, background=background or DEFAULT_BACKGROUND)
+            row |= m
         rows.append(row)
     return rows
+
+
+LADDER_METHODS = {TIER: "targets-vs-high-spp", HALF: "high-spp-reference-half"}
+"""The ``method`` of the noise floor's rows in the quality ladder's input (:func:`ladder_rows`): the tier's targets
+against the reference, and one reference render against the other."""
+
+
+def ladder_rows(rows: list[dict]) -> list[dict]:
+    """:func:`score`'s rows of the ``tier`` and ``reference-half`` settings in the layout of the priors' evaluation
+    (``metrics/backbone.csv``: task, object, light, view, method, metrics), the rows the quality ladder reads
+    (:data:`frng.report.paper_tables.LADDER_STEPS`, step 0): task ``relight`` (the held-out relighting images'
+    objects, lights and views), method :data:`LADDER_METHODS`."""
+    out = []
+    for r in rows:
+        if r["setting"] in LADDER_METHODS:
+            out.append({"task": "relight", "method": LADDER_METHODS[r["setting"]]} | r)
+    return out
 
 
 def summary(rows: list[dict], render, n_per_object: int | None) -> str:

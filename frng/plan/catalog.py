@@ -144,6 +144,18 @@ class RenderConfig:
     threads: int
     fur_strands: int
     dense_views: int  # the per-scene baselines' dense views (frng.baselines.plan.dense_views; 0: none)
+    noise_floor: NoiseFloorConfig  # the targets' noise floor (frng/stages/noise_floor.py; views 0: none)
+
+
+@register("render.noise_floor")
+@dataclass(frozen=True)
+class NoiseFloorConfig:
+    """The config's ``render.noise_floor`` section: how many targets the quality ladder's noise floor renders again,
+    and the reference's samples (frng.data.noise_floor)."""
+
+    views: int
+    lights: int | None
+    reference_spp: int
 
 
 @register("objects")

@@ -17,9 +17,10 @@ table            rows                                                reference r
 ``views``        the full model fed 2, 4, 6, 8, 10 input views       6 views (the rig)
 ``k``            K = 1, 2, 4, 8 %                                    the full model's K
 ``timing``       F-RNG and the backbone, mean over test objects      (speedup vs the backbone)
-``ladder``       the quality ladder (:data:`LADDER_STEPS`): oracle   ``vs`` column: e vs d, f and g vs e;
-                 references, backbone, F-RNG, F-RNG + oracle priors, rows ``s*``: the same method scored
-                 F-RNG's Lambertian base alone, and the light-        against the right light
+``ladder``       the quality ladder (:data:`LADDER_STEPS`): the      ``vs`` column: e vs d, f and g vs e;
+                 targets' noise floor (step 0, ``noise_csv``), oracle rows ``s*``: the same method scored
+                 references, backbone, F-RNG, F-RNG + oracle priors, against the right light
+                 F-RNG's Lambertian base alone, and the light-
                  sensitivity rows ``s*`` (:func:`sensitivity_rows`)
 ``lambertian``   per dataset: F-RNG and its Lambertian base alone    F-RNG, same dataset
                  (run ``full-base``)
@@ -69,6 +70,7 @@ VARIANT_LABELS = {name: v.label for name, v in VARIANTS.items()}
 METHOD_LABELS = {"F-RNG": "F-RNG (ours)", BACKBONE: "backbone (RelitLRM-style)"}
 BASE_LABEL = "Lambertian base only"
 GROUND_TRUTH = "ground-truth"  # frng.apps.scoring.GROUND_TRUTH
+TARGETS_METHOD = "targets-vs-high-spp"  # frng.data.noise_floor.LADDER_METHODS["tier"]: the ladder's step 0
 IMAGE_KEYS = ("object", "light", "view")
 DIFF_NOTE = (
     "Δ = the row minus its reference row over the same images, with a 95% paired bootstrap interval over "
@@ -319,6 +321,14 @@ def k_table(df: pd.DataFrame) -> pd.DataFrame:
 
 
 LADDER_STEPS = (  # (step, what, source, task/run, method, reference step); source "prior" = backbone.csv
+    (
+        "0",
+        "the targets' noise floor: curated as the tier curates, against a high-spp render of the same views",
+        "prior",
+        "relight",
+        TARGETS_METHOD,
+        None,
+    ),
     (
         "a",
         "ground-truth depth (pixel-footprint surfels) + oracle colour",
@@ -585,12 +595,14 @@ def write_tables(
     cross_csv: Path | None = None,
     families: Mapping[str, str] | None = None,
     sources: Mapping[str, str] | None = None,
+    noise_csv: Path | None = None,
 ) -> dict[str, dict]:
     """Write the tables (see the module docstring). Returns {table: {"csv"|"md"|"tex": path}}. ``tier`` and
     ``background`` (the config's ``tier`` and ``eval.background``) go into the captions. ``families``: map name ->
     light family (the dataset plan's, :meth:`frng.plan.catalog.Catalog.light_families`); without it the per-family
     tables (``*_by_light``) are not written; ``sources``: object id -> source (the plan's,
-    :meth:`frng.plan.catalog.Catalog.object_sources`), without it ``vs_backbone_by_source`` is not written."""
+    :meth:`frng.plan.catalog.Catalog.object_sources`), without it ``vs_backbone_by_source`` is not written;
+    ``noise_csv``: the targets' noise floor (``frng noise-floor``: rows in the priors' layout), the ladders' step 0."""
     df = M.read_csv(per_image_csv)
     missing = [
         c
@@ -643,6 +655,8 @@ def write_tables(
         k_rows(df),
     )
     prior = pd.read_csv(prior_csv)
+    if noise_csv is not None:
+        prior = pd.concat([prior, pd.read_csv(noise_csv)], ignore_index=True)
     steps, sensitivity = split_ladder(ladder_table(df, prior, cross))
     out["ladder"] = _write(
         out_dir,
@@ -652,7 +666,8 @@ def write_tables(
         footer_best=False,
         caption=(
             f"Quality ladder: where the dB go. Aligned protocol on the held-out relighting images (row c: the "
-            f"held-out input-light views); PSNR interior = the same PSNR over the foreground without its "
+            f"held-out input-light views; row 0: the ground truth itself, the first test object of each material "
+            f"class, render.noise_floor); PSNR interior = the same PSNR over the foreground without its "
             f"{M.RIM_PX} px silhouette rim (where the geometry's outline decides the error); silhouette IoU = "
             f"intersection over union of the render's silhouette (alpha > 0.5) and the ground truth's; depth error = "
             f"mean |distance - G-buffer distance| of the geometry's per-pixel Gaussians along the input pixels' rays "

@@ -17,7 +17,7 @@ from frng.typedconfig import typed
 
 # The config keys this stage reads (frng.plan.digests: its rule's digest): the object's views and lights (plan), the
 # fit's budget and schedule, the rasterizer and shading, seeds, device (frng/baselines/perscene.py)
-CONFIG_READS = ("@plan", "train_seed", "device", "render", "baselines.fit", "raster", "shading")
+CONFIG_READS = ("@plan", "train_seed", "device", "render", "!render.noise_floor", "baselines.fit", "raster", "shading")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

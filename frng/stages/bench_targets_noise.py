@@ -81,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
             args.objects or N.default_objects(plan),
             args.lights,
             args.views,
+            None,
             args.reference_spp,
             settings,
             out,

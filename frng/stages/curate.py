@@ -32,7 +32,7 @@ from frng.render import envmap
 # curation. objects.objaverse is read too, but only where the
 # GLB cache is and whether to fetch a missing uid (cache, download): the mesh of a uid is the same file wherever
 # it is cached, and the uids, filter and material reach the spec
-CONFIG_READS = ("render", "!render.dense_views", "envmaps.width", "envmaps.normalize")
+CONFIG_READS = ("render", "!render.dense_views", "!render.noise_floor", "envmaps.width", "envmaps.normalize")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

@@ -23,7 +23,7 @@ from frng.render import envmap
 # The config keys this stage reads (frng.plan.digests: its rule's digest): the object's curation settings (render.*,
 # envmaps.width), the plan (its lights, split, material; which test objects get dense views:
 # baselines.objects_per_class); frng/baselines/curate.py
-CONFIG_READS = ("@plan", "render", "envmaps.width", "baselines.objects_per_class")
+CONFIG_READS = ("@plan", "render", "!render.noise_floor", "envmaps.width", "baselines.objects_per_class")
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

@@ -37,6 +37,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="the priors' evaluation CSV for the quality ladder (default {results}/metrics/backbone.csv)",
     )
     parser.add_argument(
+        "--noise-floor",
+        help="the targets' noise floor CSV (frng noise-floor), the quality ladder's step 0 (default: none)",
+    )
+    parser.add_argument(
         "--results-page",
         metavar="PAGE",
         help="then write this generated results page (docs/results.md) from the tables, figures and provenance "
@@ -62,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
         Path(args.cross_light or L.metrics("relight_cross_light")),
         families=plan.light_families(),
         sources=plan.object_sources(),
+        noise_csv=Path(args.noise_floor) if args.noise_floor else None,
     )
     for name, paths in out.items():
         print(f"== {name} ({paths['md']})\n{paths['md'].read_text()}")
