@@ -86,7 +86,7 @@ rule noise_floor:
     threads: _RENDER["threads"]
     resources:
         mem_mb=2500,
-        runtime=60,
+        runtime=30,
     params:
         **stage_params("noise_floor"),
         envmaps=lambda wildcards, input: os.path.dirname(input.index),

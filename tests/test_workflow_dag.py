@@ -99,6 +99,8 @@ EXPECTED = {
     "baseline_frng_nvs": lambda c: len(baseline_objects(c)),
     "baseline_eval": lambda c: int(bool(baseline_objects(c))),
     "baseline_tables": lambda c: int(bool(baseline_objects(c))),
+    # the targets' noise floor (the ladder's step 0): one job, unless render.noise_floor.views is 0
+    "noise_floor": lambda c: int(c["render"]["noise_floor"]["views"] > 0),
     # one digest file per rule with a config digest ({results}/.digests, rules/digests.smk), asked for by rule all
     "config_digest": lambda c: len(frng_digests.RULE_CONFIG_KEYS),
     # one record file per object (its plan entry and maps' records, {results}/.digests/objects), asked for by rule all
