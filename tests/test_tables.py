@@ -126,6 +126,23 @@ def test_intervals_render_as_one_cell(tmp_path):
     assert list(csv.columns) == list(df.columns) and csv["dpsnr_lo"].iloc[1] == -0.5801  # unrounded
 
 
+def _timing_file(path):
+    """A relight timing JSON (frng relight's ``timing/{obj}.json``) at ``path``: F-RNG 20 ms, the backbone 40 ms."""
+    from frng import io
+
+    io.write_json(
+        path,
+        {
+            "device": "cpu",
+            "resolution": 32,
+            "spp": 16,
+            "F-RNG": {"reconstruction_s": 1.0, "relight_ms_per_image": 20.0},
+            "backbone": {"reconstruction_s": 1.0, "relight_ms_per_image": 40.0},
+        },
+    )
+    return path
+
+
 def _per_image(run, variant, shift, seed_shift=0.0, objects=("o0", "o1", "o2"), dataset="diffuse"):
     return [
         dict(
@@ -215,7 +232,6 @@ def test_tables_per_light_family(tmp_path):
     """vs_backbone / ablation / ladder per family of the target light: the family from the plan's map (a mapping,
     not the light's name), rows per family, the paired differences and intervals within each family; written by
     write_tables beside the other tables."""
-    from frng import io
     from frng.report import paper_tables as P
 
     families = {"l0": "sky", "l1": "studio"}  # the plan's light -> family (Catalog.light_families)
@@ -254,17 +270,7 @@ def test_tables_per_light_family(tmp_path):
     pd.DataFrame(rows).to_csv(per_image, index=False)
     prior_csv = tmp_path / "backbone.csv"
     prior.to_csv(prior_csv, index=False)
-    timing = tmp_path / "t.json"
-    io.write_json(
-        timing,
-        {
-            "device": "cpu",
-            "resolution": 32,
-            "spp": 16,
-            "F-RNG": {"reconstruction_s": 1.0, "relight_ms_per_image": 20.0},
-            "backbone": {"reconstruction_s": 1.0, "relight_ms_per_image": 40.0},
-        },
-    )
+    timing = _timing_file(tmp_path / "t.json")
     out = P.write_tables(
         "custom",
         [1, 1, 1],
@@ -338,7 +344,6 @@ def test_ladder_step_0_is_the_targets_noise_floor(tmp_path):
     """`frng noise-floor`'s CSV (frng.data.noise_floor.ladder_rows of its scored renders) becomes the ladder's first
     row, step 0, in the ladder and its per-class and per-family parts: the tier's targets against the high-spp
     reference, with their metrics; the reference's own half-against-half rows and the raw reference rows stay out."""
-    from frng import io
     from frng.data import noise_floor as N
     from frng.report import paper_tables as P
 
@@ -367,17 +372,7 @@ def test_ladder_step_0_is_the_targets_noise_floor(tmp_path):
     pd.DataFrame([dict(r, task="relight", method="gt-depth+oracle-colour") for r in _per_image("x", "x", 3.0)]).to_csv(
         prior_csv, index=False
     )
-    timing = tmp_path / "t.json"
-    io.write_json(
-        timing,
-        {
-            "device": "cpu",
-            "resolution": 32,
-            "spp": 16,
-            "F-RNG": {"reconstruction_s": 1.0, "relight_ms_per_image": 20.0},
-            "backbone": {"reconstruction_s": 1.0, "relight_ms_per_image": 40.0},
-        },
-    )
+    timing = _timing_file(tmp_path / "t.json")
     common = ("custom", [1, 1, 1], per_image, [timing], tmp_path / "tables", prior_csv)
     out = P.write_tables(*common, families={"l0": "sky", "l1": "studio"}, noise_csv=noise_csv)
     ladder = pd.read_csv(out["ladder"]["csv"], dtype={"step": str})
