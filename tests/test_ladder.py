@@ -7,7 +7,7 @@ import pandas as pd
 from data_helpers import protocol_scores
 
 from frng import metrics as M
-from frng.report.paper_tables import LADDER_STEPS, TARGETS_METHOD, ladder_table
+from frng.report.paper_tables import LADDER_STEPS, REFERENCE_HALF_METHOD, TARGETS_METHOD, ladder_table
 
 
 def _rows(n, psnr, scale, **kw):
@@ -40,7 +40,8 @@ def test_ladder_rows_come_from_both_evaluations():
         + _rows(4, 30.0, 1.0, run="full@s1")
     )
     prior = pd.DataFrame(
-        _rows(2, 36.0, 1.0, task="relight", method=TARGETS_METHOD)  # frng noise-floor's rows
+        _rows(2, 40.0, 1.0, task="relight", method=REFERENCE_HALF_METHOD)  # frng noise-floor's rows
+        + _rows(2, 36.0, 1.0, task="relight", method=TARGETS_METHOD)
         + _rows(3, 25.0, 1.0, task="relight", method="gt-depth+oracle-colour")
         + _rows(3, 22.0, 1.0, task="relight", method="backbone-geometry+oracle-colour")
         + _rows(2, 20.0, 1.0, task="nvs", method="backbone")
@@ -51,6 +52,7 @@ def test_ladder_rows_come_from_both_evaluations():
     assert list(t["step"]) == [s for s, *_ in LADDER_STEPS]
     by = t.set_index("step")
     assert by.loc["0", "n"] == 2 and np.isclose(by.loc["0", "psnr"], 36.05)  # the targets' noise floor
+    assert np.isclose(by.loc["0r", "psnr"], 40.05)  # its reference's own noise
     assert by.loc["a", "n"] == 3 and np.isclose(by.loc["a", "psnr"], 25.1)
     assert by.loc["c", "n"] == 2 and np.isclose(by.loc["c", "psnr"], 20.05)
     assert np.isclose(by.loc["d", "psnr"], 17.15) and np.isclose(by.loc["e", "psnr"], 18.15)

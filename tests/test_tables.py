@@ -342,12 +342,13 @@ def test_ladder_per_material_class(tmp_path):
 
 def test_ladder_step_0_is_the_targets_noise_floor(tmp_path):
     """`frng noise-floor`'s CSV (frng.data.noise_floor.ladder_rows of its scored renders) becomes the ladder's first
-    row, step 0, in the ladder and its per-class and per-family parts: the tier's targets against the high-spp
-    reference, with their metrics; the reference's own half-against-half rows and the raw reference rows stay out."""
+    rows in the ladder and its per-class and per-family parts: step 0r, the reference's two renders against each
+    other, and step 0, the tier's targets against the reference, with their metrics; the raw reference rows (no
+    scores) stay out."""
     from frng.data import noise_floor as N
     from frng.report import paper_tables as P
 
-    assert N.LADDER_METHODS[N.TIER] == P.TARGETS_METHOD
+    assert N.LADDER_METHODS == {N.TIER: P.TARGETS_METHOD, N.HALF: P.REFERENCE_HALF_METHOD}
     scored = []
     for o, psnr in (("o0", 36.0), ("o2", 34.0)):
         for setting, value in ((N.REFERENCE, None), (N.HALF, 45.0), (N.TIER, psnr)):
@@ -376,17 +377,16 @@ def test_ladder_step_0_is_the_targets_noise_floor(tmp_path):
     common = ("custom", [1, 1, 1], per_image, [timing], tmp_path / "tables", prior_csv)
     out = P.write_tables(*common, families={"l0": "sky", "l1": "studio"}, noise_csv=noise_csv)
     ladder = pd.read_csv(out["ladder"]["csv"], dtype={"step": str})
-    assert list(ladder["step"]) == ["0", "a", "d", "e"]
-    zero = ladder.iloc[0]
+    assert list(ladder["step"]) == ["0r", "0", "a", "d", "e"]
+    half, zero = ladder.iloc[0], ladder.iloc[1]
     assert zero["n"] == 2 and np.isclose(zero["psnr"], 35.0) and np.isclose(zero["lpips"], 0.005)
+    assert np.isclose(half["psnr"], 45.0) and "reference" in half["what"]
     assert "noise floor" in zero["what"] and "row 0" in out["ladder"]["md"].read_text()
     by_class = pd.read_csv(out["ladder_by_class"]["csv"], dtype={"step": str})
-    assert list(by_class["step"][:2]) == ["0", "a"] and np.isclose(by_class.iloc[0]["psnr"], 35.0)
+    assert list(by_class["step"][:3]) == ["0r", "0", "a"] and np.isclose(by_class.iloc[1]["psnr"], 35.0)
     by_light = pd.read_csv(out["ladder_by_light"]["csv"], dtype={"step": str})
-    sky = by_light[by_light["light_family"] == "sky"]
-    assert list(sky["step"][:2]) == ["0", "a"] and "0" not in set(
-        by_light[by_light["light_family"] == "studio"]["step"]
-    )
+    studio = set(by_light[by_light["light_family"] == "studio"]["step"])
+    assert list(by_light[by_light["light_family"] == "sky"]["step"][:3]) == ["0r", "0", "a"] and "0" not in studio
     # without the CSV (a config with render.noise_floor.views 0) the ladder starts at step a
     plain = P.write_tables(*common[:4], tmp_path / "plain", prior_csv)
     assert pd.read_csv(plain["ladder"]["csv"], dtype={"step": str})["step"].iloc[0] == "a"

@@ -191,13 +191,13 @@ def score(records: list[dict], protocol: str, background=None) -> list[dict]:
 
 LADDER_METHODS = {TIER: "targets-vs-high-spp", HALF: "high-spp-reference-half"}
 """The ``method`` of the noise floor's rows in the quality ladder's input (:func:`ladder_rows`): the tier's targets
-against the reference, and one reference render against the other."""
+against the reference (the ladder's step 0), and one reference render against the other (step 0r)."""
 
 
 def ladder_rows(rows: list[dict]) -> list[dict]:
     """:func:`score`'s rows of the ``tier`` and ``reference-half`` settings in the layout of the priors' evaluation
     (``metrics/backbone.csv``: task, object, light, view, method, metrics), the rows the quality ladder reads
-    (:data:`frng.report.paper_tables.LADDER_STEPS`, step 0): task ``relight`` (the held-out relighting images'
+    (:data:`frng.report.paper_tables.LADDER_STEPS`, steps 0 and 0r): task ``relight`` (the held-out relighting images'
     objects, lights and views), method :data:`LADDER_METHODS`."""
     out = []
     for r in rows:

@@ -18,10 +18,11 @@ table            rows                                                reference r
 ``k``            K = 1, 2, 4, 8 %                                    the full model's K
 ``timing``       F-RNG and the backbone, mean over test objects      (speedup vs the backbone)
 ``ladder``       the quality ladder (:data:`LADDER_STEPS`): the      ``vs`` column: e vs d, f and g vs e;
-                 targets' noise floor (step 0, ``noise_csv``), oracle rows ``s*``: the same method scored
-                 references, backbone, F-RNG, F-RNG + oracle priors, against the right light
-                 F-RNG's Lambertian base alone, and the light-
-                 sensitivity rows ``s*`` (:func:`sensitivity_rows`)
+                 targets' noise floor (steps 0r, 0: ``noise_csv``),  rows ``s*``: the same method scored
+                 oracle references, backbone, F-RNG, F-RNG +         against the right light
+                 oracle priors, F-RNG's Lambertian base alone,
+                 and the light-sensitivity rows ``s*``
+                 (:func:`sensitivity_rows`)
 ``lambertian``   per dataset: F-RNG and its Lambertian base alone    F-RNG, same dataset
                  (run ``full-base``)
 ``*_by_light``   ``vs_backbone``, ``ablation`` and ``ladder`` per     as in the table, within the family
@@ -71,6 +72,7 @@ METHOD_LABELS = {"F-RNG": "F-RNG (ours)", BACKBONE: "backbone (RelitLRM-style)"}
 BASE_LABEL = "Lambertian base only"
 GROUND_TRUTH = "ground-truth"  # frng.apps.scoring.GROUND_TRUTH
 TARGETS_METHOD = "targets-vs-high-spp"  # frng.data.noise_floor.LADDER_METHODS["tier"]: the ladder's step 0
+REFERENCE_HALF_METHOD = "high-spp-reference-half"  # frng.data.noise_floor.LADDER_METHODS["reference-half"]: step 0r
 IMAGE_KEYS = ("object", "light", "view")
 DIFF_NOTE = (
     "Δ = the row minus its reference row over the same images, with a 95% paired bootstrap interval over "
@@ -321,6 +323,14 @@ def k_table(df: pd.DataFrame) -> pd.DataFrame:
 
 
 LADDER_STEPS = (  # (step, what, source, task/run, method, reference step); source "prior" = backbone.csv
+    (
+        "0r",
+        "the reference's own noise: one of its two high-spp renders against the other (their mean: ~6 dB above)",
+        "prior",
+        "relight",
+        REFERENCE_HALF_METHOD,
+        None,
+    ),
     (
         "0",
         "the targets' noise floor: curated as the tier curates, against a high-spp render of the same views",
@@ -666,8 +676,9 @@ def write_tables(
         footer_best=False,
         caption=(
             f"Quality ladder: where the dB go. Aligned protocol on the held-out relighting images (row c: the "
-            f"held-out input-light views; row 0: the ground truth itself, the first test object of each material "
-            f"class, render.noise_floor); PSNR interior = the same PSNR over the foreground without its "
+            f"held-out input-light views; row 0: the ground truth itself against a high-spp render of the same "
+            f"views, the first test object of each material class, render.noise_floor; row 0r: that reference's "
+            f"two renders against each other); PSNR interior = the same PSNR over the foreground without its "
             f"{M.RIM_PX} px silhouette rim (where the geometry's outline decides the error); silhouette IoU = "
             f"intersection over union of the render's silhouette (alpha > 0.5) and the ground truth's; depth error = "
             f"mean |distance - G-buffer distance| of the geometry's per-pixel Gaussians along the input pixels' rays "
