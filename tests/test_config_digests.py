@@ -133,7 +133,7 @@ CASES = [
     ("train.seeds", [0, 1], {"train", "relight_seed", "evaluate", "tables", "figures"}),
     ("eval.protocol", "plain", {"evaluate", "noise_floor", "tables", "figures", *BASELINE_SCORES}),
     # the targets' noise floor (the ladder's step 0) alone: no curation, no model
-    ("render.noise_floor.reference_spp", 64, {"noise_floor", "tables"}),
+    ("render.noise_floor.reference_spp", 32, {"noise_floor", "tables"}),
     ("tier", "custom", {"tables", "baseline_tables"}),
     # the fits, their scores and tables (the tables rule waits for them only where it writes the results page)
     ("baselines.fit.steps", 61, {"baseline_fit", *BASELINE_SCORES}),
