@@ -90,9 +90,9 @@ def rays_at(c2w: torch.Tensor, intrinsics: torch.Tensor, uv: torch.Tensor) -> tu
     fx, fy, cx, cy = (intrinsics[:, i].reshape(shape) for i in range(4))
     x = (uv[..., 0] - cx) / fx
     y = (uv[..., 1] - cy) / fy
-    d_cam = torch.stack([x, y, torch.ones_like(x)], dim=-1)
     R = c2w[:, :3, :3].reshape((V,) + (1,) * extra + (3, 3))
-    d = (R @ d_cam.unsqueeze(-1)).squeeze(-1)
+    # d = R (x, y, 1), row by row in the order of the 3 x 3 product's sum (the same floats as ``R @ d_cam``)
+    d = torch.stack([R[..., i, 0] * x + R[..., i, 1] * y + R[..., i, 2] for i in range(3)], dim=-1)
     d = d / d.norm(dim=-1, keepdim=True)
     o = c2w[:, :3, 3].reshape((V,) + (1,) * extra + (3,)).expand_as(d)
     return o, d

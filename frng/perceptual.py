@@ -38,6 +38,7 @@ Weights are read from disk once per process (``_load_state``'s cache); building 
 
 from __future__ import annotations
 
+import copy
 import functools
 import importlib.util
 import os
@@ -284,6 +285,9 @@ class LPIPS(nn.Module):
         self.heads.load_state_dict(heads_sd, strict=True)
         self.register_buffer("shift", torch.tensor(self.SHIFT).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("scale", torch.tensor(self.SCALE).view(1, 3, 1, 1), persistent=False)
+        # under autocast: the feature stack with its weights in bf16 once, the values autocast would cast the frozen
+        # float32 weights to on every call (it caches casts only of weights that train)
+        self.net_bf16 = copy.deepcopy(self.net).to(torch.bfloat16) if autocast_bf16 else None
         _freeze(self)
 
     def train(self, mode: bool = True) -> LPIPS:
@@ -295,7 +299,7 @@ class LPIPS(nn.Module):
         x = (x - self.shift) / self.scale
         if self.autocast_bf16:
             with torch.autocast(device_type=x.device.type, dtype=torch.bfloat16):
-                return self.net(x)
+                return self.net_bf16(x)
         return self.net(x)
 
     def forward(self, x: torch.Tensor, y: torch.Tensor, normalize: bool = False) -> torch.Tensor:

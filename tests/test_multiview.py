@@ -189,3 +189,45 @@ def test_inside_silhouettes_unseen_views_say_nothing():
     assert not inside_silhouettes(p, hole, c2w, intr, unseen_inside=True).any()
     off = torch.tensor([[R_SPHERE * 1.5, 0.0, 0.0]])  # beside the sphere in views 1 and 3
     assert not inside_silhouettes(off, alpha, c2w, intr, unseen_inside=True).any()
+
+
+def test_hull_sweep_stops_at_the_first_crossing():
+    """``rays_occupancy(stop=level)`` zeroes each ray's samples after its first at or above the level (the native
+    kernel does not compute them), both kernels alike, and the hull distance at that level is unchanged."""
+    import pytest
+
+    from frng.priors.multiview import occupancy, rays_occupancy
+    from frng.render import native
+
+    _, alpha, c2w, intr, _, _ = _sphere_views(40)
+    soft = torch.nn.functional.avg_pool2d(alpha.permute(0, 3, 1, 2), 3, stride=1, padding=1).permute(0, 2, 3, 1)
+    full, t, o, d = occupancy(soft, c2w, intr, bins=32, kernel="torch")
+    fg = soft[..., 0] > 0.02
+    args = (soft, o[fg], d[fg], t[fg], c2w, intr)
+    kernels = ["torch"] + (["native"] if native.available() else [])
+    for kernel in kernels:
+        cut = rays_occupancy(*args, kernel=kernel, stop=0.5)
+        ref = full[fg]
+        first = (ref >= 0.5).int().cumsum(-1)
+        keep = (first == 0) | ((first == 1) & (ref >= 0.5))
+        assert torch.equal(cut[keep], ref[keep]) and not cut[~keep].any()
+        assert (~keep).any()  # samples after the crossing exist on a sphere: the test cuts something
+        for a, b in zip(hull_distance(cut, t[fg], 4.5), hull_distance(ref, t[fg], 4.5)):
+            assert torch.equal(a, b)
+    if not native.available():
+        pytest.skip(f"the C++ kernels do not build here: {native.reason()}")
+
+
+def test_photo_agreement_on_a_mask_is_the_same_values():
+    """``photo_agreement(mask=)`` computes only the masked pixels: there the same floats as the unmasked call (so
+    the cues are the same bytes), zero elsewhere."""
+    from frng.priors.multiview import photo_agreement
+
+    rgb, alpha, c2w, intr, t0, hit = _sphere_views(40)
+    o, d = camera.pixel_rays(c2w, intr, 40, 40)
+    dist = torch.where(hit, t0, torch.full_like(t0, 4.5))
+    pts = o + d * dist[..., None]
+    full = photo_agreement(rgb, alpha, pts, c2w, intr, dist)
+    part = photo_agreement(rgb, alpha, pts, c2w, intr, dist, mask=hit)
+    assert (full[hit] > 0).any()
+    assert torch.equal(part[hit].view(torch.int32), full[hit].view(torch.int32)) and not part[~hit].any()

@@ -253,18 +253,17 @@ class RelitLRMBackbone(nn.Module):
         world frame (B, V, H, W, 3) (zero where a ray misses the hull)."""
         c = self.cfg
         feats, raws, normals = [], [], []
-        for b in range(images.shape[0]):
-            cues = geometry_cues(
-                images[b].float(), alpha[b].float(), c2w[b].float(), intr[b].float(), c.near, c.far, bins=c.hull_bins
-            )
-            feats.append(cues["features"])
-            raws.append(
-                isotropic_raw(
-                    cues["distance"], alpha[b].float(), intr[b, :, 0].float(), c.footprint_px, self.decode_config()
-                )
-            )
-            rot = c2w[b, :, None, None, :3, :3].float()  # camera -> world
-            normals.append((rot @ cues["normal"][..., None])[..., 0] * cues["hit"])
+        with torch.autocast(device_type=images.device.type, enabled=False):  # geometry in fp32, as at inference
+            for b in range(images.shape[0]):
+                cb, ib, ab = c2w[b].float(), intr[b].float(), alpha[b].float()
+                cues = geometry_cues(images[b].float(), ab, cb, ib, c.near, c.far, bins=c.hull_bins)
+                feats.append(cues["features"])
+                raws.append(isotropic_raw(cues["distance"], ab, ib[:, 0], c.footprint_px, self.decode_config()))
+                hit = cues["hit"][..., 0] > 0
+                rot = cb[:, None, None, :3, :3].expand(*hit.shape, 3, 3)  # camera -> world
+                n = torch.zeros_like(cues["normal"])  # zero where the ray misses the hull
+                n[hit] = (rot[hit] @ cues["normal"][hit][..., None])[..., 0]
+                normals.append(n)
         return torch.stack(feats), torch.stack(raws), torch.stack(normals)
 
     def encode_geometry(
@@ -371,8 +370,9 @@ class RelitLRMBackbone(nn.Module):
             coeffs = sh_project(env[b].float().clamp_min(0.0)).to(normals.device)  # (9, 3) float64
             mean = (coeffs[0] / (4.0 * math.pi * C0)).clamp_min(1e-6)
             n = normals[b].double()
-            e = sh_irradiance(coeffs, n) / math.pi
-            e = torch.where(n.norm(dim=-1, keepdim=True) > 0.5, e, mean.expand_as(e))  # no normal: ratio 1
+            has_n = n.norm(dim=-1) > 0.5
+            e = mean.expand(*n.shape[:-1], 3).clone()  # no normal: ratio 1
+            e[has_n] = sh_irradiance(coeffs, n[has_n]) / math.pi
             out.append((e.clamp_min(1e-8) / mean).log().clamp(-4.0, 2.0).float())
         return torch.stack(out)
 

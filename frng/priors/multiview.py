@@ -176,9 +176,13 @@ def rays_occupancy(
     c2w: torch.Tensor,
     intr: torch.Tensor,
     kernel: str = "auto",
+    stop: float | None = None,
 ) -> torch.Tensor:
     """Visual-hull occupancy (R, K) of rays o, d (R, 3) at distances t (R, K): the minimum over the V views of
     each view's mask (alpha (V, H, W, 1)) read bilinearly where a sample projects, 0 behind a camera.
+    ``stop``: a level; each ray's samples after its first with occupancy >= ``stop`` are 0, and the native kernel
+    does not compute them (what :func:`hull_distance` at that level reads is unchanged; inside the hull a sample
+    costs a read in every view). None: every sample.
 
     ``kernel``: "torch" (:func:`occupancy_reference`, every view at every sample), "native" (the C++ kernel
     ``frng/render/csrc/hull.cpp``: a sample stops at the first view that rules it out; the same floats, its bilinear
@@ -191,9 +195,13 @@ def rays_occupancy(
     if kernel == "auto":
         kernel = "native" if alpha.device.type == "cpu" and native.available() else "torch"
     if kernel == "torch":
-        return occupancy_reference(alpha, o, d, t, c2w, intr)
+        occ = occupancy_reference(alpha, o, d, t, c2w, intr)
+        if stop is not None:  # zero after the first sample that reaches ``stop``
+            reached = (occ >= stop).int().cumsum(-1)
+            occ = torch.where((reached == 0) | ((reached == 1) & (occ >= stop)), occ, torch.zeros_like(occ))
+        return occ
     A, B = ray_homogeneous(o, d, c2w.float(), intr.float())
-    return native.hull_occupancy(alpha[..., 0], A, B, t)
+    return native.hull_occupancy(alpha[..., 0], A, B, t, stop)
 
 
 def occupancy_reference(
@@ -349,9 +357,13 @@ def depth_normals(points: torch.Tensor, c2w: torch.Tensor, valid: torch.Tensor) 
         return (fwd * vf + bwd * vb) / n.clamp_min(1.0)
 
     dx, dy = diff(2), diff(1)
-    n_world = torch.cross(dx, dy, dim=-1)
-    R = c2w[:, None, None, :3, :3].float()
-    n_cam = (R.transpose(-1, -2) @ n_world.unsqueeze(-1)).squeeze(-1)
+    n_world = torch.cross(dx, dy, dim=-1)  # exactly 0 off ``valid`` (no valid neighbour): the default normal there
+    sel = valid.bool()
+    V, H, W = sel.shape
+    Rt = c2w[:, None, None, :3, :3].float().transpose(-1, -2).expand(V, H, W, 3, 3)
+    rotated = (Rt[sel] @ n_world[sel].unsqueeze(-1)).squeeze(-1)  # world -> camera where valid (bf16 under autocast)
+    n_cam = torch.zeros(V, H, W, 3, device=n_world.device, dtype=rotated.dtype)  # the rest is background
+    n_cam[sel] = rotated
     n_cam = torch.where(n_cam[..., 2:3] > 0, -n_cam, n_cam)  # face the camera (camera looks along +z)
     norm = n_cam.norm(dim=-1, keepdim=True)
     default = torch.tensor([0.0, 0.0, -1.0], device=p.device).expand_as(n_cam)
@@ -365,26 +377,36 @@ def photo_agreement(
     c2w: torch.Tensor,
     intr: torch.Tensor,
     hull_dist_all: torch.Tensor,
+    mask: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """How well the OTHER views that see each hull point agree with the pixel's own colour (V, H, W, 1) in [0, 1].
 
     A point is taken as seen by view u when it falls inside u's mask and its distance from u's centre is within a
     small margin of u's hull distance at that pixel (a visibility test against the hull). Agreement =
-    exp(-|c_u - c_ref|_1 / 0.1) averaged over those views (gamma-2.2 unpremultiplied colours); 0 if none sees it."""
+    exp(-|c_u - c_ref|_1 / 0.1) averaged over those views (gamma-2.2 unpremultiplied colours); 0 if none sees it.
+    ``mask`` (V, H, W) bool: only those pixels are computed (the same values there), the others are 0 -- the work
+    is V reads per pixel, so a caller that keeps only the hull's pixels passes them."""
     V, H, W, _ = rgb.shape
     col = (rgb / alpha.clamp_min(1e-3)).clamp(0, 1) ** (1 / 2.2)
-    pts = points.reshape(-1, 3)
+    sel = torch.ones(V, H, W, dtype=torch.bool, device=rgb.device) if mask is None else mask.bool()
+    assert sel.shape == (V, H, W), (sel.shape, rgb.shape)
+    pts = points[sel]  # (N, 3), N <= V*H*W
+    own = torch.arange(V, device=rgb.device)[:, None, None].expand(V, H, W)[sel]  # each point's own view
+    ref = col[sel]
+    n = pts.shape[0]
+    pad = -n % 64  # whole SIMD blocks: the selected pixels get the unmasked call's bits (its N = V*H*W is a multiple)
+    pts, own, ref = F.pad(pts, (0, 0, 0, pad)), F.pad(own, (0, pad)), F.pad(ref, (0, 0, 0, pad))
     uv, z = camera.project(pts, c2w.float(), intr.float())
-    src = sample_image(torch.cat([col, alpha, hull_dist_all[..., None]], -1), uv)  # (V_src, N, 5), N = V*H*W
+    src = sample_image(torch.cat([col, alpha, hull_dist_all[..., None]], -1), uv)  # (V_src, N, 5)
     dist_u = (pts[None] - c2w[:, None, :3, 3].float()).norm(dim=-1)
     seen = (src[..., 3] > 0.5) & (z > 0) & (dist_u <= src[..., 4] + 0.08)
-    ref = col.reshape(1, -1, 3)
-    agree = torch.exp(-(src[..., :3] - ref).abs().sum(-1) / 0.1)
-    own = torch.arange(V, device=rgb.device).repeat_interleave(H * W)
-    not_self = torch.ones(V, V * H * W, dtype=torch.bool, device=rgb.device)
-    not_self[own, torch.arange(V * H * W, device=rgb.device)] = False
+    agree = torch.exp(-(src[..., :3] - ref[None]).abs().sum(-1) / 0.1)
+    not_self = torch.ones_like(seen)
+    not_self[own, torch.arange(own.shape[0], device=rgb.device)] = False
     w = (seen & not_self).float()
-    return ((agree * w).sum(0) / w.sum(0).clamp_min(1.0)).reshape(V, H, W, 1)
+    out = torch.zeros(V, H, W, 1, device=rgb.device, dtype=agree.dtype)
+    out[sel] = ((agree * w).sum(0) / w.sum(0).clamp_min(1.0))[:n, None]
+    return out
 
 
 @torch.no_grad()
@@ -416,10 +438,11 @@ def geometry_cues(
     hit = torch.zeros(V, H, W, dtype=torch.bool, device=rgb.device)
     if fg.any():
         t = sweep_distances(o[fg], d[fg], bins, radius)  # (R, K)
-        dist[fg], hit[fg] = hull_distance(rays_occupancy(alpha, o[fg], d[fg], t, c2w, intr, kernel), t, far)
+        occ = rays_occupancy(alpha, o[fg], d[fg], t, c2w, intr, kernel, stop=0.5)  # up to the first crossing
+        dist[fg], hit[fg] = hull_distance(occ, t, far, level=0.5)
     pts = o + d * dist[..., None]
     normal = depth_normals(pts, c2w, hit)
-    agree = photo_agreement(rgb.float(), alpha.float(), pts, c2w, intr, dist)
+    agree = photo_agreement(rgb.float(), alpha.float(), pts, c2w, intr, dist, mask=hit)
     hitf = hit.float()[..., None]
     feats = torch.cat([((dist[..., None] - near) / (far - near)).clamp(0, 1), normal, agree * hitf, hitf], -1)
     return {"distance": dist[..., None], "normal": normal, "agreement": agree * hitf, "hit": hitf, "features": feats}

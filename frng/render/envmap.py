@@ -292,4 +292,5 @@ def sh_irradiance(coeffs: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
 
     Y = sh_basis(2, normals.to(coeffs.dtype))
     band = coeffs.new_tensor([SH_IRRADIANCE_BANDS[0]] + [SH_IRRADIANCE_BANDS[1]] * 3 + [SH_IRRADIANCE_BANDS[2]] * 5)
-    return (Y * band)[..., None].mul(coeffs[:9]).sum(-2)
+    with torch.autocast(device_type=normals.device.type, enabled=False):  # in the coefficients' precision
+        return (Y * band) @ coeffs[:9]

@@ -230,18 +230,21 @@ def bin_tiles(mean2d, extent, inst, TY, TX, tile):
     return load().bin_tiles(m, extent.to(m.dtype).reshape(V * N, 2).contiguous(), inst.long(), V, N, TY, TX, tile)
 
 
-def hull_occupancy(alpha: torch.Tensor, A: torch.Tensor, B: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+def hull_occupancy(
+    alpha: torch.Tensor, A: torch.Tensor, B: torch.Tensor, t: torch.Tensor, stop: float | None = None
+) -> torch.Tensor:
     """The visual hull's occupancy along rays in C++ (``csrc/hull.cpp``; the reference is
     :func:`frng.priors.multiview.occupancy_reference`): per sample the minimum over views of the mask read
     bilinearly where it projects, 0 behind a camera.
 
     alpha (V, H, W) masks; A, B (V, R, 3) the rays' homogeneous image coordinates h = A + t B
-    (:func:`frng.priors.multiview.ray_homogeneous`); t (R, K) sample distances. Returns (R, K) float32."""
+    (:func:`frng.priors.multiview.ray_homogeneous`); t (R, K) sample distances. Returns (R, K) float32.
+    ``stop``: a ray's samples after its first with occupancy >= ``stop`` are 0 (not computed; None: all are)."""
     V, R = A.shape[:2]
     assert alpha.dim() == 3 and alpha.shape[0] == V, (alpha.shape, A.shape)
     assert A.shape == (V, R, 3) and B.shape == A.shape and t.dim() == 2 and t.shape[0] == R, (A.shape, B.shape, t.shape)
     f = [x.detach().float().contiguous() for x in (alpha, A, B, t)]
-    return load().hull_occupancy(*f)
+    return load().hull_occupancy(*f, math.nan if stop is None else float(stop))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -84,4 +84,8 @@ def eval_sh(degree: int, coeffs: torch.Tensor, dirs: torch.Tensor) -> torch.Tens
     """
     basis = sh_basis(degree, dirs)  # (..., K')
     k = basis.shape[-1]
-    return (basis[..., None] * coeffs[..., :k, :]).sum(-2)
+    dtype = torch.promote_types(basis.dtype, coeffs.dtype)
+    # a batched (1, K') @ (K', C) product (no (..., K', C) temporary, forward or backward); autocast off: in the
+    # inputs' precision
+    with torch.autocast(device_type=dirs.device.type, enabled=False):
+        return torch.einsum("...k,...kc->...c", basis.to(dtype), coeffs[..., :k, :].to(dtype))

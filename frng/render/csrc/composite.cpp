@@ -506,7 +506,8 @@ std::vector<at::Tensor> bin_tiles(const at::Tensor& mean2d, const at::Tensor& ex
 }  // namespace
 
 namespace frng {
-at::Tensor hull_occupancy(const at::Tensor& alpha, const at::Tensor& A, const at::Tensor& B, const at::Tensor& t);
+at::Tensor hull_occupancy(const at::Tensor& alpha, const at::Tensor& A, const at::Tensor& B, const at::Tensor& t,
+                          double stop);
 }  // namespace frng (hull.cpp)
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
@@ -520,5 +521,6 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
         "Gradients (d_params (M+1, 6), d_f_inst (M+1, D)) of composite_forward's outputs");
   m.def("hull_occupancy", &frng::hull_occupancy,
         "Visual-hull occupancy (R, K): per ray sample the minimum over views of the bilinear mask read where it "
-        "projects, from masks (V, H, W), A, B (V, R, 3) and distances t (R, K) (hull.cpp)");
+        "projects, from masks (V, H, W), A, B (V, R, 3) and distances t (R, K); with a stop level (not NaN) each ray's "
+        "samples after the first that reaches it are 0 (hull.cpp)");
 }

@@ -8,6 +8,9 @@
 //   A, B  (V, R, 3)  each ray's homogeneous image coordinates in each view are A + t B (frng.priors.multiview.
 //                    ray_homogeneous): x = (A0 + t B0) / z, y = (A1 + t B1) / z, z = A2 + t B2
 //   t     (R, K)     the sample distances
+//   stop  a level, or NaN: with a level, a ray stops at its first sample whose occupancy reaches it and its later
+//         samples are 0 (the hull's first crossing is all frng.priors.multiview.hull_distance reads, and a sample
+//         inside the hull costs a read in every view, one outside it usually one)
 // Output: occupancy (R, K) in [0, 1].
 //
 // A sample stops at the first view whose mask is 0 there (most of a sweep lies outside some view's silhouette),
@@ -60,9 +63,11 @@ inline float bilinear(const float* img, int64_t H, int64_t W, float x, float y) 
 #endif
 
 FRNG_HULL_CLONES void hull_rays(const float* img, const float* pa, const float* pb, const float* pt, float* out,
-                                int64_t V, int64_t H, int64_t W, int64_t R, int64_t K, int64_t r0, int64_t r1) {
+                                int64_t V, int64_t H, int64_t W, int64_t R, int64_t K, float stop, int64_t r0,
+                                int64_t r1) {
   for (int64_t r = r0; r < r1; ++r) {
-    for (int64_t k = 0; k < K; ++k) {
+    int64_t k = 0;
+    for (; k < K; ++k) {
       const float tk = pt[r * K + k];
       float m = V > 0 ? std::numeric_limits<float>::infinity() : 0.0f;
       for (int64_t v = 0; v < V && m > 0.0f; ++v) {
@@ -78,13 +83,16 @@ FRNG_HULL_CLONES void hull_rays(const float* img, const float* pa, const float* 
         if (val < m) m = val;
       }
       out[r * K + k] = m;
+      if (m >= stop) break;  // never with stop NaN
     }
+    for (++k; k < K; ++k) out[r * K + k] = 0.0f;
   }
 }
 
 }  // namespace
 
-at::Tensor hull_occupancy(const at::Tensor& alpha, const at::Tensor& A, const at::Tensor& B, const at::Tensor& t) {
+at::Tensor hull_occupancy(const at::Tensor& alpha, const at::Tensor& A, const at::Tensor& B, const at::Tensor& t,
+                          double stop) {
   TORCH_CHECK(alpha.dim() == 3 && alpha.is_contiguous() && alpha.scalar_type() == at::kFloat && alpha.device().is_cpu(),
               "alpha must be contiguous CPU float32 (V, H, W)");
   const int64_t V = alpha.size(0), H = alpha.size(1), W = alpha.size(2);
@@ -101,7 +109,8 @@ at::Tensor hull_occupancy(const at::Tensor& alpha, const at::Tensor& A, const at
   const float* pb = B.data_ptr<float>();
   const float* pt = t.data_ptr<float>();
   float* out = occ.data_ptr<float>();
-  at::parallel_for(0, R, 16, [&](int64_t r0, int64_t r1) { hull_rays(img, pa, pb, pt, out, V, H, W, R, K, r0, r1); });
+  at::parallel_for(0, R, 16, [&](int64_t r0, int64_t r1) { hull_rays(img, pa, pb, pt, out, V, H, W, R, K, static_cast<float>(stop), r0, r1);
+  });
   return occ;
 }
 
