@@ -109,8 +109,8 @@ at::Tensor hull_occupancy(const at::Tensor& alpha, const at::Tensor& A, const at
   const float* pb = B.data_ptr<float>();
   const float* pt = t.data_ptr<float>();
   float* out = occ.data_ptr<float>();
-  at::parallel_for(0, R, 16, [&](int64_t r0, int64_t r1) { hull_rays(img, pa, pb, pt, out, V, H, W, R, K, static_cast<float>(stop), r0, r1);
-  });
+  const float level = static_cast<float>(stop);
+  at::parallel_for(0, R, 16, [&](int64_t r0, int64_t r1) { hull_rays(img, pa, pb, pt, out, V, H, W, R, K, level, r0, r1); });
   return occ;
 }
 
