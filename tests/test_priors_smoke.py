@@ -194,3 +194,42 @@ def test_backbone_opacity_term_keeps_pixels_gaussians_as_opaque_as_their_pixels(
     model.zero_grad()
     on["opacity"].backward()
     assert float(model.geo_detokenizer.proj.bias.grad.abs().sum()) > 0
+
+
+def test_backbone_cue_noise_perturbs_what_the_geometry_transformer_reads(smoke, monkeypatch):
+    """``backbone.train.cue_noise``: the cue features the geometry transformer reads in a training step carry
+    N(0, (scale x CUE_NOISE_SIGMA)^2) per channel (none on the hit flag), the prior's raw Gaussians and the hull
+    normals are untouched, the rig views' cue cache keeps the clean cues, and at 0 nothing is added."""
+    import random
+
+    from frng.priors import backbone as bb
+    from frng.priors.dataset import load_split
+    from frng.training import backbone as bt
+
+    _, config = smoke
+    obj = load_split(config["results"], plan(config).split("train"))[0]
+    torch.manual_seed(0)
+    model = bb.RelitLRMBackbone(bb.backbone_config(typed(config).backbone, config["model"]["patch_size"]))
+    seen = []
+    encode = model.encode_geometry
+    monkeypatch.setattr(model, "encode_geometry", lambda *a: seen.append(a[4]) or encode(*a))
+    base = {**config["backbone"]["train"], "bf16": False, "lambda_per": 0.0}
+    rng_seed = next(s for s in range(50) if len(bt.sample_views(obj, random.Random(s))[1]) == obj.rig_views)
+
+    def cues_of_a_step(scale, cache=None):
+        tcfg = bt.BackboneTrainConfig.from_dict({**base, "cue_noise": scale})
+        bt.step_loss(model, obj, tcfg, 0, random.Random(rng_seed), torch.device("cpu"), cues=cache)
+        return seen[-1]
+
+    cache = bt.CueCache()
+    clean = cues_of_a_step(0.0, cache)
+    assert clean is not None and cache.bytes > 0
+    kept = [t.clone() for t in clean]
+    noisy = cues_of_a_step(3.0, cache)
+    assert cache.hits == 1 and all(torch.equal(a, b) for a, b in zip(clean, kept))  # the cache's cues stay clean
+    assert torch.equal(noisy[1], clean[1]) and torch.equal(noisy[2], clean[2])
+    std = (noisy[0] - clean[0]).flatten(0, -2).std(dim=0)
+    want = 3.0 * torch.tensor(bt.CUE_NOISE_SIGMA)
+    assert std[-1] == 0 and torch.allclose(std[:-1], want[:-1], rtol=0.15), (std, want)
+    again = cues_of_a_step(0.0, cache)
+    assert all(torch.equal(a, b) for a, b in zip(again, kept))

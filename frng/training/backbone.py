@@ -21,6 +21,11 @@ One step = one training object (``backbone.train.batch`` objects accumulated):
    learns semi-transparent Gaussians (median opacity ~0.3 on the default tier's data), whose blend of front and
    back layers lowers the L2 of the per-pixel render but shows at inference as ghosted, washed-out objects.
 
+The multi-view cues the geometry transformer reads (:meth:`frng.priors.backbone.RelitLRMBackbone.prior_raw`) are
+perturbed with Gaussian noise in training (``cue_noise`` x :data:`CUE_NOISE_SIGMA` per cue channel; the prior's
+raw 9-vector and the light cue's normals are left as they are): inference computes them the same way from its
+inputs, so the noise only teaches the network not to lean on their exact values (:func:`perturbed_cues`).
+
 Nothing from test objects or test lights is read: objects come from the training split, lights from those
 objects' own (training-pool) lights.
 
@@ -70,6 +75,7 @@ class BackboneTrainConfig:
     perceptual_net: str
     supervision_views: int
     inference_geometry: bool
+    cue_noise: float
     bf16: bool
     checkpoint_every: int
 
@@ -108,6 +114,27 @@ class CueCache(TensorMemo):
     repeated) are computed every time. README "Performance (training)"."""
 
 
+# standard deviation of the training noise on each multi-view cue channel (frng.priors.multiview.CUE_CHANNELS: hull
+# distance normalised to [0, 1], the hull normal's 3 camera-frame components, photo agreement, hull hit), at
+# ``backbone.train.cue_noise`` 1. Why (docs/priors.md): until 0714da8 the training step computed the cues under its
+# bf16 autocast (inference in fp32), and that accidental noise made F-RNG 0.15 dB better on the backbone's caches
+# than fp32 cues did; this noise, measured at 1 over two backbone seeds, gives +0.08 / +0.10 of it back.
+CUE_NOISE_SIGMA = (0.01, 0.1, 0.1, 0.1, 0.1, 0.0)
+
+
+def perturbed_cues(
+    cues: tuple[torch.Tensor, torch.Tensor, torch.Tensor], scale: float, generator: torch.Generator
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """What :meth:`frng.priors.backbone.RelitLRMBackbone.prior_raw` returned, (features (B, V, H, W, C), raw,
+    normals), with N(0, (scale CUE_NOISE_SIGMA)^2) added to the features' channels (new tensors: the cue cache's
+    stay as they are); raw and normals unchanged. ``generator`` on the features' device."""
+    feats, raw, normals = cues
+    assert feats.shape[-1] == len(CUE_NOISE_SIGMA), (feats.shape, CUE_NOISE_SIGMA)
+    sigma = torch.tensor(CUE_NOISE_SIGMA, device=feats.device, dtype=feats.dtype) * scale
+    noise = torch.randn(feats.shape, generator=generator, device=feats.device, dtype=feats.dtype)
+    return feats + noise * sigma, raw, normals
+
+
 def step_loss(
     model: bb.RelitLRMBackbone,
     obj: PriorObject,
@@ -141,6 +168,11 @@ def step_loss(
             kept = cues.get(
                 (obj.id, light_a), lambda: model.prior_raw(rgb_in[None], a_in[None], c2w_in[None], intr_in[None])
             )
+        if cfg.cues and tcfg.cue_noise > 0:
+            if kept is None:
+                kept = model.prior_raw(rgb_in[None], a_in[None], c2w_in[None], intr_in[None])
+            gen = torch.Generator(device=kept[0].device).manual_seed(rng.randrange(2**31))
+            kept = perturbed_cues(kept, tcfg.cue_noise, gen)
         t_geo, raw, _, normals = model.encode_geometry(rgb_in[None], a_in[None], c2w_in[None], intr_in[None], kept)
     raw = raw[0].float()
     pixels = model.pixel_inputs(rgb_in, a_in, normals[0] if cfg.light_cue else None, obj.envs[light_a].to(device))
