@@ -21,8 +21,9 @@ One step = one training object (``backbone.train.batch`` objects accumulated):
    learns semi-transparent Gaussians (median opacity ~0.3 on the default tier's data), whose blend of front and
    back layers lowers the L2 of the per-pixel render but shows at inference as ghosted, washed-out objects.
 
-The multi-view cues the geometry transformer reads (:meth:`frng.priors.backbone.RelitLRMBackbone.prior_raw`) are
-perturbed with Gaussian noise in training (``cue_noise`` x :data:`CUE_NOISE_SIGMA` per cue channel; the prior's
+With ``cue_noise`` > 0 (off by default) the multi-view cues the geometry transformer reads
+(:meth:`frng.priors.backbone.RelitLRMBackbone.prior_raw`) are perturbed with Gaussian noise in training
+(``cue_noise`` x :data:`CUE_NOISE_SIGMA` per cue channel; the prior's
 raw 9-vector and the light cue's normals are left as they are): inference computes them the same way from its
 inputs, so the noise only teaches the network not to lean on their exact values (:func:`perturbed_cues`).
 
@@ -118,7 +119,8 @@ class CueCache(TensorMemo):
 # distance normalised to [0, 1], the hull normal's 3 camera-frame components, photo agreement, hull hit), at
 # ``backbone.train.cue_noise`` 1. Why (docs/priors.md): until 0714da8 the training step computed the cues under its
 # bf16 autocast (inference in fp32), and that accidental noise made F-RNG 0.15 dB better on the backbone's caches
-# than fp32 cues did; this noise, measured at 1 over two backbone seeds, gives +0.08 / +0.10 of it back.
+# than fp32 cues did; this noise at 1 gave +0.08 / +0.10 of it back in scratch runs (two backbone seeds) but +0.01
+# in a full reproduction, so it is off by default (docs/priors.md).
 CUE_NOISE_SIGMA = (0.01, 0.1, 0.1, 0.1, 0.1, 0.0)
 
 
