@@ -23,9 +23,9 @@ One step = one training object (``backbone.train.batch`` objects accumulated):
 
 With ``cue_noise`` > 0 (off by default) the multi-view cues the geometry transformer reads
 (:meth:`frng.priors.backbone.RelitLRMBackbone.prior_raw`) are perturbed with Gaussian noise in training
-(``cue_noise`` x :data:`CUE_NOISE_SIGMA` per cue channel; the prior's
-raw 9-vector and the light cue's normals are left as they are): inference computes them the same way from its
-inputs, so the noise only teaches the network not to lean on their exact values (:func:`perturbed_cues`).
+(``cue_noise`` x :data:`CUE_NOISE_SIGMA` per cue channel; the prior's raw 9-vector and the light cue's normals are
+left as they are): inference computes them the same way from its inputs, so the noise only teaches the network not
+to lean on their exact values (:func:`perturbed_cues`).
 
 Nothing from test objects or test lights is read: objects come from the training split, lights from those
 objects' own (training-pool) lights.
@@ -166,13 +166,14 @@ def step_loss(
     H, W = rgb_in.shape[1:3]
     with autocast(device, tcfg.bf16):
         kept = None
+
+        def compute_cues():
+            return model.prior_raw(rgb_in[None], a_in[None], c2w_in[None], intr_in[None])
+
         if cues is not None and cfg.cues and idx == list(range(min(obj.rig_views, len(obj.inputs[light_a])))):
-            kept = cues.get(
-                (obj.id, light_a), lambda: model.prior_raw(rgb_in[None], a_in[None], c2w_in[None], intr_in[None])
-            )
+            kept = cues.get((obj.id, light_a), compute_cues)
         if cfg.cues and tcfg.cue_noise > 0:
-            if kept is None:
-                kept = model.prior_raw(rgb_in[None], a_in[None], c2w_in[None], intr_in[None])
+            kept = compute_cues() if kept is None else kept
             gen = torch.Generator(device=kept[0].device).manual_seed(rng.randrange(2**31))
             kept = perturbed_cues(kept, tcfg.cue_noise, gen)
         t_geo, raw, _, normals = model.encode_geometry(rgb_in[None], a_in[None], c2w_in[None], intr_in[None], kept)
