@@ -113,6 +113,9 @@ def test_unknown_nested_key_and_model_records():
     assert cfg.fine_in_hull  # the default
     old_record = {k: v for k, v in cfg.to_dict().items() if k != "fine_in_hull"}
     assert FRNGConfig.from_saved(old_record).fine_in_hull is False
+    assert cfg.opacity_head  # the default
+    older = {k: v for k, v in cfg.to_dict().items() if k != "opacity_head"}
+    assert FRNGConfig.from_saved(older).opacity_head is False
     assert FRNGConfig.from_saved(cfg.to_dict()) == cfg
     with pytest.raises(ConfigError, match=r"^backbone[.]kind: unknown key"):
         BackboneConfig.from_dict({"patch": 8, "kind": "relitlrm"})  # an architecture record, not the section

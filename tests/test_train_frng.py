@@ -6,6 +6,7 @@ import csv
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -107,7 +108,8 @@ def test_frozen_backbone_gets_no_gradient(frng_smoke):
     assert all(p.grad is None for p in backbone.parameters())
     assert not any(p.requires_grad for p in backbone.parameters())
     got = {n for n, p in model.named_parameters() if p.grad is not None and p.grad.abs().sum() > 0}
-    for prefix in ("tokenizer.", "fine.detokenizer.", "material.former.", "material.detokenizer.", "decoder."):
+    prefixes = ("tokenizer.", "fine.detokenizer.", "material.former.", "material.detokenizer.", "decoder.")
+    for prefix in (*prefixes, "opacity_head."):
         assert any(n.startswith(prefix) for n in got), prefix
     # copied, not shared
     assert model.fine.detokenizer.proj.weight.data_ptr() != backbone.geo_detokenizer.proj.weight.data_ptr()
@@ -384,3 +386,27 @@ def test_fine_gaussians_stay_inside_the_silhouettes(frng_smoke):
         every = fine_means(model.reconstruct(obj.views, 0, obj.priors, obj.images, True, input_env=obj.env_in))
     assert len(kept) > 0 and inside_silhouettes(kept, alpha, c2w, intr).all()
     assert len(every) > len(kept) and not inside_silhouettes(every, alpha, c2w, intr).all()
+
+
+def test_opacity_head_starts_at_the_backbone_opacities_and_moves_them(frng_smoke):
+    """frng.opacity_head: an untrained head keeps the backbone's opacities (clamped), the coarse Gaussians' and their
+    far-side copies' alike; a residual moves every opacity the same way, copies with their sources."""
+    from frng.model.opacity import OPACITY_EPS
+    from frng.training.frng import build_model
+
+    _, config = frng_smoke
+    res = Path(config["results"])
+    model, _ = build_model(_sections(config), "full", res / "backbone" / "model.pt", "cpu")
+    assert model.cfg.opacity_head and model.opacity_head is not None  # the default
+    obj = _objects(config)[0]
+    keep = obj.views["keep"].bool()
+    want = obj.views["opacities"][keep].float().clamp(OPACITY_EPS, 1 - OPACITY_EPS)
+    with torch.no_grad():
+        rec = model.reconstruct(obj.views, 0, obj.priors, obj.images, input_env=obj.env_in)
+        assert torch.allclose(rec.gaussians.opacities[: rec.num_coarse], want, atol=1e-6)
+        model.opacity_head.mlp[-1].bias.fill_(-2.0)  # every opacity logit 2 lower
+        low = model.reconstruct(obj.views, 0, obj.priors, obj.images, input_env=obj.env_in)
+    o, lo = rec.gaussians.opacities.clamp(OPACITY_EPS, 1 - OPACITY_EPS), low.gaussians.opacities
+    assert len(o) == len(lo) and torch.allclose(torch.logit(lo), torch.logit(o) - 2.0, atol=1e-3)
+    with pytest.raises(ValueError, match="opacity_head.*pixel_head"):
+        type(model)(replace(model.cfg, opacity_head=True, pixel_head=0))

@@ -7,6 +7,7 @@ Modules
 - :mod:`.fine_geometry`       Sec. 4.1 latent-interpolated fine-grained geometry (Bilinear, FineGeoDetokenizer)
 - :mod:`.materialformer`      Sec. 4.2.1 MaterialFormer + MatDetokenizer (neural features or Cook-Torrance head)
 - :mod:`.light_independence`  Sec. 4.2.2 L_ind = lambda_c * C + lambda_KLD * KL
+- :mod:`.opacity`             our addition: a per-Gaussian residual on the backbone Gaussians' opacity logits
 - its trainer: :mod:`frng.training.frng` (L_2, L_per, L_ind, one step; stage ``frng train``)
 - :mod:`frng.gaussians`       raw per-pixel parameters -> Gaussians (shared with the backbone)
 
@@ -62,6 +63,7 @@ from frng.model.materialformer import (
     split_sequence,
     to_sequence,
 )
+from frng.model.opacity import OpacityHead
 from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, salient_patches, select_top_k
 from frng.model.tokenizers import PRIOR_CHANNELS, PriorTokenizer, patchify, stack_priors, unpatchify
 
@@ -78,6 +80,7 @@ __all__ = [
     "MaterialFormer",
     "MaterialFormerConfig",
     "MaterialHead",
+    "OpacityHead",
     "PRIOR_CHANNELS",
     "PriorTokenizer",
     "SaliencyConfig",

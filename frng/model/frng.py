@@ -44,6 +44,7 @@ from frng.model.materialformer import (
     kept_rows,
     to_sequence,
 )
+from frng.model.opacity import OpacityHead
 from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, select_top_k
 from frng.model.tokenizers import PriorTokenizer, stack_priors
 from frng.plan.sections import register, section
@@ -61,7 +62,7 @@ from frng.render.shading import (
 
 MODEL_KIND = "frng"
 # FRNGConfig keys added after models were saved without them: the value that reproduces what those models did
-SAVED_DEFAULTS = {"fine_in_hull": False}
+SAVED_DEFAULTS = {"fine_in_hull": False, "opacity_head": False}
 
 
 @register("frng")
@@ -82,6 +83,7 @@ class FRNGSection:
     pixel_head: int
     back_completion: bool
     fine_in_hull: bool
+    opacity_head: bool
     saliency: SaliencyConfig
 
 
@@ -114,6 +116,7 @@ class FRNGConfig:
     back_completion: bool  # Gaussians on the hull's unseen far side, copied from their pixels (frng.back_completion)
     decoder_specular: bool  # closed-form prefiltered specular base, features 6:10 (shading.decoder_specular)
     fine_in_hull: bool  # fine Gaussians only inside every input view's silhouette (frng.fine_in_hull)
+    opacity_head: bool  # per-Gaussian opacity residual on the backbone's geometry (frng.opacity_head)
 
     @classmethod
     def from_dict(cls, d: dict) -> FRNGConfig:
@@ -321,6 +324,11 @@ class FRNG(nn.Module):
             )
             if cfg.pixel_head > 0
             else None
+        )
+        if cfg.opacity_head and self.pixel_head is None:
+            raise ValueError("frng.opacity_head reads the pixel head's inputs: it needs frng.pixel_head > 0")
+        self.opacity_head = (
+            OpacityHead(out_ch, pixel_channels(cfg.uses_priors), cfg.pixel_head) if cfg.opacity_head else None
         )
         if lambertian_start and self.pixel_head is not None:  # start at the Lambertian relighting of the input views
             nn.init.zeros_(self.material.detokenizer.proj.weight)
@@ -536,6 +544,8 @@ class FRNG(nn.Module):
             parts = [coarse[keep_c]]
             if fine is not None:
                 parts.append(fine.gaussians[keep_f])
+            # the opacity residual reads the detokenizer's output before the pixel head adds its Lambertian start
+            dlogit = None if self.opacity_head is None else self.opacity_head.residual(raw, pix_b[b])
             if self.pixel_head is not None:
                 raw = self.pixel_head(raw, pix_b[b])
             n_front = raw.shape[0]
@@ -543,6 +553,9 @@ class FRNG(nn.Module):
                 raw = torch.cat([raw, self._back_features(raw, back)])
                 parts.append(back["gaussians"])
             gauss = Gaussians.cat(parts)
+            if dlogit is not None:  # far-side copies take their source's residual
+                dlogit = dlogit if back is None else torch.cat([dlogit, dlogit[back["rows"]]])
+                gauss = replace(gauss, opacities=OpacityHead.apply(gauss.opacities, dlogit))
             if self.cfg.head == "neural":
                 feat, pbr = raw, None
             else:

@@ -1,0 +1,61 @@
+"""Per-Gaussian opacity refinement of the frozen backbone's geometry (our addition; ``frng.opacity_head``).
+
+F-RNG renders the backbone's per-pixel Gaussians (paper Sec. 4.1: the coarse geometry is the frozen backbone's).
+With six input views those Gaussians sit on a visual hull that is wider than the object seen from between the
+views: slivers outside the true silhouette, blobs around thin parts, and a silhouette about a pixel too wide all
+round, which the ground truth's anti-aliased rim shows as a bright ring (at the default tier's 96 px the outermost
+ring of the foreground is ~15 % of its pixels and ~45 % of its squared error, for F-RNG and the backbone alike).
+The head lets F-RNG change each kept Gaussian's opacity from what F-RNG already knows of it:
+
+    opacity' = sigmoid(logit(opacity) + MLP([g, pixel]))
+
+with ``g`` (N, C_out) the Gaussian's MaterialDetokenizer output (its token's geometry, appearance and prior
+context) and ``pixel`` (N, C_pix) its input pixel (:func:`frng.model.frng.pixel_map`: colour, alpha, irradiance,
+normals, IDM priors). The last layer starts at zero: an untrained head keeps the backbone's opacities (clamped to
+[OPACITY_EPS, 1 - OPACITY_EPS]). It is
+trained by F-RNG's own losses through the rasterizer (L_2 on the target's foreground, the perceptual term on the
+whole composited image, which sees the slivers outside it).
+
+forward(g (N, C_out), pixel (N, C_pix), opacities (N,)) -> (N,) opacities in (0, 1).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+# logit() of the backbone's opacities is taken at most this close to 0 or 1 (its saturated pixels: opacity 1 would
+# give an infinite logit that no residual can move)
+OPACITY_EPS = 1e-4
+
+
+class OpacityHead(nn.Module):
+    """A 2-layer MLP from a Gaussian's detokenizer output and input pixel to a residual on its opacity logit."""
+
+    def __init__(self, out_channels: int, pixel_channels: int, hidden: int):
+        super().__init__()
+        if hidden < 1:
+            raise ValueError(f"OpacityHead: hidden must be >= 1, got {hidden}")
+        self.in_channels = out_channels + pixel_channels
+        self.mlp = nn.Sequential(nn.Linear(self.in_channels, hidden), nn.GELU(), nn.Linear(hidden, 1))
+        nn.init.zeros_(self.mlp[-1].weight)
+        nn.init.zeros_(self.mlp[-1].bias)
+
+    def residual(self, g: torch.Tensor, pixel: torch.Tensor) -> torch.Tensor:
+        """The opacity-logit residual (N,) of N Gaussians: g (N, C_out), pixel (N, C_pix)."""
+        assert g.dim() == 2 and pixel.shape[0] == g.shape[0], (g.shape, pixel.shape)
+        assert g.shape[1] + pixel.shape[1] == self.in_channels, (g.shape, pixel.shape, self.in_channels)
+        return self.mlp(torch.cat([g, pixel.to(g.dtype)], -1))[:, 0]
+
+    @staticmethod
+    def apply(opacities: torch.Tensor, residual: torch.Tensor) -> torch.Tensor:
+        """opacities (N,) in [0, 1], residual (N,) logits -> sigmoid(logit(opacities) + residual), (N,)."""
+        assert opacities.shape == residual.shape, (opacities.shape, residual.shape)
+        o = opacities.float().clamp(OPACITY_EPS, 1.0 - OPACITY_EPS)
+        return torch.sigmoid(torch.logit(o) + residual.float())
+
+    def forward(self, g: torch.Tensor, pixel: torch.Tensor, opacities: torch.Tensor) -> torch.Tensor:
+        return self.apply(opacities, self.residual(g, pixel))
+
+
+__all__ = ["OPACITY_EPS", "OpacityHead"]
