@@ -8,6 +8,7 @@ For one object with V input views (backbone cache entry, IDM priors, input image
     T_fine-geo/prior/app, G_fine = Bilinear(...)_j, FineGeoDetokenizer(T_fine-geo | T_fine-prior)   Sec. 4.1
     T_mat                        = MaterialFormer(T_geo (+) T_app | T_prior)  over coarse + fine tokens  Sec. 4.2.1
     G_mat                        = MatDetokenizer(T_mat)  -> per-Gaussian neural features (or Cook-Torrance params)
+    opacity                      = sigmoid(logit(opacity) + OpacityHead(G_mat, pixel))   our addition (.opacity)
     L_o(p)                       = 1/K sum_k Theta(f(p), w_o, w_k) L(w_k) / pdf(w_k)   Sec. 4.3 + supplement,
                                    deferred shading of the rasterized feature map (:mod:`frng.render.shading`)
 
@@ -289,7 +290,8 @@ class PixelHead(nn.Module):
 
 
 class FRNG(nn.Module):
-    """F-RNG's trainable networks: PriorTokenizer, FineGeometry, MaterialHead, universal decoder.
+    """F-RNG's trainable networks: PriorTokenizer, FineGeometry, MaterialHead, PixelHead, OpacityHead, universal
+    decoder.
 
     See the module docstring for the data flow; :meth:`reconstruct` and :meth:`render` are the public API.
     """
