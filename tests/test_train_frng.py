@@ -108,8 +108,15 @@ def test_frozen_backbone_gets_no_gradient(frng_smoke):
     assert all(p.grad is None for p in backbone.parameters())
     assert not any(p.requires_grad for p in backbone.parameters())
     got = {n for n, p in model.named_parameters() if p.grad is not None and p.grad.abs().sum() > 0}
-    prefixes = ("tokenizer.", "fine.detokenizer.", "material.former.", "material.detokenizer.", "decoder.")
-    for prefix in (*prefixes, "opacity_head."):
+    trained = (
+        "tokenizer.",
+        "fine.detokenizer.",
+        "material.former.",
+        "material.detokenizer.",
+        "decoder.",
+        "opacity_head.",
+    )
+    for prefix in trained:
         assert any(n.startswith(prefix) for n in got), prefix
     # copied, not shared
     assert model.fine.detokenizer.proj.weight.data_ptr() != backbone.geo_detokenizer.proj.weight.data_ptr()
