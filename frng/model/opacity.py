@@ -12,11 +12,13 @@ The head lets F-RNG change each kept Gaussian's opacity from what F-RNG already 
 with ``g`` (N, C_out) the Gaussian's MaterialDetokenizer output (its token's geometry, appearance and prior
 context) and ``pixel`` (N, C_pix) its input pixel (:func:`frng.model.frng.pixel_map`: colour, alpha, irradiance,
 normals, IDM priors). The last layer starts at zero: an untrained head keeps the backbone's opacities (clamped to
-[OPACITY_EPS, 1 - OPACITY_EPS]). It is
-trained by F-RNG's own losses through the rasterizer (L_2 on the target's foreground, the perceptual term on the
-whole composited image, which sees the slivers outside it).
+[OPACITY_EPS, 1 - OPACITY_EPS]). It is trained by F-RNG's own losses through the rasterizer (L_2 on the target's
+foreground, the perceptual term on the whole composited image, which sees the slivers outside it).
 
-forward(g (N, C_out), pixel (N, C_pix), opacities (N,)) -> (N,) opacities in (0, 1).
+Two steps, because :meth:`frng.model.frng.FRNG.reconstruct` computes the residual of the input pixels' Gaussians
+and applies it after the far-side copies have joined them (each copy takes its source's): :meth:`OpacityHead.residual`
+(g (N, C_out), pixel (N, C_pix)) -> (N,) logits, :meth:`OpacityHead.apply` (opacities (M,), logits (M,)) -> (M,)
+opacities in (0, 1).
 """
 
 from __future__ import annotations
@@ -53,9 +55,6 @@ class OpacityHead(nn.Module):
         assert opacities.shape == residual.shape, (opacities.shape, residual.shape)
         o = opacities.float().clamp(OPACITY_EPS, 1.0 - OPACITY_EPS)
         return torch.sigmoid(torch.logit(o) + residual.float())
-
-    def forward(self, g: torch.Tensor, pixel: torch.Tensor, opacities: torch.Tensor) -> torch.Tensor:
-        return self.apply(opacities, self.residual(g, pixel))
 
 
 __all__ = ["OPACITY_EPS", "OpacityHead"]
