@@ -3,6 +3,7 @@ a short run lowers the relighting loss, kill + rerun resumes. Priors: the sessio
 its token caches + oracle IDM priors (G-buffers) made here, on that run's dataset (tests/conftest.py)."""
 
 import csv
+import math
 import subprocess
 import sys
 import time
@@ -115,6 +116,7 @@ def test_frozen_backbone_gets_no_gradient(frng_smoke):
         "material.detokenizer.",
         "decoder.",
         "opacity_head.",
+        "depth_head.",
     )
     for prefix in trained:
         assert any(n.startswith(prefix) for n in got), prefix
@@ -417,3 +419,38 @@ def test_opacity_head_starts_at_the_backbone_opacities_and_moves_them(frng_smoke
     assert len(o) == len(lo) and torch.allclose(torch.logit(lo), torch.logit(o) - 2.0, atol=1e-3)
     with pytest.raises(ValueError, match="opacity_head.*pixel_head"):
         type(model)(replace(model.cfg, opacity_head=True, pixel_head=0))
+
+
+def test_depth_head_starts_at_the_backbone_depths_and_moves_along_the_input_rays(frng_smoke):
+    """frng.depth_head: an untrained head keeps the coarse Gaussians where the backbone put them; a residual moves
+    each along its input camera's ray by at most max_offset, nothing else moves. frng.geometry_inputs: the opacity
+    head reads the backbone's raw maps, and says so when a caller's views lack them."""
+    from frng.model.opacity import GEOMETRY_CHANNELS, OpacityHead
+    from frng.training.frng import build_model
+
+    _, config = frng_smoke
+    res = Path(config["results"])
+    model, _ = build_model(_sections(config), "full", res / "backbone" / "model.pt", "cpu")
+    assert model.depth_head is not None and model.cfg.geometry_inputs  # the defaults
+    assert model.opacity_head.in_channels == model.depth_head.in_channels + GEOMETRY_CHANNELS
+    obj = _objects(config)[0]
+    keep = obj.views["keep"].bool()
+    V = obj.views["c2w"].shape[0]
+    means = obj.views["means"][keep].float()
+    origins = obj.views["c2w"][torch.arange(keep.numel()) // (keep.numel() // V)][keep][:, :3, 3].float()
+    with torch.no_grad():
+        rec = model.reconstruct(obj.views, 0, obj.priors, obj.images, input_env=obj.env_in)
+        assert torch.equal(rec.gaussians.means[: rec.num_coarse], means)
+        model.depth_head.mlp[-1].bias.fill_(1.0)  # every coarse Gaussian max_offset * tanh(1) farther away
+        far = model.reconstruct(obj.views, 0, obj.priors, obj.images, input_env=obj.env_in)
+    moved = far.gaussians.means[: far.num_coarse]
+    step = (moved - origins).norm(dim=-1) - (means - origins).norm(dim=-1)
+    assert torch.allclose(step, torch.full_like(step, model.cfg.depth_head * math.tanh(1.0)), atol=1e-4)
+    assert torch.allclose(torch.cross(moved - origins, means - origins, dim=-1), torch.zeros_like(moved), atol=1e-4)
+    assert torch.equal(far.gaussians.means[far.num_coarse :], rec.gaussians.means[rec.num_coarse :])
+    views = {k: v for k, v in obj.views.items() if k != "raw"}
+    with pytest.raises(ValueError, match="geometry_inputs.*'raw'"):
+        model.reconstruct(views, 0, obj.priors, obj.images, input_env=obj.env_in)
+    with pytest.raises(ValueError, match="depth_head.*pixel_head"):
+        type(model)(replace(model.cfg, opacity_head=False, depth_head=0.1, pixel_head=0))
+    assert isinstance(model.opacity_head, OpacityHead)

@@ -37,6 +37,7 @@ from torch import nn
 from frng import io
 from frng.device import bf16_ok
 from frng.gaussians import GaussianDecodeConfig, Gaussians
+from frng.model.depth import DepthHead
 from frng.model.fine_geometry import FineGeometry, FineGeometryConfig, fine_keep_mask, sample_pixels
 from frng.model.materialformer import (
     MaterialFormerConfig,
@@ -45,7 +46,7 @@ from frng.model.materialformer import (
     kept_rows,
     to_sequence,
 )
-from frng.model.opacity import OpacityHead
+from frng.model.opacity import GEOMETRY_CHANNELS, OpacityHead, geometry_inputs
 from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, select_top_k
 from frng.model.tokenizers import PriorTokenizer, stack_priors
 from frng.plan.sections import register, section
@@ -63,7 +64,12 @@ from frng.render.shading import (
 
 MODEL_KIND = "frng"
 # FRNGConfig keys added after models were saved without them: the value that reproduces what those models did
-SAVED_DEFAULTS = {"fine_in_hull": False, "opacity_head": False}
+SAVED_DEFAULTS = {
+    "fine_in_hull": False,
+    "opacity_head": False,
+    "geometry_inputs": False,
+    "depth_head": 0.0,
+}
 
 
 @register("frng")
@@ -85,6 +91,8 @@ class FRNGSection:
     back_completion: bool
     fine_in_hull: bool
     opacity_head: bool
+    geometry_inputs: bool
+    depth_head: float
     saliency: SaliencyConfig
 
 
@@ -118,6 +126,8 @@ class FRNGConfig:
     decoder_specular: bool  # closed-form prefiltered specular base, features 6:10 (shading.decoder_specular)
     fine_in_hull: bool  # fine Gaussians only inside every input view's silhouette (frng.fine_in_hull)
     opacity_head: bool  # per-Gaussian opacity residual on the backbone's geometry (frng.opacity_head)
+    geometry_inputs: bool  # the opacity head also reads the backbone's raw geometry (frng.geometry_inputs)
+    depth_head: float  # largest move of a coarse Gaussian along its input ray (0 = off; frng.depth_head)
 
     @classmethod
     def from_dict(cls, d: dict) -> FRNGConfig:
@@ -329,9 +339,12 @@ class FRNG(nn.Module):
         )
         if cfg.opacity_head and self.pixel_head is None:
             raise ValueError("frng.opacity_head reads the pixel head's inputs: it needs frng.pixel_head > 0")
-        self.opacity_head = (
-            OpacityHead(out_ch, pixel_channels(cfg.uses_priors), cfg.pixel_head) if cfg.opacity_head else None
-        )
+        n_pix = pixel_channels(cfg.uses_priors)
+        n_geo = GEOMETRY_CHANNELS if cfg.geometry_inputs else 0
+        self.opacity_head = OpacityHead(out_ch, n_pix + n_geo, cfg.pixel_head) if cfg.opacity_head else None
+        if cfg.depth_head and self.pixel_head is None:
+            raise ValueError("frng.depth_head reads the pixel head's inputs: it needs frng.pixel_head > 0")
+        self.depth_head = DepthHead(out_ch, n_pix, cfg.pixel_head, cfg.depth_head) if cfg.depth_head else None
         if lambertian_start and self.pixel_head is not None:  # start at the Lambertian relighting of the input views
             nn.init.zeros_(self.material.detokenizer.proj.weight)
             nn.init.zeros_(self.material.detokenizer.proj.bias)
@@ -539,6 +552,8 @@ class FRNG(nn.Module):
                 if fine is not None:
                     pix.append(sample_pixels(maps[b], fine.uv).reshape(-1, maps[b].shape[-1])[keep_f])
                 pix_b[b] = torch.cat(pix)
+        geo = self._geometry_inputs(bv, keep_c, fine, keep_f)
+        n_coarse = int(keep_c.sum())
         back = self._back_completion(bv, keep_c)
         out = []
         for b in range(B):
@@ -546,8 +561,16 @@ class FRNG(nn.Module):
             parts = [coarse[keep_c]]
             if fine is not None:
                 parts.append(fine.gaussians[keep_f])
-            # the opacity residual reads the detokenizer's output before the pixel head adds its Lambertian start
-            dlogit = None if self.opacity_head is None else self.opacity_head.residual(raw, pix_b[b])
+            # the opacity and depth heads read the detokenizer's output before the pixel head adds its Lambertian start
+            dlogit = None
+            if self.opacity_head is not None:
+                op_in = pix_b[b] if geo is None else torch.cat([pix_b[b], geo.to(pix_b[b].dtype)], -1)
+                dlogit = self.opacity_head.residual(raw, op_in)
+            if self.depth_head is not None:  # coarse Gaussians along their input rays (frng/model/depth.py)
+                dz = self.depth_head.offset(raw[:n_coarse], pix_b[b][:n_coarse])
+                view = torch.div(torch.arange(keep_c.numel(), device=dev), keep_c.numel() // V, rounding_mode="floor")
+                origins = c2w[view[keep_c], :3, 3]
+                parts[0] = replace(parts[0], means=DepthHead.move(parts[0].means, origins, dz))
             if self.pixel_head is not None:
                 raw = self.pixel_head(raw, pix_b[b])
             n_front = raw.shape[0]
@@ -602,6 +625,22 @@ class FRNG(nn.Module):
             else:
                 maps.append(pixel_map(im.to(dev).float(), pri, V, normals, env))
         return maps
+
+    def _geometry_inputs(self, bv: dict, keep_c: torch.Tensor, fine, keep_f) -> torch.Tensor | None:
+        """The opacity head's extra inputs (:func:`frng.model.opacity.geometry_inputs`) of the kept Gaussians, coarse
+        then fine (sampled at their sub-pixel uv), (N, GEOMETRY_CHANNELS); None without ``geometry_inputs``."""
+        if self.opacity_head is None or not self.cfg.geometry_inputs:
+            return None
+        if "raw" not in bv or "raw_prior" not in bv:
+            raise ValueError(
+                "F-RNG with frng.geometry_inputs reads the backbone's raw maps: backbone_views has no 'raw' / "
+                "'raw_prior' (frng.priors.cache.geometry_entry makes both)"
+            )
+        gm = geometry_inputs(bv["raw"].float(), bv["raw_prior"].float())  # (V, H, W, 2)
+        rows = [gm.reshape(-1, GEOMETRY_CHANNELS)[keep_c]]
+        if fine is not None:
+            rows.append(sample_pixels(gm, fine.uv).reshape(-1, GEOMETRY_CHANNELS)[keep_f])
+        return torch.cat(rows)
 
     def _back_completion(self, bv: dict, keep_c: torch.Tensor) -> dict | None:
         """The cache entry's far-side copies (``back_*``, :func:`frng.priors.multiview.back_gaussians`) of kept

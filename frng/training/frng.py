@@ -60,7 +60,8 @@ from frng.render.shading import ShadingConfig
 from frng.training import distributed
 from frng.training import loop as tr
 
-CACHE_KEYS = ("t_geo", "raw_prior", "means", "quats", "scales", "opacities", "keep", "c2w", "intr")  # + light{j}.t_app
+# the backbone cache tensors training reads, besides light{j}.t_app (raw: the opacity head's geometry inputs)
+CACHE_KEYS = ("t_geo", "raw", "raw_prior", "means", "quats", "scales", "opacities", "keep", "c2w", "intr")
 BACK_KEYS = tuple("back_" + k for k in ("means", "quats", "scales", "opacities", "src", "dirs"))  # when cached
 LOSS_NAMES = ["total", "l2", "alpha", "perceptual", "ind", "ind_cos", "ind_kld"]
 
@@ -106,7 +107,7 @@ def variant_config(
 
     cfg = FRNGConfig(
         **same(f, "prior_dim", "upsample", "hidden", "depth", "heads", "feature_dim", "pixel_head"),
-        **same(f, "back_completion", "fine_in_hull", "opacity_head"),
+        **same(f, "back_completion", "fine_in_hull", "opacity_head", "geometry_inputs", "depth_head"),
         **same(sh, "decoder_width", "decoder_depth", "dir_freqs", "decoder_cosine"),
         **same(bb, "near", "far", "max_radius_px"),
         patch=sections.patch_size,

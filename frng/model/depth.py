@@ -1,0 +1,48 @@
+"""Per-Gaussian depth refinement of the frozen backbone's geometry (our addition; ``frng.depth_head``).
+
+F-RNG renders the backbone's per-pixel Gaussians at the ray distance the backbone predicted for their input pixel
+(paper Sec. 4.1). Where the six views' visual hull is wrong (a thin slab seen obliquely, a concavity) the backbone
+mostly keeps the hull's depth. The depth head lets F-RNG move each of those coarse Gaussians along its input ray,
+from what F-RNG knows of it (the same inputs as :class:`frng.model.opacity.OpacityHead`'s residual):
+
+    mean' = mean + max_offset * tanh(MLP([g, pixel])) * (mean - origin) / |mean - origin|
+
+with ``origin`` the input camera's centre and ``max_offset`` (``frng.depth_head``, world units; the object's radius
+is 1) bounding the move. The last layer starts at zero (an untrained head moves nothing); it is trained by F-RNG's
+own losses through the rasterizer's gradients on the means. The fine Gaussians (F-RNG's own geometry) and the
+far-side copies are not moved.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch.nn import functional as F
+
+from frng.model.opacity import GaussianResidual
+
+
+class DepthHead(GaussianResidual):
+    """A bounded offset of each coarse Gaussian along its input ray (the module docstring)."""
+
+    def __init__(self, out_channels: int, pixel_channels: int, hidden: int, max_offset: float):
+        super().__init__(out_channels, pixel_channels, hidden)
+        if not max_offset > 0:
+            raise ValueError(f"DepthHead: max_offset must be > 0, got {max_offset}")
+        self.max_offset = float(max_offset)
+
+    def offset(self, g: torch.Tensor, pixel: torch.Tensor) -> torch.Tensor:
+        """g (N, C_out), pixel (N, C_pix) -> (N,) offsets in (-max_offset, max_offset) world units."""
+        return self.max_offset * torch.tanh(self.residual(g, pixel).float())
+
+    @staticmethod
+    def move(means: torch.Tensor, origins: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
+        """means (N, 3), origins (N, 3) their input cameras' centres, offset (N,) -> (N, 3) moved along the rays."""
+        assert means.shape == origins.shape and means.shape[-1] == 3 and offset.shape == means.shape[:1], (
+            means.shape,
+            origins.shape,
+            offset.shape,
+        )
+        return means + F.normalize(means - origins, dim=-1) * offset[:, None].to(means.dtype)
+
+
+__all__ = ["DepthHead"]
