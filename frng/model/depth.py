@@ -3,7 +3,8 @@
 F-RNG renders the backbone's per-pixel Gaussians at the ray distance the backbone predicted for their input pixel
 (paper Sec. 4.1). Where the six views' visual hull is wrong (a thin slab seen obliquely, a concavity) the backbone
 mostly keeps the hull's depth. The depth head lets F-RNG move each of those coarse Gaussians along its input ray,
-from what F-RNG knows of it (the same inputs as :class:`frng.model.opacity.OpacityHead`'s residual):
+from what F-RNG knows of it (its detokenizer output ``g`` and input pixel ``pixel``, as the opacity head reads them
+without ``frng.geometry_inputs``):
 
     mean' = mean + max_offset * tanh(MLP([g, pixel])) * (mean - origin) / |mean - origin|
 
