@@ -117,9 +117,10 @@ def test_unknown_nested_key_and_model_records():
     older = {k: v for k, v in cfg.to_dict().items() if k != "opacity_head"}
     assert FRNGConfig.from_saved(older).opacity_head is False
     assert cfg.geometry_inputs and cfg.depth_head > 0  # the defaults
-    oldest = {k: v for k, v in cfg.to_dict().items() if k not in ("geometry_inputs", "depth_head")}
+    assert cfg.coverage_head == 0  # the default: off
+    oldest = {k: v for k, v in cfg.to_dict().items() if k not in ("geometry_inputs", "depth_head", "coverage_head")}
     saved = FRNGConfig.from_saved(oldest)
-    assert (saved.geometry_inputs, saved.depth_head) == (False, 0.0)
+    assert (saved.geometry_inputs, saved.depth_head, saved.coverage_head) == (False, 0.0, 0)
     assert FRNGConfig.from_saved(cfg.to_dict()) == cfg
     with pytest.raises(ConfigError, match=r"^backbone[.]kind: unknown key"):
         BackboneConfig.from_dict({"patch": 8, "kind": "relitlrm"})  # an architecture record, not the section

@@ -421,6 +421,39 @@ def test_opacity_head_starts_at_the_backbone_opacities_and_moves_them(frng_smoke
         type(model)(replace(model.cfg, opacity_head=True, pixel_head=0))
 
 
+def test_coverage_head_scales_only_the_silhouette_rim(frng_smoke):
+    """frng.coverage_head (off by default): an untrained head keeps the rasterizer's coverage; its output scales the
+    alpha of the render's 1-px silhouette rim by sigmoid(out + GAIN_LOGIT) / sigmoid(GAIN_LOGIT), and the payload with
+    it (the features it shades stay the same); the interior and the background stay as rasterized."""
+    from frng.model.coverage import ALPHA_MIN, GAIN_LOGIT, CoverageHead, silhouette_rim
+    from frng.training.frng import build_model
+
+    _, config = frng_smoke
+    res = Path(config["results"])
+    model, _ = build_model(_sections(config), "full", res / "backbone" / "model.pt", "cpu")
+    assert model.coverage_head is None  # the default
+    obj = _objects(config)[0]
+    _, _, c2w, K, rgba = obj.targets[0]
+    H, W = rgba.shape[1:3]
+    with torch.no_grad():
+        rec = model.reconstruct(obj.views, 0, obj.priors, obj.images, input_env=obj.env_in)
+        maps0, a0, _, _ = model.rasterize(rec, c2w[:2], K[:2], H, W)
+        model.coverage_head = CoverageHead(model.payload_channels(), 8)
+        maps1, a1, _, _ = model.rasterize(rec, c2w[:2], K[:2], H, W)
+        model.coverage_head.net[-1].bias.fill_(-2.0)  # the rim's gain sigmoid(G - 2) / sigmoid(G)
+        maps2, a2, _, _ = model.rasterize(rec, c2w[:2], K[:2], H, W)
+    assert torch.equal(a1, a0) and torch.equal(maps1, maps0)
+    rim = silhouette_rim(a0)
+    inner = (a0 > ALPHA_MIN) & ~rim
+    assert rim.sum() > 20 and inner.sum() > rim.sum()  # a ring around a larger interior
+    gain = (1 + math.exp(-GAIN_LOGIT)) / (1 + math.exp(-(GAIN_LOGIT - 2.0)))
+    assert torch.allclose(a2[rim], (a0[rim] * gain).clamp(max=1.0), atol=1e-5)
+    keep = ~rim
+    assert torch.equal(a2[keep], a0[keep]) and torch.equal(maps2[keep.expand_as(maps2)], maps0[keep.expand_as(maps0)])
+    r = rim.expand_as(maps0)
+    assert torch.allclose((maps2 / a2.clamp_min(1e-6))[r], (maps0 / a0.clamp_min(1e-6))[r], atol=1e-3, rtol=1e-3)
+
+
 def test_depth_head_starts_at_the_backbone_depths_and_moves_along_the_input_rays(frng_smoke):
     """frng.depth_head: an untrained head keeps the coarse Gaussians where the backbone put them; a residual moves
     each along its input camera's ray by at most max_offset, nothing else moves. frng.geometry_inputs: the opacity

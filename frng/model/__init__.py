@@ -8,6 +8,7 @@ Modules
 - :mod:`.materialformer`      Sec. 4.2.1 MaterialFormer + MatDetokenizer (neural features or Cook-Torrance head)
 - :mod:`.light_independence`  Sec. 4.2.2 L_ind = lambda_c * C + lambda_KLD * KL
 - :mod:`.opacity`             our addition: a per-Gaussian residual on the backbone Gaussians' opacity logits
+- :mod:`.coverage`            our addition: a screen-space gain on the rendered silhouette rim's coverage (alpha)
 - :mod:`.depth`               our addition: a per-Gaussian move of the backbone's Gaussians along their input rays
 - its trainer: :mod:`frng.training.frng` (L_2, L_per, L_ind, one step; stage ``frng train``)
 - :mod:`frng.gaussians`       raw per-pixel parameters -> Gaussians (shared with the backbone)
@@ -43,6 +44,7 @@ with ``prior_dim = 0`` (no prior parameters; passing priors raises); ``no-ind`` 
 """
 
 from frng.gaussians import GaussianDecodeConfig, Gaussians, decode, decode_raw, pixel_gaussians
+from frng.model.coverage import CoverageHead
 from frng.model.depth import DepthHead
 from frng.model.fine_geometry import (
     FineGeoDetokenizer,
@@ -70,6 +72,7 @@ from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, sali
 from frng.model.tokenizers import PRIOR_CHANNELS, PriorTokenizer, patchify, stack_priors, unpatchify
 
 __all__ = [
+    "CoverageHead",
     "DepthHead",
     "FineGeoDetokenizer",
     "FineGeometry",

@@ -37,6 +37,7 @@ from torch import nn
 from frng import io
 from frng.device import bf16_ok
 from frng.gaussians import GaussianDecodeConfig, Gaussians
+from frng.model.coverage import CoverageHead
 from frng.model.depth import DepthHead
 from frng.model.fine_geometry import FineGeometry, FineGeometryConfig, fine_keep_mask, sample_pixels
 from frng.model.materialformer import (
@@ -69,6 +70,7 @@ SAVED_DEFAULTS = {
     "opacity_head": False,
     "geometry_inputs": False,
     "depth_head": 0.0,
+    "coverage_head": 0,
 }
 
 
@@ -93,6 +95,7 @@ class FRNGSection:
     opacity_head: bool
     geometry_inputs: bool
     depth_head: float
+    coverage_head: int
     saliency: SaliencyConfig
 
 
@@ -128,6 +131,7 @@ class FRNGConfig:
     opacity_head: bool  # per-Gaussian opacity residual on the backbone's geometry (frng.opacity_head)
     geometry_inputs: bool  # the opacity head also reads the backbone's raw geometry (frng.geometry_inputs)
     depth_head: float  # largest move of a coarse Gaussian along its input ray (0 = off; frng.depth_head)
+    coverage_head: int  # hidden width of the silhouette rim's coverage head (0 = off; frng.coverage_head)
 
     @classmethod
     def from_dict(cls, d: dict) -> FRNGConfig:
@@ -345,6 +349,7 @@ class FRNG(nn.Module):
         if cfg.depth_head and self.pixel_head is None:
             raise ValueError("frng.depth_head reads the pixel head's inputs: it needs frng.pixel_head > 0")
         self.depth_head = DepthHead(out_ch, n_pix, cfg.pixel_head, cfg.depth_head) if cfg.depth_head else None
+        self.coverage_head = CoverageHead(self.payload_channels(), cfg.coverage_head) if cfg.coverage_head else None
         if lambertian_start and self.pixel_head is not None:  # start at the Lambertian relighting of the input views
             nn.init.zeros_(self.material.detokenizer.proj.weight)
             nn.init.zeros_(self.material.detokenizer.proj.bias)
@@ -673,6 +678,11 @@ class FRNG(nn.Module):
             [rb[:, : ns.start], mirror_normals(rb[:, ns], back["dirs"].to(rb.dtype)), rb[:, ns.stop :]], -1
         )
 
+    def payload_channels(self) -> int:
+        """Channels of a Gaussian's rasterized payload: the neural features, or Cook-Torrance's albedo, roughness,
+        metallic and normal (8)."""
+        return 8 if self.cfg.head == "pbr" else self.cfg.feature_dim
+
     def normal_channels(self) -> slice | None:
         """Where a Gaussian's payload holds its shading normal: Cook-Torrance 5:8, the cosine decoder's features 0:3;
         None for a decoder without a normal (``decoder_cosine`` off)."""
@@ -708,6 +718,8 @@ class FRNG(nn.Module):
         ns = self.normal_channels()
         if ns is not None:  # screen-space normal filtering (shading.normal_blur), once for every light and consumer
             maps = smooth_normals(maps, alpha, ns, self.shading_cfg.normal_sigma_px(width))
+        if self.coverage_head is not None:  # the silhouette rim's partial coverage (frng/model/coverage.py)
+            maps, alpha = self.coverage_head(maps, alpha)
         return maps, alpha, c2w, intr
 
     def shade(
