@@ -438,7 +438,7 @@ def test_coverage_head_scales_only_the_silhouette_rim(frng_smoke):
     with torch.no_grad():
         rec = model.reconstruct(obj.views, 0, obj.priors, obj.images, input_env=obj.env_in)
         maps0, a0, _, _ = model.rasterize(rec, c2w[:2], K[:2], H, W)
-        model.coverage_head = CoverageHead(model.payload_channels(), 8)
+        model.coverage_head = CoverageHead(model.material.cfg.out_channels, 8)
         maps1, a1, _, _ = model.rasterize(rec, c2w[:2], K[:2], H, W)
         model.coverage_head.net[-1].bias.fill_(-2.0)  # the rim's gain sigmoid(G - 2) / sigmoid(G)
         maps2, a2, _, _ = model.rasterize(rec, c2w[:2], K[:2], H, W)

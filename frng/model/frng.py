@@ -99,6 +99,15 @@ class FRNGSection:
     saliency: SaliencyConfig
 
 
+def kept_pixel_rows(m: torch.Tensor, keep_c: torch.Tensor, fine, keep_f) -> torch.Tensor:
+    """A per-pixel map m (V, H, W, C) at the kept Gaussians, in their order: the coarse ones' pixels (keep_c,
+    (V*H*W,)), then the fine ones sampled at their sub-pixel uv (keep_f; none without ``fine``) -> (N, C)."""
+    rows = [m.reshape(-1, m.shape[-1])[keep_c]]
+    if fine is not None:
+        rows.append(sample_pixels(m, fine.uv).reshape(-1, m.shape[-1])[keep_f])
+    return torch.cat(rows)
+
+
 @dataclass
 class FRNGConfig:
     """Architecture of one F-RNG variant (everything needed to rebuild it from ``model.pt``). Not a config section:
@@ -349,7 +358,7 @@ class FRNG(nn.Module):
         if cfg.depth_head and self.pixel_head is None:
             raise ValueError("frng.depth_head reads the pixel head's inputs: it needs frng.pixel_head > 0")
         self.depth_head = DepthHead(out_ch, n_pix, cfg.pixel_head, cfg.depth_head) if cfg.depth_head else None
-        self.coverage_head = CoverageHead(self.payload_channels(), cfg.coverage_head) if cfg.coverage_head else None
+        self.coverage_head = CoverageHead(out_ch, cfg.coverage_head) if cfg.coverage_head else None
         if lambertian_start and self.pixel_head is not None:  # start at the Lambertian relighting of the input views
             nn.init.zeros_(self.material.detokenizer.proj.weight)
             nn.init.zeros_(self.material.detokenizer.proj.bias)
@@ -553,12 +562,11 @@ class FRNG(nn.Module):
                 if b > 0 and maps[b] is maps[0]:
                     pix_b[b] = pix_b[0]
                     continue
-                pix = [maps[b].reshape(-1, maps[b].shape[-1])[keep_c]]
-                if fine is not None:
-                    pix.append(sample_pixels(maps[b], fine.uv).reshape(-1, maps[b].shape[-1])[keep_f])
-                pix_b[b] = torch.cat(pix)
+                pix_b[b] = kept_pixel_rows(maps[b], keep_c, fine, keep_f)
         geo = self._geometry_inputs(bv, keep_c, fine, keep_f)
         n_coarse = int(keep_c.sum())
+        # each kept coarse Gaussian's input camera centre (N = V*H*W pixels in view order), for the depth head
+        origins = None if self.depth_head is None else c2w[:, :3, 3].repeat_interleave(keep_c.numel() // V, 0)[keep_c]
         back = self._back_completion(bv, keep_c)
         out = []
         for b in range(B):
@@ -573,8 +581,6 @@ class FRNG(nn.Module):
                 dlogit = self.opacity_head.residual(raw, op_in)
             if self.depth_head is not None:  # coarse Gaussians along their input rays (frng/model/depth.py)
                 dz = self.depth_head.offset(raw[:n_coarse], pix_b[b][:n_coarse])
-                view = torch.div(torch.arange(keep_c.numel(), device=dev), keep_c.numel() // V, rounding_mode="floor")
-                origins = c2w[view[keep_c], :3, 3]
                 parts[0] = replace(parts[0], means=DepthHead.move(parts[0].means, origins, dz))
             if self.pixel_head is not None:
                 raw = self.pixel_head(raw, pix_b[b])
@@ -641,11 +647,7 @@ class FRNG(nn.Module):
                 "F-RNG with frng.geometry_inputs reads the backbone's raw maps: backbone_views has no 'raw' / "
                 "'raw_prior' (frng.priors.cache.geometry_entry makes both)"
             )
-        gm = geometry_inputs(bv["raw"].float(), bv["raw_prior"].float())  # (V, H, W, 2)
-        rows = [gm.reshape(-1, GEOMETRY_CHANNELS)[keep_c]]
-        if fine is not None:
-            rows.append(sample_pixels(gm, fine.uv).reshape(-1, GEOMETRY_CHANNELS)[keep_f])
-        return torch.cat(rows)
+        return kept_pixel_rows(geometry_inputs(bv["raw"].float(), bv["raw_prior"].float()), keep_c, fine, keep_f)
 
     def _back_completion(self, bv: dict, keep_c: torch.Tensor) -> dict | None:
         """The cache entry's far-side copies (``back_*``, :func:`frng.priors.multiview.back_gaussians`) of kept
@@ -677,11 +679,6 @@ class FRNG(nn.Module):
         return torch.cat(
             [rb[:, : ns.start], mirror_normals(rb[:, ns], back["dirs"].to(rb.dtype)), rb[:, ns.stop :]], -1
         )
-
-    def payload_channels(self) -> int:
-        """Channels of a Gaussian's rasterized payload: the neural features, or Cook-Torrance's albedo, roughness,
-        metallic and normal (8)."""
-        return 8 if self.cfg.head == "pbr" else self.cfg.feature_dim
 
     def normal_channels(self) -> slice | None:
         """Where a Gaussian's payload holds its shading normal: Cook-Torrance 5:8, the cosine decoder's features 0:3;
