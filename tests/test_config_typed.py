@@ -117,7 +117,7 @@ def test_unknown_nested_key_and_model_records():
     older = {k: v for k, v in cfg.to_dict().items() if k != "opacity_head"}
     assert FRNGConfig.from_saved(older).opacity_head is False
     assert cfg.geometry_inputs and cfg.depth_head > 0  # the defaults
-    assert cfg.coverage_head == 0  # the default: off
+    assert cfg.coverage_head == 16  # the default: on
     oldest = {k: v for k, v in cfg.to_dict().items() if k not in ("geometry_inputs", "depth_head", "coverage_head")}
     saved = FRNGConfig.from_saved(oldest)
     assert (saved.geometry_inputs, saved.depth_head, saved.coverage_head) == (False, 0.0, 0)

@@ -422,7 +422,7 @@ def test_opacity_head_starts_at_the_backbone_opacities_and_moves_them(frng_smoke
 
 
 def test_coverage_head_scales_only_the_silhouette_rim(frng_smoke):
-    """frng.coverage_head (off by default): an untrained head keeps the rasterizer's coverage; its output scales the
+    """frng.coverage_head (on by default): an untrained head keeps the rasterizer's coverage; its output scales the
     alpha of the render's 1-px silhouette rim by sigmoid(out + GAIN_LOGIT) / sigmoid(GAIN_LOGIT), and the payload with
     it (the features it shades stay the same); the interior and the background stay as rasterized."""
     from frng.model.coverage import ALPHA_MIN, GAIN_LOGIT, CoverageHead, silhouette_rim
@@ -431,15 +431,16 @@ def test_coverage_head_scales_only_the_silhouette_rim(frng_smoke):
     _, config = frng_smoke
     res = Path(config["results"])
     model, _ = build_model(_sections(config), "full", res / "backbone" / "model.pt", "cpu")
-    assert model.coverage_head is None  # the default
+    assert isinstance(model.coverage_head, CoverageHead)  # the default: on
     obj = _objects(config)[0]
     _, _, c2w, K, rgba = obj.targets[0]
     H, W = rgba.shape[1:3]
     with torch.no_grad():
         rec = model.reconstruct(obj.views, 0, obj.priors, obj.images, input_env=obj.env_in)
-        maps0, a0, _, _ = model.rasterize(rec, c2w[:2], K[:2], H, W)
+        maps1, a1, _, _ = model.rasterize(rec, c2w[:2], K[:2], H, W)  # the default head, untrained
+        model.coverage_head = None
+        maps0, a0, _, _ = model.rasterize(rec, c2w[:2], K[:2], H, W)  # no head: the rasterizer's coverage
         model.coverage_head = CoverageHead(model.material.cfg.out_channels, 8)
-        maps1, a1, _, _ = model.rasterize(rec, c2w[:2], K[:2], H, W)
         model.coverage_head.net[-1].bias.fill_(-2.0)  # the rim's gain sigmoid(G - 2) / sigmoid(G)
         maps2, a2, _, _ = model.rasterize(rec, c2w[:2], K[:2], H, W)
     assert torch.equal(a1, a0) and torch.equal(maps1, maps0)

@@ -1,4 +1,4 @@
-"""Screen-space coverage of the rendered silhouette's rim (our addition; ``frng.coverage_head``, off by default).
+"""Screen-space coverage of the rendered silhouette's rim (our addition; ``frng.coverage_head``, on by default).
 
 The ground truth's silhouette is anti-aliased: Cycles' pixel filter leaves its outermost pixel ring part object,
 part background. F-RNG's Gaussians sit on the backbone's visual hull, which seen from between the input views is
