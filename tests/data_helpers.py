@@ -66,10 +66,15 @@ def kill_at_first_checkpoint(cmd: list[str], out: Path) -> int:
     return torch.load(ckpt, weights_only=False)["step"]
 
 
-def protocol_scores(psnr: float, ssim: float = 0.5, lpips: float = 0.1, scale=(1.0, 1.0, 1.0), brightness=None) -> dict:
+def protocol_scores(
+    psnr: float, ssim: float = 0.5, lpips: float = 0.1, scale=(1.0, 1.0, 1.0), brightness=None, interior=None
+) -> dict:
     """The score columns of a per-image metrics row (frng.metrics): psnr, ssim, lpips, the aligned protocol's per-channel
-    ``scale_*`` and, unless ``brightness`` is None, the ``brightness_*`` ratios."""
+    ``scale_*``, unless ``brightness`` is None the ``brightness_*`` ratios, unless ``interior`` is None
+    ``psnr_interior``."""
     row = dict(psnr=psnr, ssim=ssim, lpips=lpips, **{f"scale_{c}": float(v) for c, v in zip("rgb", scale)})
+    if interior is not None:
+        row["psnr_interior"] = float(interior)
     if brightness is not None:
         row.update({f"brightness_{c}": float(v) for c, v in zip("rgb", brightness)})
     return row

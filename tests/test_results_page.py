@@ -33,7 +33,7 @@ T0 = 1_700_000_000.0
 
 
 def _scores(psnr: float) -> dict:
-    return protocol_scores(psnr, 0.4 + psnr / 100, 0.3 - psnr / 100, (1.1, 0.9, 1.0), (1.2, 1.0, 0.8))
+    return protocol_scores(psnr, 0.4 + psnr / 100, 0.3 - psnr / 100, (1.1, 0.9, 1.0), (1.2, 1.0, 0.8), psnr + 3.0)
 
 
 def write_results(folder: Path) -> Path:
@@ -195,7 +195,8 @@ def test_page_and_block_from_a_results_folder(results, tmp_path):
     assert RP.render_table(head.header, head.align, head.rows) in block and "(docs/results.md)" in block
     assert "(docs/figures/results/ablation.png)" in block
     assert out.changelog == (
-        "| 2023-11-14 | `unknown` | smoke | 10 | 17.20 / 16.20; ΔPSNR +1.00 [1.00, 1.00], ΔLPIPS -0.0100 [-0.0100, -0.0100] "
+        "| 2023-11-14 | `unknown` | smoke | 10 | 17.20 / 16.20; ΔPSNR +1.00 [1.00, 1.00] (interior +1.00 [1.00, 1.00]), "
+        "ΔLPIPS -0.0100 [-0.0100, -0.0100] "
         "| [results](docs/results.md) |"
     )
     # the same folder again: the same bytes (a regeneration is deterministic)

@@ -132,12 +132,12 @@ def seed_runs(df: pd.DataFrame, run: str) -> dict[str, pd.DataFrame]:
 
 def seed_mean(df: pd.DataFrame, run: str) -> pd.DataFrame:
     """Per-image rows of ``run`` averaged over its training seeds (one row per object, light and view; metric
-    columns and the scale/brightness columns averaged; ``run`` = the plain name)."""
+    columns, PSNR interior and the scale/brightness columns averaged; ``run`` = the plain name)."""
     parts = seed_runs(df, run)
     if not parts:
         return df.iloc[:0]
     sub = pd.concat(parts.values(), ignore_index=True)
-    num = [c for c in sub.columns if c in M.METRICS or c.startswith(("scale_", "brightness_"))]
+    num = [c for c in sub.columns if c in (*M.METRICS, "psnr_interior") or c.startswith(("scale_", "brightness_"))]
     first = sub.drop_duplicates(list(IMAGE_KEYS)).set_index(list(IMAGE_KEYS)).drop(columns=num)
     mean = sub.groupby(list(IMAGE_KEYS), sort=False)[num].mean()
     out = first.join(mean).reset_index()
@@ -155,22 +155,27 @@ def seed_parts(df: pd.DataFrame, run: str, select=lambda d: d) -> dict[str, pd.D
 
 
 def image_means(sub: pd.DataFrame) -> dict:
-    """``n`` (images) and the mean PSNR / SSIM / LPIPS of per-image rows (LPIPS NaN where the rows have none): the
-    metric cells every table row carries."""
+    """``n`` (images) and the mean PSNR / PSNR interior / SSIM / LPIPS of per-image rows (PSNR interior and LPIPS NaN
+    where the rows have none): the metric cells every table row carries (each table shows its own)."""
     return {
         "n": len(sub),
         "psnr": sub["psnr"].mean(),
+        "psnr_interior": sub["psnr_interior"].mean() if "psnr_interior" in sub else np.nan,
         "ssim": sub["ssim"].mean(),
         "lpips": sub["lpips"].mean() if "lpips" in sub else np.nan,
     }
 
 
-def diff_to(rows, ref) -> dict:
-    """The paired-difference columns (:func:`frng.report.tables.diff_columns`) of ``rows`` minus ``ref``, matched
-    on object, light and view (:func:`frng.report.stats.paired`). Either may be a list of per-seed frames
-    (:func:`seed_parts`): the interval then also resamples the training seeds."""
+def diff_to(rows, ref, metrics=T.DIFF_METRICS) -> dict:
+    """The paired-difference columns (:func:`frng.report.tables.diff_columns`) of ``metrics`` of ``rows`` minus
+    ``ref``, matched on object, light and view (:func:`frng.report.stats.paired`). Either may be a list of per-seed
+    frames (:func:`seed_parts`): the interval then also resamples the training seeds."""
     out = {}
-    for m in T.DIFF_METRICS:
+    frames = [*(rows if isinstance(rows, list) else [rows]), *(ref if isinstance(ref, list) else [ref])]
+    for m in metrics:
+        if any(m not in f.columns for f in frames):  # per-image rows written before the metric existed
+            out |= {f"d{m}": np.nan, f"d{m}_lo": np.nan, f"d{m}_hi": np.nan}
+            continue
         r = S.paired(rows, ref, m, IMAGE_KEYS)
         out |= {f"d{m}": r.diff, f"d{m}_lo": r.lo, f"d{m}_hi": r.hi}
         if m == "psnr":
@@ -242,7 +247,8 @@ def _vs_backbone_rows(df: pd.DataFrame, frng: pd.DataFrame, bb: pd.DataFrame, pi
             **image_means(sub),
         }
         if method == "F-RNG":
-            row |= diff_to([*seed_parts(df, "full", pick).values()], [*seed_parts(df, BACKBONE, pick).values()])
+            frng_parts, bb_parts = [*seed_parts(df, "full", pick).values()], [*seed_parts(df, BACKBONE, pick).values()]
+            row |= diff_to(frng_parts, bb_parts, T.VS_BACKBONE_DIFF_METRICS)
             row |= seed_columns(df, "full", BACKBONE, pick)
         rows.append(row)
     return rows
@@ -262,7 +268,7 @@ def vs_backbone_table(df: pd.DataFrame, timings: list[dict]) -> tuple[pd.DataFra
         METHOD_LABELS[m]: float(np.mean([t[m]["relight_ms_per_image"] for t in timings])) for m in ("F-RNG", BACKBONE)
     }
     main, footer = T.vs_backbone(out, ms)
-    extra = [c for c in ["n", *T.diff_columns(), *T.SEED_COLUMNS] if c in out.columns]
+    extra = [c for c in ["n", *T.diff_columns(T.VS_BACKBONE_DIFF_METRICS), *T.SEED_COLUMNS] if c in out.columns]
     return pd.concat([main, out[extra]], axis=1), footer
 
 
@@ -291,7 +297,8 @@ def _at_rig(d: pd.DataFrame) -> pd.DataFrame:
 def _ordered(out: pd.DataFrame, table: str) -> pd.DataFrame:
     """The table's own columns first, then n, the difference and the seed columns present."""
     main = list(T.TABLE_COLUMNS[table])
-    rest = [c for c in ["n", *T.diff_columns(), *T.SEED_COLUMNS] if c in out.columns and c not in main]
+    rest = [c for c in ["n", *T.diff_columns(T.VS_BACKBONE_DIFF_METRICS), *T.SEED_COLUMNS]]
+    rest = [c for c in rest if c in out.columns and c not in main]
     return out.reindex(columns=main + rest).reset_index(drop=True)
 
 
@@ -428,7 +435,6 @@ def ladder_table(df: pd.DataFrame, prior: pd.DataFrame, cross: pd.DataFrame | No
             "step": step,
             "what": what,
             **image_means(sub),
-            "psnr_interior": sub["psnr_interior"].mean() if "psnr_interior" in sub else np.nan,
             "silhouette_iou": sub["silhouette_iou"].mean() if "silhouette_iou" in sub else np.nan,
             "depth_error": sub["depth_error"].mean() if "depth_error" in sub else np.nan,
             "scale_log2": M.scale_log2(sub),
@@ -640,7 +646,9 @@ def write_tables(
     out["vs_backbone"] = table(
         "vs_backbone",
         rows,
-        "Relighting quality: F-RNG vs the backbone it builds on (datasets = material classes)." + seed_note,
+        "Relighting quality: F-RNG vs the backbone it builds on (datasets = material classes). PSNR interior = "
+        f"the same PSNR over the foreground without its {M.RIM_PX} px silhouette rim (relighting, not the outline)."
+        + seed_note,
         df[df["run"].isin(["full", BACKBONE])],
         footer=footer,
         best_within=["dataset"],

@@ -48,6 +48,7 @@ HEADLINE_COLUMNS = (
     "SSIM ↑",
     "LPIPS ↓",
     "ΔPSNR [95% CI]",
+    "ΔPSNR interior [95% CI]",
     "ΔLPIPS [95% CI]",
     "objects higher PSNR",
     "Relighting (ms/image) ↓",
@@ -370,8 +371,11 @@ def changelog_line(tables: Sequence[Table], prov: Provenance) -> str:
     minus the backbone)."""
     head = headline(tables)
     psnr = " / ".join(r[1].strip("*") for r in head.rows)
-    frng = next((r for r in head.rows if r[4]), None)
-    delta = f"; ΔPSNR {frng[4]}, ΔLPIPS {frng[5]}" if frng else ""
+    col = {c: i for i, c in enumerate(HEADLINE_COLUMNS)}
+    d_psnr, d_int, d_lpips = col["ΔPSNR [95% CI]"], col["ΔPSNR interior [95% CI]"], col["ΔLPIPS [95% CI]"]
+    frng = next((r for r in head.rows if r[d_psnr]), None)
+    interior = f" (interior {frng[d_int]})" if frng and frng[d_int] else ""
+    delta = f"; ΔPSNR {frng[d_psnr]}{interior}, ΔLPIPS {frng[d_lpips]}" if frng else ""
     return f"| {prov.date} | `{prov.commit}` | {prov.tier} | {_minutes(prov)} | {psnr}{delta} | [results](docs/results.md) |"
 
 
