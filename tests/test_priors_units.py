@@ -137,6 +137,38 @@ def test_learned_idm_shapes_and_loss_decreases():
     assert torch.allclose(pri.normal.norm(dim=-1), torch.ones(2, 16, 16), atol=1e-4)
 
 
+def test_idm_metallic_bce_learns_the_share_of_metal_where_l1_learns_zero():
+    """idm.train.metallic_loss: a metallic logit fitted to pixels of which 20 % are metal goes to L1's minimiser, the
+    median (0: no metal anywhere), or to BCE's, the share of metal (0.2); an unknown name is refused."""
+    cfg = {"width": 32, "heads": 2, "depth": 1, "pixel_features": 8, "patch": 8, "near": 1.0, "far": 4.5}
+    m = LearnedIDM(IDMConfig.from_dict(cfg))
+    c2w, _ = _rig(1)
+    alpha = torch.ones(1, 1, 10, 1, 1)
+    metal = (torch.arange(10) < 2).float().reshape(1, 1, 10, 1, 1)
+    tgt = {
+        "normal": torch.tensor([0.0, 0.0, 1.0]).expand(1, 1, 10, 1, 3),
+        "depth": torch.full((1, 1, 10, 1, 1), 2.5),
+        "albedo": torch.full((1, 1, 10, 1, 3), 0.3),
+        "roughness": torch.full((1, 1, 10, 1, 1), 0.5),
+        "metallic": metal,
+        "mask": alpha,
+    }
+    fitted = {}
+    for kind in ("l1", "bce"):
+        logit = torch.zeros((), requires_grad=True)
+        opt = torch.optim.Adam([logit], 0.05)
+        for _ in range(400):
+            raw = torch.cat([torch.zeros(1, 1, 10, 1, 8), logit.expand(1, 1, 10, 1, 1)], -1)
+            loss = idm_loss(m, raw, alpha, c2w[None], tgt, kind)["metallic"]
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        fitted[kind] = float(torch.sigmoid(logit))
+    assert fitted["l1"] < 0.05 and abs(fitted["bce"] - 0.2) < 0.02, fitted
+    with pytest.raises(ValueError, match="metallic_loss"):
+        idm_loss(m, raw.detach(), alpha, c2w[None], tgt, "l2")
+
+
 # -- DiffusionRenderer adapter on fixture files in its exact layout ---------------------------------------
 
 

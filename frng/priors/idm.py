@@ -37,7 +37,8 @@ Three kinds, chosen by ``idm.kind`` and produced through :func:`frng.priors.buil
 
   Trained on the training split's G-buffers (``frng idm-train``; the material outputs and the head's hidden
   layers at ``idm.train.head_lr`` x the learning rate), masked to the foreground:
-  ``(1 - cos(n, n*)) + |depth_n - depth_n*| + |albedo - albedo*| + |rough - rough*| + |metal - metal*|``
+  ``(1 - cos(n, n*)) + |depth_n - depth_n*| + |albedo - albedo*| + |rough - rough*| + |metal - metal*|`` (or, with
+  ``idm.train.metallic_loss: bce``, the metallic logit's binary cross-entropy: :func:`idm_loss`)
   with depth normalised to [0, 1] over [near, far]. Then frozen.
 - ``oracle`` -- the rendered G-buffers themselves (analysis / upper bound): :func:`oracle_priors`.
 - ``diffusion-renderer`` -- DiffusionRenderer inverse-rendering output files: :mod:`frng.priors.diffusion_renderer`.
@@ -291,11 +292,25 @@ class LearnedIDM(nn.Module):
         return IntrinsicPriors(**{k: v[0].float() for k, v in out.items()}).masked()
 
 
-def idm_loss(model: LearnedIDM, raw: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, target: dict) -> dict:
-    """Masked per-pass losses. target: dict of G-buffer passes (B, V, H, W, C) in the IntrinsicPriors conventions.
+METALLIC_LOSSES = ("l1", "bce")
+
+
+def idm_loss(
+    model: LearnedIDM, raw: torch.Tensor, alpha: torch.Tensor, c2w: torch.Tensor, target: dict, metallic: str = "l1"
+) -> dict:
+    """Masked per-pass losses. raw (B, V, H, W, 9) from :meth:`LearnedIDM.forward`; target: dict of G-buffer passes
+    (B, V, H, W, C) in the IntrinsicPriors conventions.
+
+    metallic (``idm.train.metallic_loss``): ``l1`` = |sigmoid(raw) - metallic*| like the other passes, or ``bce`` =
+    binary cross-entropy of the metallic logit against metallic*. Metallic is nearly binary per object (0 or ~0.8-1)
+    and most objects are not metal: L1's minimiser is the median, so a head that cannot yet tell metal from paint
+    settles at 0 and stays there (measured: every object, training metals included, predicted ~0.001); BCE's is the
+    probability of metal, which keeps the signal the head needs to learn it.
 
     Returns a dict of scalar tensors (``normal``, ``depth``, ``albedo``, ``roughness``, ``metallic``, ``total``).
     The mask is the G-buffer coverage (``target['mask']`` > 0.5)."""
+    if metallic not in METALLIC_LOSSES:
+        raise ValueError(f"idm.train.metallic_loss must be one of {METALLIC_LOSSES}, got {metallic!r}")
     pred = model.decode(raw, alpha, c2w)
     fg = (target["mask"] > 0.5).float()
     denom = fg.sum().clamp_min(1.0)
@@ -311,6 +326,9 @@ def idm_loss(model: LearnedIDM, raw: torch.Tensor, alpha: torch.Tensor, c2w: tor
         "roughness": l1(pred["roughness"], target["roughness"]),
         "metallic": l1(pred["metallic"], target["metallic"]),
     }
+    if metallic == "bce":
+        bce = F.binary_cross_entropy_with_logits(raw[..., 8:9].float(), target["metallic"].float(), reduction="none")
+        losses["metallic"] = (bce * fg).sum() / denom
     losses["total"] = sum(losses.values())
     return losses
 

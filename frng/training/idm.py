@@ -48,6 +48,7 @@ class IDMTrainConfig:
     all_views: float  # probability of a step on all input views, else a random subset of 2..all
     head_lr: float  # learning-rate multiplier of the pixel head except its geometry output (param_groups)
     geo_lr: float  # learning-rate multiplier of the head's geometry-residual output layer
+    metallic_loss: str  # l1 | bce: the metallic pass's loss (frng.priors.idm.idm_loss)
     # internal, not config keys (config/schema.yaml has none for the IDM): the values the IDM has always trained with
     weight_decay: float = 0.01
     grad_clip: float = 1.0
@@ -175,7 +176,7 @@ def train(
         with autocast(device, tcfg.bf16):
             raw = model(vd.rgb[None], alpha, c2w, intr, cues=cues)
         target = {k: t[None] for k, t in gb.as_dict().items()}
-        losses = idm_mod.idm_loss(model, raw.float(), alpha, c2w, target)
+        losses = idm_mod.idm_loss(model, raw.float(), alpha, c2w, target, tcfg.metallic_loss)
         losses["total"].backward()
         return {k: float(x.detach()) for k, x in losses.items()}
 
