@@ -48,3 +48,32 @@ def test_the_estimate_is_an_albedo_without_priors_too():
     images = torch.cat([torch.full((1, 4, 4, 3), 0.9), torch.ones(1, 4, 4, 1)], -1)  # brighter than the light
     pm = pixel_map(images, None, 1, normals, env)
     assert float((pm[..., PIXEL_RATIO] ** 2.2).max()) <= 1.0 + 1e-5
+
+
+def test_specular_start_splits_a_metals_colour_into_the_specular_base():
+    """frng.specular_start: an untrained pixel head starts a metal (IDM metallic 1) with its colour pi c / E(n) as the
+    specular base's colour (features 6:9) and its roughness r as the lobe's (sigmoid(4 f_9) = r), no diffuse; a
+    non-metal (metallic 0) starts exactly as without it; a head without the IDM's channels refuses it."""
+    import pytest
+
+    from frng.model.frng import PIXEL_IDM_METALLIC, PIXEL_IDM_NORMAL, PIXEL_IDM_ROUGHNESS, PixelHead, pixel_channels
+
+    C, P = 16, pixel_channels(True)
+    g = torch.randn(2, C)
+    pixel = torch.rand(2, P)
+    pixel[:, PIXEL_RATIO] = torch.tensor([[0.2, 0.3, 0.8], [0.5, 0.5, 0.5]]) ** (1 / 2.2)
+    pixel[:, PIXEL_IDM_METALLIC] = torch.tensor([1.0, 0.0])
+    pixel[:, PIXEL_IDM_ROUGHNESS] = 0.2
+    torch.manual_seed(0)
+    plain = PixelHead(C, P, 8, PIXEL_IDM_NORMAL)
+    torch.manual_seed(0)
+    spec = PixelHead(C, P, 8, PIXEL_IDM_NORMAL, specular_start=True)
+    a, b = plain(g, pixel), spec(g, pixel)
+    ratio = pixel[:, PIXEL_RATIO] ** 2.2
+    assert torch.equal(a[1], b[1])  # the non-metal
+    assert torch.allclose(b[0, 3:6], g[0, 3:6], atol=1e-6)  # the metal diffuses nothing more than the token says
+    assert torch.allclose(b[0, 6:9], g[0, 6:9] + ratio[0], atol=1e-6)
+    assert torch.allclose(torch.sigmoid(4 * (b[0, 9] - g[0, 9])), torch.tensor(0.2), atol=1e-5)
+    assert torch.equal(a[0, :3], b[0, :3]) and torch.equal(a[0, 10:], b[0, 10:])
+    with pytest.raises(ValueError, match="specular_start"):
+        PixelHead(C, pixel_channels(False), 8, 10, specular_start=True)

@@ -71,6 +71,7 @@ SAVED_DEFAULTS = {
     "geometry_inputs": False,
     "depth_head": 0.0,
     "coverage_head": 0,
+    "specular_start": False,
 }
 
 
@@ -96,6 +97,7 @@ class FRNGSection:
     geometry_inputs: bool
     depth_head: float
     coverage_head: int
+    specular_start: bool
     saliency: SaliencyConfig
 
 
@@ -141,6 +143,9 @@ class FRNGConfig:
     geometry_inputs: bool  # the opacity head also reads the backbone's raw geometry (frng.geometry_inputs)
     depth_head: float  # largest move of a coarse Gaussian along its input ray (0 = off; frng.depth_head)
     coverage_head: int  # hidden width of the silhouette rim's coverage head (0 = off; frng.coverage_head)
+    specular_start: (
+        bool  # the pixel head starts the specular base from the IDM's metallic / roughness (frng.specular_start)
+    )
 
     @classmethod
     def from_dict(cls, d: dict) -> FRNGConfig:
@@ -203,6 +208,7 @@ PIXEL_RATIO = slice(4, 7)  # shading-normalised colour (gamma)
 RATIO_TRUST = 0.1
 PIXEL_GEO_NORMAL = 10  # geometry normal, 3 channels
 PIXEL_IDM_NORMAL = 16  # the IDM's normal, 3 channels (with priors)
+PIXEL_IDM_ROUGHNESS, PIXEL_IDM_METALLIC = 19, 20  # the IDM's roughness and metallic, 1 channel each (with priors)
 
 
 def pixel_channels(uses_priors: bool) -> int:
@@ -275,15 +281,30 @@ class PixelHead(nn.Module):
     (the no-neural ablation) the same start in Cook-Torrance terms: albedo logit(pi c / E(n)), roughness ~0.9,
     metallic ~0.02, the pixel's normal, so the ablation differs from the full model only in its appearance model.
 
+    ``specular_start`` (``frng.specular_start``; the neural head with the IDM's priors and the decoder's specular base,
+    features 6:10): the start also splits the pixel's colour by the IDM's metallic m and roughness r, as a metal
+    reflects rather than diffuses: diffuse c / E(n) (1 - m) in 3:6, the specular base's colour m pi c / E(n) in 6:9
+    (its ``linear`` k_s ~ f) and its roughness m logit(r) / 4 in 9 (``ggx``: roughness sigmoid(4 f_9) = r where m =
+    1). A non-metal (m = 0) starts exactly as without it.
+
     forward(g (N, C_out), pixel (N, C_pix)) -> (N, C_out)."""
 
     def __init__(
-        self, out_channels: int, pixel_channels: int, hidden: int, normal_index: int | None = None, head: str = "neural"
+        self,
+        out_channels: int,
+        pixel_channels: int,
+        hidden: int,
+        normal_index: int | None = None,
+        head: str = "neural",
+        specular_start: bool = False,
     ):
         super().__init__()
         if head not in ("neural", "pbr"):
             raise ValueError(f"PixelHead: head must be 'neural' or 'pbr', got {head!r}")
+        if specular_start and (head != "neural" or normal_index is None or pixel_channels <= PIXEL_IDM_METALLIC):
+            raise ValueError("PixelHead: specular_start needs the neural head's Lambertian start and the IDM's priors")
         self.pixel_channels, self.normal_index, self.head = pixel_channels, normal_index, head
+        self.specular_start = specular_start
         self.mlp = nn.Sequential(
             nn.Linear(out_channels + pixel_channels, hidden),
             nn.GELU(),
@@ -302,6 +323,11 @@ class PixelHead(nn.Module):
         i = self.normal_index
         normal = pixel[:, i : i + 3].to(out.dtype)
         ratio = pixel[:, PIXEL_RATIO].float() ** 2.2  # shading-normalised colour (gamma) -> pi c / E(n), an albedo
+        if self.head == "neural" and self.specular_start:  # metal reflects: 3:6 diffuse, 6:9 k_s, 9 roughness
+            metal = pixel[:, PIXEL_IDM_METALLIC : PIXEL_IDM_METALLIC + 1].float().clamp(0, 1)
+            rough = pixel[:, PIXEL_IDM_ROUGHNESS : PIXEL_IDM_ROUGHNESS + 1].float().clamp(0.05, 0.95)
+            start = torch.cat([ratio / math.pi * (1 - metal), metal * ratio, metal * torch.logit(rough) / 4.0], -1)
+            return torch.cat([out[:, :3] + normal, out[:, 3:10] + start.to(out.dtype), out[:, 10:]], -1)
         if self.head == "neural":  # decoder features: 0:3 normal, 3:6 diffuse BRDF c / E(n)
             return torch.cat([out[:, :3] + normal, out[:, 3:6] + (ratio / math.pi).to(out.dtype), out[:, 6:]], -1)
         # pbr (decode_pbr's raw layout): albedo logit 0:3, roughness 3, metallic 4, normal 5:8 -> a rough
@@ -346,6 +372,12 @@ class FRNG(nn.Module):
                 cfg.pixel_head,
                 pixel_normal_index(cfg.uses_priors) if lambertian_start else None,
                 cfg.head,
+                # variants without the IDM's priors (no-idm) or the neural head (no-neural) start as before
+                cfg.specular_start
+                and lambertian_start
+                and cfg.uses_priors
+                and cfg.head == "neural"
+                and cfg.decoder_specular,
             )
             if cfg.pixel_head > 0
             else None
