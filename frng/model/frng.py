@@ -143,9 +143,7 @@ class FRNGConfig:
     geometry_inputs: bool  # the opacity head also reads the backbone's raw geometry (frng.geometry_inputs)
     depth_head: float  # largest move of a coarse Gaussian along its input ray (0 = off; frng.depth_head)
     coverage_head: int  # hidden width of the silhouette rim's coverage head (0 = off; frng.coverage_head)
-    specular_start: (
-        bool  # the pixel head starts the specular base from the IDM's metallic / roughness (frng.specular_start)
-    )
+    specular_start: bool  # the specular base starts from the IDM's metallic / roughness (frng.specular_start)
 
     @classmethod
     def from_dict(cls, d: dict) -> FRNGConfig:
