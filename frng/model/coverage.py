@@ -32,6 +32,8 @@ ALPHA_MIN = 1e-3
 GAIN_LOGIT = 4.0
 # the rim: covered pixels within this many pixels of one the render leaves (mostly) empty
 RIM_PX = 1
+# sigmoid(GAIN_LOGIT) in float32, computed once (the gain's normaliser)
+_GAIN_NORM = float(torch.sigmoid(torch.tensor(GAIN_LOGIT)))
 
 
 def silhouette_rim(alpha: torch.Tensor, px: int = RIM_PX) -> torch.Tensor:
@@ -68,7 +70,7 @@ class CoverageHead(nn.Module):
         feat = torch.where(fg, maps.float() / a.clamp_min(ALPHA_MIN), torch.zeros((), device=maps.device))
         x = torch.cat([a, feat], -1).permute(0, 3, 1, 2)
         r = self.net(x.to(self.net[0].weight.dtype)).permute(0, 2, 3, 1).float()
-        gain = torch.sigmoid(r + GAIN_LOGIT) / torch.sigmoid(torch.tensor(GAIN_LOGIT))
+        gain = torch.sigmoid(r + GAIN_LOGIT) / _GAIN_NORM
         a_new = torch.where(rim, (a * gain).clamp(max=1.0), a)
         scale = torch.where(rim, a_new / a.clamp_min(ALPHA_MIN), torch.ones((), device=maps.device))
         return maps * scale.to(maps.dtype), a_new.to(alpha.dtype)

@@ -321,7 +321,7 @@ class PixelHead(nn.Module):
         i = self.normal_index
         normal = pixel[:, i : i + 3].to(out.dtype)
         ratio = pixel[:, PIXEL_RATIO].float() ** 2.2  # shading-normalised colour (gamma) -> pi c / E(n), an albedo
-        if self.head == "neural" and self.specular_start:  # metal reflects: 3:6 diffuse, 6:9 k_s, 9 roughness
+        if self.specular_start:  # neural head: a metal reflects: 3:6 diffuse, 6:9 k_s, 9 roughness
             metal = pixel[:, PIXEL_IDM_METALLIC : PIXEL_IDM_METALLIC + 1].float().clamp(0, 1)
             rough = pixel[:, PIXEL_IDM_ROUGHNESS : PIXEL_IDM_ROUGHNESS + 1].float().clamp(0.05, 0.95)
             start = torch.cat([ratio / math.pi * (1 - metal), metal * ratio, metal * torch.logit(rough) / 4.0], -1)
@@ -363,6 +363,9 @@ class FRNG(nn.Module):
         self.material = MaterialHead(cfg.materialformer_config())
         out_ch = self.material.cfg.out_channels
         lambertian_start = cfg.decoder_cosine or cfg.head == "pbr"  # the cosine decoder's base, or GGX's diffuse lobe
+        # variants without the IDM's priors (no-idm) or the neural head (no-neural) start as before
+        neural_specular = cfg.head == "neural" and cfg.decoder_cosine and cfg.decoder_specular
+        specular_start = cfg.specular_start and cfg.uses_priors and neural_specular
         self.pixel_head = (
             PixelHead(
                 out_ch,
@@ -370,12 +373,7 @@ class FRNG(nn.Module):
                 cfg.pixel_head,
                 pixel_normal_index(cfg.uses_priors) if lambertian_start else None,
                 cfg.head,
-                # variants without the IDM's priors (no-idm) or the neural head (no-neural) start as before
-                cfg.specular_start
-                and lambertian_start
-                and cfg.uses_priors
-                and cfg.head == "neural"
-                and cfg.decoder_specular,
+                specular_start,
             )
             if cfg.pixel_head > 0
             else None

@@ -324,11 +324,12 @@ def idm_loss(
         "depth": l1((pred["depth"] - c.near) / (c.far - c.near), (target["depth"] - c.near) / (c.far - c.near)),
         "albedo": l1(pred["albedo"], target["albedo"]),
         "roughness": l1(pred["roughness"], target["roughness"]),
-        "metallic": l1(pred["metallic"], target["metallic"]),
     }
     if metallic == "bce":
         bce = F.binary_cross_entropy_with_logits(raw[..., 8:9].float(), target["metallic"].float(), reduction="none")
         losses["metallic"] = (bce * fg).sum() / denom
+    else:
+        losses["metallic"] = l1(pred["metallic"], target["metallic"])
     losses["total"] = sum(losses.values())
     return losses
 
