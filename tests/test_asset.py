@@ -189,3 +189,38 @@ def test_meta_required(tmp_path):
     with pytest.raises(ValueError, match=r"features must be \(N=300, C\)"):
         save_asset(tmp_path / "a", gauss, feats[:5], dec, META)
     assert not (tmp_path / "a").exists()
+
+
+def test_renderer_applies_the_saved_coverage_head_and_refuses_stray_weights(tmp_path):
+    """An asset from a model with the silhouette rim's coverage head (frng.coverage_head) renders with it: the
+    head's weights ride in decoder.safetensors under ``coverage.`` and AssetRenderer.rasterize applies them as
+    FRNG.rasterize does (without them ``frng reconstruct`` + ``render-asset`` missed ``frng relight`` by up to 1 dB
+    at the rim). Weights without ``decoder.coverage_hidden`` are refused, naming the file."""
+    from test_untrusted_outputs import tiny_asset
+
+    from frng.apps.asset import AssetRenderer
+    from frng.model.coverage import COVERAGE_PREFIX, CoverageHead
+
+    plain = AssetRenderer(tiny_asset(tmp_path / "plain"))
+    g, feats, state, meta = load_asset(tmp_path / "plain")
+    meta.pop("preview_rgb")  # decoded from the PLY, not an asset.json field
+    torch.manual_seed(1)
+    head = CoverageHead(feats.shape[1], 4)
+    torch.nn.init.constant_(head.net[-1].bias, -2.0)  # a trained head that thins the rim
+    weights = {**state, **{COVERAGE_PREFIX + k: v for k, v in head.state_dict().items()}}
+    meta["decoder"] = {**meta["decoder"], "coverage_hidden": 4}
+    with_head = AssetRenderer(save_asset(tmp_path / "cov", g, feats, weights, meta))
+    c2w = torch.eye(4)[None].clone()
+    c2w[0, 2, 3] = -3.0  # 3 units back along -z, looking at the origin (OpenCV: +z forward)
+    intr = torch.tensor([[20.0, 20.0, 8.0, 8.0]])
+    maps, alpha, _, _ = plain.rasterize(c2w, intr, 16, 16)
+    maps_c, alpha_c, _, _ = with_head.rasterize(c2w, intr, 16, 16)
+    with torch.no_grad():
+        want_maps, want_alpha = head(maps, alpha)
+    assert (alpha_c < alpha - 1e-4).any(), "the head thins no rim pixel"
+    torch.testing.assert_close(alpha_c, want_alpha)
+    torch.testing.assert_close(maps_c, want_maps)
+    meta["decoder"]["coverage_hidden"] = 0
+    save_asset(tmp_path / "stray", g, feats, weights, meta)
+    with pytest.raises(AssetError, match=r"decoder\.safetensors: does not fit .*coverage-head tensors"):
+        AssetRenderer(tmp_path / "stray")

@@ -118,8 +118,7 @@ def test_unknown_nested_key_and_model_records():
     assert FRNGConfig.from_saved(older).opacity_head is False
     assert cfg.geometry_inputs and cfg.depth_head > 0  # the defaults
     assert cfg.coverage_head == 16  # the default: on
-    assert cfg.specular_start is False  # config/smoke.yaml turns the default (on) off
-    assert fc.load(ROOT / "config/config.yaml")["frng"]["specular_start"] is True  # the default tier: on
+    assert cfg.specular_start is True  # the default: on
     added = ("geometry_inputs", "depth_head", "coverage_head", "specular_start")
     oldest = {k: v for k, v in cfg.to_dict().items() if k not in added}
     saved = FRNGConfig.from_saved(oldest)

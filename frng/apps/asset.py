@@ -3,7 +3,9 @@
 An asset is a folder with three files::
 
     {asset}/gaussians.ply         3DGS-style binary little-endian PLY, one vertex per Gaussian
-    {asset}/decoder.safetensors   the universal neural appearance decoder's weights (a torch state_dict)
+    {asset}/decoder.safetensors   the universal neural appearance decoder's weights (a torch state_dict); with
+                                  decoder.coverage_hidden > 0 also the silhouette rim's coverage head's, under
+                                  ``coverage.`` (frng/model/coverage.py; applied to every rasterized view)
     {asset}/asset.json            format version, feature dim, decoder architecture, object id, provenance
 
 ``gaussians.ply`` properties (all ``float``, i.e. float32, in this order)::
@@ -609,6 +611,7 @@ class AssetRenderer:
     """
 
     def __init__(self, folder: str | os.PathLike, device: str | torch.device = "cpu", bf16: bool = False):
+        from frng.model.coverage import COVERAGE_PREFIX, CoverageHead
         from frng.render import RasterConfig
         from frng.render.shading import NeuralDecoder, ShadingConfig
 
@@ -632,8 +635,14 @@ class AssetRenderer:
                 raise AssetError(f"{meta_path}: field 'decoder.{k}' must be true or false, got {dec[k]!r}")
         if int(dec["feature_dim"]) != features.shape[1]:
             raise AssetError(f"{meta_path}: decoder.feature_dim {dec['feature_dim']} != {features.shape[1]} features")
+        cov = dec.get("coverage_hidden", 0)  # assets written before the key have no coverage head
+        if isinstance(cov, bool) or not isinstance(cov, int) or not 0 <= cov <= MAX_DECODER_SIZE:
+            raise AssetError(
+                f"{meta_path}: field 'decoder.coverage_hidden' must be an integer in 0..{MAX_DECODER_SIZE}, got {cov!r}"
+            )
         self.device = torch.device(device)
         self.meta = meta
+        cov_state = {k[len(COVERAGE_PREFIX) :]: v for k, v in state.items() if k.startswith(COVERAGE_PREFIX)}
         try:
             self.decoder = NeuralDecoder(
                 int(dec["feature_dim"]),
@@ -643,12 +652,19 @@ class AssetRenderer:
                 cosine=bool(dec["cosine"]),
                 attenuation=bool(dec["attenuation"]),
             )
-            self.decoder.load_state_dict(state)
+            self.decoder.load_state_dict({k: v for k, v in state.items() if not k.startswith(COVERAGE_PREFIX)})
+            self.coverage = CoverageHead(int(dec["feature_dim"]), cov) if cov else None
+            if self.coverage is not None:
+                self.coverage.load_state_dict(cov_state)
+            elif cov_state:
+                raise ValueError(f"{len(cov_state)} coverage-head tensors but decoder.coverage_hidden is 0")
         except (RuntimeError, ValueError, TypeError) as e:
             raise AssetError(
                 f"{self.folder / DECODER_FILE}: does not fit the decoder of {META_FILE} ({str(e).splitlines()[0]})"
             ) from e
         self.decoder = self.decoder.to(self.device).eval().requires_grad_(False)
+        if self.coverage is not None:
+            self.coverage = self.coverage.to(self.device).eval().requires_grad_(False)
         self.specular = bool(dec.get("specular", False))
         settings = meta.get(RENDER_KEY) or {}
         try:
@@ -692,6 +708,8 @@ class AssetRenderer:
         )
         if self.decoder.cosine:  # the model's screen-space normal filtering (FRNG.rasterize)
             maps = smooth_normals(maps, alpha, COSINE_NORMAL, self.shading.normal_sigma_px(width))
+        if self.coverage is not None:  # the silhouette rim's coverage, as FRNG.rasterize
+            maps, alpha = self.coverage(maps, alpha)
         return maps, alpha, c2w, intr
 
     def shade(

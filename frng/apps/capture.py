@@ -903,7 +903,7 @@ def reconstruct(
                 stage,
                 gauss,
                 feats,
-                net.decoder.state_dict(),
+                net.asset_weights(),
                 meta,
                 preview_rgb=preview,
                 extra_files={

@@ -401,7 +401,7 @@ def _save_full_extras(folder: Path, model, rec, p: dict, oid: str, run: Run) -> 
             "k_percent": run.k_percent,
             **render_settings(model.raster_cfg, model.shading_cfg, model.cfg.max_radius_px),
         }
-        save_asset(RelightFolder(folder).asset(), rec.gaussians, rec.features, model.decoder.state_dict(), meta)
+        save_asset(RelightFolder(folder).asset(), rec.gaussians, rec.features, model.asset_weights(), meta)
     np.savez_compressed(
         RelightFolder(folder).saliency(),
         saliency=rec.saliency.detach().float().cpu().numpy(),

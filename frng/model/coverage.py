@@ -32,6 +32,8 @@ ALPHA_MIN = 1e-3
 GAIN_LOGIT = 4.0
 # the rim: covered pixels within this many pixels of one the render leaves (mostly) empty
 RIM_PX = 1
+# the key prefix of the head's weights beside the decoder's in an asset's decoder.safetensors (frng.apps.asset)
+COVERAGE_PREFIX = "coverage."
 # sigmoid(GAIN_LOGIT) in float32, computed once (the gain's normaliser)
 _GAIN_NORM = float(torch.sigmoid(torch.tensor(GAIN_LOGIT)))
 

@@ -37,7 +37,7 @@ from torch import nn
 from frng import io
 from frng.device import bf16_ok
 from frng.gaussians import GaussianDecodeConfig, Gaussians
-from frng.model.coverage import CoverageHead
+from frng.model.coverage import COVERAGE_PREFIX, CoverageHead
 from frng.model.depth import DepthHead
 from frng.model.fine_geometry import FineGeometry, FineGeometryConfig, fine_keep_mask, sample_pixels
 from frng.model.materialformer import (
@@ -475,7 +475,16 @@ class FRNG(nn.Module):
             "attenuation": self.cfg.decoder_attenuation,
             "head": self.cfg.head,
             "specular": self.cfg.decoder_specular,
+            "coverage_hidden": self.cfg.coverage_head,  # the rim's coverage head (0: none; asset_weights)
         }
+
+    def asset_weights(self) -> dict[str, torch.Tensor]:
+        """What an asset renders with besides its Gaussians (:mod:`frng.apps.asset`): the decoder's state_dict and,
+        with the coverage head, that head's under ``coverage.`` (it acts on every rasterized view, :meth:`rasterize`)."""
+        out = dict(self.decoder.state_dict())
+        if self.coverage_head is not None:
+            out |= {f"{COVERAGE_PREFIX}{k}": v for k, v in self.coverage_head.state_dict().items()}
+        return out
 
     def _decoder_output(self) -> str:
         if not self.cfg.decoder_cosine:
