@@ -488,3 +488,30 @@ def test_depth_head_starts_at_the_backbone_depths_and_moves_along_the_input_rays
     with pytest.raises(ValueError, match="depth_head.*pixel_head"):
         type(model)(replace(model.cfg, opacity_head=False, depth_head=0.1, pixel_head=0))
     assert isinstance(model.opacity_head, OpacityHead)
+
+
+def test_depth_loss_measures_the_moved_coarse_gaussians_and_trains_the_depth_head(frng_smoke):
+    """train.loss.lambda_depth: L_depth is the mean |ray distance - G-buffer distance| of the kept coarse Gaussians
+    with a surface (0 at the backbone's own distances as the target), and its gradient reaches the depth head."""
+    from frng.training.frng import build_model, depth_loss
+
+    _, config = frng_smoke
+    res = Path(config["results"])
+    model, _ = build_model(_sections(config), "full", res / "backbone" / "model.pt", "cpu")
+    from frng.plan import catalog
+    from frng.training.frng import load_objects
+
+    ids = catalog.plan(config).split("train")[:1]
+    obj = load_objects(res, config["idm"]["kind"], ids, res / "backbone" / "model.pt", True, 6, with_depth=True)[0]
+    keep = obj.views["keep"].bool()
+    V = obj.views["c2w"].shape[0]
+    origins = obj.views["c2w"][torch.arange(keep.numel()) // (keep.numel() // V)][:, :3, 3].float()
+    own = (obj.views["means"].float() - origins).norm(dim=-1)
+    assert obj.depth_target.shape == keep.shape and (obj.depth_target[keep] > 0).any()
+    rec = model.reconstruct(obj.views, 0, obj.priors, obj.images, input_env=obj.env_in)
+    assert float(depth_loss(rec, obj.views, torch.where(keep, own, torch.zeros_like(own)))) < 1e-5
+    shifted = torch.where(keep, own + 0.1, torch.zeros_like(own))
+    assert abs(float(depth_loss(rec, obj.views, shifted)) - 0.1) < 1e-4
+    loss = depth_loss(rec, obj.views, obj.depth_target)
+    loss.backward()
+    assert model.depth_head.mlp[-1].weight.grad.abs().sum() > 0

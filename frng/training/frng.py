@@ -63,7 +63,7 @@ from frng.training import loop as tr
 # the backbone cache tensors training reads, besides light{j}.t_app (raw: the opacity head's geometry inputs)
 CACHE_KEYS = ("t_geo", "raw", "raw_prior", "means", "quats", "scales", "opacities", "keep", "c2w", "intr")
 BACK_KEYS = tuple("back_" + k for k in ("means", "quats", "scales", "opacities", "src", "dirs"))  # when cached
-LOSS_NAMES = ["total", "l2", "alpha", "perceptual", "ind", "ind_cos", "ind_kld"]
+LOSS_NAMES = ["total", "l2", "alpha", "depth", "perceptual", "ind", "ind_cos", "ind_kld"]
 
 
 @dataclass(frozen=True)
@@ -135,6 +135,7 @@ class LossConfig:
 
     lambda_1: float
     lambda_alpha: float
+    lambda_depth: float
     lambda_per: float
     lambda_c: float
     lambda_kld: float
@@ -191,6 +192,7 @@ class TrainObject:
     targets: list  # [(light name, env (He, We, 3), c2w (Vt, 4, 4), intr (Vt, 4), rgba (Vt, H, W, 4))]; the object's
     # other input lights last, with all its input views
     view_names: list  # the V input views' names (the cache's), in the order of ``images``
+    depth_target: torch.Tensor | None = None  # (V*H*W,) each input pixel's surface distance along its ray (0 = none)
 
 
 def load_objects(
@@ -202,13 +204,15 @@ def load_objects(
     V: int,
     alt_light: bool = False,
     idm=None,
+    with_depth: bool = False,
 ) -> list[TrainObject]:
     """Read caches + curated images of ``ids`` under ``results``. IDM priors are opened only when ``use_priors``
     (``idm_kind``: the config's ``idm.kind``; the learned IDM's priors are checked against its model file); where the
     cached priors are of other views than the V read here (the cache holds the rig's, :func:`frng.priors.cache.
     make_idm_priors`), they are made live by ``idm`` (a :func:`frng.priors.build_idm` prior) from exactly those V
     views, since the IDM's priors of a view depend on the other views it is given; without ``idm`` that is an error.
-    ``alt_light``: also the input views under the object's second input light (L_ind's re-lit evidence)."""
+    ``alt_light``: also the input views under the object's second input light (L_ind's re-lit evidence).
+    ``with_depth``: also the V input views' surface distances from their G-buffers (L_depth's target)."""
     from frng.data.dataset import open_object
     from frng.priors import view_priors
     from frng.priors.cache import load_backbone_cache, load_idm_priors
@@ -256,8 +260,16 @@ def load_objects(
             rows = [obj.view_names("inputs").index(n) for n in names]
             alt_images = targets[len(obj.target_lights)][4][rows]
             alt_env = envs[other_inputs[0]]
+        depth = None
+        if with_depth:
+            from frng.priors.backbone import ray_distance_target
+
+            gb_depth = obj.gbuffer("inputs", names, torch=True)["depth"]
+            depth = ray_distance_target(gb_depth, views["c2w"].float(), views["intr"].float()).reshape(-1)
         out.append(
-            TrainObject(oid, views, lights, priors, images, envs[light_in], alt_images, alt_env, targets, list(names))
+            TrainObject(
+                oid, views, lights, priors, images, envs[light_in], alt_images, alt_env, targets, list(names), depth
+            )
         )
     return out
 
@@ -300,6 +312,23 @@ def l2_loss(
     return diff.sum() / (3 * fg.sum()).clamp_min(1.0), rgb_out, rgb_tgt
 
 
+def depth_loss(rec, views: dict, target: torch.Tensor) -> torch.Tensor:
+    """L_depth: mean |distance - target| of the reconstruction's coarse Gaussians (after the depth head's move) from
+    their input cameras, over the kept pixels with a surface in the G-buffer. rec: a :class:`frng.model.frng.
+    Reconstruction`; views: the cache entry (keep (N,), c2w (V, 4, 4)); target (N,) ray distances (0 = no surface),
+    N = V*H*W. Not in the paper: the depth head's only other signal is the rasterizer's gradient on the means,
+    which moved them ~0.01 (the hull's error on a thin slab is ~0.2)."""
+    keep = views["keep"].bool()
+    c2w = views["c2w"].float()
+    assert target.shape == keep.shape, (target.shape, keep.shape)
+    dev = rec.gaussians.means.device
+    origins = c2w[:, :3, 3].repeat_interleave(keep.numel() // c2w.shape[0], 0)[keep].to(dev)
+    dist = (rec.gaussians.means[: rec.num_coarse].float() - origins).norm(dim=-1)
+    tgt = target[keep].to(dev)
+    valid = tgt > 0
+    return (dist - tgt).abs()[valid].sum() / valid.sum().clamp_min(1)
+
+
 def alpha_loss(out: torch.Tensor, tgt: torch.Tensor) -> torch.Tensor:
     """L_alpha: squared error of the render's alpha against the target's, summed over EVERY pixel (faint stray
     splats outside the silhouette included) and divided by the number of pixels either image covers (alpha > 0.5),
@@ -334,6 +363,7 @@ class StepLoss(nn.Module):
         self.perceptual = perceptual  # frozen (no parameters require grad)
         w = tcfg.loss
         self.lambda_1, self.lambda_per, self.lambda_alpha = w.lambda_1, w.lambda_per, w.lambda_alpha
+        self.lambda_depth = w.lambda_depth if model.depth_head is not None else 0.0
         self.step = 0  # set by the training loop (L_per starts at ``tcfg.perceptual_after``)
 
     @property
@@ -377,6 +407,10 @@ class StepLoss(nn.Module):
                 a = alpha_loss(out, tgt)
                 loss = loss + self.lambda_alpha * a
                 logs["alpha"] += float(a.detach())
+            if self.lambda_depth > 0:
+                dl = depth_loss(recs[0], obj.views, obj.depth_target)
+                loss = loss + self.lambda_depth * dl
+                logs["depth"] += float(dl.detach())
             if self.perceptual is not None and self.lambda_per > 0 and self.step >= self.tcfg.perceptual_after:
                 per = self.perceptual(rgb_out.permute(0, 3, 1, 2), rgb_tgt.permute(0, 3, 1, 2))
                 loss = loss + self.lambda_per * per
@@ -453,7 +487,10 @@ def train(
     if objects is None:
         ids = distributed.shard_items(list(job.train_ids), info)
         alt = ind.pixels and (ind.lambda_c > 0 or ind.lambda_kld > 0)
-        objects = load_objects(job.results, job.idm_kind, ids, backbone_path, model.cfg.uses_priors, tcfg.views, alt)
+        depth = tcfg.loss.lambda_depth > 0 and model.depth_head is not None
+        objects = load_objects(
+            job.results, job.idm_kind, ids, backbone_path, model.cfg.uses_priors, tcfg.views, alt, with_depth=depth
+        )
     if not objects:
         raise ValueError("frng train: no training objects on this rank")
     perceptual = None
