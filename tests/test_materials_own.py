@@ -225,13 +225,26 @@ def _box(tmp_path):
     return write_obj(tmp_path / "plainbox", "plainbox", None)
 
 
+def _adopted(path, edit=None):
+    """(object, adopt()'s description) of the file at ``path`` imported into an empty Blender scene, ``edit(obj)``
+    applied before adopting."""
+    import bpy
+
+    from frng.blender import materials, objects
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    obj = objects.import_file(path, keep_materials=True)
+    if edit:
+        edit(obj)
+    return obj, materials.adopt(obj)
+
+
 @pytest.mark.blender
 def test_what_the_aovs_cannot_describe_is_named(tmp_path):
     """adopt() names emission, transparency, clear coat, a custom node tree and a missing texture per slot; a
     plain textured material names nothing."""
-    import bpy
 
-    from frng.blender import materials, objects
+    from frng.blender import materials
 
     write_glb(
         tmp_path / "lamp.glb",
@@ -251,12 +264,7 @@ def test_what_the_aovs_cannot_describe_is_named(tmp_path):
     write_obj(tmp_path / "fine", "fine", "newmtl fine\nKd 0.5 0.2 0.1\nNs 100\n", material="fine")
 
     def reasons(path, edit=None):
-        bpy.ops.wm.read_factory_settings(use_empty=True)
-        obj = objects.import_file(path, keep_materials=True)
-        if edit:
-            edit(obj)
-        info = materials.adopt(obj)
-        return [r for bad in info["unsupported"] for r in bad["reasons"]]
+        return [r for bad in _adopted(path, edit)[1]["unsupported"] for r in bad["reasons"]]
 
     def emission_shader(obj):  # a node tree whose surface is not a Principled BSDF
         nt = obj.data.materials[0].node_tree
@@ -270,3 +278,38 @@ def test_what_the_aovs_cannot_describe_is_named(tmp_path):
     got = reasons(tmp_path / "fine" / "fine.obj", emission_shader)
     assert any("custom node tree (surface is ShaderNodeEmission" in r for r in got)
     assert reasons(tmp_path / "fine" / "fine.obj") == []
+
+
+@pytest.mark.blender
+def test_an_opaque_ior_of_one_is_given_a_reflection(tmp_path):
+    """An MTL's ``Ni 1`` (Wavefront: the refraction index of transparent illumination models only) becomes an IOR
+    of 1 in Blender's importer, which reflects nothing; adopt() sets DEFAULT_IOR and records it. An MTL without
+    ``Ni`` keeps the importer's IOR, and a glass (transmission) keeps its own."""
+
+    from frng.blender import materials
+
+    write_obj(
+        tmp_path / "book",
+        "book",
+        "newmtl book\nKd 0.5 0.2 0.1\nKs 0.5 0.5 0.5\nNs 96\nNi 1.0\nillum 2\n",
+        material="book",
+    )
+    write_obj(tmp_path / "plain", "plain", "newmtl plain\nKd 0.5 0.2 0.1\nNs 96\n", material="plain")
+
+    def adopt(path, edit=None):
+        obj, info = _adopted(path, edit)
+        bsdf = next(n for n in obj.data.materials[0].node_tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+        return info, float(bsdf.inputs["IOR"].default_value)
+
+    info, ior = adopt(tmp_path / "book" / "book.obj")
+    assert ior == pytest.approx(materials.DEFAULT_IOR)
+    assert info["ior_fixed"] == [{"slot": 0, "material": "book", "change": "IOR 1 -> 1.5"}]
+    info, ior = adopt(tmp_path / "plain" / "plain.obj")
+    assert info["ior_fixed"] == [] and ior > 1.0
+
+    def glass(obj):
+        bsdf = next(n for n in obj.data.materials[0].node_tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
+        bsdf.inputs["Transmission Weight"].default_value = 1.0
+
+    info, ior = adopt(tmp_path / "book" / "book.obj", glass)
+    assert info["ior_fixed"] == [] and ior == pytest.approx(1.0)

@@ -337,6 +337,27 @@ def _unsupported_inputs(bsdf) -> list[str]:
     return reasons
 
 
+# the Principled BSDF's IOR where a file's says "no reflection at all" (below); Blender's default
+DEFAULT_IOR = 1.5
+
+
+def _reflective_ior(bsdf) -> str | None:
+    """An opaque Principled BSDF with IOR <= 1 reflects nothing (its Fresnel F0 = ((n - 1) / (n + 1))^2 = 0):
+    Blender's OBJ importer copies the MTL's ``Ni`` into the IOR, but Wavefront's ``Ni`` is the refraction index
+    of the transparent illumination models only (``illum`` 4-7); exporters write ``Ni 1`` for opaque materials
+    whose ``Ks`` and ``Ns`` ask for highlights (LIBERO's books and wine bottle: Ks 0.5, Ns 96-250, Ni 1). Such an
+    IOR is set to :data:`DEFAULT_IOR`; a transmissive surface keeps its own. Returns what was changed, or None."""
+    ior = bsdf.inputs.get("IOR")
+    trans = bsdf.inputs.get("Transmission Weight")
+    if ior is None or ior.is_linked or float(ior.default_value) > 1.0 + 1e-6:
+        return None
+    if trans is not None and (trans.is_linked or float(trans.default_value) > 0.0):
+        return None
+    old = float(ior.default_value)
+    ior.default_value = DEFAULT_IOR
+    return f"IOR {old:g} -> {DEFAULT_IOR:g}"
+
+
 def _data_colourspace(bsdf, nt) -> list[str]:
     """Image textures feeding only data inputs (roughness, metallic, alpha, normal / bump maps) are read as
     Non-Color (Blender's OBJ importer loads map_Pr / map_Pm / bump maps as sRGB); returns the images changed."""
@@ -407,11 +428,22 @@ def adopt(obj: bpy.types.Object, search_dirs=()) -> dict:
     :func:`find_texture`): LIBERO's MTLs, for one, name ``.jpeg`` files from the author's disk that ship as ``.png``
     beside the mesh. What was found that way is listed under ``textures_relinked``.
 
+    An opaque surface whose IOR is 1 (no reflection: an MTL's ``Ni 1``) gets :data:`DEFAULT_IOR`
+    (:func:`_reflective_ior`), listed under ``ior_fixed``.
+
     Returns the description recorded in meta.json's ``material``: ``{"class": "own", "slots": [...],
-    "unsupported": [{"slot", "material", "reasons"}], "colourspace_fixed": [...], "textures_relinked": [...]}``.
+    "unsupported": [{"slot", "material", "reasons"}], "colourspace_fixed": [...], "textures_relinked": [...],
+    "ior_fixed": [{"slot", "material", "change"}]}``.
     """
     me = obj.data
-    info: dict = {"class": "own", "slots": [], "unsupported": [], "colourspace_fixed": [], "textures_relinked": []}
+    info: dict = {
+        "class": "own",
+        "slots": [],
+        "unsupported": [],
+        "colourspace_fixed": [],
+        "textures_relinked": [],
+        "ior_fixed": [],
+    }
     if not len(me.materials) or all(m is None for m in me.materials):
         layers = list(me.color_attributes.keys())
         me.materials.clear()
@@ -454,6 +486,9 @@ def adopt(obj: bpy.types.Object, search_dirs=()) -> dict:
         if bsdf is not None:
             reasons += _unsupported_inputs(bsdf)
             info["colourspace_fixed"] += _data_colourspace(bsdf, nt)
+            change = _reflective_ior(bsdf)
+            if change:
+                info["ior_fixed"].append({"slot": i, "material": mat.name, "change": change})
             sockets = {k: bsdf.inputs[k] for k in ("Base Color", "Roughness", "Metallic")}
             aov = [
                 s.links[0].from_socket

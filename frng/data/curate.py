@@ -234,6 +234,10 @@ def object_scene(plan: catalog.Catalog, objaverse: catalog.ObjaverseConfig, rend
         mat = materials.adopt(obj, [asset if asset.is_dir() else asset.parent])
         for fix in mat["textures_relinked"]:
             log(f"[{spec.id}] texture {fix['from']} does not load; using {fix['to']} (found in the asset's folder)")
+        for fix in mat["ior_fixed"]:
+            log(
+                f"[{spec.id}] material slot {fix['slot']} ({fix['material']}): {fix['change']} (IOR 1 reflects nothing)"
+            )
         for bad in mat["unsupported"]:
             log(
                 f"[{spec.id}] material slot {bad['slot']} ({bad['material']}): the G-buffer cannot describe "
