@@ -337,7 +337,7 @@ def _unsupported_inputs(bsdf) -> list[str]:
     return reasons
 
 
-# the Principled BSDF's IOR where a file's says "no reflection at all" (below); Blender's default
+# the IOR an opaque surface gets where its file's IOR reflects nothing (:func:`_reflective_ior`); Blender's default
 DEFAULT_IOR = 1.5
 
 
