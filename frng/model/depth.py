@@ -36,6 +36,13 @@ class DepthHead(GaussianResidual):
         return self.max_offset * torch.tanh(self.residual(g, pixel).float())
 
     @staticmethod
+    def origins(c2w: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
+        """Each kept coarse Gaussian's input camera centre: c2w (V, 4, 4), keep (N,) bool over the N = V*H*W pixels
+        in view order -> (K, 3), K = keep.sum()."""
+        assert c2w.dim() == 3 and keep.dim() == 1 and keep.numel() % c2w.shape[0] == 0, (c2w.shape, keep.shape)
+        return c2w[:, :3, 3].repeat_interleave(keep.numel() // c2w.shape[0], 0)[keep]
+
+    @staticmethod
     def move(means: torch.Tensor, origins: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
         """means (N, 3), origins (N, 3) their input cameras' centres, offset (N,) -> (N, 3) moved along the rays."""
         assert means.shape == origins.shape and means.shape[-1] == 3 and offset.shape == means.shape[:1], (

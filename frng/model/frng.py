@@ -603,7 +603,7 @@ class FRNG(nn.Module):
         geo = self._geometry_inputs(bv, keep_c, fine, keep_f)
         n_coarse = int(keep_c.sum())
         # each kept coarse Gaussian's input camera centre (N = V*H*W pixels in view order), for the depth head
-        origins = None if self.depth_head is None else c2w[:, :3, 3].repeat_interleave(keep_c.numel() // V, 0)[keep_c]
+        origins = None if self.depth_head is None else DepthHead.origins(c2w, keep_c)
         back = self._back_completion(bv, keep_c)
         out = []
         for b in range(B):

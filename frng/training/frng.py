@@ -48,6 +48,7 @@ from frng import checkpoint, io
 from frng.device import autocast, bf16_ok
 from frng.hashing import data_digest, file_sha256
 from frng.memo import TensorMemo
+from frng.model.depth import DepthHead
 from frng.model.frng import FRNG, FRNGConfig, FRNGSection
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
 from frng.plan.layout import Layout
@@ -312,6 +313,11 @@ def l2_loss(
     return diff.sum() / (3 * fg.sum()).clamp_min(1.0), rgb_out, rgb_tgt
 
 
+def depth_weight(model: FRNG, loss: LossConfig) -> float:
+    """L_depth's weight for this model: ``train.loss.lambda_depth``, 0 for a variant without a depth head."""
+    return loss.lambda_depth if model.depth_head is not None else 0.0
+
+
 def depth_loss(rec, views: dict, target: torch.Tensor) -> torch.Tensor:
     """L_depth: mean |distance - target| of the reconstruction's coarse Gaussians (after the depth head's move) from
     their input cameras, over the kept pixels with a surface in the G-buffer. rec: a :class:`frng.model.frng.
@@ -319,10 +325,9 @@ def depth_loss(rec, views: dict, target: torch.Tensor) -> torch.Tensor:
     N = V*H*W. Not in the paper: the depth head's only other signal is the rasterizer's gradient on the means,
     which moved them ~0.01 (the hull's error on a thin slab is ~0.2)."""
     keep = views["keep"].bool()
-    c2w = views["c2w"].float()
     assert target.shape == keep.shape, (target.shape, keep.shape)
     dev = rec.gaussians.means.device
-    origins = c2w[:, :3, 3].repeat_interleave(keep.numel() // c2w.shape[0], 0)[keep].to(dev)
+    origins = DepthHead.origins(views["c2w"].float(), keep).to(dev)
     dist = (rec.gaussians.means[: rec.num_coarse].float() - origins).norm(dim=-1)
     tgt = target[keep].to(dev)
     valid = tgt > 0
@@ -363,7 +368,7 @@ class StepLoss(nn.Module):
         self.perceptual = perceptual  # frozen (no parameters require grad)
         w = tcfg.loss
         self.lambda_1, self.lambda_per, self.lambda_alpha = w.lambda_1, w.lambda_per, w.lambda_alpha
-        self.lambda_depth = w.lambda_depth if model.depth_head is not None else 0.0
+        self.lambda_depth = depth_weight(model, w)
         self.step = 0  # set by the training loop (L_per starts at ``tcfg.perceptual_after``)
 
     @property
@@ -408,6 +413,8 @@ class StepLoss(nn.Module):
                 loss = loss + self.lambda_alpha * a
                 logs["alpha"] += float(a.detach())
             if self.lambda_depth > 0:
+                if obj.depth_target is None:
+                    raise ValueError(f"train.loss.lambda_depth > 0 but {obj.id} was loaded without its G-buffer depths")
                 dl = depth_loss(recs[0], obj.views, obj.depth_target)
                 loss = loss + self.lambda_depth * dl
                 logs["depth"] += float(dl.detach())
@@ -487,7 +494,7 @@ def train(
     if objects is None:
         ids = distributed.shard_items(list(job.train_ids), info)
         alt = ind.pixels and (ind.lambda_c > 0 or ind.lambda_kld > 0)
-        depth = tcfg.loss.lambda_depth > 0 and model.depth_head is not None
+        depth = depth_weight(model, tcfg.loss) > 0
         objects = load_objects(
             job.results, job.idm_kind, ids, backbone_path, model.cfg.uses_priors, tcfg.views, alt, with_depth=depth
         )
