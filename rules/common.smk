@@ -166,6 +166,7 @@ except frng_catalog.CatalogError as e:
     raise WorkflowError(f"invalid dataset plan: {e}")
 TRAIN_IDS = CATALOG.split("train")
 TEST_IDS = CATALOG.split("test")
+REAL_TEST_IDS = CATALOG.real_assets("test")  # the test objects that are real assets (the real-objects figure)
 # Batch name -> objects, per split (train0, train1, ..., test0): one job per batch for backbone_cache and idm_priors
 PRIOR_BATCHES = frng_batches.object_batches({"train": TRAIN_IDS, "test": TEST_IDS}, PRIORS_BATCH)
 # GPUs per torch job: 0 on CPU (CPU clusters reject gpu > 0; see profiles/slurm-ci), else 1 (profiles raise it).

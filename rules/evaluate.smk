@@ -68,6 +68,7 @@ rule tables:
         noise=NOISE_FLOOR,  # the ladder's step 0 (rules/curate.smk), when the config asks for it
         # what the results page shows (default tier only: other tiers make tables and figures side by side)
         ablation_figure=L.figure("ablation.png") if RESULTS_PAGE_ARGS else [],
+        real_figure=L.figure("real_objects.png") if RESULTS_PAGE_ARGS and REAL_TEST_IDS else [],
         # Tables 2-3 and the views table, when the config runs the baselines
         baselines=lambda wildcards: BASELINE_TABLE_FILES if RESULTS_PAGE_ARGS else [],
     output:
@@ -131,6 +132,18 @@ rule figures:
             subcategory="Ablations",
             labels={"figure": "ablation grid"},
         ),
+        # the ablation grid of the real assets among the test objects (the README's picture), when there are any
+        real=(
+            report(
+                L.figure("real_objects.png"),
+                caption="../workflow/report/real_objects.rst",
+                category="Figures",
+                subcategory="Ablations",
+                labels={"figure": "real objects"},
+            )
+            if REAL_TEST_IDS
+            else []
+        ),
         curves=report(
             L.figure("loss_curves.png"),
             caption="../workflow/report/loss_curves.rst",
@@ -151,7 +164,7 @@ rule figures:
         out=lambda wildcards, output: os.path.dirname(output.ablation),
         objects=TEST_IDS,
     message:
-        "Figures: comparison grids, ablation grid, saliency maps, loss curves"
+        "Figures: comparison grids, ablation grids, saliency maps, loss curves"
     shell:
         "exec {params.py:q} -m frng figures --config {params.config:q} --objects {params.objects:q} --out {params.out:q} > {log:q} 2>&1"
 
@@ -159,6 +172,7 @@ rule figures:
 add_targets(
     *[L.table(t, ext) for t in TABLE_NAMES for ext in ("csv", "md", "tex")],
     L.figure("ablation.png"),
+    *([L.figure("real_objects.png")] if REAL_TEST_IDS else []),
     L.figure("loss_curves.png"),
     L.figure("comparison"),
     L.figure("saliency"),

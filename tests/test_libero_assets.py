@@ -43,8 +43,12 @@ def test_reserved_families_cannot_be_named(tmp_path):
 def test_plan_reads_only_the_turbosquid_family():
     pool = catalog.libero_objects(catalog.LIBERO_FAMILIES)
     assert pool and all(p.parent.name == "turbosquid_objects" for p in pool)
-    objs = [o for o in catalog.plan(_cfg(count=len(pool), test_count=1)).objects if o.source == "libero"]
+    plan = catalog.plan(_cfg(count=len(pool), test_count=1))
+    objs = [o for o in plan.objects if o.source == "libero"]
     assert len(objs) == len(pool) and sorted(o.split for o in objs).count("test") == 1
+    # the real assets among the test objects (the real-objects figure): the LIBERO one, not the generated shape
+    assert plan.real_assets("test") == [o.id for o in objs if o.split == "test"]
+    assert len(plan.split("test")) == 2
     assert all("/turbosquid_objects/" in o.mesh and o.material == "own" and "TurboSquid" in o.licence for o in objs)
 
 

@@ -85,7 +85,7 @@ def test_every_target_and_table(smoke_run):
             assert io.read_json(folder / "train.json")["seed"] == (model_seed(config) if seed is None else seed), folder
 
 
-def test_figures_asset_and_report(smoke_run):
+def test_figures_asset_and_report(smoke_run, tmp_path):
     from frng.apps.asset import load_asset
     from frng.plan import catalog
 
@@ -99,6 +99,13 @@ def test_figures_asset_and_report(smoke_run):
         *(figs / "saliency" / f"{o}.png" for o in tests),
     ]:
         assert p.stat().st_size > 1000, p
+    # the real-objects figure (the smoke tier has no real assets: drawn here as if its test object were one)
+    from frng.report.paper_figures import make_figures
+
+    out = tmp_path / "figures"
+    written = make_figures(results, config["model"]["patch_size"], config["frng"]["variants"], tests, out, tests[:1])
+    assert out / "real_objects.png" in written and (out / "real_objects.png").stat().st_size > 1000
+    assert not (figs / "real_objects.png").exists()  # the run itself drew none
     gaussians, features, decoder, meta = load_asset(results / "relight" / "full" / tests[0] / "asset")
     assert features.shape[0] == gaussians.means.shape[0] > 0 and np.isfinite(features.numpy()).all()
     report = results / "report.html"

@@ -64,6 +64,9 @@ PYBULLET_BROKEN = frozenset({168})
 PRIMITIVES = ("cube", "uv_sphere", "ico_sphere", "cylinder", "cone", "torus", "monkey")
 PROCEDURAL = ("superquadric", "lathe", "blob", "twisted_box", "cluster")
 MATERIALS = ("diffuse", "specular", "fur")
+# Object sources that are real assets (files with their own shapes and, mostly, materials), apart from the generated
+# shapes (procedural, primitives, pybullet): the real-objects figure (frng.report.paper_figures) shows these
+REAL_ASSET_SOURCES = ("libero", "objaverse", "user")
 OWN = "own"  # objects.extra[].material: the file's own material (frng.blender.materials.adopt)
 # The class rule of own materials (the per-class tables need one): from the G-buffer AOVs the material writes, i.e.
 # its own inputs, textures included, averaged over the foreground of the input views. It is the boundary between
@@ -1043,6 +1046,10 @@ class Catalog:
         """{object id: its source} (ObjectRecord.source: procedural, libero, objaverse, user, ...) of every planned
         object: what the per-source table groups by (real assets apart from generated shapes)."""
         return {o.id: o.source for o in self.objects}
+
+    def real_assets(self, split: str) -> list[str]:
+        """The ids of ``split``'s objects whose source is a real asset (:data:`REAL_ASSET_SOURCES`), in plan order."""
+        return [o.id for o in self.objects if o.split == split and o.source in REAL_ASSET_SOURCES]
 
     @property
     def object_ids(self) -> list[str]:

@@ -7,6 +7,8 @@ Outputs (``{results}/figures/``):
   target light (first target view), PSNR (the configured protocol) captioned on the predictions;
 - ``ablation.png``: ground truth and every ablation variant (``frng.variants``), one row per test object (first
   target light and view);
+- ``real_objects.png``: the same for the test objects that are real assets (:meth:`frng.plan.catalog.Catalog.real_assets`:
+  LIBERO's, Objaverse's, users' files), when there are any: the README's picture;
 - ``saliency/{obj}.png`` per test object: input view 0 | saliency map | the selected top-K patches (full run);
 - ``loss_curves.png``: the training curves of every run (``{results}/models/*/loss.csv``, the backbone and the
   IDM when present).
@@ -60,8 +62,8 @@ def comparison(results: Path, oid: str, out_png: Path, psnr) -> None:
     )
 
 
-def ablation(results: Path, objects: list[str], variants: list[str], out_png: Path, psnr) -> None:
-    """Ground truth and each ablation variant, one row per test object (first target light and view)."""
+def ablation(results: Path, objects: list[str], variants: list[str], out_png: Path, psnr, title: str) -> None:
+    """Ground truth and each ablation variant, one row per object of ``objects`` (first target light and view)."""
     L = Layout(results)
     gts, imgs, caps, labels = [], {v: [] for v in variants}, {v: [] for v in variants}, []
     for oid in objects:
@@ -72,7 +74,7 @@ def ablation(results: Path, objects: list[str], variants: list[str], out_png: Pa
             imgs[v].append(io.read_rgba(L.relight_image(v, oid, light, view)))
             caps[v].append(psnr(oid, v, light, view))
         labels.append(f"{oid} / {light}")
-    figures.ablation_grid(out_png, imgs, gts, labels, caps, title="Ablations (PSNR per image)")
+    figures.ablation_grid(out_png, imgs, gts, labels, caps, title=title)
 
 
 def saliency(results: Path, oid: str, out_png: Path, patch: int) -> None:
@@ -107,10 +109,17 @@ def loss_curves(results: Path, out_png: Path) -> None:
 
 
 def make_figures(
-    results: str | Path, patch_size: int, variants: Sequence[str], objects: list[str], out_dir: Path
+    results: str | Path,
+    patch_size: int,
+    variants: Sequence[str],
+    objects: list[str],
+    out_dir: Path,
+    real_objects: Sequence[str] = (),
 ) -> list[Path]:
     """The paper's figures of ``objects`` into ``out_dir``: ``patch_size`` is the config's ``model.patch_size`` (the
-    saliency maps' patches), ``variants`` its ``frng.variants`` (the ablation figure, after ``full``)."""
+    saliency maps' patches), ``variants`` its ``frng.variants`` (the ablation figures, after ``full``);
+    ``real_objects``: those of ``objects`` that are real assets (``real_objects.png``, written only when there are
+    any)."""
     from frng.metrics import read_csv
 
     results = Path(results)
@@ -123,6 +132,12 @@ def make_figures(
         saliency(results, oid, s, int(patch_size))
         written += [p, s]
     variants = full_and(variants)
-    ablation(results, objects, variants, out_dir / "ablation.png", psnr)
+    ablation(results, objects, variants, out_dir / "ablation.png", psnr, "Ablations (PSNR per image)")
+    written.append(out_dir / "ablation.png")
+    real = [o for o in objects if o in set(real_objects)]
+    if real:
+        title = "Real objects under held-out lights: ground truth, F-RNG and its ablations (PSNR per image)"
+        ablation(results, real, variants, out_dir / "real_objects.png", psnr, title)
+        written.append(out_dir / "real_objects.png")
     loss_curves(results, out_dir / "loss_curves.png")
-    return written + [out_dir / "ablation.png", out_dir / "loss_curves.png"]
+    return written + [out_dir / "loss_curves.png"]

@@ -78,6 +78,7 @@ TABLE_TITLES: dict[str, str] = {
 
 FIGURES: dict[str, str] = {
     "ablation.png": "Every test object under every ablation (ground truth first; PSNR per image)",
+    "real_objects.png": "The held-out real objects under every ablation (ground truth first; PSNR per image)",
     "loss_curves.png": "Every training curve",
     "baselines/vs_dense.png": "Table 2: ground truth, F-RNG from 6 views and the dense per-scene baselines, relit",
     "baselines/vs_image_based.png": "Table 3: ground truth, F-RNG and the image-based baselines, relit",

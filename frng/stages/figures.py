@@ -1,5 +1,5 @@
 """Stage ``frng figures`` (rule ``figures``): the paper-style figures from the relit images ->
-``{results}/figures/`` (comparison grids, ablation grid, saliency maps, loss curves).
+``{results}/figures/`` (comparison grids, ablation grids, saliency maps, loss curves).
 
 Which figures and what they show: :mod:`frng.report.paper_figures`; how they are drawn: :mod:`frng.report.figures`.
 """
@@ -27,9 +27,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
 
+    from frng.plan import catalog
+
     config = typed(frng_config.load(args.config))
     objects = frng_config.heldout_objects(config, args.objects)
+    real = catalog.plan(config).real_assets("test")
     out = Path(args.out or Layout(config.results).figures_dir())
-    for p in make_figures(config.results, config.model.patch_size, config.frng.variants, objects, out):
+    for p in make_figures(config.results, config.model.patch_size, config.frng.variants, objects, out, real):
         print(f"figures: wrote {p}")
     return 0
