@@ -209,3 +209,13 @@ def test_top_level_help_lists_every_stage():
     assert proc.returncode == 0, proc.stderr
     for sub in cli.STAGES:
         assert re.search(rf"^  {re.escape(sub)}\s", proc.stdout, re.M), sub
+
+
+def test_a_diagnostic_geometry_never_overwrites_the_pipelines_model(capsys):
+    """`frng train --geometry gbuffer` (the geometry-gap diagnostic) without --out would write
+    {results}/models/{variant}: a one-line error instead, before anything is read."""
+    with pytest.raises(SystemExit) as e:
+        cli.main(["train", "--config", str(ROOT / "config" / "smoke.yaml"), "--geometry", "gbuffer"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--geometry gbuffer needs --out" in err, err

@@ -515,3 +515,35 @@ def test_depth_loss_measures_the_moved_coarse_gaussians_and_trains_the_depth_hea
     loss = depth_loss(rec, obj.views, obj.depth_target)
     loss.backward()
     assert model.depth_head.mlp[-1].weight.grad.abs().sum() > 0
+
+
+def test_gbuffer_geometry_puts_the_pixel_gaussians_on_the_rendered_surface(frng_smoke):
+    """load_objects(geometry="gbuffer") (`frng train` / `frng bench heldout --geometry gbuffer`, the geometry-gap
+    diagnostic): every input pixel with a G-buffer surface has its Gaussian at that distance along its own ray; the
+    others, and the far-side copies, are the cache's."""
+    from frng.model.depth import at_distances
+    from frng.plan import catalog
+    from frng.training.frng import load_objects
+
+    _, config = frng_smoke
+    res = Path(config["results"])
+    ids = catalog.plan(config).split("train")[:1]
+    args = (res, config["idm"]["kind"], ids, res / "backbone" / "model.pt", True, 6)
+    (plain,) = load_objects(*args, with_depth=True)
+    (gt,) = load_objects(*args, geometry="gbuffer")
+    assert gt.depth_target is None  # geometry alone does not add L_depth's target
+    c2w, before, after = plain.views["c2w"].float(), plain.views["means"].float(), gt.views["means"].float()
+    V = c2w.shape[0]
+    origins = c2w[torch.arange(before.shape[0]) // (before.shape[0] // V)][:, :3, 3]
+    surface = plain.depth_target > 0
+    assert surface.any() and (~surface).any()
+    assert torch.allclose((after - origins).norm(dim=-1)[surface], plain.depth_target[surface], atol=1e-4)
+    rays_before = torch.nn.functional.normalize(before - origins, dim=-1)
+    rays_after = torch.nn.functional.normalize(after - origins, dim=-1)
+    assert torch.allclose(rays_before[surface], rays_after[surface], atol=1e-4)  # moved along their own rays
+    assert torch.equal(after[~surface], before[~surface])
+    for k in [k for k in plain.views if k != "means"]:
+        assert torch.equal(plain.views[k], gt.views[k]), k
+    assert torch.equal(at_distances(before, c2w, torch.zeros(before.shape[0])), before)
+    with pytest.raises(ValueError, match="geometry must be one of"):
+        load_objects(*args, geometry="hull")

@@ -12,6 +12,10 @@ with ``origin`` the input camera's centre and ``max_offset`` (``frng.depth_head`
 is 1) bounding the move. The last layer starts at zero (an untrained head moves nothing); it is trained by F-RNG's
 own losses through the rasterizer's gradients on the means. The fine Gaussians (F-RNG's own geometry) and the
 far-side copies are not moved.
+
+:func:`at_distances` puts the same coarse Gaussians at given distances along their rays instead: with the G-buffer's
+surface distances (``frng train --geometry gbuffer``, ``frng bench heldout --geometry gbuffer``) it measures what
+F-RNG would gain from exact geometry where its inputs see the surface (docs/model-and-training.md, "Geometry gap").
 """
 
 from __future__ import annotations
@@ -53,4 +57,20 @@ class DepthHead(GaussianResidual):
         return means + F.normalize(means - origins, dim=-1) * offset[:, None].to(means.dtype)
 
 
-__all__ = ["DepthHead"]
+def at_distances(means: torch.Tensor, c2w: torch.Tensor, distance: torch.Tensor) -> torch.Tensor:
+    """Per-pixel Gaussians put at given distances along their input rays.
+
+    means (N, 3) one Gaussian per input pixel, N = V*H*W in view order (the backbone cache's ``means``, each on its
+    pixel's ray); c2w (V, 4, 4) the input cameras; distance (N,) the distance from the pixel's camera centre at which
+    its Gaussian goes, <= 0 where there is none (that Gaussian keeps its mean). Returns (N, 3)."""
+    assert means.dim() == 2 and means.shape[-1] == 3 and distance.shape == means.shape[:1], (
+        means.shape,
+        distance.shape,
+    )
+    origins = DepthHead.origins(c2w.to(means.dtype), torch.ones(means.shape[0], dtype=torch.bool))
+    rays = F.normalize(means - origins, dim=-1)
+    moved = origins + rays * distance[:, None].to(means.dtype)
+    return torch.where((distance > 0)[:, None], moved, means)
+
+
+__all__ = ["DepthHead", "at_distances"]

@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from frng.plan import config as frng_config
-from frng.plan.variants import RIG_VIEWS
+from frng.plan.variants import GEOMETRIES, RIG_VIEWS
 from frng.stages._heldout import (
     AT,
     _model_arg,
@@ -74,6 +74,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         default=AT[0],
         help="score at the target views under the target lights (default), or re-render the model's own input "
         "views under the input light and the object's other input lights",
+    )
+    parser.add_argument(
+        "--geometry",
+        choices=GEOMETRIES,
+        default="backbone",
+        help="what every model's coarse Gaussians sit on: the backbone's (default) or, a diagnostic, the G-buffer's "
+        "surface distances of the input pixels (with a model `frng train --geometry gbuffer` trained: F-RNG's "
+        "geometry gap, docs/model-and-training.md)",
     )
 
 
@@ -117,7 +125,14 @@ def run(args: argparse.Namespace) -> int:
     for oid in tqdm(objects, desc="heldout", file=sys.stderr):
         try:
             (obj,) = load_objects(
-                config.results, config.idm.kind, [oid], L.backbone_model(), uses_priors, args.views, idm=idm
+                config.results,
+                config.idm.kind,
+                [oid],
+                L.backbone_model(),
+                uses_priors,
+                args.views,
+                idm=idm,
+                geometry=args.geometry,
             )
         except KeyError as e:  # a cache without that view count (training objects hold the rig's only)
             print(f"frng bench heldout: error: {oid}: {e.args[0]}", file=sys.stderr)

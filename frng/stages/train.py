@@ -15,7 +15,14 @@ from frng.io import check_file_index
 from frng.plan import catalog
 from frng.plan import config as frng_config
 from frng.plan.layout import Layout
-from frng.plan.variants import all_variants, canonical_variant, reads_priors, split_seed, trained_variants
+from frng.plan.variants import (
+    GEOMETRIES,
+    all_variants,
+    canonical_variant,
+    reads_priors,
+    split_seed,
+    trained_variants,
+)
 from frng.training import distributed
 from frng.training.frng import ModelSections, TrainRun, train, variant_config
 from frng.typedconfig import typed
@@ -49,6 +56,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--backbone", help="frozen backbone file (default {results}/backbone/model.pt)")
     parser.add_argument("--steps", type=int, help="override train.steps / train.ablation_steps")
     parser.add_argument("--list-variants", action="store_true", help="print the config's variants and exit")
+    parser.add_argument(
+        "--geometry",
+        choices=GEOMETRIES,
+        default="backbone",
+        help="what the coarse Gaussians sit on: the backbone's (default) or, a diagnostic, the G-buffer's surface "
+        "distances of the input pixels (F-RNG's geometry gap: docs/model-and-training.md); needs --out",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -64,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
         variant_config(
             ModelSections.of(config), args.variant
         )  # raises for unknown names; other k<percent> values are allowed
+    if args.geometry != "backbone" and not args.out:
+        raise ValueError(f"--geometry {args.geometry} needs --out (a diagnostic model is not the pipeline's)")
     layout = Layout(config.results)
     out = Path(args.out or layout.model_dir(args.variant))
     # the training split's files as the indexes recorded them (rules training_set_*): a truncated or corrupted
@@ -84,7 +100,9 @@ def run(args: argparse.Namespace) -> int:
         idm_kind=config.idm.kind,
         train_ids=tuple(catalog.plan(config).split("train")),
     )
-    path = train(ModelSections.of(config), config.train, job, base, out, args.backbone, steps=args.steps)
+    path = train(
+        ModelSections.of(config), config.train, job, base, out, args.backbone, steps=args.steps, geometry=args.geometry
+    )
     print(f"train: wrote {path}")
     distributed.cleanup()
     return 0

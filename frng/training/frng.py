@@ -48,12 +48,12 @@ from frng import checkpoint, io
 from frng.device import autocast, bf16_ok
 from frng.hashing import data_digest, file_sha256
 from frng.memo import TensorMemo
-from frng.model.depth import DepthHead
+from frng.model.depth import DepthHead, at_distances
 from frng.model.frng import FRNG, FRNGConfig, FRNGSection
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
 from frng.plan.layout import Layout
 from frng.plan.sections import TypedConfig, register, section_dict
-from frng.plan.variants import canonical_for, variant
+from frng.plan.variants import GEOMETRIES, canonical_for, variant
 from frng.priors.backbone import BackboneConfig, BackboneSection
 from frng.render import envmap
 from frng.render.raster import RasterConfig
@@ -206,6 +206,7 @@ def load_objects(
     alt_light: bool = False,
     idm=None,
     with_depth: bool = False,
+    geometry: str = "backbone",
 ) -> list[TrainObject]:
     """Read caches + curated images of ``ids`` under ``results``. IDM priors are opened only when ``use_priors``
     (``idm_kind``: the config's ``idm.kind``; the learned IDM's priors are checked against its model file); where the
@@ -213,12 +214,17 @@ def load_objects(
     make_idm_priors`), they are made live by ``idm`` (a :func:`frng.priors.build_idm` prior) from exactly those V
     views, since the IDM's priors of a view depend on the other views it is given; without ``idm`` that is an error.
     ``alt_light``: also the input views under the object's second input light (L_ind's re-lit evidence).
-    ``with_depth``: also the V input views' surface distances from their G-buffers (L_depth's target)."""
+    ``with_depth``: also the V input views' surface distances from their G-buffers (L_depth's target).
+    ``geometry``: ``backbone`` (the cache's Gaussians as they are) or ``gbuffer`` (a diagnostic: the pixel Gaussians
+    put at their G-buffer surface distances, :func:`frng.model.depth.at_distances`; the far-side copies stay where
+    the cache has them)."""
     from frng.data.dataset import open_object
     from frng.priors import view_priors
     from frng.priors.cache import load_backbone_cache, load_idm_priors
     from frng.priors.dataset import load_object
 
+    if geometry not in GEOMETRIES:
+        raise ValueError(f"geometry must be one of {GEOMETRIES}, got {geometry!r}")
     L = Layout(results)
     idm_model = L.idm_model() if idm_kind == "learned" else None
     envs: dict[str, torch.Tensor] = {}
@@ -262,11 +268,14 @@ def load_objects(
             alt_images = targets[len(obj.target_lights)][4][rows]
             alt_env = envs[other_inputs[0]]
         depth = None
-        if with_depth:
+        if with_depth or geometry == "gbuffer":
             from frng.priors.backbone import ray_distance_target
 
             gb_depth = obj.gbuffer("inputs", names, torch=True)["depth"]
             depth = ray_distance_target(gb_depth, views["c2w"].float(), views["intr"].float()).reshape(-1)
+        if geometry == "gbuffer":
+            views["means"] = at_distances(views["means"].float(), views["c2w"].float(), depth)
+        depth = depth if with_depth else None
         out.append(
             TrainObject(
                 oid, views, lights, priors, images, envs[light_in], alt_images, alt_env, targets, list(names), depth
@@ -479,11 +488,13 @@ def train(
     stop_after: int | None = None,
     objects: list[TrainObject] | None = None,
     pixel_memo: bool = True,
+    geometry: str = "backbone",
 ) -> Path:
     """Train (or resume) one variant; returns ``out/model.pt`` (or the checkpoint when stopped by ``stop_after``,
     which tests use to simulate an interruption). ``sections``: the model's config sections, ``tcfg``: the config's
     ``train`` section. ``pixel_memo``: keep each object's pixel maps between steps (the same weights either way;
-    False only for the test that checks so)."""
+    False only for the test that checks so). ``geometry``: what the objects' coarse Gaussians sit on
+    (:func:`load_objects`; ``gbuffer`` is a diagnostic, recorded in train.json)."""
     variant = canonical_for(variant, sections.frng.top_k_percent)
     backbone_path = Path(backbone_path or Layout(job.results).backbone_model())
     total = steps or tcfg.steps_for(variant)
@@ -496,7 +507,15 @@ def train(
         alt = ind.pixels and (ind.lambda_c > 0 or ind.lambda_kld > 0)
         depth = depth_weight(model, tcfg.loss) > 0
         objects = load_objects(
-            job.results, job.idm_kind, ids, backbone_path, model.cfg.uses_priors, tcfg.views, alt, with_depth=depth
+            job.results,
+            job.idm_kind,
+            ids,
+            backbone_path,
+            model.cfg.uses_priors,
+            tcfg.views,
+            alt,
+            with_depth=depth,
+            geometry=geometry,
         )
     if not objects:
         raise ValueError("frng train: no training objects on this rank")
@@ -554,6 +573,7 @@ def train(
             "world_size": info.world_size,
             "bf16": tcfg.bf16,
             "objects": len(objects) * info.world_size,
+            "geometry": geometry,
             "step_s_mean_this_run": round(run.step_s_mean, 3),
             "parameters": sum(p.numel() for p in model.parameters()),
         }
