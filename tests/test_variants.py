@@ -121,14 +121,14 @@ def test_train_stage_trains_a_seeded_variant_with_its_seed(monkeypatch, tmp_path
     monkeypatch.setattr(
         stage,
         "train",
-        lambda sections, tcfg, job, variant, out, backbone, steps=None: (
-            seen.update(variant=variant, seed=job.seed, out=out) or out / "model.pt"
+        lambda sections, tcfg, job, variant, out, backbone, steps=None, geometry="backbone": (
+            seen.update(variant=variant, seed=job.seed, out=out, geometry=geometry) or out / "model.pt"
         ),
     )
     cfg = tmp_path / "c.yaml"
     cfg.write_text(yaml.safe_dump(_cfg(seeds=[0, 2]) | {"results": str(tmp_path)}))
-    args = argparse.Namespace(
-        config=str(cfg), variant="no-fine@s2", out=None, backbone=None, steps=None, list_variants=False
-    )
-    assert stage.run(args) == 0
+    parser = argparse.ArgumentParser()
+    stage.configure(parser)
+    assert stage.run(parser.parse_args(["--config", str(cfg), "--variant", "no-fine@s2"])) == 0
     assert seen["variant"] == "no-fine" and seen["seed"] == 2 and seen["out"].name == "no-fine@s2"
+    assert seen["geometry"] == "backbone"  # the pipeline's models sit on the backbone's geometry
