@@ -134,7 +134,8 @@ def make_figures(
     variants = full_and(variants)
     ablation(results, objects, variants, out_dir / "ablation.png", psnr, "Ablations (PSNR per image)")
     written.append(out_dir / "ablation.png")
-    real = [o for o in objects if o in set(real_objects)]
+    real_set = set(real_objects)
+    real = [o for o in objects if o in real_set]
     if real:
         title = "Real objects under held-out lights: ground truth, F-RNG and its ablations (PSNR per image)"
         ablation(results, real, variants, out_dir / "real_objects.png", psnr, title)

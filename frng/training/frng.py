@@ -267,15 +267,15 @@ def load_objects(
             rows = [obj.view_names("inputs").index(n) for n in names]
             alt_images = targets[len(obj.target_lights)][4][rows]
             alt_env = envs[other_inputs[0]]
-        depth = None
+        surface = None  # each input pixel's G-buffer surface distance along its ray (0 = none), read once for both uses
         if with_depth or geometry == "gbuffer":
             from frng.priors.backbone import ray_distance_target
 
             gb_depth = obj.gbuffer("inputs", names, torch=True)["depth"]
-            depth = ray_distance_target(gb_depth, views["c2w"].float(), views["intr"].float()).reshape(-1)
+            surface = ray_distance_target(gb_depth, views["c2w"].float(), views["intr"].float()).reshape(-1)
         if geometry == "gbuffer":
-            views["means"] = at_distances(views["means"].float(), views["c2w"].float(), depth)
-        depth = depth if with_depth else None
+            views["means"] = at_distances(views["means"].float(), views["c2w"].float(), surface)
+        depth = surface if with_depth else None
         out.append(
             TrainObject(
                 oid, views, lights, priors, images, envs[light_in], alt_images, alt_env, targets, list(names), depth
