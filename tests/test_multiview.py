@@ -231,3 +231,50 @@ def test_photo_agreement_on_a_mask_is_the_same_values():
     part = photo_agreement(rgb, alpha, pts, c2w, intr, dist, mask=hit)
     assert (full[hit] > 0).any()
     assert torch.equal(part[hit].view(torch.int32), full[hit].view(torch.int32)) and not part[~hit].any()
+
+
+def _plate_views(res: int = 32, half: float = 0.012, radius: float = 0.5, ss: int = 4):
+    """Anti-aliased masks (ss x ss rays per pixel) and the centre rays' true first-hit distances (nan: a miss) of a flat disc
+    (radius ``radius``, thickness 2 ``half``) lying in the z = 0 plane: the rig's level views see it edge-on, as a
+    line thinner than a pixel."""
+    c2w, intr = _rig(res)
+    sub = (torch.arange(ss, dtype=torch.float32) + 0.5) / ss
+    ys, xs = torch.meshgrid(
+        torch.arange(res, dtype=torch.float32), torch.arange(res, dtype=torch.float32), indexing="ij"
+    )
+    uv = torch.stack([xs[..., None, None] + sub[None, :, None], ys[..., None, None] + sub[:, None]], -1)
+    uv = uv.broadcast_to(res, res, ss, ss, 2).reshape(res, res * ss * ss, 2)
+    o, d = camera.rays_at(c2w, intr, uv.expand(len(c2w), *uv.shape))  # (V, res, res*ss*ss, 3)
+    t = torch.linspace(1.5, 3.7, 2000)
+    inside = lambda p: (p[..., 2].abs() < half) & (p[..., 0] ** 2 + p[..., 1] ** 2 < radius**2)  # noqa: E731
+    hits, first = [], []
+    for v in range(len(c2w)):
+        pts = o[v][..., None, :] + d[v][..., None, :] * t[:, None]  # (res, R, T, 3)
+        ins = inside(pts)
+        hits.append(ins.any(-1).reshape(res, res, ss * ss).float().mean(-1))
+        centre = (ss * ss) // 2 + ss // 2  # a ray near the pixel centre
+        on = ins.reshape(res, res, ss * ss, -1)[..., centre, :]
+        first.append(torch.where(on.any(-1), t[on.float().argmax(-1)], torch.nan))
+    return torch.stack(hits)[..., None], c2w, intr, torch.stack(first)
+
+
+def test_thin_parts_cross_the_hull():
+    """A part thinner than a pixel in some views (a plate seen edge-on: its masks there are lines of alpha < 0.5)
+    is still on the hull: its foreground pixels cross at half their ray's peak occupancy instead of missing it,
+    which put their Gaussians at the far end of the sweep (a fork lying flat rendered as a few blobs)."""
+    alpha, c2w, intr, t_true = _plate_views()
+    fg = alpha[..., 0] >= 0.5
+    assert alpha[:4].max() < 0.5 and fg[4:].sum() > 100  # level views: an edge-on line; 45 degrees: the disc
+    cues = geometry_cues(alpha.expand(*alpha.shape[:3], 3), alpha, c2w, intr, near=1.0, far=4.5)
+    dist, hit = cues["distance"][..., 0], cues["hit"][..., 0] > 0
+    assert hit[fg].all()
+    err = (dist - t_true)[fg & t_true.isfinite()].abs()
+    assert err.mean() < 0.1 and err.max() < 0.3, (err.mean(), err.max())  # the 4 level views' lines: a pixel thick
+    # without the foreground rays' rescue the level views' 1-px lines keep every ray below 0.5
+    from frng.priors.multiview import occupancy
+
+    occ, t, _, _ = occupancy(alpha, c2w, intr)
+    _, plain_hit = hull_distance(occ, t, far=4.5)
+    assert plain_hit[fg].float().mean() < 0.5
+    _, rescued = hull_distance(occ, t, far=4.5, thin=fg)
+    assert rescued[fg].all() and not rescued[~fg & (alpha[..., 0] > 0) & ~plain_hit].any()

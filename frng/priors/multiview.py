@@ -12,7 +12,8 @@ view's alpha (the object mask, known at inference too) is read there (bilinear; 
 
 The visual hull's first crossing of 0.5 along the ray (linearly interpolated between samples) is the pixel's
 **hull distance** (:func:`hull_distance`); for convex objects it is the surface, for concave ones an upper bound
-on how near the surface can be. Pixels whose ray never enters the hull (outside the mask) get the far end.
+on how near the surface can be. Pixels whose ray never enters the hull (outside the mask) get the far end; a
+foreground pixel whose ray stays below 0.5 (a part thinner than a pixel in some view) crosses at half its peak.
 
 :func:`geometry_cues` bundles what the networks take per pixel: the hull distance normalised to [0, 1] over
 ``[near, far]``, the normal of the hull's depth map (camera frame, from finite differences of the back-projected
@@ -216,11 +217,20 @@ def occupancy_reference(
 
 
 def hull_distance(
-    occ: torch.Tensor, t: torch.Tensor, far: float, level: float = 0.5
+    occ: torch.Tensor, t: torch.Tensor, far: float, level: float = 0.5, thin: torch.Tensor | None = None
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """First crossing of ``level`` along each ray, linearly interpolated between samples.
 
-    occ, t (..., K). Returns distance (...) (``far`` where the ray never enters) and hit (...) bool."""
+    occ, t (..., K). ``thin`` (...) bool, optional: rays that lie on the object (foreground pixels); where such a
+    ray's occupancy never reaches ``level`` but is above 0 somewhere, the object is thinner there than a pixel in
+    some view (a fork lying flat, seen from the side as a 1-px line whose bilinear mask reads stay below 0.5), and
+    the ray crosses at ``level`` times its own peak instead (a hit): without this its pixel was put at ``far``.
+    Returns distance (...) (``far`` where the ray never enters) and hit (...) bool."""
+    if thin is not None:
+        assert thin.shape == occ.shape[:-1], (thin.shape, occ.shape)
+        peak = occ.max(-1, keepdim=True).values
+        rescue = thin[..., None] & (peak < level) & (peak > 0)
+        occ = torch.where(rescue, occ / peak.clamp_min(1e-12), occ)
     inside = occ >= level
     hit = inside.any(-1)
     k = inside.float().argmax(-1)  # first inside sample (0 when none)
@@ -256,9 +266,10 @@ def back_surface(
     V, H, W, _ = alpha.shape
     tol = 4.0 * radius / bins if tol is None else tol
     occ, t, o, d = occupancy(alpha, c2w, intr, bins, radius)
-    front, hit = hull_distance(occ, t, far)
-    exit_, _ = hull_distance(occ.flip(-1), t.flip(-1), far)
-    fg = (alpha[..., 0] >= 0.5) & hit & (exit_ > front + tol)
+    on = alpha[..., 0] >= 0.5
+    front, hit = hull_distance(occ, t, far, thin=on)
+    exit_, _ = hull_distance(occ.flip(-1), t.flip(-1), far, thin=on)
+    fg = on & hit & (exit_ > front + tol)
     unseen = fg.clone()
     if fg.any():
         pts = (o + d * exit_[..., None])[fg]  # (R, 3)
@@ -439,7 +450,7 @@ def geometry_cues(
     if fg.any():
         t = sweep_distances(o[fg], d[fg], bins, radius)  # (R, K)
         occ = rays_occupancy(alpha, o[fg], d[fg], t, c2w, intr, kernel, stop=0.5)  # up to the first crossing
-        dist[fg], hit[fg] = hull_distance(occ, t, far, level=0.5)
+        dist[fg], hit[fg] = hull_distance(occ, t, far, level=0.5, thin=alpha[..., 0][fg] >= 0.5)
     pts = o + d * dist[..., None]
     normal = depth_normals(pts, c2w, hit)
     agree = photo_agreement(rgb.float(), alpha.float(), pts, c2w, intr, dist, mask=hit)
