@@ -394,7 +394,10 @@ def test_fine_gaussians_stay_inside_the_silhouettes(frng_smoke):
         model.cfg.fine_in_hull = False
         every = fine_means(model.reconstruct(obj.views, 0, obj.priors, obj.images, True, input_env=obj.env_in))
     assert len(kept) > 0 and inside_silhouettes(kept, alpha, c2w, intr).all()
-    assert len(every) > len(kept) and not inside_silhouettes(every, alpha, c2w, intr).all()
+    # the cull keeps every fine Gaussian on the object and drops only those off it (since thin parts cross the hull,
+    # e3970d3, the smoke tier's untrained fine detokenizer may put none off it)
+    assert len(every) >= len(kept)
+    assert len(every) - len(kept) == int((~inside_silhouettes(every, alpha, c2w, intr)).sum())
 
 
 def test_opacity_head_starts_at_the_backbone_opacities_and_moves_them(frng_smoke):
