@@ -76,8 +76,8 @@ class PaperDryRun:
 
 @pytest.fixture(scope="session")
 def paper_dry_run(tmp_path_factory) -> PaperDryRun:
-    """The paper tier planned once per test session (~15 s): a config that is config/paper.yaml with ``results`` in a
-    temporary folder, whose ``config.yaml`` already records what ``frng config`` prints for it, dry-run from the
+    """The paper tier planned once per test session (~18 s CPU): a config that is config/paper.yaml with ``results``
+    in a temporary folder, whose ``config.yaml`` already records what ``frng config`` prints for it, dry-run from the
     repository as ``make dry-run`` does. Its planning time, its job counts (tests/test_workflow_dag.py,
     tests/test_workflow_dryrun.py) and its provenance check (tests/test_provenance.py) read this one run."""
     import resource
