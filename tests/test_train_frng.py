@@ -548,5 +548,11 @@ def test_gbuffer_geometry_puts_the_pixel_gaussians_on_the_rendered_surface(frng_
     for k in [k for k in plain.views if k != "means"]:
         assert torch.equal(plain.views[k], gt.views[k]), k
     assert torch.equal(at_distances(before, c2w, torch.zeros(before.shape[0])), before)
+    # the images' own geometry (hull, stereo): the object's pixels moved along their own rays, the rest the cache's
+    (st,) = load_objects(*args, geometry="stereo")
+    moved = (st.views["means"].float() - before).norm(dim=-1) > 1e-6
+    assert moved.any() and not moved[~(plain.images[..., 3].reshape(-1) >= 0.5)].any()
+    rays_st = torch.nn.functional.normalize(st.views["means"].float() - origins, dim=-1)
+    assert torch.allclose(rays_before[moved], rays_st[moved], atol=1e-4)
     with pytest.raises(ValueError, match="geometry must be one of"):
-        load_objects(*args, geometry="hull")
+        load_objects(*args, geometry="mesh")

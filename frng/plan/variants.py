@@ -64,9 +64,10 @@ SWEEP_VIEWS = (2, 4, 6, 8, 10)  # the #views table
 BACKBONE = "backbone"
 ORACLE_RUN = "full-oracle"  # the full model fed the G-buffers instead of the IDM's priors (quality ladder row f)
 BASE_RUN = "full-base"  # the full model's Lambertian base alone (decoder residual, attenuation, specular base dropped)
-# What F-RNG's coarse Gaussians sit on (frng.training.frng.load_objects): the backbone's geometry, or, a diagnostic
-# (`frng train` / `frng bench heldout --geometry gbuffer`), the input pixels' G-buffer surface distances
-GEOMETRIES = ("backbone", "gbuffer")
+# What F-RNG's coarse Gaussians sit on (frng.training.frng.load_objects): the backbone's geometry, or, diagnostics
+# (`frng train` / `frng bench heldout --geometry ...`), the input pixels' G-buffer surface distances, their visual
+# hull's, or the hull refined by multi-view stereo (frng.priors.stereo)
+GEOMETRIES = ("backbone", "gbuffer", "hull", "stereo")
 SEED_SEP = "@s"  # {variant}@s{seed}: a variant trained with another training seed
 MAIN_GROUP = "main"  # the relighting group of the models' seed runs and the backbone (timing included)
 ALL_GROUPS = "all"  # every run of a test object

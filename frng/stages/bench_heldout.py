@@ -79,9 +79,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--geometry",
         choices=GEOMETRIES,
         default="backbone",
-        help="what every model's coarse Gaussians sit on: the backbone's (default) or, a diagnostic, the G-buffer's "
-        "surface distances of the input pixels (with a model `frng train --geometry gbuffer` trained: F-RNG's "
-        "geometry gap, docs/model-and-training.md)",
+        help="what every model's coarse Gaussians sit on: the backbone's (default) or, diagnostics, the input "
+        "pixels' surface distances from their G-buffers, their visual hull or the hull refined by multi-view stereo "
+        "(gbuffer / hull / stereo; with a model `frng train --geometry ...` trained the same way: F-RNG's geometry "
+        "gap, docs/model-and-training.md)",
     )
 
 

@@ -60,8 +60,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--geometry",
         choices=GEOMETRIES,
         default="backbone",
-        help="what the coarse Gaussians sit on: the backbone's (default) or, a diagnostic, the G-buffer's surface "
-        "distances of the input pixels (F-RNG's geometry gap: docs/model-and-training.md); needs --out",
+        help="what the coarse Gaussians sit on: the backbone's (default) or, diagnostics, the input pixels' surface "
+        "distances from their G-buffers (gbuffer: F-RNG's geometry gap, docs/model-and-training.md), their visual "
+        "hull (hull) or the hull refined by multi-view stereo (stereo, frng/priors/stereo.py); needs --out",
     )
 
 

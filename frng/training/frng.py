@@ -215,9 +215,11 @@ def load_objects(
     views, since the IDM's priors of a view depend on the other views it is given; without ``idm`` that is an error.
     ``alt_light``: also the input views under the object's second input light (L_ind's re-lit evidence).
     ``with_depth``: also the V input views' surface distances from their G-buffers (L_depth's target).
-    ``geometry``: ``backbone`` (the cache's Gaussians as they are) or ``gbuffer`` (a diagnostic: the pixel Gaussians
-    put at their G-buffer surface distances, :func:`frng.model.depth.at_distances`; the far-side copies stay where
-    the cache has them)."""
+    ``geometry``: ``backbone`` (the cache's Gaussians as they are) or a diagnostic: the pixel Gaussians put at
+    (:func:`frng.model.depth.at_distances`) their G-buffer surface distances (``gbuffer``), their six-view visual
+    hull's (``hull``, :func:`frng.priors.multiview.geometry_cues`) or the hull refined by multi-view stereo
+    (``stereo``, :func:`frng.priors.stereo.stereo_distance`), made from the V input views read here; the
+    far-side copies stay where the cache has them."""
     from frng.data.dataset import open_object
     from frng.priors import view_priors
     from frng.priors.cache import load_backbone_cache, load_idm_priors
@@ -275,6 +277,10 @@ def load_objects(
             surface = ray_distance_target(gb_depth, views["c2w"].float(), views["intr"].float()).reshape(-1)
         if geometry == "gbuffer":
             views["means"] = at_distances(views["means"].float(), views["c2w"].float(), surface)
+        elif geometry in ("hull", "stereo"):
+            views["means"] = at_distances(
+                views["means"].float(), views["c2w"].float(), view_geometry(geometry, images, views)
+            )
         depth = surface if with_depth else None
         out.append(
             TrainObject(
@@ -282,6 +288,23 @@ def load_objects(
             )
         )
     return out
+
+
+def view_geometry(kind: str, images: torch.Tensor, views: dict) -> torch.Tensor:
+    """Surface distances (V*H*W,) of the input pixels along their rays, 0 off the object (alpha < 0.5), from the
+    images alone: the visual hull's first crossing (``hull``) or that refined by multi-view stereo (``stereo``).
+    images (V, H, W, 4) linear premultiplied RGBA; views: the cache's ``c2w`` (V, 4, 4) and ``intr`` (V, 4)."""
+    from frng.priors.multiview import geometry_cues
+    from frng.priors.stereo import stereo_distance
+
+    assert kind in ("hull", "stereo"), kind
+    rgb, alpha = images[..., :3].float().clamp_min(0), images[..., 3:4].float().clamp(0, 1)
+    c2w, intr = views["c2w"].float(), views["intr"].float()
+    cues = geometry_cues(rgb, alpha, c2w, intr, near=0.0, far=1.0)
+    hull = cues["distance"][..., 0]
+    dist = stereo_distance(rgb, alpha, c2w, intr, hull) if kind == "stereo" else hull
+    on = (alpha[..., 0] >= 0.5) & (cues["hit"][..., 0] > 0.5)  # (a foreground ray that misses the hull: no distance)
+    return torch.where(on, dist, torch.zeros_like(dist)).reshape(-1)
 
 
 def encode_display(x: torch.Tensor) -> torch.Tensor:
