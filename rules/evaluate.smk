@@ -19,6 +19,7 @@ _TABLE_CAPTIONS = {
     "ablation_by_light": "ablation per light family",
     "ladder_by_light": "quality ladder per light family",
     "ladder_by_class": "quality ladder per material class",
+    "claims": "the paper's claims",
 }
 # The default tier's tables also write the repository's generated results page and the README's results block
 # (frng/report/results_page.py), so that `make reproduce` rewrites them; other tiers write neither.

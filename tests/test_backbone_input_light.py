@@ -1,5 +1,5 @@
 """``backbone.light_cue_input``: the input light's shading ratio estimated from the input pixels alone (``fit``) or
-taken from the input views' map the caller gives (``known``, the default), and ``cue_in_head``."""
+taken from the input views' map the caller gives (``known``, an oracle setting; ``fit``, the default, estimates it), and ``cue_in_head``."""
 
 import torch
 from test_priors_units import TINY
@@ -52,20 +52,20 @@ def test_fit_cue_is_target_over_input():
 
 def test_models_saved_before_the_keys_keep_their_behaviour(tmp_path):
     """A backbone model.pt saved before ``light_cue_input`` and ``cue_in_head`` existed was trained with the uniform
-    assumption and a head that sees the cue: it loads that way (not today's defaults ``known`` and no cue in the
+    assumption and a head that sees the cue: it loads that way (not today's defaults ``fit`` and no cue in the
     head), and its head keeps the input width its weights have; a new model records its own values."""
     from frng.priors import load_backbone
 
     old_m = bb.build(dict(TINY, light_cue_input="uniform", cue_in_head=True))
     old = {k: v for k, v in old_m.cfg.to_dict().items() if k not in ("light_cue_input", "cue_in_head")}
     m = bb.build(dict(TINY))
-    assert (m.cfg.light_cue_input, m.cfg.cue_in_head) == ("known", False)
+    assert (m.cfg.light_cue_input, m.cfg.cue_in_head) == ("fit", False)
     torch.save({"kind": "relitlrm", "config": old, "state_dict": old_m.state_dict()}, tmp_path / "old.pt")
     torch.save({"kind": "relitlrm", "config": m.cfg.to_dict(), "state_dict": m.state_dict()}, tmp_path / "new.pt")
     loaded = load_backbone(tmp_path / "old.pt").cfg
     assert (loaded.light_cue_input, loaded.cue_in_head) == ("uniform", True)
     loaded = load_backbone(tmp_path / "new.pt").cfg
-    assert (loaded.light_cue_input, loaded.cue_in_head) == ("known", False)
+    assert (loaded.light_cue_input, loaded.cue_in_head) == ("fit", False)
 
 
 def test_known_cue_is_target_over_the_given_input_light():
@@ -78,7 +78,7 @@ def test_known_cue_is_target_over_the_given_input_light():
     env_in[:10] = torch.tensor([1.5, 1.2, 0.9])  # bright top
     env_t = env_in.flip(0)  # bright bottom
     px7, n = _sphere_pixels(env_in, size=16)
-    m = bb.build(dict(TINY)).eval()
+    m = bb.build(dict(TINY, light_cue_input="known")).eval()
     col = px7[0, 0, ..., :3] ** 2.2 * px7[0, 0, ..., 3:4]
     images, alpha, normals = col[None], px7[0, 0, ..., 3:4][None], n[0]
     px = m.pixel_inputs(images, alpha, normals, env_in)

@@ -3,7 +3,8 @@ before they are compared (issue 54, Must show): on a small object rendered with 
 of a few hundred flat Gaussians of known albedo / roughness / normal, shaded by gsir's split-sum under a procedural
 studio light, at 32 px from ``frng.baselines.plan.dense_views`` cameras) their loss falls, their re-renders of their
 own training views reach a measured PSNR, gsir relit under a second light approaches that light's ground truth, and
-both lose novel-view quality with 6 views against 24."""
+both lose novel-view quality with 6 views against 24. gsir learns its input light (it never reads that map) and the
+light it learns moves towards the truth."""
 
 from __future__ import annotations
 
@@ -139,7 +140,6 @@ def toy():
         "train": toy_views(model, cams, la),
         "held_a": toy_views(model, held, la),
         "held_b": toy_views(model, held, lb),
-        "env_a": env(STUDIO_A),
         "light_b": lb,
     }
 
@@ -206,20 +206,78 @@ def test_3dgs_is_deterministic(toy):
 
 def test_gsir_relights(toy):
     s = settings(steps=150, pbr_steps=100, init_points=500, max_gaussians=1000, lr_scale=6.0)
-    m = gsir.fit(toy["train"], toy["env_a"], s, RASTER, seed=0)
+    m = gsir.fit(toy["train"], s, RASTER, seed=0)  # its light unknown: it learns one
     assert len(m.curve.rows) == 250 and m.curve.mean_loss(False) < 0.5 * m.curve.mean_loss(True)
+    assert m.env.shape == (gsir.LIGHT_HEIGHT, 2 * gsir.LIGHT_HEIGHT, 3) and bool((m.env > 0).all())
     v = toy["train"]
     H, W = v.size
-    la = gsir.Light.of(toy["env_a"])
-    rgba = m.shade(m.gbuffer(v.c2w, v.intr, H, W, RASTER), la)
-    assert psnr(rgba[..., :3], v.rgb) > 26.0
+    rgba = m.shade(m.gbuffer(v.c2w, v.intr, H, W, RASTER), m.light)  # under the light it learned
+    assert psnr(rgba[..., :3], v.rgb) > 28.0
     held = toy["held_b"]
     relit = m.shade(m.gbuffer(held.c2w, held.intr, H, W, RASTER), toy["light_b"])
     p_relit = psnr(relit[..., :3], held.rgb)
-    # against the trivial answer: the object as seen under the training light
+    # against the trivial answer: the object as seen under the training light. Measured (seeds 0 / 1 / 2): relit
+    # 24.0 / 23.5 / 23.5 dB with the learned light (25.8 / 25.0 / 25.1 given the true one), unrelit 22.2
     p_unrelit = psnr(toy["held_a"].rgb, held.rgb)
-    assert p_relit > 24.0 and p_relit > p_unrelit + 2.0, (p_relit, p_unrelit)
+    assert p_relit > 23.5 and p_relit > p_unrelit + 1.0, (p_relit, p_unrelit)
     assert math.isfinite(m.geometry_psnr)
+
+
+def test_learned_light_is_differentiable_and_prefilters_as_a_given_map():
+    """The learned light's SH and prefiltered levels are the given-map path's (same projection, same vMF lobes at
+    its resolution) and carry gradient back to the map."""
+    from frng.render.prefilter import prefilter
+
+    e = torch.rand(gsir.LIGHT_HEIGHT, 2 * gsir.LIGHT_HEIGHT, 3, generator=torch.Generator().manual_seed(0)) + 0.1
+    ll = gsir.LearnedLight(1.0)
+    with torch.no_grad():
+        ll.log_env.copy_(torch.log(e))
+    lit = ll.light()
+    assert torch.allclose(lit.pref, prefilter(e.clone(), height=gsir.LIGHT_HEIGHT), rtol=1e-5, atol=1e-6)
+    assert torch.allclose(lit.sh, gsir.Light.of(e).sh, rtol=1e-5, atol=1e-6)
+    (lit.sh.sum() + lit.pref.sum() + ll.tv()).backward()
+    assert ll.log_env.grad is not None and bool((ll.log_env.grad.abs() > 0).all())
+
+
+def _lambert_sphere(n: int = 400) -> gsir.GSIR:
+    """A grey (0.6) rough dielectric sphere of radius 0.6: flat Gaussians on its surface, normal radial."""
+    g = torch.Generator().manual_seed(1)
+    d = torch.nn.functional.normalize(torch.randn(n, 3, generator=g), dim=-1)
+    ref = torch.where(d[:, 2:3].abs() < 0.9, torch.tensor([0.0, 0.0, 1.0]), torch.tensor([1.0, 0.0, 0.0]))
+    t1 = torch.nn.functional.normalize(torch.cross(ref, d, dim=-1), dim=-1)
+    params = {
+        "means": 0.6 * d,
+        "log_scales": torch.log(torch.tensor([0.1, 0.1, 0.012])).repeat(n, 1),
+        "quats": rotmat_to_quat(torch.stack([t1, torch.cross(d, t1, dim=-1), d], -1)),
+        "opacity": torch.full((n, 1), 3.0),
+        "normal": d,
+        "albedo": torch.full((n, 3), math.log(0.6 / 0.4)),
+        "roughness": torch.full((n, 1), 6.0),
+        "metallic": torch.full((n, 1), -8.0),
+    }
+    gs = GaussianSet(params, {k: 0.0 for k in params})
+    return gsir.GSIR(gs, gsir.occlusion_grid(gs), None, 0.0, 0)
+
+
+def test_learned_light_moves_towards_the_truth():
+    """A diffuse sphere lit from +x (radiance 1 + 0.9 x, a degree-1 SH light: irradiance 4x brighter at +x than at
+    -x): the light fitted from its images, started uniform, is brighter on the +x side (measured over fit seeds 0-3:
+    2.2-2.4x at +x than at -x, +y / -y within 11 %)."""
+    from frng.render import envmap
+
+    d = envmap.pixel_directions(32, 64)
+    truth = gsir.Light.of((1.0 + 0.9 * d[..., :1]).expand(32, 64, 3).contiguous())
+    sphere = _lambert_sphere()
+    cams = dense_views(12, 2.6, 50.0, RES)
+    views = toy_views(sphere, cams, truth)
+    s = settings(steps=60, pbr_steps=80, init_points=300, max_gaussians=600, lr_scale=6.0)
+    m = gsir.fit(views, s, RASTER, seed=0)
+    axes = torch.tensor([[1.0, 0, 0], [-1.0, 0, 0], [0, 1.0, 0], [0, -1.0, 0]], dtype=torch.float64)
+    e = envmap.sh_irradiance(m.light.sh.double(), axes).mean(-1)
+    e_true = envmap.sh_irradiance(truth.sh.double(), axes).mean(-1)
+    assert float(e_true[0] / e_true[1]) > 3.5
+    assert float(e[0] / e[1]) > 1.8, e.tolist()
+    assert abs(float(e[2] / e[3]) - 1.0) < 0.3, e.tolist()
 
 
 def _write_object(results, toy, oid: str = "toy") -> None:
@@ -286,3 +344,44 @@ def test_stage_writes_the_contract(toy, tmp_path, method):
     with pytest.raises(BaselineFitError, match="d000.exr"):
         fit_object(job, "toy", method, 6, out)
     assert io.read_json(folder.record()) == saved  # the failed jobs left the folder as it was
+
+
+def test_gsir_fit_never_reads_the_input_light(toy, tmp_path):
+    """The task gives no method the input views' light: gsir's outputs (novel views under its learned light, relit
+    images, run record) are bit-identical whether the object's input map is the true one, another map, or missing;
+    a changed TARGET map (which the task gives) does change the relit images."""
+    from frng import io
+    from frng.baselines.fit_job import FitJob, fit_object
+    from frng.plan import config as frng_config
+    from frng.plan.layout import Layout, RelightFolder
+    from frng.render import envmap
+    from frng.typedconfig import typed
+
+    results = tmp_path / "results"
+    _write_object(results, toy)
+    L = Layout(results)
+    config = typed(frng_config.load(str(Path(__file__).resolve().parent.parent / "config" / "smoke.yaml")))
+    fit = settings(steps=12, pbr_steps=6, init_points=200, max_gaussians=400)
+    job = dataclasses.replace(FitJob.of(config), results=str(results), device="cpu", fit=fit)
+
+    def outputs(name: str) -> dict:
+        out = results / "relight" / name / "toy"
+        fit_object(job, "toy", "gsir", 6, out)
+        rec = io.read_json(RelightFolder(out).record())
+        images = {p.relative_to(out).as_posix(): io.read_rgba(p) for p in sorted(out.glob("*/*.exr"))}
+        return {"images": images, "record": {k: v for k, v in rec.items() if "seconds" not in k}}
+
+    first = outputs("a")
+    envmap.write(L.envmap("lightA"), env(STUDIO_B).numpy() * 3.0)  # another input map
+    second = outputs("b")
+    Path(L.envmap("lightA")).unlink()  # no input map at all
+    third = outputs("c")
+    assert sorted(first["images"]) == ["lightA/t0.exr", "lightA/t1.exr", "lightB/t0.exr", "lightB/t1.exr"]
+    for other in (second, third):
+        assert other["record"] == first["record"]
+        assert sorted(other["images"]) == sorted(first["images"])
+        assert all(np.array_equal(other["images"][k], first["images"][k]) for k in first["images"]), "differs"
+    envmap.write(L.envmap("lightB"), env(STUDIO_A).numpy())  # the target map: read, it changes the relit images
+    fourth = outputs("d")
+    assert np.array_equal(fourth["images"]["lightA/t0.exr"], first["images"]["lightA/t0.exr"])
+    assert not np.array_equal(fourth["images"]["lightB/t0.exr"], first["images"]["lightB/t0.exr"])

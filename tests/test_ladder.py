@@ -36,7 +36,9 @@ def test_ladder_rows_come_from_both_evaluations():
         + _rows(4, 18.0, 2.0, run="full")
         + _rows(4, 18.5, 1.0, run="full-oracle")
         + _rows(4, 9.0, 1.0, run="no-fine")
-        + _rows(4, 17.75, 1.0, run="full-base")
+        + _rows(4, 18.25, 1.0, run="plus")
+        + _rows(4, 17.75, 1.0, run="plus-base")
+        + _rows(4, 18.5, 1.0, run="plus-known-light")
         + _rows(4, 30.0, 1.0, run="full@s1")
     )
     prior = pd.DataFrame(
@@ -58,8 +60,9 @@ def test_ladder_rows_come_from_both_evaluations():
     assert np.isclose(by.loc["d", "psnr"], 17.15) and np.isclose(by.loc["e", "psnr"], 18.15)
     assert np.isclose(by.loc["f", "psnr"], 18.65) and np.isclose(by.loc["g", "psnr"], 17.9)
     # paired differences to the reference step, a constant shift per image: the interval is the shift itself
-    assert by.loc["e", "vs"] == "d" and by.loc["f", "vs"] == "e" and by.loc["g", "vs"] == "e"
-    for step, d in (("e", 1.0), ("f", 0.5), ("g", -0.25)):
+    assert by.loc["e", "vs"] == "d" and by.loc["f", "vs"] == "e" and by.loc["g", "vs"] == "e+"
+    assert by.loc["e+", "vs"] == "e" and by.loc["h", "vs"] == "e+"  # F-RNG+ and its oracle told the input light
+    for step, d in (("e", 1.0), ("f", 0.5), ("e+", 0.25), ("g", -0.5), ("h", 0.25)):
         assert np.isclose(by.loc[step, "dpsnr"], d), step
         assert np.isclose(by.loc[step, "dpsnr_lo"], d) and np.isclose(by.loc[step, "dpsnr_hi"], d), step
         assert by.loc[step, "dssim"] == 0 and by.loc[step, "objects"] == 2
@@ -144,7 +147,7 @@ def test_lambertian_table_per_material_class():
     from frng.report.paper_tables import lambertian_table
 
     rows = []
-    for run, shift in (("full", 0.0), ("full-base", -0.5), ("backbone", -2.0)):
+    for run, shift in (("plus", 0.0), ("plus-base", -0.5), ("backbone", -2.0)):
         for ds, o, base in (("diffuse", "o0", 20.0), ("fur", "o1", 15.0)):
             rows += [
                 dict(

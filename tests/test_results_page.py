@@ -190,12 +190,17 @@ def test_page_and_block_from_a_results_folder(results, tmp_path):
     assert text.startswith("# Project\n\nbefore\n\n") and text.endswith("\n\nafter\n") and "\nold\n" not in text
     block = RP.readme_block(text)
     head = RP.headline(RP.read_tables(results / "tables"))
-    assert [r[0] for r in head.rows] == ["F-RNG (ours)", "backbone (RelitLRM-style)"]
-    assert head.rows[0][-1] == "**20.0**" and head.rows[1][-1] == "40.0"  # ms/image from the timing footer
+    assert [r[0] for r in head.rows] == [
+        "F-RNG (ours)",
+        "F-RNG+ (ours, with the additions)",
+        "backbone (RelitLRM-style)",
+    ]
+    assert head.rows[0][-1] == "**20.0**" and head.rows[2][-1] == "40.0"  # ms/image from the timing footer
+    assert head.rows[1][-1] == ""  # F-RNG+ untimed here
     assert RP.render_table(head.header, head.align, head.rows) in block and "(docs/results.md)" in block
     assert "(docs/figures/results/ablation.png)" in block
     assert out.changelog == (
-        "| 2023-11-14 | `unknown` | smoke | 10 | 17.20 / 16.20; ΔPSNR +1.00 [1.00, 1.00] (interior +1.00 [1.00, 1.00]), "
+        "| 2023-11-14 | `unknown` | smoke | 10 | 17.20 / 17.45 / 16.20; ΔPSNR +1.00 [1.00, 1.00] (interior +1.00 [1.00, 1.00]), "
         "ΔLPIPS -0.0100 [-0.0100, -0.0100] "
         "| [results](docs/results.md) |"
     )

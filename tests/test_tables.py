@@ -203,7 +203,7 @@ def test_sweep_tables_compare_with_the_reference_row():
     rows = _per_image("full", "full", 1.0) + _per_image("full@s1", "full@s1", 5.0)
     rows += [dict(r, run="full-v4", views=4) for r in _per_image("full-v4", "full", -2.0)]
     rows += [dict(r, k=2.0) for r in _per_image("k2", "k2", 0.5)]
-    rows += _per_image("full-base", "full", -3.0)  # the Lambertian-base run is in no sweep
+    rows += _per_image("plus-base", "plus", -3.0)  # the Lambertian-base run is in no sweep
     df = pd.DataFrame(rows)
     v = views_table(df).set_index("views")
     assert list(v.index) == [4, 6] and np.isclose(v.loc[4, "dpsnr"], -3.0) and pd.isna(v.loc[6, "dpsnr"])

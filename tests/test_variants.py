@@ -45,7 +45,7 @@ def test_labels_and_priors_come_from_the_table():
     from frng.report.paper_tables import VARIANT_LABELS
 
     assert VARIANT_LABELS == {n: v.label for n, v in V.VARIANTS.items()}
-    assert [n for n in V.BASE_VARIANTS if not V.reads_priors(n)] == ["no-idm"]
+    assert [n for n in V.BASE_VARIANTS if not V.reads_priors(n)] == ["no-idm"]  # F-RNG+ reads them
     assert V.reads_priors("k4")
 
 
@@ -98,9 +98,34 @@ def test_relighting_groups_partition_the_runs():
 def test_lambertian_base_run_needs_the_cosine_decoder():
     config = _cfg()
     base = [r for r in V.runs(config) if r.name == V.BASE_RUN]
-    assert len(base) == 1 and base[0].decoder == "base" and base[0].variant == "full" and base[0].priors == "idm"
+    assert len(base) == 1 and base[0].decoder == "base" and base[0].variant == V.PLUS and base[0].priors == "idm"
     config["shading"]["decoder_cosine"] = False
     assert V.BASE_RUN not in [r.name for r in V.runs(config)]
+
+
+def test_only_the_labelled_oracle_run_is_told_the_input_light():
+    config = _cfg()
+    told = [r for r in V.runs(config) if r.light != "estimated"]
+    assert [(r.name, r.variant, r.light) for r in told] == [(V.KNOWN_LIGHT_RUN, V.PLUS, "known")]
+    config["frng"]["variants"] = [v for v in config["frng"]["variants"] if v != V.PLUS]
+    assert all(r.light == "estimated" and r.variant != V.PLUS for r in V.runs(config))
+
+
+def test_full_and_the_ablations_are_the_paper_form_and_plus_has_the_additions():
+    """Every variant but F-RNG+ has every addition off (frng.plan.variants.ADDITIONS); F-RNG+ keeps the config's."""
+    from frng.training.frng import ModelSections, variant_config
+
+    config = frng_config.load(ROOT / "config" / "config.yaml")
+    sections = ModelSections.of(typed(config))
+    arch_off, loss_off = V.paper_form()
+    for name in [*V.ABLATION_VARIANTS, "k4"]:
+        cfg, ind = variant_config(sections, name)
+        assert {k: getattr(cfg, k) for k in arch_off} == arch_off, name
+        assert {k: getattr(ind, k) for k in loss_off} == loss_off, name
+    plus, ind_plus = variant_config(sections, V.PLUS)
+    assert plus.pixel_head > 0 and plus.decoder_cosine and plus.opacity_head and ind_plus.pixels
+    assert plus.fine and plus.prior_dim > 0 and plus.head == "neural" and ind_plus.lambda_c > 0
+    assert V.PLUS not in V.ABLATION_VARIANTS and set(V.ABLATION_VARIANTS) | {V.PLUS} == set(V.BASE_VARIANTS)
 
 
 def test_tier_seeds():

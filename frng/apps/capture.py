@@ -681,46 +681,22 @@ def read_light(path: str | Path) -> np.ndarray:
 def estimate_light(
     rgb, alpha, albedo, normal, height: int, ridge: float = 0.1, colour: str = LIGHT_COLOUR
 ) -> tuple[np.ndarray, dict]:
-    """Fit a degree-2 SH radiance to shading = colour / albedo over the confident foreground (module docstring).
+    """The input light fitted as a degree-2 SH radiance to shading = colour / albedo over the confident foreground
+    (module docstring; :func:`frng.render.light_estimate.estimate_light_sh`, which F-RNG+'s pixel head also uses),
+    expanded into an equirect map.
 
     rgb (V, H, W, 3) premultiplied, alpha (V, H, W, 1), albedo / normal (V, H, W, 3) (IDM priors, world normals).
     Returns (equirect map (height, 2 height, 3) float32, info)."""
     import torch
 
-    from frng.render.sh import sh_basis
+    from frng.render.light_estimate import LightEstimateError, estimate_light_sh, sh_to_env
 
-    f = lambda x: torch.as_tensor(np.asarray(x), dtype=torch.float64).reshape(-1, x.shape[-1])  # noqa: E731
-    rgb, a, alb, n = f(rgb), f(alpha), f(albedo), f(normal)
-    nn_ = n.norm(dim=-1, keepdim=True)
-    fg = (a[:, 0] > 0.9) & (alb.mean(-1) > 0.02) & (nn_[:, 0] > 0.5)
-    if int(fg.sum()) < 16:
-        raise CaptureError("light estimation: too few confident foreground pixels (fewer than 16); give --light")
-    straight = rgb[fg] / a[fg]
-    s = straight / alb[fg].clamp_min(0.03)
-    Y = sh_basis(2, n[fg] / nn_[fg])
-    band = Y.new_tensor(
-        [envmap.SH_IRRADIANCE_BANDS[0]] + [envmap.SH_IRRADIANCE_BANDS[1]] * 3 + [envmap.SH_IRRADIANCE_BANDS[2]] * 5
-    )
-    A = Y * band / math.pi
-    P = A.shape[0]
-    reg = torch.diag(A.new_tensor([0.0] + [ridge] * 8)) * P
-    L = torch.linalg.solve(A.T @ A + reg, A.T @ s)  # (9, 3)
-    if colour not in ("neutral", "fit"):
-        raise CaptureError(f"light colour {colour!r}: choose neutral or fit")
-    if colour == "neutral":  # grey world: the light's mean colour is grey (same luminance), the albedo keeps the rest
-        dc = L[0].clamp_min(1e-9)
-        L = L * (envmap.luminance(dc) / dc)[None]
-    resid = float(((A @ L - s) ** 2).mean().sqrt() / s.mean().clamp_min(1e-9))
-    d = envmap.pixel_directions(height, 2 * height, dtype=torch.float64)
-    env = (sh_basis(2, d) @ L).clamp_min(0.0).float().numpy()
-    return env, {
-        "method": "sh2-ridge",
-        "ridge": ridge,
-        "colour": colour,
-        "pixels": int(P),
-        "relative_rms": resid,
-        "sh": L.float().tolist(),
-    }
+    t = lambda x: torch.as_tensor(np.asarray(x))  # noqa: E731
+    try:
+        L, info = estimate_light_sh(t(rgb), t(alpha), t(albedo), t(normal), ridge=ridge, colour=colour)
+    except LightEstimateError as e:
+        raise CaptureError(f"{e}; give --light") from None
+    return sh_to_env(L, height).numpy(), {**info, "sh": L.float().tolist()}
 
 
 # -- contact sheet ------------------------------------------------------------------------------------------
@@ -845,19 +821,20 @@ def reconstruct(
                 env, est = estimate_light(
                     cap.rgb, cap.alpha, pri.albedo.numpy(), pri.normal.numpy(), h, colour=light_colour
                 )
-            light_name, light_info = "estimated", {"source": "estimated", **est}
+            light_info = {"source": "estimated", **est}
             timing["light_s"] = t_light.s
         else:
-            env, light_name = env_given, Path(light).stem
+            env = env_given
             light_info = {"source": str(light)}
         env_t = torch.from_numpy(np.ascontiguousarray(env))
         with Timer(dev) as t_bb:
-            bv = backbone_views(cfg.seed, backbone, oid, views, env_t, light_name, dev)
+            bv = backbone_views(cfg.seed, backbone, oid, views, dev)
         images_t = torch.cat([views.rgb, views.alpha], -1).to(dev)
         with Timer(dev) as t_rec:
-            rec = net.reconstruct(
-                bv, 0, pri.to(dev) if net.cfg.uses_priors else None, images_t, input_env=env_t.to(dev)
-            )
+            # the paper's task: the model estimates the photos' light itself (the same fit as the record's); a
+            # light the user gives (--light) is passed on
+            told = None if env_given is None else env_t.to(dev)
+            rec = net.reconstruct(bv, 0, pri.to(dev) if net.cfg.uses_priors else None, images_t, input_env=told)
     timing |= {"idm_s": t_idm.s, "backbone_s": t_bb.s, "frng_s": t_rec.s}
     record = {
         **cap.info,

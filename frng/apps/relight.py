@@ -7,8 +7,10 @@ What one job does (one test object, all runs, so the paper-scale DAG stays at on
    readable, RGBA, ``render.resolution`` square), every target light's env map (present, readable, 2:1).
    Any problem raises :class:`RelightError` naming the file; no output folder is touched;
 2. per input-view count V (6, and the #views sweep 2, 4, 8, 10 where the object has them), LIVE backbone
-   geometry + appearance under the object's input light (the same seeded DDIM pass the cache stage runs, so
-   tokens match the training distribution) and live IDM priors -- timed;
+   geometry + appearance tokens under the reference light E_0 (the same seeded DDIM pass the cache stage runs, so
+   tokens match the training distribution) and live IDM priors -- timed. No run but the labelled oracle
+   ``plus-known-light`` reads the input views' light (the paper's task: photos, cameras, masks and the target
+   light);
 3. per run (:func:`runs`): load ``{results}/models/{variant}/model.pt``, reconstruct once (timed), render the
    reconstruction under every target light at every target view (timed per light);
 4. the baseline: the backbone relit under each target light (one full DDIM pass per light, then rendering the
@@ -62,7 +64,17 @@ from frng.device import resolve_device, synchronize
 from frng.plan.catalog import Catalog
 from frng.plan.layout import Layout, RelightFolder, TrainingFolder
 from frng.plan.sections import TypedConfig
-from frng.plan.variants import ALL_GROUPS, BACKBONE, RIG_VIEWS, Run, RunPlan, model_variants, runs  # noqa: F401
+from frng.plan.variants import (  # noqa: F401
+    ALL_GROUPS,
+    BACKBONE,
+    PLUS,
+    PLUS_METHOD,
+    RIG_VIEWS,
+    Run,
+    RunPlan,
+    model_variants,
+    runs,
+)
 from frng.priors.backbone import BackboneSection
 from frng.priors.idm import IDMSection
 from frng.render import envmap
@@ -193,23 +205,23 @@ class Timer:
         self.s = time.perf_counter() - self.t0
 
 
-def backbone_views(seed: int, backbone, oid: str, views, env_in: torch.Tensor, light_in: str, device) -> dict:
+def backbone_views(seed: int, backbone, oid: str, views, device) -> dict:
     """The backbone's tokens for V input views, live, keyed as a cache entry (:class:`frng.priors.cache.
     BackboneCache.views`): t_geo (V, h, w, D), raw (V, H, W, 9), means/quats/scales/opacities, keep (N,) uint8,
-    c2w, intr, light0.t_app (V, h, w, D), light0.sh (N, K, 3), the far-side copies back_*; light 0 = the input
-    light, with the DDIM seed the cache stage uses (derived from the config's data ``seed``)."""
+    c2w, intr, light0.t_app (V, h, w, D), light0.sh (N, K, 3), the far-side copies back_*; light 0 = the reference
+    light E_0 (:func:`frng.render.envmap.reference_light`; the input views' light is not known), with the DDIM seed
+    the cache stage uses (derived from the config's data ``seed``). The backbone is told no input light."""
     from frng.plan import catalog
-    from frng.priors.cache import geometry_entry
+    from frng.priors.cache import REFERENCE_LIGHT, geometry_entry, reference_env
 
     rgb, a, c2w, intr = (x.to(device) for x in (views.rgb, views.alpha, views.c2w, views.intr))
     H, W = rgb.shape[1:3]
-    recon = backbone.reconstruct(rgb, a, c2w, intr, env_in.to(device))
+    recon = backbone.reconstruct(rgb, a, c2w, intr)
     t_geo, _, gauss, keep, _, pixels = recon
     nd = backbone.cfg.den_views
-    g = torch.Generator(device=device).manual_seed(catalog.derive_seed(seed, "cache", oid, light_in))
-    sh, t_app = backbone.denoise(
-        t_geo, gauss, keep, env_in.to(device)[None], c2w[:nd], intr[:nd], H, W, generator=g, pixels=pixels
-    )
+    g = torch.Generator(device=device).manual_seed(catalog.derive_seed(seed, "cache", oid, REFERENCE_LIGHT))
+    env0 = reference_env(backbone).to(device)
+    sh, t_app = backbone.denoise(t_geo, gauss, keep, env0[None], c2w[:nd], intr[:nd], H, W, generator=g, pixels=pixels)
     return geometry_entry(backbone, recon, a, c2w, intr) | {"light0.t_app": t_app[0].float(), "light0.sh": sh.float()}
 
 
@@ -267,7 +279,7 @@ def relight_object(
             with Timer(device) as t_idm:
                 priors = view_priors(idm, obj, light_in, range(V))
             with Timer(device) as t_bb:
-                bv = backbone_views(job.seed, backbone, oid, v, obj.envs[light_in], light_in, device)
+                bv = backbone_views(job.seed, backbone, oid, v, device)
             images = torch.cat([v.rgb, v.alpha], -1).to(device)
             prepared[V] = {
                 "bv": bv,
@@ -301,7 +313,7 @@ def relight_object(
             nd = backbone.cfg.den_views
             with torch.no_grad():
                 with Timer(device) as t_rec:
-                    recon = backbone.reconstruct(rgb, a, c2w, intr, obj.envs[light_in].to(device))
+                    recon = backbone.reconstruct(rgb, a, c2w, intr)
                 for light in lights:
                     g = torch.Generator(device=device).manual_seed(catalog.derive_seed(job.seed, "relight", oid, light))
                     with Timer(device) as t_l:
@@ -318,7 +330,10 @@ def relight_object(
             priors = (p["oracle"] if run.priors == "oracle" else p["priors"]) if model.cfg.uses_priors else None
             with torch.no_grad():
                 with Timer(device) as t_rec:
-                    rec = model.reconstruct(p["bv"], 0, priors, p["images"], input_env=obj.envs[light_in].to(device))
+                    # the input views' light only for the labelled oracle run (run.light "known"); every other run
+                    # estimates it from the photos or does not read it (the paper's task)
+                    told = obj.envs[light_in].to(device) if run.light == "known" else None
+                    rec = model.reconstruct(p["bv"], 0, priors, p["images"], input_env=told)
                 # the G-buffer of the target views does not depend on the light: rasterize once, shade per light
                 with Timer(device) as t_ras:
                     raster = model.rasterize(rec, t_c2w, t_intr, H, W)
@@ -355,14 +370,15 @@ def relight_object(
         if run.method != BACKBONE:
             info |= {"raster_ms_per_view": raster_ms, "shade_ms_per_image": float(np.mean(shade_ms))}
         io.write_json(RelightFolder(folder).record(), info)
-        if run.name in ("full", BACKBONE):
-            timing[run.method] = {
+        if run.name in ("full", PLUS, BACKBONE):
+            key = PLUS_METHOD if run.name == PLUS else run.method
+            timing[key] = {
                 "reconstruction_s": rec_s,
                 "relight_ms_per_image": float(np.mean(per_light_ms)),
                 "spp": info["spp"],
             }
             if run.method != BACKBONE:
-                timing[run.method] |= {"raster_ms_per_view": raster_ms, "shade_ms_per_image": float(np.mean(shade_ms))}
+                timing[key] |= {"raster_ms_per_view": raster_ms, "shade_ms_per_image": float(np.mean(shade_ms))}
     if BACKBONE in timing and "F-RNG" in timing:
         timing["speedup"] = timing[BACKBONE]["relight_ms_per_image"] / timing["F-RNG"]["relight_ms_per_image"]
         io.write_json(staged_timing(out_root), timing)

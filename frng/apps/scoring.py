@@ -69,7 +69,7 @@ CROSS_COLUMNS = (
     "lpips",
     "protocol",
 )
-SENSITIVITY_RUNS = ("backbone", "full")  # + the ground truth (GROUND_TRUTH)
+SENSITIVITY_RUNS = ("backbone", "full", "plus")  # + the ground truth (GROUND_TRUTH)
 GROUND_TRUTH = "ground-truth"
 
 

@@ -3,14 +3,17 @@ views, fit ``3dgs`` (:mod:`frng.baselines.splat3d`) or ``gsir`` (:mod:`frng.base
 them (the nested spread subset :func:`frng.baselines.plan.dense_subset`) under its input light, and write the
 RelightFolder ``out`` (``{results}/relight/{method}-v{N}/{obj}``):
 
-- ``{input_light}/{view}.exr``: the object's target views under the input light (novel-view synthesis), both methods;
+- ``{input_light}/{view}.exr``: the object's target views under the input light (novel-view synthesis), both methods
+  (gsir: under its learned light);
 - ``{light}/{view}.exr`` for every target light (``gsir`` only: ``3dgs`` cannot relight);
 - ``run.json`` (run, method, views, source, fit_seconds, relight_seconds_per_image, threads, device, steps,
   train_psnr, final_loss, ...) and ``loss.csv`` (step, loss, psnr).
 
 Reads ``{results}/baselines/views/{obj}/`` (meta.json, ``dense/{light}/{view}.exr``), ``{results}/objects/{obj}/
-meta.json`` (``target_lights``) and ``{results}/envmaps/{light}.exr`` (gsir: the input light, which it is given, and
-the target lights). Config keys: ``results``, ``seed``, ``device``, ``raster.*``, ``baselines.fit.*``.
+meta.json`` (``target_lights``) and ``{results}/envmaps/{light}.exr`` of the target lights alone (gsir, to relight:
+the task gives them). Neither method reads the input light's map: gsir learns its light, and its images under the
+input light are rendered under that learned light (a target light named as the input light is too). Config keys:
+``results``, ``seed``, ``device``, ``raster.*``, ``baselines.fit.*``.
 
 Everything is written into a temporary sibling of ``out`` and renamed onto it at the end: a failed job leaves
 nothing that looks valid (and an earlier run's folder as it was). Bad input is one line naming the file.
@@ -68,7 +71,8 @@ def _views_from(dicts: list, where: str):
 
 def read_inputs(results: str, oid: str, views: int) -> dict:
     """Everything the job reads, checked before anything is fitted: the dense views (train subset), the target
-    views, the input light and the target lights. Raises :class:`BaselineFitError` naming the file."""
+    views, the input light's name and the target lights' names (``envmap``: a light's map path; never read here).
+    Raises :class:`BaselineFitError` naming the file."""
     L = Layout(results)
     meta_path = L.baseline_views_meta(oid)
     try:
@@ -140,10 +144,11 @@ def fit_object(job: FitJob, oid: str, method: str, views: int, out: Path, device
 
     run = per_scene_run(method, views)
     inputs = read_inputs(job.results, oid, views)
-    envs = {}
+    envs = {}  # the target maps, given to relight; never the input light's (gsir learns it)
     if method == "gsir":
-        for light in dict.fromkeys([inputs["light"]] + inputs["target_lights"]):
-            envs[light] = read_env(inputs["envmap"](light))
+        for light in dict.fromkeys(inputs["target_lights"]):
+            if light != inputs["light"]:
+                envs[light] = read_env(inputs["envmap"](light))
     threads = training_threads()
     device = resolve_device(device_name or job.device)
     deterministic_kernels(device)
@@ -185,18 +190,16 @@ def fit_object(job: FitJob, oid: str, method: str, views: int, out: Path, device
             per_image = (time.perf_counter() - t1) / max(1, len(t_names))
             extra = {"sh_degree": model.sh.degree}
         else:
-            model = gsir.fit(tv, envs[inputs["light"]].to(device), settings, raster, seed, label=f"gsir {oid} v{views}")
+            model = gsir.fit(tv, settings, raster, seed, label=f"gsir {oid} v{views}")
             fit_s = time.perf_counter() - t0
-            lit_in = gsir.Light.of(envs[inputs["light"]].to(device))
+            lit_in = model.light  # the learned input light
             train_psnr = splat3d.train_psnr(
                 lambda c, i, h, w: model.shade(model.gbuffer(c, i, h, w, raster), lit_in), tv
             )
             t1 = time.perf_counter()
             buffers = model.gbuffer(t_c2w, t_intr, H, W, raster)
-            images = {
-                light: model.shade(buffers, gsir.Light.of(env.to(device)) if light != inputs["light"] else lit_in)
-                for light, env in envs.items()
-            }
+            images = {inputs["light"]: model.shade(buffers, lit_in)}
+            images |= {light: model.shade(buffers, gsir.Light.of(env.to(device))) for light, env in envs.items()}
             per_image = (time.perf_counter() - t1) / max(1, len(t_names) * len(images))
             extra = {"geometry_steps": model.geometry_steps, "geometry_train_psnr": model.geometry_psnr}
         folder = RelightFolder(staging)

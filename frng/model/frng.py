@@ -232,7 +232,33 @@ def bright_irradiance(E: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
     return torch.stack(out)[:, None, None, :].to(E.dtype)
 
 
-def pixel_map(images: torch.Tensor, priors, V: int, normals: torch.Tensor, input_env: torch.Tensor) -> torch.Tensor:
+UNKNOWN_ALBEDO = 0.5  # the albedo the input-light estimate assumes where a model has no IDM priors (no-idm)
+
+
+def input_light_sh(images: torch.Tensor, albedo: torch.Tensor | None, normals: torch.Tensor) -> torch.Tensor:
+    """The input views' light as degree-2 SH radiance (9, 3), estimated from the views alone
+    (:func:`frng.render.light_estimate.estimate_light_sh`: colour / albedo fitted as E(n) / pi): images (V, H, W, 4)
+    linear premultiplied RGBA, albedo (V, H, W, 3) the IDM's (None: :data:`UNKNOWN_ALBEDO` everywhere), normals
+    (V, H, W, 3) world. Where too few pixels are confident, a uniform light that makes the mean foreground colour
+    an albedo of :data:`UNKNOWN_ALBEDO`."""
+    from frng.render.light_estimate import LightEstimateError, estimate_light_sh
+    from frng.render.sh import C0
+
+    rgb, a = images[..., :3].detach().float().cpu(), images[..., 3:4].detach().float().cpu()
+    alb = torch.full_like(rgb, UNKNOWN_ALBEDO) if albedo is None else albedo.detach().float().cpu()
+    try:
+        return estimate_light_sh(rgb, a, alb, normals.detach().float().cpu())[0]
+    except LightEstimateError:
+        fg = a[..., 0] > 0.5
+        mean = (rgb[fg] / a[fg]).mean(0).double() if bool(fg.any()) else torch.ones(3, dtype=torch.float64)
+        coeffs = torch.zeros(9, 3, dtype=torch.float64)
+        coeffs[0] = mean.clamp_min(1e-3) / UNKNOWN_ALBEDO / C0  # uniform radiance r: colour = albedo x r
+        return coeffs
+
+
+def pixel_map(
+    images: torch.Tensor, priors, V: int, normals: torch.Tensor, input_env: torch.Tensor | None = None
+) -> torch.Tensor:
     """Per-pixel inputs of the pixel head.
 
     images (V, H, W, 4) linear premultiplied RGBA under the input light; priors IntrinsicPriors (first V views) or
@@ -245,15 +271,21 @@ def pixel_map(images: torch.Tensor, priors, V: int, normals: torch.Tensor, input
     for the whole model), input irradiance (gamma of E(n) / pi), the geometry normal, (IDM albedo, world normal, roughness,
     metallic)], where E(n) is
     the input light's irradiance at the shading normal n (the IDM's normal with priors, else the geometry's;
-    degree-2 SH, :func:`frng.render.envmap.sh_irradiance`). The input light is
-    known in F-RNG's setting; dividing it out is what lets the same decoder relight under another light."""
+    degree-2 SH, :func:`frng.render.envmap.sh_irradiance`). The paper's task gives no input light: by default
+    (``input_env`` None) it is ESTIMATED from these images (:func:`input_light_sh`); an ``input_env`` (He, We, 3) is
+    the oracle setting "told the input light" (a labelled run, never a headline number). Dividing the light out is
+    what lets the same decoder relight under another light."""
     from frng.render import envmap
 
     rgb, a = images[..., :3].float(), images[..., 3:4].float()
     col = (rgb / a.clamp_min(1e-3)).clamp(0, 1)
     d = priors.as_dict() if priors is not None else None
     shading_normals = d["normal"][:V] if d is not None else normals
-    E = envmap.sh_irradiance(envmap.sh_project(input_env.float().cpu()).float(), shading_normals.float().cpu())
+    if input_env is None:
+        coeffs = input_light_sh(images, d["albedo"][:V] if d is not None else None, shading_normals)
+    else:
+        coeffs = envmap.sh_project(input_env.float().cpu())
+    E = envmap.sh_irradiance(coeffs.float(), shading_normals.float().cpu())
     E = E.to(images.device).clamp_min(0.0) / math.pi
     ratio = (col / E.clamp_min(1e-3)).clamp(0, 1)
     if d is not None:  # where the input light barely reaches (hard lights' shadows) c / E is noise: the IDM's albedo
@@ -541,13 +573,15 @@ class FRNG(nn.Module):
 
         backbone_views: ``BackboneCache.views(V)`` (t_geo (V, h, w, D), raw_prior (V, H, W, 9) optional,
         means/quats/scales/opacities/keep (N = V*H*W),
-        c2w (V, 4, 4), intr (V, 4), light{j}.t_app (V, h, w, D)); light: cache light index (0 = input light), or a
+        c2w (V, 4, 4), intr (V, 4), light{j}.t_app (V, h, w, D)); light: cache light index (0 = the reference light
+        E_0, :func:`frng.render.envmap.reference_light`; j >= 1 extra training lights), or a
         list of indices -> one Reconstruction per light, sharing geometry (one batched MaterialFormer pass);
         priors: IntrinsicPriors of the input views (first V used) or None (required None for no-idm);
         images: (V, H, W, 4) input RGBA (linear premultiplied) under the input light, for the saliency map, the
         fine keep mask and the pixel head. keep_tokens: also return T_mat (1, L, hidden) and the per-Gaussian
-        material payload for L_ind. input_env: (He, We, 3) the input light's HDR map (required with the pixel head,
-        ``pixel_head > 0``: see :func:`pixel_map`). With a list of lights, ``images`` and ``input_env`` may also be
+        material payload for L_ind. input_env: None (the paper's task: the pixel head, ``pixel_head > 0``, estimates
+        the input light from the images) or (He, We, 3) the input light's HDR map (the oracle "told the input light";
+        see :func:`pixel_map`). With a list of lights, ``images`` and ``input_env`` may also be
         lists (one per light: the same views photographed under another light, for L_ind); saliency, salient
         patches and the fine keep mask always come from the first. pixel_maps: what :meth:`pixel_maps` returns for
         these inputs, when the caller kept it (training); None: computed here.
@@ -657,8 +691,6 @@ class FRNG(nn.Module):
         :meth:`reconstruct` (``images`` and ``input_env`` as its lists; a light photographed with the same images
         and env map as the first gets the first's tensor itself). A fixed function of the data: training computes it
         once per object (:class:`frng.memo.TensorMemo`) and hands it to :meth:`reconstruct`."""
-        if any(e is None for e in input_env):
-            raise ValueError("F-RNG with a pixel head needs the input light's env map: reconstruct(..., input_env=)")
         from frng.priors.surfels import grid_normals  # lazy: importing frng.priors loads every prior
 
         dev = self.device

@@ -15,8 +15,10 @@ Training seeds (``train.seeds``): the plain variant names are trained with the m
 Runs (``{results}/relight/{run}/{obj}/``, :func:`runs`): every variant at the 6-view rig (and its other training
 seeds), the K sweep, the #views sweep ``full-v{V}`` (the full model fed V input views), ``full-oracle`` (the full
 model fed the test object's rendered G-buffers instead of the IDM's priors: how much a perfect IDM would add),
-``full-base`` (the full model's closed-form Lambertian base alone, the decoder's residual, attenuation and specular
-base dropped; only with ``shading.decoder_cosine``) and the ``backbone`` baseline.
+``plus-base`` (F-RNG+'s closed-form Lambertian base alone, the decoder's residual, attenuation and specular
+base dropped; only with ``shading.decoder_cosine``), ``plus-known-light`` (oracle: F-RNG+ told the input views' light,
+which the paper's task does not give; every other run estimates it or does not read it) and the ``backbone``
+baseline.
 
 Relighting groups (:func:`run_groups`, one ``relight`` job per group and test object): ``main`` holds every run of
 the models' seed and the backbone (and the timing); each other training seed ``S`` is its own group ``"S"`` (its
@@ -44,26 +46,98 @@ class Variant:
     label: str
     arch: dict = field(default_factory=dict)
     loss: dict = field(default_factory=dict)
+    additions: bool = False  # True: the project's additions (:data:`ADDITIONS`) stay on (F-RNG+); False: paper form
 
     @property
     def reads_priors(self) -> bool:
         return self.arch.get("prior_dim", 1) != 0
 
 
-# The one table of the ablation variants (the schema's frng.variants enum is checked against it by a test).
+@dataclass(frozen=True)
+class Addition:
+    """One of the project's departures from the paper's F-RNG, kept as a named switch: the config key that turns it
+    on (its settings live under that key), the paper section it departs from, and the FRNGConfig fields (``arch``)
+    and LightIndependenceConfig fields (``loss``) that give the paper form instead."""
+
+    key: str
+    departs_from: str
+    arch: dict = field(default_factory=dict)
+    loss: dict = field(default_factory=dict)
+
+
+# The project's additions (F-RNG+, variant ``plus``): every other variant is the paper's form, these switched off.
+# Each is measured as an addition over the paper form (docs/model-and-training.md "Paper form and F-RNG+").
+ADDITIONS: dict[str, Addition] = {
+    "pixel_head": Addition(
+        "frng.pixel_head",
+        "Sec. 4.2.1 (MatDetokenizer: one linear layer from T_mat): every Gaussian also reads its input pixel (colour, "
+        "alpha, the IDM's priors) and starts at the Lambertian relighting c / E(n) of its photo, with E the input "
+        "light estimated from the photos",
+        arch={
+            "pixel_head": 0,
+            "opacity_head": False,
+            "geometry_inputs": False,
+            "depth_head": 0.0,
+            "specular_start": False,
+        },
+    ),
+    "decoder_bases": Addition(
+        "shading.decoder_cosine (+ decoder_attenuation, decoder_specular)",
+        "Sec. 4.3 (rho = Theta(f | w_o, w_i), an MLP): a closed-form Lambertian base and a GGX lobe beside the MLP",
+        arch={"decoder_cosine": False, "decoder_attenuation": False, "decoder_specular": False},
+    ),
+    "coverage_head": Addition(
+        "frng.coverage_head",
+        "Sec. 4.3 (deferred shading of the rasterized features): a silhouette-rim coverage CNN",
+        arch={"coverage_head": 0},
+    ),
+    "back_completion": Addition(
+        "frng.back_completion",
+        "Sec. 4.1 (the backbone's per-pixel Gaussians): copies on the hull's unseen far side",
+        arch={"back_completion": False},
+    ),
+    "fine_in_hull": Addition(
+        "frng.fine_in_hull",
+        "Sec. 4.1 (FineGeoDetokenizer): fine Gaussians outside a silhouette dropped",
+        arch={"fine_in_hull": False},
+    ),
+    "ind_pixels": Addition(
+        "train.loss.ind_pixels",
+        "Sec. 4.2.2 (L_ind on T_mat): also on the per-Gaussian material, from the views under a second input light",
+        loss={"pixels": False},
+    ),
+}
+
+
+def paper_form() -> tuple[dict, dict]:
+    """(FRNGConfig fields, LightIndependenceConfig fields) that switch every addition off: the paper's F-RNG."""
+    arch, loss = {}, {}
+    for a in ADDITIONS.values():
+        arch.update(a.arch)
+        loss.update(a.loss)
+    return arch, loss
+
+
+PLUS = "plus"  # F-RNG+: the paper form with the project's additions on
+PLUS_METHOD = "F-RNG+"  # its key in a relighting job's timing record (beside "F-RNG" and "backbone")
+# The one table of the variants (the schema's frng.variants enum is checked against it by a test): the paper's full
+# model and its ablations (Table 4), all in the paper's form, and F-RNG+.
 VARIANTS: dict[str, Variant] = {
     "full": Variant("full model"),
     "no-fine": Variant("w/o fine-grained Gaussians", arch={"fine": False}),
     "no-idm": Variant("w/o IDM priors", arch={"prior_dim": 0}),
     "no-ind": Variant("w/o light-independence regularization", loss={"lambda_c": 0.0, "lambda_kld": 0.0}),
     "no-neural": Variant("w/o neural appearance modeling", arch={"head": "pbr"}),
+    PLUS: Variant("F-RNG+ (the project's additions)", additions=True),
 }
 BASE_VARIANTS = tuple(VARIANTS)
+ABLATION_VARIANTS = tuple(v for v in VARIANTS if not VARIANTS[v].additions)  # full and the paper's ablations
 RIG_VIEWS = 6  # the paper's input rig
 SWEEP_VIEWS = (2, 4, 6, 8, 10)  # the #views table
 BACKBONE = "backbone"
 ORACLE_RUN = "full-oracle"  # the full model fed the G-buffers instead of the IDM's priors (quality ladder row f)
-BASE_RUN = "full-base"  # the full model's Lambertian base alone (decoder residual, attenuation, specular base dropped)
+BASE_RUN = "plus-base"  # F-RNG+'s Lambertian base alone (decoder residual, attenuation, specular base dropped)
+KNOWN_LIGHT_RUN = "plus-known-light"  # oracle: F-RNG+ told the input views' light (the paper's task does not give it)
 # What F-RNG's coarse Gaussians sit on (frng.training.frng.load_objects): the backbone's geometry, or, diagnostics
 # (`frng train` / `frng bench heldout --geometry ...`), the input pixels' G-buffer surface distances, their visual
 # hull's, or the hull refined by multi-view stereo (frng.priors.stereo)
@@ -203,6 +277,7 @@ class Run:
     priors: str = "idm"  # "idm" (the configured IDM) or "oracle" (the rendered G-buffers: the quality ladder's (f))
     seed: int | None = None  # training seed of the model (None: the models' seed, train_seed else seed)
     decoder: str = "full"  # "full", or "base": the cosine decoder's Lambertian base alone (residual dropped)
+    light: str = "estimated"  # the input views' light: "estimated" (the paper's task), or "known" (oracle: told it)
 
     @property
     def group(self) -> str:
@@ -247,7 +322,8 @@ class RunPlan:
 
         ``frng.variants`` at 6 views, the K sweep ``frng.k_sweep`` (the entry equal to ``frng.top_k_percent`` is the
         full run itself), the #views sweep ``full-v{V}``, the oracle-prior run, the other training seeds of ``full``
-        and the ablations (:func:`seeded_variants`), the Lambertian-base run and the backbone."""
+        and the ablations (:func:`seeded_variants`), F-RNG+'s Lambertian-base and known-light runs (with ``plus``)
+        and the backbone."""
         if n_input_views is None:
             n_input_views = RIG_VIEWS + self.extra_input_views
         k_full = self.top_k_percent
@@ -264,8 +340,10 @@ class RunPlan:
         seeded = [seed_variant(v, s) for s in self.extra_seeds for v in full_and(self.variants)]
         for name in seeded:
             out.append(Run(name, "F-RNG", name, RIG_VIEWS, k_full, seed=split_seed(name)[1]))
-        if self.decoder_cosine:
-            out.append(Run(BASE_RUN, "F-RNG", "full", RIG_VIEWS, k_full, decoder="base"))
+        if PLUS in self.variants:
+            if self.decoder_cosine:
+                out.append(Run(BASE_RUN, "F-RNG", PLUS, RIG_VIEWS, k_full, decoder="base"))
+            out.append(Run(KNOWN_LIGHT_RUN, "F-RNG", PLUS, RIG_VIEWS, k_full, light="known"))
         out.append(Run(BACKBONE, "backbone", BACKBONE, RIG_VIEWS, float("nan")))
         if group == ALL_GROUPS:
             return out

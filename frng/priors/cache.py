@@ -7,9 +7,10 @@ Stages (one job per object): ``frng backbone-cache --object OBJ`` (:mod:`frng.st
 Backbone cache schema (safetensors; version :data:`BACKBONE_CACHE_VERSION`)
 --------------------------------------------------------------------------------
 String metadata: ``version``, ``backbone_sha256`` (sha256 of the ``model.pt`` it was made with), ``object``,
-``input_light`` (the object's first input light), ``lights`` (JSON list: index j -> light name; j = 0 is the input
-light, j >= 1 extra TRAINING lights drawn from the training env-map pool with a seed derived from ``seed`` and the
-object id), ``view_counts`` (JSON list of the V cached), ``view_names`` (JSON: V -> names of the input views used,
+``input_light`` (the object's first input light: the photos'), ``lights`` (JSON list: index j -> light name; j = 0 is
+the reference light E_0 (:data:`REFERENCE_LIGHT`, :func:`frng.render.envmap.reference_light`, the same for every
+object: the input views' light is unknown at test time), j >= 1 extra TRAINING lights (L_ind's E_1) drawn from the
+training env-map pool with a seed derived from ``seed`` and the object id), ``view_counts`` (JSON list of the V cached), ``view_names`` (JSON: V -> names of the input views used,
 the first V input views: rig order, then extras), ``sh_degree``, ``patch``, ``width``, ``near``, ``far``,
 ``resolution``. Tensors (float32 unless noted), for every cached V:
 
@@ -65,8 +66,22 @@ from frng.priors import build_idm, load_backbone, view_priors
 from frng.priors.intrinsics import IntrinsicPriors
 from frng.render import envmap
 
-BACKBONE_CACHE_VERSION = "6"
+BACKBONE_CACHE_VERSION = "7"  # 7: light 0 is the reference light, not the input light
 IDM_CACHE_VERSION = "1"
+
+
+REFERENCE_LIGHT = "reference"  # cache light 0's name: the reference light E_0
+
+
+def told_input_light(backbone) -> bool:
+    """Whether a backbone reads the input views' light (``light_cue_input: known``: an oracle setting, not the
+    paper's task; models saved before ``fit`` became the default)."""
+    return bool(backbone.cfg.light_cue and backbone.cfg.light_cue_input == "known")
+
+
+def reference_env(backbone) -> torch.Tensor:
+    """The reference light E_0 (He, We, 3) at the backbone's env-encoding height (at least 16 rows)."""
+    return envmap.reference_light(max(16, int(backbone.cfg.env_height)))
 
 
 class StaleCacheError(RuntimeError):
@@ -145,8 +160,8 @@ def make_backbone_cache(
     out: Path,
     device="cpu",
 ) -> Path:
-    """Cache object ``oid`` (curated under ``results``) through the backbone ``model_path`` into ``out``: its input
-    light and ``extra_lights`` (``backbone.cache_extra_lights``) training lights of the planned ``envmaps``
+    """Cache object ``oid`` (curated under ``results``) through the backbone ``model_path`` into ``out``: the
+    reference light and ``extra_lights`` (``backbone.cache_extra_lights``) training lights of the planned ``envmaps``
     (:func:`extra_training_lights`); ``seed``: the config's data seed (DDIM seeds)."""
     from frng.priors.dataset import load_object
 
@@ -154,8 +169,12 @@ def make_backbone_cache(
     sha = file_sha256(model_path)
     obj = load_object(results, oid, with_targets=False, with_gbuffer=False)
     light_in = obj.input_lights[0]
-    lights = [light_in] + extra_training_lights(envmaps, seed, oid, light_in, extra_lights)
-    envs = {l: torch.from_numpy(envmap.read(Layout(results).envmap(l))) for l in lights}
+    extra = extra_training_lights(envmaps, seed, oid, light_in, extra_lights)
+    lights = [REFERENCE_LIGHT] + extra
+    envs = {l: torch.from_numpy(envmap.read(Layout(results).envmap(l))) for l in extra}
+    envs[REFERENCE_LIGHT] = reference_env(model)
+    # the input light only where the backbone itself is told it (light_cue_input: known, an oracle setting)
+    env_told = torch.from_numpy(envmap.read(Layout(results).envmap(light_in))) if told_input_light(model) else None
     views = obj.inputs[light_in]
     H, W = views.rgb.shape[1:3]
     tensors: dict[str, torch.Tensor] = {}
@@ -165,7 +184,7 @@ def make_backbone_cache(
         v = views.select(range(V))
         names[V] = v.names
         rgb, a, c2w, intr = (x.to(device) for x in (v.rgb, v.alpha, v.c2w, v.intr))
-        recon = model.reconstruct(rgb, a, c2w, intr, envs[light_in].to(device))
+        recon = model.reconstruct(rgb, a, c2w, intr, None if env_told is None else env_told.to(device))
         t_geo, _, gauss, keep, _, pixels = recon
         p = f"v{V}."
         tensors.update({p + k: t for k, t in geometry_entry(model, recon, a, c2w, intr).items()})

@@ -156,7 +156,7 @@ def eval_backbone(seed: int, model, test: list[PriorObject], mean_img: np.ndarra
         jobs += [("relight", l, obj.targets[l]) for l in obj.target_lights]
         rgb, a, c2w, intr = (x.to(device) for x in (rig.rgb, rig.alpha, rig.c2w, rig.intr))
         H, W = rgb.shape[1:3]
-        t_geo, _, gauss, keep, _, pixels = model.reconstruct(rgb, a, c2w, intr, obj.envs[light_in].to(device))
+        t_geo, _, gauss, keep, _, pixels = model.reconstruct(rgb, a, c2w, intr)
         rig_gbuffer = obj.gbuffer.select(torch.arange(obj.rig_views))
         gt_gauss, gt_keep = gt_depth_gaussians(rig, rig_gbuffer, PIXEL_STD, model.decode_config())
         geo_error = {"depth_error": depth_error(gauss.means.cpu(), rig, rig_gbuffer)}

@@ -294,3 +294,21 @@ def sh_irradiance(coeffs: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
     band = coeffs.new_tensor([SH_IRRADIANCE_BANDS[0]] + [SH_IRRADIANCE_BANDS[1]] * 3 + [SH_IRRADIANCE_BANDS[2]] * 5)
     with torch.autocast(device_type=normals.device.type, enabled=False):  # in the coefficients' precision
         return (Y * band) @ coeffs[:9]
+
+
+def reference_light(height: int = 16, device=None) -> torch.Tensor:
+    """The reference light E_0 (H, 2H, 3) the backbone is conditioned on for F-RNG's appearance tokens T_app, the same
+    map for every object at training and at test time: a CIE standard overcast sky, radiance proportional to
+    (1 + 2 cos theta) / 3 above the horizon (theta from the zenith, +Z), the ground a uniform 0.3 of the zenith's,
+    scaled to mean radiance 1.
+
+    Paper Sec. 4.2.2 feeds RelitLRM "an extra random environment light E_1" beside the one T_app comes from and does
+    not say which that is; its task gives no input light (the photos' light is unknown), so E_0 cannot be the input
+    views' map. A fixed soft sky is in the training pool's family (skies, soft studios) and shows every side of the
+    object; L_ind makes T_mat indifferent to it."""
+    d = pixel_directions(height, 2 * height, device=device, dtype=torch.float64)
+    up = (1.0 + 2.0 * d[..., 2].clamp_min(0.0)) / 3.0
+    rad = torch.where(d[..., 2] > 0, up, torch.full_like(up, 0.3))
+    w = pixel_solid_angles(height, 2 * height, device=device, dtype=torch.float64)
+    rad = rad / ((rad * w).sum() / w.sum())
+    return rad[..., None].expand(height, 2 * height, 3).float().contiguous()

@@ -52,7 +52,7 @@ LEVEL_GAIN = 4.0  # linear: level = (L - 1) sigmoid(4 f_9): a feature step of ~1
 
 
 @functools.lru_cache(maxsize=4)
-def _lobe_weights(kappas: tuple[float, ...], height: int, device: str) -> tuple[torch.Tensor, ...]:
+def lobe_weights(kappas: tuple[float, ...], height: int, device: str) -> tuple[torch.Tensor, ...]:
     """The normalised vMF weights (T, T) per kappa, T = height * 2 height texels: they depend on the texel grid
     alone, so they are computed once per (kappas, height, device) and reused for every map (a training step
     prefilters its target light: this was ~15% of a default-tier step). 4 x 2048^2 float32 = 64 MB."""
@@ -83,7 +83,7 @@ def prefilter(env: torch.Tensor, kappas: tuple[float, ...] = KAPPAS, height: int
         e = F.adaptive_avg_pool2d(env.detach().float().permute(2, 0, 1)[None].clamp_min(0.0), (height, 2 * height))[
             0
         ].permute(1, 2, 0)  # (h, w, 3)
-        weights = _lobe_weights(key[1], key[2], str(e.device))
+        weights = lobe_weights(key[1], key[2], str(e.device))
         out = torch.stack([(w @ e.reshape(-1, 3)).reshape(height, 2 * height, 3) for w in weights])
     if len(_PREFILTERED) >= _PREFILTERED_MAX:
         _PREFILTERED.clear()

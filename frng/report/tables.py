@@ -72,6 +72,8 @@ TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
     "ladder_by_light": ("light_family", *(c for c in LADDER_COLUMNS if c != "depth_error")),  # depth: per object
     # per material class of the test object (the per-image ``dataset``): its geometry's IoU and depth error too
     "ladder_by_class": ("dataset", *LADDER_COLUMNS),
+    # the paper's claims beside this tier's measurements (frng/report/claims.py)
+    "claims": ("claim", "source", "paper", "measured", "measured_lo", "measured_hi", "objects", "verdict"),
 }
 
 DIFF_METRICS = ("psnr", "ssim", "lpips")
@@ -287,6 +289,8 @@ def render(
             if not _present(v):
                 return ""
             nd = 3 if ndp[c] is None else ndp[c]
+            if not (_present(lo) and _present(hi)):  # a measurement without an interval
+                return f"{float(v):+.{nd}f}"
             return f"{float(v):+.{nd}f} [{_fmt(float(lo), nd)}, {_fmt(float(hi), nd)}]"
         if c == "better" and "objects" in hidden:
             o = block.at[i, "objects"]

@@ -108,7 +108,7 @@ def relit(obj, model, c2w, intr, envs: dict, seed: int, spp: int) -> dict:
     priors = obj.priors if model.cfg.uses_priors else None
     renders = {}
     with torch.no_grad():
-        rec = model.reconstruct(obj.views, 0, priors, obj.images, input_env=obj.env_in)
+        rec = model.reconstruct(obj.views, 0, priors, obj.images)  # the input light estimated, not told
         raster = model.rasterize(rec, c2w, intr, H, W)
         for light, env in envs.items():
             g = torch.Generator().manual_seed(catalog.derive_seed(seed, "relight-frng", obj.id, light))

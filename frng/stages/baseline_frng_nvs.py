@@ -84,11 +84,9 @@ def render_nvs(job, oid: str, out, device) -> dict:
                 pri = obj.gbuffer.select(slice(0, run.views)).to(device)
             else:  # from exactly the run's input views
                 pri = view_priors(idm, obj, obj.input_lights[0], range(run.views)).to(device)
-            bv = backbone_views(
-                job.seed, backbone, oid, views, obj.envs[obj.input_lights[0]], obj.input_lights[0], device
-            )
+            bv = backbone_views(job.seed, backbone, oid, views, device)
             images = torch.cat([views.rgb, views.alpha], -1).to(device)
-            rec = model.reconstruct(bv, 0, pri if model.cfg.uses_priors else None, images, input_env=env)
+            rec = model.reconstruct(bv, 0, pri if model.cfg.uses_priors else None, images)
         g = torch.Generator(device=device).manual_seed(catalog.derive_seed(job.seed, "relight-frng", oid, light))
         with Timer(device) as t_ren:
             rgba = model.render(rec, env, c2w, intr, H, W, job.shading.spp_infer, generator=g)

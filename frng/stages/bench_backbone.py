@@ -85,7 +85,7 @@ def relit(obj, backbone, settings: BackboneSettings, seed: int, device) -> dict:
     nd = backbone.cfg.den_views
     out = {}
     with torch.no_grad():
-        recon = backbone.reconstruct(rgb, a, c2w, intr, env_in)
+        recon = backbone.reconstruct(rgb, a, c2w, intr)
         try:
             recon = settings.reconstruction(backbone, recon, rgb, a, c2w, env_in, gb_normals)
         except ValueError as e:

@@ -205,7 +205,7 @@ def measure(m: SimpleNamespace, res: int, args: argparse.Namespace, dev: torch.d
         return median_time(fn, dev, passes, warmup=False)
 
     with torch.no_grad(), amp:
-        t_geo_s, recon = timed(lambda: backbone.reconstruct(rgb, alpha, c2w, intr, env_in))
+        t_geo_s, recon = timed(lambda: backbone.reconstruct(rgb, alpha, c2w, intr))
         t_geo, _, gauss, keep, _, pixels = recon
         t_app_s, (sh_in, t_app) = timed(
             lambda: backbone.denoise(
@@ -218,13 +218,16 @@ def measure(m: SimpleNamespace, res: int, args: argparse.Namespace, dev: torch.d
         t_back_s, bv = timed(lambda: geometry_entry(backbone, recon, alpha, c2w, intr))
         bv["light0.t_app"] = t_app[0].float()
         images = torch.cat([rgb, alpha], -1)
-        t_frng_s, rec = timed(lambda: model.reconstruct(bv, 0, priors, images, input_env=env_in))
+        t_frng_s, rec = timed(lambda: model.reconstruct(bv, 0, priors, images))
     with torch.no_grad():
         t_ras_s, raster = timed(lambda: model.rasterize(rec, t_c2w, t_intr, res, res))
         t_shade_s, _ = timed(lambda: [model.shade(raster, e, spp, generator=gen(i)) for i, e in enumerate(envs)])
         # the pairs the decoder decodes: the same sample sets shade() draws
+        # a cosine decoder decodes the pairs above each normal's horizon; the paper's decoder every pair
         counts = [
             lit_pairs(raster[0], raster[1], model.light_samples(e, spp, gen(i)).dirs, shading.alpha_eps)
+            if model.decoder.cosine
+            else (n := int((raster[1][..., 0] > shading.alpha_eps).sum()), n * spp)
             for i, e in enumerate(envs)
         ]
 

@@ -10,8 +10,9 @@ One step = ``train.batch`` objects (split over ranks under torchrun/srun, :mod:`
 1. read from memory what the caches hold (never the backbone): the V-view backbone entry (T_geo, per-pixel
    Gaussians, keep, cameras, T_app per cached light), its IDM priors (not even opened for ``no-idm``) and its
    input images (saliency + fine keep mask);
-2. reconstruct from the input light (cache light 0); with L_ind on, the MaterialFormer also runs on the
-   appearance tokens of a random extra cached light j >= 1 (same T_geo, T_prior and salient patches; one
+2. reconstruct from the appearance tokens under the reference light E_0 (cache light 0; the input views' light is
+   never an input: the pixel head of F-RNG+ estimates it from the images); with L_ind on, the MaterialFormer also
+   runs on the appearance tokens of a random extra cached light j >= 1, drawn anew every step (same T_geo, T_prior and salient patches; one
    batched pass) and ``L_ind = lambda_c C + lambda_KLD KL`` compares the two T_mat (:mod:`frng.model.light_independence`);
    for ``no-ind`` the second pass is skipped (its weights are zero);
 3. target light: uniform over the object's target lights and its other input lights; ``train.target_views`` random
@@ -53,7 +54,7 @@ from frng.model.frng import FRNG, FRNGConfig, FRNGSection
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
 from frng.plan.layout import Layout
 from frng.plan.sections import TypedConfig, register, section_dict
-from frng.plan.variants import GEOMETRIES, canonical_for, variant
+from frng.plan.variants import GEOMETRIES, canonical_for, paper_form, variant
 from frng.priors.backbone import BackboneConfig, BackboneSection
 from frng.render import envmap
 from frng.render.raster import RasterConfig
@@ -95,7 +96,9 @@ class ModelSections:
 def variant_config(
     sections: ModelSections, name: str, backbone_cfg: dict | None = None
 ) -> tuple[FRNGConfig, LightIndependenceConfig]:
-    """(architecture, L_ind weights) of a variant from the config's model sections.
+    """(architecture, L_ind weights) of a variant from the config's model sections: the config's keys as they are
+    for F-RNG+ (``plus``), the paper's form (:func:`frng.plan.variants.paper_form`: every addition off) for ``full``,
+    its ablations and the K sweep.
 
     ``backbone_cfg``: the frozen backbone's architecture dict (its ``model.pt`` ``config``); the token width and
     near/far/max_radius_px come from it (default: the config's ``backbone`` section).
@@ -126,6 +129,9 @@ def variant_config(
         lambda_c=loss.lambda_c, lambda_kld=loss.lambda_kld, temperature=loss.temperature, pixels=loss.ind_pixels
     )
     v = variant(canonical_for(name, f.top_k_percent))
+    if not v.additions:  # the paper's form: every addition of frng.plan.variants.ADDITIONS off
+        arch, loss_off = paper_form()
+        cfg, ind = replace(cfg, **arch), replace(ind, **loss_off)
     return replace(cfg, **v.arch), replace(ind, **v.loss)
 
 
@@ -416,9 +422,10 @@ class StepLoss(nn.Module):
         logs = {k: 0.0 for k in LOSS_NAMES}
         for obj, j, ti, vidx, seed in samples:
             lights = [0, j] if self.ind_on and obj.lights > 1 else [0]
-            images, envs = obj.images, obj.env_in
+            # the input light is never an input (the paper's task): the pixel head estimates it from the images
+            images, envs = obj.images, None
             if len(lights) > 1 and self.ind.pixels and obj.alt_images is not None:
-                images, envs = [obj.images, obj.alt_images], [obj.env_in, obj.alt_env]
+                images, envs = [obj.images, obj.alt_images], [None, None]
             with autocast(dev, self.bf16):
                 maps = None
                 if m.pixel_head is not None and self.pixel_maps is not None:
