@@ -77,7 +77,8 @@ def test_backbone_resume_cache_and_stale(smoke):
         res / "backbone" / "cache" / f"{test_id}.safetensors",
     )
     c = cache.load_backbone_cache(p, model)
-    assert len(c.lights) == 2 and c.lights[0] == c.meta["input_light"]
+    # light 0: the reference light E_0 (the input views' light is never an input), then the extra training lights
+    assert len(c.lights) == 1 + tc.backbone.cache_extra_lights and c.lights[0] == cache.REFERENCE_LIGHT
     train_lights = {e.name for e in cache.catalog.plan(config).envmaps if e.split == "train"}
     assert c.lights[1] in train_lights
     v6 = c.views(6)

@@ -724,6 +724,17 @@ def contact_sheet(cap: Capture, env: np.ndarray, tile: int = 96) -> np.ndarray:
 # -- reconstruction -----------------------------------------------------------------------------------------
 
 
+def default_model(L) -> Path:
+    """The model ``frng reconstruct`` uses without ``--model``: F-RNG+ (``{results}/models/plus/model.pt``) where it
+    was trained, else the paper's F-RNG (``full``). Measured on the default tier, the photos' light unknown to both
+    (2026-12-05, 21 objects): F-RNG+ +1.45 dB [1.13, 1.80] over the backbone, the paper's form -0.32 [-0.69, 0.03],
+    its colours far off (docs/results.md). ``L``: the results folder's :class:`frng.plan.layout.Layout`."""
+    from frng.plan.layout import TrainingFolder
+
+    plus = Path(TrainingFolder(L.model_dir("plus")).model())
+    return plus if plus.exists() else Path(TrainingFolder(L.model_dir("full")).model())
+
+
 def results_of_model(model: Path) -> Path:
     """``{results}/models/{variant}/model.pt`` -> ``{results}`` (where its ``config.yaml`` is recorded)."""
     return Path(model).resolve().parent.parent.parent
@@ -750,7 +761,7 @@ def reconstruct(
     """Photos -> an asset folder ``out`` (:mod:`frng.apps.asset`, plus ``input_light.exr`` and ``contact_sheet.png``).
 
     ``config``: the pipeline config the model was trained with (architecture, resolution, rig, priors' files);
-    ``model``: the F-RNG model file (default ``{results}/models/full/model.pt``). The backbone and the IDM are the
+    ``model``: the F-RNG model file (default :func:`default_model`: F-RNG+ where trained, else ``full``). The backbone and the IDM are the
     config's (``{results}/backbone/model.pt``, the configured IDM). ``name``: the object id (default: the images
     folder's name); with ``light`` the light's name is the map's stem. Returns the asset's ``capture`` record.
     Everything is checked (images, masks, cameras, light map, model files) before anything is loaded or written.
@@ -764,7 +775,7 @@ def reconstruct(
     from frng.apps.asset import RIG_KEY, render_settings, save_asset
     from frng.apps.relight import Timer, backbone_views
     from frng.device import resolve_device
-    from frng.plan.layout import Layout, TrainingFolder
+    from frng.plan.layout import Layout
 
     cfg = config
     rc = cfg.render
@@ -794,7 +805,7 @@ def reconstruct(
         )
     env_given = read_light(light) if light is not None else None
     L = Layout(cfg.results)
-    model = Path(model) if model is not None else Path(TrainingFolder(L.model_dir("full")).model())
+    model = Path(model) if model is not None else default_model(L)
     backbone_path = Path(L.backbone_model())
     for f, what in ((model, "F-RNG model"), (backbone_path, "backbone model")):
         if not f.exists():
@@ -1005,7 +1016,10 @@ def measure(config, oid: str, work: str | Path, views: int = 6, settings=None) -
             score(
                 "relight",
                 light,
-                [io.read_rgba(Path(L.relight_image("full", oid, light, n)), require_alpha=True) for n in tnames],
+                [
+                    io.read_rgba(Path(L.relight_image(default_model(L).parent.name, oid, light, n)), require_alpha=True)
+                    for n in tnames
+                ],
             )
     for setting, (images, kw, rot) in every.items():
         if settings is not None and setting not in settings:

@@ -266,17 +266,21 @@ def object_comparison(
     psnr_backbone: Sequence[float] | None = None,
     psnr_frng: Sequence[float] | None = None,
     title: str | None = None,
+    plus: Sequence[Image] | None = None,
+    psnr_plus: Sequence[float] | None = None,
     **kwargs,
 ) -> dict:
     """The paper-style figure for one test object: columns input views | (light) | ground truth | backbone |
-    F-RNG, one row per test light L.
+    F-RNG | (F-RNG+), one row per test light L.
 
-    inputs: V input views, tiled into one mosaic cell in the first row. ground_truth, backbone, frng: L images
-    each, same view. envmaps: L equirect maps (linear, shown letterboxed) or None to omit that column.
-    psnr_*: L values captioned on the backbone/F-RNG cells. kwargs go to :func:`comparison_grid`.
+    inputs: V input views, tiled into one mosaic cell in the first row. ground_truth, backbone, frng (and plus,
+    F-RNG+, or None to omit that column): L images each, same view. envmaps: L equirect maps (linear, shown
+    letterboxed) or None to omit that column. psnr_*: L values captioned on the backbone / F-RNG / F-RNG+ cells.
+    kwargs go to :func:`comparison_grid`.
     """
     L = len(light_labels)
-    for name, seq in (("ground_truth", ground_truth), ("backbone", backbone), ("frng", frng)):
+    methods = (("ground_truth", ground_truth), ("backbone", backbone), ("frng", frng))
+    for name, seq in methods + ((("plus", plus),) if plus is not None else ()):
         if len(seq) != L:
             raise ValueError(f"{name} has {len(seq)} images for {L} lights")
     exposure = kwargs.get("exposure", 1.0)
@@ -292,16 +296,21 @@ def object_comparison(
             to_display(backbone[i], exposure, background),
             to_display(frng[i], exposure, background),
         ]
+        if plus is not None:
+            row.append(to_display(plus[i], exposure, background))
         rows.append(row)
         off = 2 if envmaps is not None else 1
-        cap = [None] * (off + 3)
+        cap = [None] * (off + 3 + (plus is not None))
         cap[off + 1] = None if psnr_backbone is None else psnr_backbone[i]
         cap[off + 2] = None if psnr_frng is None else psnr_frng[i]
+        if plus is not None:
+            cap[off + 3] = None if psnr_plus is None else psnr_plus[i]
         caps.append(cap)
     cols = (
         [f"input views ({len(inputs)})"]
         + (["light"] if envmaps is not None else [])
         + ["ground truth", "backbone", "F-RNG"]
+        + (["F-RNG+"] if plus is not None else [])
     )
     if kwargs.get("cell") is None:  # size cells for the renders; the input mosaic is fitted into one cell
         kwargs["cell"] = default_cell([np.shape(g) for g in ground_truth], kwargs.pop("min_cell_px", 128))

@@ -25,7 +25,7 @@ import pandas as pd
 
 from frng import io
 from frng.plan.layout import Layout
-from frng.plan.variants import BACKBONE, full_and
+from frng.plan.variants import BACKBONE, PLUS, full_and
 from frng.render import envmap
 from frng.report import figures
 
@@ -36,7 +36,8 @@ def _psnr_lookup(per_image: pd.DataFrame):
 
 
 def comparison(results: Path, oid: str, out_png: Path, psnr) -> None:
-    """Per test object: input views, env map, ground truth, backbone, F-RNG under each target light."""
+    """Per test object: input views, env map, ground truth, backbone, F-RNG (and F-RNG+ where it was relit) under
+    each target light; every method told no input light."""
     L = Layout(results)
     full = io.read_json(L.relight_record("full", oid))
     view = full["target_views"][0]
@@ -48,6 +49,8 @@ def comparison(results: Path, oid: str, out_png: Path, psnr) -> None:
     bb = [io.read_rgba(L.relight_image(BACKBONE, oid, l, view)) for l in lights]
     fr = [io.read_rgba(L.relight_image("full", oid, l, view)) for l in lights]
     envs = [envmap.read(L.envmap(l)) for l in lights]
+    has_plus = Path(L.relight_record(PLUS, oid)).exists()
+    plus = [io.read_rgba(L.relight_image(PLUS, oid, l, view)) for l in lights] if has_plus else None
     figures.object_comparison(
         out_png,
         inputs,
@@ -59,6 +62,8 @@ def comparison(results: Path, oid: str, out_png: Path, psnr) -> None:
         psnr_backbone=[psnr(oid, BACKBONE, l, view) for l in lights],
         psnr_frng=[psnr(oid, "full", l, view) for l in lights],
         title=f"{oid} ({meta['material_class']}), view {view}",
+        plus=plus,
+        psnr_plus=[psnr(oid, PLUS, l, view) for l in lights] if has_plus else None,
     )
 
 

@@ -2,7 +2,7 @@
 object -> a relightable asset folder (:mod:`frng.apps.asset`) that ``frng render-asset`` relights without the model.
 
 Images, masks, cameras, framing and the light estimate: :mod:`frng.apps.capture`. The model is a trained pipeline's:
-``--model`` (default ``{results}/models/full/model.pt`` of the config) and ``--config`` (default: the
+``--model`` (default ``{results}/models/plus/model.pt`` (F-RNG+) of the config, else ``models/full/model.pt``) and ``--config`` (default: the
 ``config.yaml`` recorded in the results folder the model lives in, ``{results}/models/full/model.pt`` ->
 ``{results}/config.yaml``), which gives the architecture, the resolution, the training rig and the priors.
 ``--export-object OBJ`` instead writes a curated object's input views as plain PNGs into ``{out}/images/`` (+
@@ -38,7 +38,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="rig photos: keep the framing (square crop) or crop around the object (frng.apps.capture)",
     )
     parser.add_argument("--name", help="object id recorded in the asset (default: the images folder's name)")
-    parser.add_argument("--model", help="F-RNG model file (default {results}/models/full/model.pt)")
+    parser.add_argument(
+        "--model", help="F-RNG model file (default {results}/models/plus/model.pt, F-RNG+, else models/full/model.pt)"
+    )
     parser.add_argument("--config", help="pipeline config (default: config.yaml of the model's results folder)")
     parser.add_argument("--device", help="override the config's device (cpu, cuda, auto)")
     parser.add_argument(
