@@ -78,7 +78,7 @@ from frng.baselines.perscene import (
     render,
 )
 from frng.render import envmap
-from frng.render.prefilter import KAPPAS, PREFILTER_HEIGHT, lobe_weights, lookup, prefilter
+from frng.render.prefilter import KAPPAS, PREFILTER_HEIGHT, convolve, lookup, prefilter
 from frng.render.raster import RasterConfig
 
 # GS-IR train.py: normal_loss weight 1, normal_tv_weight 1 (30k steps at 800 px). At this module's short budgets
@@ -142,18 +142,7 @@ class Light:
         :func:`frng.render.prefilter.prefilter`'s vMF convolution (same lobes and weights) at the map's own height
         (at most ``prefilter``'s) instead of memoised without gradient."""
         assert env.ndim == 3 and env.shape[-1] == 3, env.shape
-        return cls(envmap.sh_project(env).float(), prefilter_grad(env, height=min(env.shape[0], PREFILTER_HEIGHT)))
-
-
-def prefilter_grad(
-    env: torch.Tensor, kappas: tuple[float, ...] = KAPPAS, height: int = PREFILTER_HEIGHT
-) -> torch.Tensor:
-    """:func:`frng.render.prefilter.prefilter` with gradient: env (He, We, 3) -> (L, height, 2 height, 3), the map
-    area-averaged to height x 2 height and convolved with its normalised vMF lobes (the same cached weights)."""
-    e = F.adaptive_avg_pool2d(env.float().permute(2, 0, 1)[None].clamp_min(0.0), (height, 2 * height))[0]
-    e = e.permute(1, 2, 0).reshape(-1, 3)
-    weights = lobe_weights(tuple(float(k) for k in kappas), int(height), str(e.device))
-    return torch.stack([(w @ e).reshape(height, 2 * height, 3) for w in weights])
+        return cls(envmap.sh_project(env).float(), convolve(env, height=min(env.shape[0], PREFILTER_HEIGHT)))
 
 
 class LearnedLight:

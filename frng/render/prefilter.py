@@ -67,6 +67,16 @@ def lobe_weights(kappas: tuple[float, ...], height: int, device: str) -> tuple[t
     return tuple(out)
 
 
+def convolve(env: torch.Tensor, kappas: tuple[float, ...] = KAPPAS, height: int = PREFILTER_HEIGHT) -> torch.Tensor:
+    """:func:`prefilter`'s convolution, differentiable and not memoised (a light being optimised, e.g. the gsir
+    baseline's): env (He, We, 3) area-averaged to height x 2 height and convolved with the normalised vMF lobes ->
+    (L, height, 2 height, 3)."""
+    e = F.adaptive_avg_pool2d(env.float().permute(2, 0, 1)[None].clamp_min(0.0), (height, 2 * height))[0]
+    e = e.permute(1, 2, 0).reshape(-1, 3)
+    weights = lobe_weights(tuple(float(k) for k in kappas), int(height), str(e.device))
+    return torch.stack([(w @ e).reshape(height, 2 * height, 3) for w in weights])
+
+
 def prefilter(env: torch.Tensor, kappas: tuple[float, ...] = KAPPAS, height: int = PREFILTER_HEIGHT) -> torch.Tensor:
     """env (He, We, 3) -> (L, height, 2 height, 3): the map convolved with normalised vMF lobes of each kappa
     (dense over the texels; L = len(kappas)), sharpest first, on env's device. No gradient (the light is data).
@@ -80,11 +90,7 @@ def prefilter(env: torch.Tensor, kappas: tuple[float, ...] = KAPPAS, height: int
     if hit is not None and hit[0]() is env and hit[1] == env._version:
         return hit[2]
     with torch.no_grad():
-        e = F.adaptive_avg_pool2d(env.detach().float().permute(2, 0, 1)[None].clamp_min(0.0), (height, 2 * height))[
-            0
-        ].permute(1, 2, 0)  # (h, w, 3)
-        weights = lobe_weights(key[1], key[2], str(e.device))
-        out = torch.stack([(w @ e.reshape(-1, 3)).reshape(height, 2 * height, 3) for w in weights])
+        out = convolve(env.detach(), key[1], key[2])
     if len(_PREFILTERED) >= _PREFILTERED_MAX:
         _PREFILTERED.clear()
     _PREFILTERED[key] = (weakref.ref(env), env._version, out)
