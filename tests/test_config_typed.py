@@ -109,7 +109,11 @@ def test_unknown_nested_key_and_model_records():
         FRNGConfig.from_dict({**cfg.to_dict(), "bogus": 1})
     with pytest.raises(ConfigError, match=r"^FRNGConfig[.]head: missing key"):
         FRNGConfig.from_dict({k: v for k, v in cfg.to_dict().items() if k != "head"})
-    # a model saved before a key existed loads with what it was trained with, a current one with its own value
+    # a model saved before a key existed loads with what it was trained with, a current one with its own value;
+    # the additions (fine_in_hull, coverage_head, ...) are on in F-RNG+ only (full is the paper's form)
+    assert not cfg.fine_in_hull and cfg.coverage_head == 0
+    cfg, _ = variant_config(ModelSections.of(typed(d)), "plus")
+    assert FRNGConfig.from_dict(cfg.to_dict()) == cfg
     assert cfg.fine_in_hull  # the default
     old_record = {k: v for k, v in cfg.to_dict().items() if k != "fine_in_hull"}
     assert FRNGConfig.from_saved(old_record).fine_in_hull is False

@@ -33,7 +33,7 @@ def smoke_run(smoke_pipeline):
 def test_every_target_and_table(smoke_run):
     from frng import io
     from frng.plan import catalog
-    from frng.plan.variants import BASE_VARIANTS, model_seed, runs, split_seed
+    from frng.plan.variants import ABLATION_VARIANTS, model_seed, runs, split_seed
     from frng.report.tables import TABLE_COLUMNS
 
     results, config = smoke_run
@@ -43,7 +43,7 @@ def test_every_target_and_table(smoke_run):
         table = pd.read_csv(results / "tables" / f"{name}.csv")
         assert set(cols) <= set(table.columns) and len(table), f"{name}: {list(table.columns)}"
     ablation = pd.read_csv(results / "tables" / "ablation.csv")
-    assert len(ablation) == len(BASE_VARIANTS)
+    assert len(ablation) == len(ABLATION_VARIANTS)
     k = pd.read_csv(results / "tables" / "k.csv")
     assert sorted(k["k_percent"]) == sorted(float(p) for p in config["frng"]["k_sweep"])
     views = pd.read_csv(results / "tables" / "views.csv")
