@@ -79,6 +79,10 @@ STAGES: dict[str, tuple[str, str]] = {
     ),
     "reconstruct": ("frng.stages.reconstruct", "your own photos (2-10 views) -> a relightable asset folder"),
     "render-asset": ("frng.stages.render_asset", "render an asset folder under any env map (views, turntable)"),
+    "export-asset": (
+        "frng.stages.export_asset",
+        "bake an asset under one env map into plain 3D Gaussian splatting (PLY, SPZ, glTF KHR_gaussian_splatting)",
+    ),
     "view": ("frng.stages.view", "interactive relighting viewer of an asset in the browser (127.0.0.1, viser)"),
     "relight-benchmark": ("frng.stages.relight_benchmark", "relight one imported benchmark object (as relight)"),
     "relight-seed": (

@@ -71,6 +71,8 @@ STAGES_WITHOUT_RULE = {
     "tests/test_benchmarks.py (nothing downstream in the workflow reads it)",
     "frng.stages.reconstruct": "your own photos -> an asset, run by hand (tests/test_reconstruct.py)",
     "frng.stages.render_asset": "renders an asset folder, run by hand (tests/test_reconstruct.py)",
+    "frng.stages.export_asset": "bakes an asset into plain 3DGS files, run by hand and by the viewer's Export button "
+    "(tests/test_export.py)",
     "frng.stages.view": "the interactive relighting viewer (frng.apps.view), run by hand (tests/test_viewer.py)",
     "frng.stages.export_image_inputs": "writes the image-based methods' inputs (one photo + target maps), run by hand "
     "(tests/test_baselines_tables.py)",

@@ -19,11 +19,11 @@ import sys
 import time
 from pathlib import Path
 
+import browser
 import numpy as np
 import pytest
 from conftest import ROOT
 
-CHROMIUM, CHROMEDRIVER = Path("/usr/bin/chromium"), Path("/usr/bin/chromedriver")
 WINDOW = (1200, 800)  # browser window; the viewport canvas is the page's inner size
 RESOLUTION = 96  # frame height the viewer renders at (the default tier's)
 # The saved frame is rendered by render-asset's own code from the saved camera and map: bit-identical to the command
@@ -34,19 +34,9 @@ PSNR_SAVED_DB = 60.0
 PSNR_SCREEN_DB = 30.0
 
 
-def _browser_required() -> bool:
-    return bool(os.environ.get("CI") or os.environ.get("FRNG_REQUIRE_BROWSER"))
-
-
 @pytest.fixture(scope="module")
 def browser_paths():
-    missing = [str(p) for p in (CHROMIUM, CHROMEDRIVER) if not p.exists()]
-    if missing:
-        msg = f"{missing} missing: apt-get install -y chromium chromium-driver (.ci/run does)"
-        if _browser_required():
-            pytest.fail(msg)
-        pytest.skip(msg)
-    return CHROMIUM, CHROMEDRIVER
+    return browser.paths()
 
 
 @pytest.fixture(scope="module")
@@ -82,21 +72,7 @@ class Page:
     """The viewer's page in headless Chromium."""
 
     def __init__(self, url: str, profile: Path):
-        from selenium import webdriver
-        from selenium.webdriver.chrome.service import Service
-
-        opts = webdriver.ChromeOptions()
-        opts.binary_location = str(CHROMIUM)
-        for a in (
-            "--headless --no-sandbox --disable-gpu --disable-quic --no-first-run --disable-background-networking "
-            "--disable-component-update --disable-sync"
-        ).split():
-            opts.add_argument(a)
-        opts.add_argument(f"--window-size={WINDOW[0]},{WINDOW[1]}")
-        opts.add_argument("--force-device-scale-factor=1")
-        opts.add_argument(f"--user-data-dir={profile}")
-        self.driver = webdriver.Chrome(service=Service(str(CHROMEDRIVER)), options=opts)
-        self.driver.set_page_load_timeout(60)
+        self.driver = browser.chrome(profile, WINDOW, ("--disable-quic",))
         self.driver.get(url)
 
     def text(self) -> str:
@@ -156,7 +132,12 @@ class Page:
     def click(self, text: str) -> None:
         from selenium.webdriver.common.by import By
 
-        next(b for b in self.driver.find_elements(By.TAG_NAME, "button") if b.text == text).click()
+        # textContent, not .text: a button scrolled out of the panel's view has an empty .text
+        buttons = self.driver.find_elements(By.TAG_NAME, "button")
+        found = [b for b in buttons if (b.get_attribute("textContent") or "").strip() == text]
+        assert found, f"no button {text!r}; the page has {[b.get_attribute('textContent') for b in buttons]}"
+        self.driver.execute_script("arguments[0].scrollIntoView({block: 'center'});", found[0])
+        found[0].click()
 
     def type_number(self, index: int, value: str) -> None:
         """Type ``value`` into the panel's ``index``-th number box (a slider's) and press Enter."""
@@ -432,3 +413,22 @@ def test_viewport_camera_is_visers_and_frngs():
         np.testing.assert_allclose(pose["up_direction"], -c2w[:3, 1], atol=1e-12)
         forward = (pose["look_at"] - pose["position"]) / np.linalg.norm(pose["look_at"] - pose["position"])
         np.testing.assert_allclose(forward, c2w[:3, 2], atol=1e-9)
+
+
+def test_object_opens_f_rng_plus_and_either_asset_is_a_test_object(smoke_asset):
+    """``--object`` shows F-RNG+ (the run that relights photos best) where the results folder relit the object with
+    it; the full run's asset, opened as an ASSET, is still recognised as that test object's (with full's images)."""
+    from frng.apps.view import TestObject, shown_run
+    from frng.plan.layout import Layout, RelightFolder
+    from frng.plan.variants import VIEW_RUN
+
+    results, asset = smoke_asset
+    oid = asset.parent.name
+    has_plus = Path(Layout(results).relight_record(VIEW_RUN, oid)).exists()
+    assert shown_run(results, oid) == (VIEW_RUN if has_plus else "full")
+    shown = TestObject(results, oid)
+    assert set(shown.runs.values()) == {None, shown.run, "backbone"}
+    assert TestObject(results, oid, "full").runs["F-RNG"] == "full"
+    if has_plus:
+        assert shown.runs["F-RNG+"] == VIEW_RUN
+        assert (Path(RelightFolder(Layout(results).relight_run(VIEW_RUN, oid)).asset()) / "asset.json").exists()

@@ -596,7 +596,8 @@ def render_settings(raster_cfg, shading_cfg, max_radius_px: float | None = None)
 
 
 class AssetRenderer:
-    """Render an asset folder under any environment map, with the asset's own decoder and render settings.
+    """Render an asset folder (or a relightable GLB's parts: :func:`frng.apps.gltf_asset.open_renderer`) under any
+    environment map, with the asset's own decoder and render settings.
 
     What :meth:`frng.model.frng.FRNG.rasterize` + :meth:`~frng.model.frng.FRNG.shade` do for the neural head,
     from the asset alone: the Gaussians and features (``gaussians.ply``), the decoder built from ``asset.json``'s
@@ -610,14 +611,26 @@ class AssetRenderer:
     same asset, light, views and seed give the model's images. Decoding runs in float32 unless ``bf16`` (CUDA).
     """
 
-    def __init__(self, folder: str | os.PathLike, device: str | torch.device = "cpu", bf16: bool = False):
+    def __init__(
+        self,
+        folder: str | os.PathLike,
+        device: str | torch.device = "cpu",
+        bf16: bool = False,
+        parts: tuple | None = None,
+    ):
+        """``folder``: an asset folder; or, with ``parts`` = (gaussians, features, decoder state, meta) read from it
+        (:func:`frng.apps.gltf_asset.open_renderer` passes a relightable GLB's), the file they came from."""
         from frng.model.coverage import COVERAGE_PREFIX, CoverageHead
         from frng.render import RasterConfig
         from frng.render.shading import NeuralDecoder, ShadingConfig
 
         self.folder = Path(folder)
-        g, features, state, meta = load_asset(self.folder)
-        meta_path = self.folder / META_FILE
+        if parts is not None:
+            g, features, state, meta = parts
+            meta_path = self.folder
+        else:
+            g, features, state, meta = load_asset(self.folder)
+            meta_path = self.folder / META_FILE
         dec = meta["decoder"]
         if dec.get("head", "neural") != "neural":
             raise AssetError(f"{meta_path}: field 'decoder.head' is {dec.get('head')!r}; only neural assets render")

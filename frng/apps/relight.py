@@ -16,8 +16,8 @@ What one job does (one test object, all runs, so the paper-scale DAG stays at on
 4. the baseline: the backbone relit under each target light (one full DDIM pass per light, then rendering the
    target views; timed per light), at the same views and resolution;
 5. writes, per run, ``{results}/relight/{run}/{obj}/{light}/{view}.exr`` (linear premultiplied RGBA) and
-   ``run.json``; the full run also keeps its relightable asset (``asset/``, :mod:`frng.apps.asset`) and its
-   saliency (``saliency.npz``: ``saliency`` (V, H, W), ``patch_idx`` (V, n), ``image`` (V, H, W, 4)); and
+   ``run.json``; the full and F-RNG+ runs (:data:`~frng.plan.variants.ASSET_RUNS`) also keep their relightable
+   asset (``asset/``, :mod:`frng.apps.asset`) and their saliency (``saliency.npz``: ``saliency`` (V, H, W), ``patch_idx`` (V, n), ``image`` (V, H, W, 4)); and
    ``{results}/relight/timing/{obj}.json`` with both methods' costs side by side.
 
 Everything is first written to a staging folder ``{results}/relight/.staging-{obj}-*`` and each run folder is
@@ -33,8 +33,9 @@ Runs
 ``full`` (V = 6, K = ``frng.top_k_percent``), the ablations of ``frng.variants`` (``no-fine``, ``no-idm``,
 ``no-ind``, ``no-neural``), the K sweep ``k1``, ``k4``, ``k8`` (``frng.k_sweep``; their own trained models; the
 entry equal to the full model's K is the full run), the #views sweep ``full-v{V}`` (the full model fed V input
-views), ``full-oracle``, the other training seeds ``{variant}@s{seed}`` (``train.seeds``), ``full-base`` (the full
-model's Lambertian base alone: :func:`shade_base`), and ``backbone`` (:func:`frng.plan.variants.runs`).
+views), ``full-oracle``, the other training seeds ``{variant}@s{seed}`` (``train.seeds``), ``plus`` (F-RNG+), ``plus-base``
+(F-RNG+'s Lambertian base alone: :func:`shade_base`), ``plus-known-light`` (the oracle told the input light), and
+``backbone`` (:func:`frng.plan.variants.runs`).
 
 Timing (``timing/{obj}.json``)
 ------------------------------
@@ -66,6 +67,7 @@ from frng.plan.layout import Layout, RelightFolder, TrainingFolder
 from frng.plan.sections import TypedConfig
 from frng.plan.variants import (  # noqa: F401
     ALL_GROUPS,
+    ASSET_RUNS,
     BACKBONE,
     PLUS,
     PLUS_METHOD,
@@ -354,8 +356,8 @@ def relight_object(
             # per image: shading under its light + the rasterization amortised over the lights of this job
             per_light_ms = [ms + raster_ms / len(lights) for ms in shade_ms]
             rec_s = t_rec.s + p["backbone_s"] + p["idm_s"]
-            if run.name == "full":
-                _save_full_extras(folder, model, rec, p, oid, run)
+            if run.name in ASSET_RUNS:
+                _save_extras(folder, model, rec, p, oid, run)
         info = asdict(run) | {
             "object": oid,
             "lights": lights,
@@ -386,7 +388,7 @@ def relight_object(
 
 
 def shade_base(model, raster: tuple, env: torch.Tensor) -> torch.Tensor:
-    """The run ``full-base`` (:data:`frng.plan.variants.BASE_RUN`, the quality ladder's Lambertian row): what
+    """The run ``plus-base`` (:data:`frng.plan.variants.BASE_RUN`, the quality ladder's Lambertian row): what
     :meth:`frng.model.frng.FRNG.shade` renders with the decoder's residual and attenuation (and the closed-form
     specular base of ``shading.decoder_specular``) dropped, i.e. only its closed-form Lambertian base d E(n)
     (:func:`frng.render.shading.lambert_sh`, the term ``shade`` adds to the Monte-Carlo residual with
@@ -404,8 +406,9 @@ def shade_base(model, raster: tuple, env: torch.Tensor) -> torch.Tensor:
     return torch.cat([rgb.float(), alpha], -1)
 
 
-def _save_full_extras(folder: Path, model, rec, p: dict, oid: str, run: Run) -> None:
-    """The full run's relightable asset and its saliency (for the figures)."""
+def _save_extras(folder: Path, model, rec, p: dict, oid: str, run: Run) -> None:
+    """An :data:`ASSET_RUNS` run's relightable asset (``frng view --object``, ``frng render-asset``) and its
+    saliency (the figures read the full run's)."""
     from frng.apps.asset import render_settings, save_asset
 
     if rec.features is not None:

@@ -103,8 +103,8 @@ def render(args: argparse.Namespace) -> dict:
     import torch
 
     from frng import confine
-    from frng.apps.asset import AssetRenderer
     from frng.apps.capture import CaptureError, read_cameras, read_light
+    from frng.apps.gltf_asset import open_renderer
 
     try:
         confine.check_output(args.out, "render-asset", args.force, recognise=lambda d: (d / "cameras.json").exists())
@@ -127,7 +127,7 @@ def render(args: argparse.Namespace) -> dict:
         device = "cuda" if torch.cuda.is_available() else "cpu"
     if device.startswith("cuda") and not torch.cuda.is_available():
         raise CaptureError("--device cuda: no CUDA device available")
-    r = AssetRenderer(args.asset, device)
+    r = open_renderer(args.asset, device)
     rig = r.rig
     res = args.resolution or int(rig.get("resolution", 64))
     if args.cameras:

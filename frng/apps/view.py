@@ -24,9 +24,12 @@ What a client sees (each browser tab has its own camera and settings):
   ``frame_NNN.png`` (sRGB, straight alpha) and ``cameras.json`` (the ``--cameras`` format) as render-asset writes
   them, ``light.exr`` (the map as rotated), ``display.png`` (the frame as shown: exposure, background) and
   ``view.json`` (map, rotation, exposure, samples and the render-asset command that renders it again);
+- "Export splat": the asset baked under the map, rotation and exposure on screen by ``frng export-asset`` itself
+  (:mod:`frng.apps.export`) into ``{out}/export_NNN.{ply|spz|glb}`` (the format picked beside the button), with
+  ``export_NNN.json`` (the light and the command);
 - for a relit test object (``--object``, or an ASSET that is a results folder's ``relight/full/{obj}/asset``): its
   target views and lights; picking one moves the camera to that view, picks its light and shows the ground truth,
-  F-RNG's relit image and the backbone's side by side (the results folder's images, :mod:`frng.plan.layout`).
+  F-RNG+'s relit image (the paper's F-RNG where F-RNG+ was not trained) and the backbone's side by side (the results folder's images, :mod:`frng.plan.layout`).
 
 Everything that can fail on the user's input (the asset, the maps, the config, the port) is checked before the
 server starts, as :class:`ViewError` (or the readers' :class:`~frng.apps.asset.AssetError` /
@@ -238,7 +241,7 @@ class FrameRenderer:
     rasterized feature maps are kept while only the light changes. One frame at a time (a lock)."""
 
     def __init__(self, asset: str | Path, device: str = "auto"):
-        from frng.apps.asset import AssetRenderer
+        from frng.apps.gltf_asset import open_renderer
         from frng.device import resolve_device
 
         try:
@@ -246,7 +249,7 @@ class FrameRenderer:
         except RuntimeError as e:
             raise ViewError(f"--device {device}: {e}") from None
         self.asset = Path(asset)
-        self.renderer = AssetRenderer(self.asset, self.device)
+        self.renderer = open_renderer(self.asset, self.device)
         self._lock = threading.Lock()
         self._raster_key: tuple | None = None
         self._raster: tuple | None = None
@@ -329,20 +332,30 @@ def upscale(img: np.ndarray, at_least: int = TILE_MIN) -> np.ndarray:
 # -- a test object: its target views and the relit images of the results folder ----------------------------------
 
 
+def shown_run(results: str | Path, oid: str) -> str:
+    """The F-RNG run ``frng view --object`` shows: :data:`frng.plan.variants.VIEW_RUN` (F-RNG+) where the results
+    folder relit the object with it, else the paper's ``full``."""
+    from frng.plan.layout import Layout
+    from frng.plan.variants import VIEW_RUN
+
+    return VIEW_RUN if Path(Layout(results).relight_record(VIEW_RUN, oid)).exists() else "full"
+
+
 class TestObject:
     """A relit test object of a results folder: its target views (cameras), the lights it was relit under, and
-    per (view, light) the ground truth, the full F-RNG run's and the backbone's images (:mod:`frng.plan.layout`)."""
+    per (view, light) the ground truth, the F-RNG run ``run``'s (default :func:`shown_run`: the one whose asset
+    ``--object`` opens) and the backbone's images (:mod:`frng.plan.layout`)."""
 
     __test__ = False  # not a pytest class
 
-    def __init__(self, results: str | Path, oid: str):
+    def __init__(self, results: str | Path, oid: str, run: str | None = None):
         from frng import io
         from frng.plan.layout import Layout
-        from frng.plan.variants import BACKBONE
+        from frng.plan.variants import BACKBONE, PLUS, PLUS_METHOD
 
-        self.layout, self.oid = Layout(results), oid
-        meta_path, rec_path = Path(self.layout.object_meta(oid)), Path(self.layout.relight_record("full", oid))
-        for p, what in ((meta_path, "curated object"), (rec_path, "full run's relighting")):
+        self.layout, self.oid, self.run = Layout(results), oid, run or shown_run(results, oid)
+        meta_path, rec_path = Path(self.layout.object_meta(oid)), Path(self.layout.relight_record(self.run, oid))
+        for p, what in ((meta_path, "curated object"), (rec_path, f"{self.run} run's relighting")):
             if not p.exists():
                 raise ViewError(f"{p}: missing ({what} of --object {oid}); run the pipeline on that object first")
         meta, rec = io.read_json(meta_path), io.read_json(rec_path)
@@ -352,7 +365,7 @@ class TestObject:
         if not self.views or not self.lights:
             raise ViewError(f"{rec_path}: field 'target_views' or 'lights' names no target view or light")
         self.cameras = {v: cams[v] for v in self.views}
-        self.runs = {"ground truth": None, "F-RNG": "full", "backbone": BACKBONE}
+        self.runs = {"ground truth": None, PLUS_METHOD if self.run == PLUS else "F-RNG": self.run, "backbone": BACKBONE}
         for view in self.views:
             for light in self.lights:
                 for p in self.paths(view, light).values():
@@ -542,6 +555,37 @@ class Viewer:
         )
         return folder
 
+    def export(self, label: str, rotation: float, exposure: float, fmt: str) -> tuple[Path, float]:
+        """Bake the asset under the map ``label`` rotated by ``rotation`` degrees at ``exposure`` EV with
+        ``frng export-asset`` itself (its parser and :func:`~frng.apps.export.export`) into
+        ``{out}/export_NNN.{fmt}`` (and ``export_NNN.json``: the light and the command that writes it again);
+        returns (that file, the SH fit's held-out PSNR)."""
+        from frng import io
+        from frng.apps import export
+
+        st = self.settings
+        with self._save_lock:
+            st.out.mkdir(parents=True, exist_ok=True)
+            k = 0
+            while any((st.out / f"export_{k:03d}.{x}").exists() for x in (fmt, "json")):
+                k += 1
+            path = st.out / f"export_{k:03d}.{fmt}"
+            io.write_json(path.with_suffix(".json"), {"map": label, "rotation_deg": rotation, "exposure_ev": exposure})
+        light = self.by_label[label].path
+        argv = [str(self.frames.asset), "--env", str(light), "--rotation", repr(float(rotation)), "--exposure",
+                repr(float(exposure)), "--format", fmt, "--out", str(path), "--device", str(self.frames.device)]  # fmt: skip
+        argv += ["--spp", str(st.spp)] if st.spp else []
+        parser = argparse.ArgumentParser(prog="frng export-asset")
+        export.add_arguments(parser)
+        with self.frames._lock:  # one job at a time on the device
+            info = export.export(parser.parse_args(argv))
+        io.write_json(
+            path.with_suffix(".json"),
+            {"map": label, "map_file": str(light), "rotation_deg": rotation, "exposure_ev": exposure, "format": fmt,
+             "fit_psnr_db": info["fit_psnr_db"], "command": " ".join(["frng export-asset", *argv])},
+        )  # fmt: skip
+        return path, float(info["fit_psnr_db"])
+
 
 class _Session:
     """One browser tab: its panel, its camera's state and the thread that renders its frames (low while things
@@ -571,9 +615,15 @@ class _Session:
         self.status = gui.add_markdown("waiting for the first frame")
         self.save_button = gui.add_button("Save frame")
         self.saved = gui.add_markdown("")
+        from frng.apps.export import FORMATS
+
+        self.export_format = gui.add_dropdown("export format", list(FORMATS), initial_value="glb")
+        self.export_button = gui.add_button("Export splat")
+        self.exported = gui.add_markdown("")
         for h in (self.map, self.rotation, self.exposure):
             h.on_update(lambda _e: self.light_changed())
         self.save_button.on_click(lambda _e: self.save())
+        self.export_button.on_click(lambda _e: self.export())
         t = v.test_object
         if t is not None:
             with gui.add_folder("Test object"):
@@ -625,6 +675,16 @@ class _Session:
             self.saved.content = f"save failed: {str(e).splitlines()[0]}"
             return
         self.saved.content = f"saved `{folder}` (EXR, PNG, cameras.json)"
+
+    def export(self) -> None:
+        self.exported.content = "exporting..."
+        try:
+            path, psnr = self.viewer.export(self.map.value, float(self.rotation.value), float(self.exposure.value),
+                                            self.export_format.value)  # fmt: skip
+        except Exception as e:  # shown in the panel: the server keeps running
+            self.exported.content = f"export failed: {str(e).splitlines()[0]}"
+            return
+        self.exported.content = f"exported `{path}` (SH fit {psnr:.1f} dB)"
 
     def close(self) -> None:
         self.closed.set()
@@ -714,7 +774,7 @@ def open_viewer(
         if asset is not None:
             raise ViewError("give an ASSET folder or --object, not both")
         test_object = TestObject(results, object_id)
-        asset = RelightFolder(Layout(results).relight_run("full", object_id)).asset()
+        asset = RelightFolder(Layout(results).relight_run(test_object.run, object_id)).asset()
     elif asset is None:
         raise ViewError("give an ASSET folder (asset.json, gaussians.ply, decoder.safetensors) or --object OBJ")
     from frng.apps.render_asset import MAX_RESOLUTION, MAX_SPP
@@ -731,12 +791,15 @@ def open_viewer(
         results = results_of_asset(asset_path)
     oid = object_id or str(meta.get("object_id"))
     if test_object is None and results is not None:  # a relit test object's asset: its images side by side too
-        same = Path(RelightFolder(Layout(results).relight_run("full", oid)).asset()).resolve() == asset_path.resolve()
-        if same and Path(Layout(results).relight_record("full", oid)).exists():
-            try:
-                test_object = TestObject(results, oid)
-            except ViewError:
-                test_object = None
+        from frng.plan.variants import ASSET_RUNS
+
+        for run in ASSET_RUNS:
+            same = Path(RelightFolder(Layout(results).relight_run(run, oid)).asset()).resolve() == asset_path.resolve()
+            if same and Path(Layout(results).relight_record(run, oid)).exists():
+                try:
+                    test_object = TestObject(results, oid, run)
+                except ViewError:
+                    test_object = None
     lights = collect_lights(asset_path, results, env, oid)
     # the first camera: the test object's first target view, else the asset's rig as render-asset's turntable
     obj_meta = Path(Layout(results).object_meta(oid)) if results is not None else None

@@ -138,6 +138,10 @@ BACKBONE = "backbone"
 ORACLE_RUN = "full-oracle"  # the full model fed the G-buffers instead of the IDM's priors (quality ladder row f)
 BASE_RUN = "plus-base"  # F-RNG+'s Lambertian base alone (decoder residual, attenuation, specular base dropped)
 KNOWN_LIGHT_RUN = "plus-known-light"  # oracle: F-RNG+ told the input views' light (the paper's task does not give it)
+# the runs that keep their relightable asset (relight/{run}/{obj}/asset): the paper's full model and F-RNG+, the one
+# `frng view --object` shows (it relights photos best under the paper's task: docs/model-and-training.md)
+ASSET_RUNS = ("full", PLUS)
+VIEW_RUN = PLUS
 # What F-RNG's coarse Gaussians sit on (frng.training.frng.load_objects): the backbone's geometry, or, diagnostics
 # (`frng train` / `frng bench heldout --geometry ...`), the input pixels' G-buffer surface distances, their visual
 # hull's, or the hull refined by multi-view stereo (frng.priors.stereo)
