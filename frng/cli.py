@@ -164,15 +164,45 @@ def _first_line(e: BaseException) -> str:
     return text.splitlines()[0] if text else type(e).__name__
 
 
+ID_ARGUMENTS = ("object", "export_object")  # options whose values are object ids that become paths
+NAME_ARGUMENTS = ("scene",)  # options whose values become one path component
+
+
+def check_path_arguments(args: argparse.Namespace) -> None:
+    """Every option value that becomes part of a path is a plain id before any stage reads or writes with it:
+    ``--object`` / ``--export-object`` (one or several) an object id (:func:`frng.confine.check_id`), ``--scene`` a
+    plain name (:func:`frng.confine.plain_name`); else an :class:`frng.confine.UntrustedInputError` (one line)."""
+    from frng import confine
+
+    for attr in ID_ARGUMENTS + NAME_ARGUMENTS:
+        value = getattr(args, attr, None)
+        for v in value if isinstance(value, (list, tuple)) else [value]:
+            if not isinstance(v, str):
+                continue
+            flag = "--" + attr.replace("_", "-")
+            if attr in ID_ARGUMENTS:
+                confine.check_id(v, flag)
+            else:
+                confine.plain_name(v, source=flag, field=None)
+
+
 def run_stage(name: str, run, args: argparse.Namespace) -> int:
     """Run one stage; a bad config file, a permission error (read-only results folder), a corrupt intermediate file,
     a bad image, a bad file from outside (frng.confine), a model file that does not fit its architecture or a full
     disk ends in one line on stderr naming the file (exit 2), not a traceback; so does any other ValueError or
     KeyError a loader raises (its first line, with a hint). Under ``--debug`` every error propagates with its
     traceback. Other errors propagate."""
+    from frng.confine import UntrustedInputError
     from frng.io import CorruptFileError, ImageError
     from frng.plan.config import ConfigError
 
+    try:
+        check_path_arguments(args)
+    except UntrustedInputError as e:
+        if DEBUG:
+            raise
+        print(f"frng {name}: error: {e}", file=sys.stderr)
+        return 2
     try:
         return int(run(args) or 0)
     except (ConfigError, CorruptFileError, ImageError) as e:  # each names its file and the cause

@@ -11,13 +11,22 @@ Names
     they become part of a path; :func:`plain_name` refuses anything that is not one plain path component;
     :func:`check_id`: a user-given id (``--id``) must already be one.
 Outputs
-    :func:`staged_output`: a multi-file output is built in a staging folder beside the target and swapped in at the
-    end, so a failure leaves the previous result whole. An existing non-empty ``--out`` that is not a previous output
-    of the same command (its :data:`MANIFEST` says so) is refused (:class:`OutputError`) unless ``force``; replacing
-    removes only what the command wrote before (the manifest's files): anything else in the folder is kept.
+    :func:`staged_output`: a multi-file output is built in a staging folder and moved in at the end, so a failure
+    leaves the previous result whole. An existing non-empty ``--out`` that is not a previous output of the same
+    command (its :data:`MANIFEST` names it and records the hashes of its files, unchanged) is refused
+    (:class:`OutputError`) unless ``force``. A rerun replaces or removes only the files the manifest proves the
+    command wrote (recorded hash, unchanged, no symlink: :func:`owned_files`); anything else in the folder is left
+    alone, and one in the way is refused unless ``force``. A symlinked ``--out`` is written through, never replaced.
 Numbers
     :func:`finite`: arrays entering (cameras, intrinsics, vertices, maps) are finite, of a float type, of the expected
-    shape and within bounds; :func:`check_weights`: a state dict's tensors are floating point and finite.
+    shape and within bounds; :func:`check_weights`: a state dict's tensors are floating point and finite;
+    :func:`first_nonfinite`: where a nested record (a config, an asset.json) holds NaN or inf; :func:`check_record`:
+    a model file's architecture record is finite and each size within the schema's maximum (:func:`frng.plan.sections.architecture_bounds`).
+Settings files
+    :func:`load_yaml`: YAML with a key given twice is refused, naming the key and both lines.
+Local servers
+    :func:`local_request`: a request to ``frng view`` comes from its own page (Host and Origin 127.0.0.1 /
+    localhost on its port), else the reason it is refused.
 Images
     :func:`check_image_size`: an image's pixel count is bounded (:data:`MAX_IMAGE_PIXELS`) from its header, before it
     is decoded; a file whose content is not the image format its name says is one line.
@@ -155,6 +164,22 @@ def plain_name(value, *, source, field: str) -> str:
     return value
 
 
+def folder_file(folder: str | os.PathLike, name, *, source, field: str | None) -> Path:
+    """A file that an asset folder's metadata names (``asset.json``'s ``ply`` / ``decoder_weights``) or that a loader
+    reads from it by its fixed name (``input_light.exr``): ``name`` must be a plain name (:func:`plain_name`) and
+    ``folder/name`` must not be a symlink out of the folder (:func:`inside`); else one line naming ``source`` and
+    ``field``. The one check every asset loader uses (:func:`frng.apps.asset.load_asset`, ``frng view``)."""
+    plain_name(name, source=source, field=field)
+    path = Path(folder) / name
+    if is_inside(path, folder):
+        return path
+    where = f"{source}: field {field!r} names {name!r}, which" if field else f"{path}:"
+    raise OutsideError(
+        f"{where} is a symlink out of the folder {Path(folder).resolve()} (to {path.resolve()}); the files of an "
+        f"asset lie in its folder (copy it in)"
+    )
+
+
 _ID = re.compile(r"^[a-z0-9_-]+$")
 
 
@@ -183,24 +208,88 @@ def check_id(value: str, what: str = "--id") -> str:
 
 
 # -- outputs ----------------------------------------------------------------------------------------------------
+#
+# A command's --out records what it wrote in MANIFEST: {"command": ..., "files": {relative path: sha256}}. The record
+# proves ownership only of the files it lists that are still there, unchanged (same bytes, a regular file reached
+# through real folders: no symlink): those a rerun may replace or remove. Anything else in the folder -- a file the
+# user added, one that changed, one a forged manifest names without its hash, a symlink -- is left alone: a rerun
+# that would write over it is refused unless --force. The folder itself is never renamed or replaced: the output is
+# staged inside it (a symlinked --out is written through, on the target's file system) and moved in file by file.
+
+_HEX64 = re.compile(r"^[0-9a-f]{64}$")
+
+
+def _plain_rel(rel) -> bool:
+    """A manifest entry: a relative path of plain components (no ``..``, no absolute path, no backslash or NUL)."""
+    if not isinstance(rel, str) or not rel or rel.startswith("/") or any(c in rel for c in "\\\0"):
+        return False
+    parts = rel.split("/")
+    return all(p not in ("", ".", "..") for p in parts) and rel != MANIFEST
+
+
+def file_digest(path: str | os.PathLike) -> str:
+    """The sha256 a manifest records of a file (:func:`frng.hashing.file_sha256`)."""
+    from frng.hashing import file_sha256
+
+    return file_sha256(path)
 
 
 def read_manifest(folder: str | os.PathLike) -> dict | None:
-    """The :data:`MANIFEST` of a previous output in ``folder`` (``{"command", "files"}``), or None."""
+    """The :data:`MANIFEST` of a previous output in ``folder`` as ``{"command", "files": {path: sha256},
+    "hashed"}``, or None (none, not JSON, no command). A manifest listing names without hashes (written before hashes
+    were recorded, or forged), or an entry that is not a plain relative path with a sha256, has ``hashed`` False and
+    no files: it proves ownership of nothing."""
     p = Path(folder) / MANIFEST
     try:
+        if not p.is_file() or p.is_symlink():
+            return None
         m = json.loads(p.read_text())
     except (OSError, ValueError):
         return None
-    if not isinstance(m, dict) or not isinstance(m.get("command"), str) or not isinstance(m.get("files"), list):
+    if not isinstance(m, dict) or not isinstance(m.get("command"), str):
         return None
-    return m
+    files = m.get("files")
+    if not isinstance(files, dict):
+        return {"command": m["command"], "files": {}, "hashed": False}
+    ok = {k: v for k, v in files.items() if _plain_rel(k) and isinstance(v, str) and _HEX64.match(v)}
+    if len(ok) != len(files):  # a path out of the folder, a hash that is not one: not a manifest this code wrote
+        return {"command": m["command"], "files": {}, "hashed": False}
+    return {"command": m["command"], "files": ok, "hashed": True}
+
+
+def _regular_file(folder: Path, rel: str) -> bool:
+    """Whether ``folder/rel`` is a regular file (not a symlink) reached through real folders (no symlink)."""
+    import stat
+
+    p = folder
+    parts = rel.split("/")
+    try:
+        for i, part in enumerate(parts):
+            p = p / part
+            mode = os.lstat(p).st_mode
+            if not (stat.S_ISREG(mode) if i == len(parts) - 1 else stat.S_ISDIR(mode)):
+                return False
+    except OSError:
+        return False
+    return True
+
+
+def owned_files(folder: str | os.PathLike, manifest: dict | None) -> dict[str, str]:
+    """The files of ``folder`` that ``manifest`` (:func:`read_manifest`) proves a command wrote: listed with a hash,
+    a regular file inside the folder (no symlink on the way) and still of that hash."""
+    folder = Path(folder)
+    if not manifest:
+        return {}
+    return {
+        rel: h for rel, h in manifest["files"].items() if _regular_file(folder, rel) and file_digest(folder / rel) == h
+    }
 
 
 def check_output(out: str | os.PathLike, command: str, force: bool = False, recognise=None) -> None:
     """Refuse (:class:`OutputError`) an ``--out`` that exists and is not a folder, or a non-empty folder that is not a
-    previous output of ``command`` (its :data:`MANIFEST`, or ``recognise(folder)`` true: outputs written before
-    manifests existed), unless ``force``."""
+    previous output of ``command``: its :data:`MANIFEST` names the command and records hashes, and every file it
+    records that is still there is unchanged. ``force``: any folder (only what the command writes is replaced).
+    ``recognise(folder)``: an output written before manifests recorded hashes, named as such in the refusal."""
     out = Path(out)
     if out.is_symlink() and not out.exists():
         raise OutputError(f"{out}: --out is a dangling symlink")
@@ -210,21 +299,32 @@ def check_output(out: str | os.PathLike, command: str, force: bool = False, reco
         raise OutputError(f"{out}: --out exists and is not a folder")
     if force or not any(out.iterdir()):
         return
-    m = read_manifest(out)
-    if m is not None and m["command"] == command:
-        return
-    if m is None and recognise is not None and recognise(out):
-        return
-    what = f"a previous output of `frng {m['command']}`" if m else "not empty"
-    raise OutputError(
-        f"{out}: --out is {what} and not a previous output of `frng {command}`; nothing was written "
-        f"(choose an empty or new folder, or pass --force to replace what `frng {command}` writes there; "
-        f"other files in it are kept)"
+    hint = (
+        f"nothing was written (choose an empty or new folder, or pass --force to replace what `frng {command}` "
+        f"writes there; other files in it are kept)"
     )
+    m = read_manifest(out)
+    if m is not None and m["command"] == command and m["hashed"]:
+        owned = owned_files(out, m)
+        changed = sorted(r for r in m["files"] if os.path.lexists(out / r) and r not in owned)
+        if not changed:
+            return
+        more = f" (and {len(changed) - 1} more)" if len(changed) > 1 else ""
+        raise OutputError(
+            f"{out}: {changed[0]}{more} changed since `frng {command}` wrote it (its {MANIFEST} records other "
+            f"content); {hint}"
+        )
+    if m is not None and m["command"] != command:
+        what = f"a previous output of `frng {m['command']}`"
+    elif m is not None or (recognise is not None and recognise(out)):
+        what = f"an output of an older frng or not one at all (its {MANIFEST} records no hashes of its files)"
+    else:
+        what = "not empty"
+    raise OutputError(f"{out}: --out is {what} and not a previous output of `frng {command}`; {hint}")
 
 
 def _files(folder: Path) -> list[str]:
-    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if not p.is_dir() and p.name != MANIFEST)
+    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if not p.is_dir() and p.name != MANIFEST)
 
 
 @contextlib.contextmanager
@@ -233,75 +333,174 @@ def staged_output(
     command: str,
     force: bool = False,
     recognise=None,
-    manifest: bool = True,
     merge: bool = False,
 ) -> Iterator[Path]:
-    """Yield an empty staging folder beside ``out``; when the block succeeds it becomes ``out`` (see the module
-    docstring); when it fails (an exception, a full disk) the staging folder is removed and ``out`` is as it was.
+    """Yield an empty staging folder; when the block succeeds its files are moved into ``out`` (:func:`swap_in`);
+    when it fails (an exception, a full disk) the staging folder is removed and ``out`` is as it was.
 
-    ``out`` is checked first (:func:`check_output`). On success the staged files are recorded in :data:`MANIFEST`
-    (unless ``manifest`` is False) and swapped in: a previous ``out`` is moved aside, the staged folder renamed to
-    ``out``, and every entry of the previous folder that the command did not write (not in its manifest; with
-    ``force`` on a foreign folder, everything) and that the new output does not replace is moved back in.
-    ``merge``: the previous output's own files are kept too where not replaced (outputs that add up, e.g. several
-    exported objects in one folder); the manifest then lists both."""
+    ``out`` is checked first (:func:`check_output`). A new ``out`` is staged beside it and renamed; an existing one
+    (a symlink to a folder too: written through) is staged inside it (``.tmp-frng-*``, the same file system) and
+    never renamed. ``merge``: the previous output's own files are kept where not replaced (outputs that add up, e.g.
+    several exported objects in one folder); the manifest then lists both."""
     out = Path(out)
     check_output(out, command, force, recognise)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    stage = temp_dir(f".tmp-{out.name}-", out.parent)
+    if out.exists():
+        stage = temp_dir(".tmp-frng-", out)
+    else:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        stage = temp_dir(f".tmp-{out.name}-", out.parent)
     try:
         yield stage
-        written = _files(stage)
-        if manifest:
-            if merge and (old := read_manifest(out)) is not None:
-                written = sorted(set(written) | {str(f) for f in old["files"]})
-            (stage / MANIFEST).write_text(json.dumps({"command": command, "files": written}, indent=2) + "\n")
-        swap_in(stage, out, merge)
+        swap_in(stage, out, command, force=force, merge=merge)
     finally:
         if stage.exists():
             shutil.rmtree(stage, ignore_errors=True)
 
 
-def swap_in(stage: Path, out: Path, merge: bool = False) -> None:
-    """Rename ``stage`` to ``out``; a previous ``out`` keeps the entries its command did not write (all entries not
-    replaced, with ``merge``; :func:`staged_output`)."""
+def _write_manifest(folder: Path, command: str, files: dict[str, str]) -> None:
+    text = json.dumps({"command": command, "files": dict(sorted(files.items()))}, indent=2) + "\n"
+    (folder / MANIFEST).write_text(text)
+
+
+def swap_in(stage: Path, out: Path, command: str, force: bool = False, merge: bool = False) -> None:
+    """Move the files of ``stage`` into ``out`` and record them (with their hashes) in its :data:`MANIFEST`.
+
+    A new ``out``: ``stage`` is renamed. An existing one: a file the new output writes may replace only a file the
+    previous output of ``command`` owns (:func:`owned_files`); any other entry in the way (the user's file, a changed
+    one, a symlink, a folder) is refused (:class:`OutputError`, nothing moved) unless ``force``. The previous
+    output's owned files that the new one does not write are removed (kept with ``merge``); everything else in
+    ``out`` is left alone. Replaced entries are moved aside inside ``out`` first and the moves undone on a failure."""
+    files = {rel: file_digest(stage / rel) for rel in _files(stage)}
     if not out.exists():
+        _write_manifest(stage, command, files)
         os.replace(stage, out)
         return
-    old_m = read_manifest(out)
-    prev = set(old_m["files"]) if old_m and not merge else set()
-    aside = temp_dir(f".old-{out.name}-", out.parent)
-    old = aside / out.name
-    os.replace(out, old)
+    old = read_manifest(out)
+    owned = owned_files(out, old) if old is not None and old["command"] == command else {}
+    replace, conflicts = set(), set()
+    for rel in [*files, MANIFEST]:
+        parts, p = rel.split("/"), out
+        for i, part in enumerate(parts):
+            p = p / part
+            if not os.path.lexists(p):
+                break
+            last, key = i == len(parts) - 1, "/".join(parts[: i + 1])
+            if not last and p.is_dir() and not p.is_symlink():
+                continue
+            if last and not (p.is_dir() and not p.is_symlink()) and (key in owned or key == MANIFEST):
+                replace.add(key)
+            else:
+                conflicts.add(key)
+            break
+    if conflicts and not force:
+        first = sorted(conflicts)[0]
+        more = f" (and {len(conflicts) - 1} more)" if len(conflicts) > 1 else ""
+        raise OutputError(
+            f"{out}: holds {first}{more}, which `frng {command}` would write over and did not write (or which changed "
+            f"since); nothing was written (move it away, or pass --force to replace it)"
+        )
+    stale = set() if merge else {r for r in owned if r not in files}
+    if merge:
+        files = {**{r: h for r, h in owned.items() if r not in files}, **files}
+    _write_manifest(stage, command, files)
+    moves = sorted(replace | conflicts | stale)
+    moves = [r for r in moves if not any(r.startswith(o + "/") for o in moves)]  # under a moved folder: moved
+    aside = temp_dir(".old-frng-", out)
+    done: list[tuple[Path, Path]] = []
+    made: list[Path] = []
     try:
-        os.replace(stage, out)
+        for rel in moves:
+            dst = aside / rel
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(out / rel, dst)
+            done.append((out / rel, dst))
+        for rel in [*sorted(r for r in files if (stage / r).exists()), MANIFEST]:
+            dst = out / rel
+            for d in reversed(dst.parents):
+                if d != out and out in d.parents and not d.exists():
+                    d.mkdir()
+                    made.append(d)
+            os.replace(stage / rel, dst)
+            done.append((stage / rel, dst))
     except BaseException:
-        os.replace(old, out)
+        for src, dst in reversed(done):
+            with contextlib.suppress(OSError):
+                os.replace(dst, src)
+        for d in reversed(made):
+            with contextlib.suppress(OSError):
+                d.rmdir()
         shutil.rmtree(aside, ignore_errors=True)
         raise
-    _carry(old, out, prev, Path("."))
     shutil.rmtree(aside, ignore_errors=True)
+    for rel in sorted(stale, reverse=True):  # folders the previous output made and that are now empty
+        for d in (out / rel).parents:
+            if d == out or out not in d.parents:
+                break
+            try:
+                d.rmdir()
+            except OSError:
+                break
 
 
-def _carry(old: Path, new: Path, prev: set[str], rel: Path) -> None:
-    """Move back every entry of ``old`` (relative ``rel``) that the previous command did not write."""
-    for entry in sorted((old / rel).iterdir()):
-        r = rel / entry.name
-        key = str(r) if str(rel) != "." else entry.name
-        if entry.name == MANIFEST and str(rel) == ".":
-            continue
-        target = new / r
-        if entry.is_dir() and not entry.is_symlink():
-            if any(p.startswith(key + "/") for p in prev):  # holds files the command wrote: look inside
-                _carry(old, new, prev, r)
-            elif not target.exists():
-                target.parent.mkdir(parents=True, exist_ok=True)
-                os.replace(entry, target)
-            continue
-        if key in prev or target.exists():
-            continue
-        target.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(entry, target)
+# -- files of settings ------------------------------------------------------------------------------------------
+
+
+def load_yaml(text: str):
+    """``yaml.safe_load`` that refuses a mapping with a key given twice (plain YAML keeps the last one silently):
+    a ``yaml.constructor.ConstructorError`` whose marks give the line of the second one and whose problem names the
+    key and the line of the first."""
+    import yaml
+
+    class UniqueKeys(yaml.SafeLoader):
+        pass
+
+    def mapping(loader, node, deep=False):
+        seen: dict = {}
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge" or not isinstance(key_node, yaml.ScalarNode):
+                continue
+            key = loader.construct_object(key_node, deep=True)
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    "while constructing a mapping",
+                    node.start_mark,
+                    f"duplicate key {key!r} (first given on line {seen[key].line + 1}; YAML would keep the last "
+                    f"silently)",
+                    key_node.start_mark,
+                )
+            seen[key] = key_node.start_mark
+        return yaml.SafeLoader.construct_mapping(loader, node, deep)
+
+    UniqueKeys.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, mapping)
+    return yaml.load(text, Loader=UniqueKeys)  # noqa: S506 -- a SafeLoader
+
+
+# -- local servers ----------------------------------------------------------------------------------------------
+
+
+def local_request(headers, port: int, names: tuple[str, ...] = ("127.0.0.1", "localhost")) -> str | None:
+    """Why an HTTP request or websocket handshake to a server on ``127.0.0.1:port`` does not come from that server's
+    own page, or None when it does: exactly one ``Host``, one of ``names`` with ``:port`` (a DNS-rebound name,
+    ``Host: evil.example``, is refused); an ``Origin``, where sent (browsers send one with every websocket handshake
+    and cross-origin request), ``http://NAME:port`` of the same names. A client that sends no Origin (not a browser,
+    or a plain page load) passes. ``headers``: a mapping with ``get_all`` (``websockets.datastructures.Headers``,
+    ``email.message.Message``) or ``get``."""
+    hosts = {f"{n}:{int(port)}" for n in names} | (set(names) if int(port) == 80 else set())
+
+    def values(key: str) -> list[str]:
+        if hasattr(headers, "get_all"):
+            return [str(v) for v in headers.get_all(key) or []]
+        v = headers.get(key)
+        return [] if v is None else [str(v)]
+
+    host, origin = values("Host"), values("Origin")
+    if len(host) != 1 or host[0].strip().lower() not in hosts:
+        shown = host[0][:80] if len(host) == 1 else f"{len(host)} Host headers"
+        return f"Host {shown!r} is not the viewer's own (http://{names[0]}:{port}); a foreign or DNS-rebound name"
+    if len(origin) > 1 or (origin and origin[0].strip().lower() not in {f"http://{h}" for h in hosts}):
+        shown = origin[0][:80] if len(origin) == 1 else f"{len(origin)} Origin headers"
+        return f"Origin {shown!r} is not the viewer's own page (http://{names[0]}:{port})"
+    return None
 
 
 # -- numbers ----------------------------------------------------------------------------------------------------
@@ -349,6 +548,98 @@ def angle(value, *, source, field: str) -> float:
     if not 0.0 < a < math.pi:
         raise NonFiniteError(f"{_where(source, field)} must be a field of view in (0, pi) radians, got {a:g}")
     return a
+
+
+MAX_CAMERA_DISTANCE = 1e6  # a camera farther from the world origin is refused (1e30 gave an asset)
+FOV_RANGE_DEG = (0.01, 179.0)  # a camera's horizontal / vertical field of view (fx = 2.6e-14 was stored)
+
+
+def check_camera(c2w, intr, size=None, *, source, field: str) -> None:
+    """A camera from a file, before anything renders or fits with it: ``c2w`` a finite 4 x 4 whose rotation is not
+    singular and whose centre is within :data:`MAX_CAMERA_DISTANCE` of the origin; ``intr`` (fx, fy, cx, cy) finite,
+    fx, fy > 0 and, where the image ``size`` (W, H) is known, fields of view within :data:`FOV_RANGE_DEG` and the
+    principal point within ten image sizes of the image. Else one line naming ``source`` and ``field``."""
+    m = finite(c2w, source=source, field=f"{field} c2w", shape=(4, 4))
+    det = float(np.linalg.det(m[:3, :3]))
+    if not abs(det) > 1e-6:
+        raise NonFiniteError(f"{_where(source, field)}: its rotation is singular (det {det:.3g})")
+    centre = float(np.linalg.norm(m[:3, 3]))
+    if centre > MAX_CAMERA_DISTANCE:
+        raise NonFiniteError(
+            f"{_where(source, field)}: camera is {centre:.3g} from the origin (at most {MAX_CAMERA_DISTANCE:g}, "
+            f"frng.confine.MAX_CAMERA_DISTANCE)"
+        )
+    k = finite(intr, source=source, field=f"{field} intrinsics", shape=(4,))
+    if not (k[0] > 0 and k[1] > 0):
+        raise NonFiniteError(f"{_where(source, field)}: focal lengths must be > 0, got fx={k[0]:g}, fy={k[1]:g}")
+    if size is not None:
+        lo, hi = FOV_RANGE_DEG
+        for axis, (f, n) in enumerate(zip(k[:2], size)):
+            fov = math.degrees(2.0 * math.atan(0.5 * float(n) / float(f)))
+            if not lo <= fov <= hi:
+                raise NonFiniteError(
+                    f"{_where(source, field)}: field of view {fov:.4g} deg ({'xy'[axis]}: focal {f:.3g} px for "
+                    f"{n} px) is outside [{lo:g}, {hi:g}] deg"
+                )
+        if not (abs(k[2]) <= 10 * size[0] and abs(k[3]) <= 10 * size[1]):
+            raise NonFiniteError(f"{_where(source, field)}: principal point ({k[2]:g}, {k[3]:g}) is far off the image")
+
+
+MAX_ARCH_SIZE = 8192  # an integer of a model file's architecture record whose name the schema does not bound
+
+
+def first_nonfinite(value, path: tuple = ()) -> tuple | None:
+    """The path (keys and list indices) of the first NaN or inf float in nested dicts / lists / tuples, or None."""
+    if isinstance(value, float):
+        return None if math.isfinite(value) else path
+    if isinstance(value, Mapping):
+        items = value.items()
+    elif isinstance(value, (list, tuple)):
+        items = enumerate(value)
+    else:
+        return None
+    for k, v in items:
+        found = first_nonfinite(v, (*path, k))
+        if found is not None:
+            return found
+    return None
+
+
+def dotted(path: tuple) -> str:
+    """``("a", 0, "b")`` -> ``"a[0].b"``, the way messages name a key."""
+    return ".".join(f"[{p}]" if isinstance(p, int) else str(p) for p in path).replace(".[", "[") or "<root>"
+
+
+def check_record(
+    record: Mapping,
+    *,
+    source,
+    field: str,
+    bounds: Mapping[str, tuple[float | None, float | None]] | None = None,
+    int_max: int | None = MAX_ARCH_SIZE,
+) -> None:
+    """The numbers of a record read from a file (a model file's architecture, an asset's metadata): every number
+    finite; one whose key ``bounds`` names within its (minimum, maximum) (a None minimum: 0 for an integer); any
+    other integer within 0..``int_max`` (None: unbounded). Nested mappings and lists are walked. Else one line naming ``source`` and the key: a crafted
+    ``hidden: 300000`` is refused before a model of that size is allocated."""
+    bounds = bounds or {}
+    for k, v in record.items():
+        key = f"{field}.{k}"
+        if isinstance(v, Mapping):
+            check_record(v, source=source, field=key, bounds=bounds, int_max=int_max)
+            continue
+        bad = first_nonfinite(v)
+        if bad is not None:
+            raise NonFiniteError(f"{_where(source, dotted((key, *bad)))} is not a finite number (NaN or inf)")
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            continue
+        lo, hi = bounds.get(str(k), (None, int_max if isinstance(v, int) else None))
+        lo = 0 if lo is None and isinstance(v, int) else lo  # sizes are not negative
+        if (lo is not None and v < lo) or (hi is not None and v > hi):
+            raise NonFiniteError(
+                f"{_where(source, key)} is {v!r}; must be in {'-inf' if lo is None else f'{lo:g}'}.."
+                f"{'inf' if hi is None else f'{hi:g}'}"
+            )
 
 
 def check_weights(state: Mapping, *, source, what: str = "state dict") -> None:
@@ -625,16 +916,27 @@ __all__ = [
     "OutsideError",
     "UntrustedInputError",
     "angle",
+    "check_camera",
     "check_id",
     "check_image_size",
     "check_mesh_references",
     "gltf_nonfinite_position",
     "mesh_references",
+    "owned_files",
     "check_output",
+    "check_record",
     "check_weights",
+    "dotted",
+    "first_nonfinite",
+    "load_yaml",
+    "MAX_ARCH_SIZE",
+    "MAX_CAMERA_DISTANCE",
+    "file_digest",
     "finite",
+    "folder_file",
     "inside",
     "is_inside",
+    "local_request",
     "member",
     "plain_name",
     "read_manifest",

@@ -90,7 +90,7 @@ def last_loaded() -> tuple[str, str] | None:
     return _LAST_LOADED
 
 
-def check_model_file(state, path: str | os.PathLike, what: str) -> None:
+def check_model_file(state, path: str | os.PathLike, what: str, arch_bounds: Mapping | None = None) -> None:
     """A model file (``what`` ends with "model file"): a dict with a ``config`` dict and a ``state_dict`` of floating,
     finite tensors; else :class:`CorruptFileError` naming the file and the key (integer weights would load into the
     float model as values of 1e8; NaN weights render NaN)."""
@@ -109,9 +109,29 @@ def check_model_file(state, path: str | os.PathLike, what: str) -> None:
             raise CorruptFileError(f"{path}: {what}: weight {k!r} has dtype {v.dtype}; weights are floating point")
         if not torch.isfinite(v).all():
             raise CorruptFileError(f"{path}: {what}: weight {k!r} has non-finite values (NaN or inf)")
+    check_architecture(state, path, what, arch_bounds)
 
 
-def load_torch(path: str | os.PathLike, what: str = "file"):
+def check_architecture(state: dict, path: str | os.PathLike, what: str, bounds: Mapping | None = None) -> None:
+    """A model file's architecture record (``config``; ``raster`` / ``shading`` where present) before a model is
+    built from it: finite numbers, each within ``bounds`` (key name -> (minimum, maximum); the loaders pass
+    :func:`frng.plan.sections.architecture_bounds`, the config schema's maxima), any other integer of ``config`` at
+    most :data:`frng.confine.MAX_ARCH_SIZE`, integers not negative; else :class:`CorruptFileError` naming the file
+    and the key (a crafted ``hidden: 300000`` would allocate 1 TB)."""
+    from frng import confine
+
+    try:
+        for key in ("config", "raster", "shading"):
+            if isinstance(state.get(key), dict):
+                int_max = confine.MAX_ARCH_SIZE if key == "config" else None
+                confine.check_record(
+                    state[key], source=f"{path}: {what}", field=key, bounds=bounds or {}, int_max=int_max
+                )
+    except confine.UntrustedInputError as e:
+        raise CorruptFileError(str(e)) from None
+
+
+def load_torch(path: str | os.PathLike, what: str = "file", arch_bounds: Mapping | None = None):
     """``torch.load`` of a file frng wrote (a model, checkpoint or prior), safely: ``weights_only=True``, so a
     crafted pickle cannot run code (only tensors and plain Python data load). Errors name the file: a missing
     one is FileNotFoundError; a truncated, corrupt or foreign one (or one holding other objects) is
@@ -123,7 +143,7 @@ def load_torch(path: str | os.PathLike, what: str = "file"):
     state = _load_torch(path, what)
     _LAST_LOADED = (str(path), what)
     if what.endswith("model file"):
-        check_model_file(state, path, what)
+        check_model_file(state, path, what, arch_bounds)
     return state
 
 

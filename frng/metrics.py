@@ -255,8 +255,10 @@ def evaluate_pair(
     """All metrics of one prediction against its ground truth, under ``protocol`` (see the module docstring).
 
     pred, gt: (H, W, 4) linear premultiplied RGBA (or (H, W, 3)), float; mask: (H, W) bool or None (gt alpha >
-    0.5). Returns ``{"psnr", "psnr_interior", "silhouette_iou", "ssim", "lpips", "protocol", "scale_r", "scale_g",
-    "scale_b", "brightness_r", "brightness_g", "brightness_b", "fg_fraction"}`` (``psnr_interior``: PSNR over
+    0.5). Returns ``{"psnr", "psnr_aligned", "psnr_plain", "psnr_interior", "silhouette_iou", "ssim", "lpips",
+    "protocol", "scale_r", "scale_g", "scale_b", "brightness_r", "brightness_g", "brightness_b", "fg_fraction"}``
+    (``psnr_aligned`` / ``psnr_plain``: the PSNR under each protocol, one of them ``psnr``: what the claims table's
+    second protocol reads without a second scoring pass; ``psnr_interior``: PSNR over
     :func:`interior` of the mask, both protocols; NaN when the foreground has no interior; ``silhouette_iou``:
     :func:`silhouette_iou` of the prediction against the mask).
     """
@@ -264,8 +266,14 @@ def evaluate_pair(
     bright = channel_brightness(_as_rgba(pred, "pred")[..., :3], _as_rgba(gt, "gt")[..., :3], mask)
     region = mask if protocol == "aligned" else None
     inner = interior(mask)
+    by_protocol = {protocol: psnr(p, g, region)}
+    for other in PROTOCOLS:
+        if other != protocol:
+            po, go, _, _ = prepare(pred, gt, mask, other, background)
+            by_protocol[other] = psnr(po, go, mask if other == "aligned" else None)
     return {
-        "psnr": psnr(p, g, region),
+        "psnr": by_protocol[protocol],
+        **{f"psnr_{k}": by_protocol[k] for k in PROTOCOLS},
         "psnr_interior": psnr(p, g, inner) if inner.any() else math.nan,
         "silhouette_iou": silhouette_iou(pred, mask),
         "ssim": ssim(p, g, region),

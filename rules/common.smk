@@ -20,6 +20,8 @@ from frng.plan.variants import all_variants
 try:
     # `--config overwrite_config=true`: replace the results folder's recorded config (not part of the config)
     OVERWRITE_CONFIG = frng_config.pop_switch(config)
+    for _configfile in workflow.configfiles:  # Snakemake's YAML reader keeps a key given twice silently
+        frng_config.read_yaml(_configfile)
     frng_config.validate(config)
 except frng_config.ConfigError as e:
     raise WorkflowError(f"invalid config: {e}")

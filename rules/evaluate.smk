@@ -9,6 +9,7 @@ TABLE_NAMES = list(TABLE_COLUMNS)  # the paper's five tables + the ladder and it
 _TABLE_CAPTIONS = {
     "vs_backbone": "F-RNG vs backbone",
     "ablation": "ablation",
+    "additions": "the project's additions",
     "views": "number of input views",
     "k": "top-K patches",
     "timing": "timing",

@@ -48,6 +48,9 @@ def test_aligned_recovers_global_scale_plain_does_not():
     assert plain["psnr"] < 25 and plain["lpips"] > 0.01
     assert plain["scale_r"] == 1.0
     assert M.evaluate_pair(gt, gt)["psnr"] == 100.0
+    # every row carries both protocols' PSNR (the claims table's second protocol): the same numbers either way
+    for r in (aligned, plain):
+        assert r["psnr_aligned"] == aligned["psnr"] and r["psnr_plain"] == plain["psnr"]
 
 
 def test_brightness_is_the_ratio_of_means_and_ignores_where_detail_sits():

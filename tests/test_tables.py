@@ -393,3 +393,49 @@ def test_ladder_step_0_is_the_targets_noise_floor(tmp_path):
     # without the CSV (a config with render.noise_floor.views 0) the ladder starts at step a
     plain = P.write_tables(*common[:4], tmp_path / "plain", prior_csv)
     assert pd.read_csv(plain["ladder"]["csv"], dtype={"step": str})["step"].iloc[0] == "a"
+
+
+def test_claims_judge_the_psnr_claims_under_both_protocols():
+    """The claims table: every claim under the rows' protocol (aligned), the PSNR claims again from the per-image
+    ``psnr_plain`` column: here w/o fine is below the full model aligned and above it plain (a colour error that
+    alignment absorbs), and the two verdicts say so."""
+    from frng.report.claims import CLAIMS
+    from frng.report.paper_tables import claims
+
+    rows = (
+        _per_image("backbone", "backbone", 0.0)
+        + _per_image("full", "full", 1.0)
+        + _per_image("no-fine", "no-fine", 0.5)
+    )
+    for r in rows:
+        r["psnr_aligned"] = r["psnr"]
+        r["psnr_plain"] = r["psnr"] - 3.0 + (1.0 if r["run"] == "no-fine" else 0.0)  # plain: no-fine +0.5 over full
+    timing = {"reconstruction_s": 1.0, "relight_ms_per_image": 20.0}
+    timings = [{"F-RNG": timing, "backbone": timing, "resolution": 96, "spp": 32}]
+    t = claims(pd.DataFrame(rows), timings)
+    fine = t[t["claim"].str.startswith("w/o fine")].set_index("protocol")
+    assert np.isclose(fine.loc["aligned", "measured"], -0.5) and fine.loc["aligned", "verdict"] == "held"
+    assert np.isclose(fine.loc["plain", "measured"], 0.5) and fine.loc["plain", "verdict"] == "not held"
+    plain = t[t["protocol"] == "plain"]
+    assert len(plain) and set(plain["claim"]) == {c.text for c in CLAIMS if c.metric == "psnr"}
+    # per-image rows from before both protocols were scored: the tier's protocol only
+    old = pd.DataFrame(rows).drop(columns=["psnr_aligned", "psnr_plain"])
+    assert set(claims(old, timings)["protocol"]) == {"aligned"}
+
+
+def test_additions_table_is_f_rng_plus_over_the_paper_form_and_over_each_leave_out():
+    """The additions table: F-RNG+ minus the paper form (every addition at once), then F-RNG+ minus F-RNG+ without
+    each addition the rows have (paired, averaged over training seeds); empty without F-RNG+."""
+    from frng.plan.variants import ADDITIONS, leave_out_variant
+    from frng.report.paper_tables import ALL_ADDITIONS, additions_table
+
+    rows = _per_image("full", "full", 0.0) + _per_image("plus", "plus", 1.5) + _per_image("plus@s1", "plus@s1", 1.7)
+    loo = leave_out_variant("pixel_head")
+    rows += _per_image(loo, loo, 0.5) + _per_image(loo + "@s1", loo + "@s1", 0.5)
+    t = additions_table(pd.DataFrame(rows)).set_index("addition")
+    assert list(t.index) == [ALL_ADDITIONS, "pixel_head"]
+    assert np.isclose(t.loc[ALL_ADDITIONS, "dpsnr"], 1.6) and np.isclose(t.loc["pixel_head", "dpsnr"], 1.1)
+    assert t.loc["pixel_head", "departs_from"] == ADDITIONS["pixel_head"].departs_from
+    assert np.isclose(t.loc["pixel_head", "psnr"], 17.0 + 0.5 + 0.5 + 0.125)  # the reference's mean (no-pixel-head)
+    assert np.isclose(t.loc["pixel_head", "dpsnr_lo"], 1.0) and np.isclose(t.loc["pixel_head", "dpsnr_hi"], 1.2)
+    assert not len(additions_table(pd.DataFrame(_per_image("full", "full", 0.0))))

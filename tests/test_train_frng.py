@@ -559,3 +559,30 @@ def test_gbuffer_geometry_puts_the_pixel_gaussians_on_the_rendered_surface(frng_
     assert torch.allclose(rays_before[moved], rays_st[moved], atol=1e-4)
     with pytest.raises(ValueError, match="geometry must be one of"):
         load_objects(*args, geometry="mesh")
+
+
+def test_several_target_lights_share_one_rasterization(frng_smoke):
+    """train.target_lights: the sampled light and others at the same target cameras (never the other input lights'
+    views); one step under several lights is the mean of the per-light losses, and with 1 the step is the one-light
+    step exactly."""
+    from frng.training.frng import StepLoss, build_model, same_view_lights
+
+    path, config = frng_smoke
+    obj = _objects(config)[0]
+    same = [t for t in range(len(obj.targets)) if torch.equal(obj.targets[t][2], obj.targets[0][2])]
+    assert len(same) >= 2, "the smoke tier renders several target lights at the same views"
+    picked = same_view_lights(obj, 0, 8, seed=3)
+    assert picked[0] == 0 and sorted(picked) == sorted(same) and same_view_lights(obj, 0, 1, seed=3) == [0]
+    assert same_view_lights(obj, 0, 2, seed=3) == same_view_lights(obj, 0, 2, seed=3)  # seeded
+    tc = typed(config)
+    model, ind = build_model(_sections(config), "full", Path(config["results"]) / "backbone" / "model.pt", "cpu")
+    losses = {}
+    for n in (1, 2):
+        step = StepLoss(model, ind, replace(tc.train, target_lights=n, perceptual_after=10**6), None, False)
+        losses[n] = step([(obj, 1 if obj.lights > 1 else 0, 0, [0], 7)])
+    (_, logs1), (l2, logs2) = losses[1], losses[2]
+    assert torch.isfinite(l2) and logs2["l2"] > 0
+    other = same_view_lights(obj, 0, 2, seed=7)[1]
+    step = StepLoss(model, ind, replace(tc.train, target_lights=1, perceptual_after=10**6), None, False)
+    _, logs_other = step([(obj, 1 if obj.lights > 1 else 0, other, [0], 7)])
+    assert logs2["l2"] == pytest.approx(0.5 * (logs1["l2"] + logs_other["l2"]), rel=0.05)  # MC noise: own samples

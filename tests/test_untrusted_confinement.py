@@ -356,3 +356,62 @@ def edit_orb_frames(exported, tmp_path, transforms: str, frame: int, field: str,
     meta["frames"][frame][field] = value
     path.write_text(json.dumps(meta))
     return scene, path
+
+
+# -- issue 87, probe 4: asset.json may point anywhere ----------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "edit, words",
+    [
+        (lambda m, out: m.update(ply="../outside.ply"), "field 'ply' must be a plain name"),
+        (
+            lambda m, out: m.update(decoder_weights=str(out / "dec.safetensors")),
+            "field 'decoder_weights' must be a plain",
+        ),
+        (lambda m, out: m.update(ply="link.ply"), "field 'ply' names 'link.ply', which is a symlink out of"),
+    ],
+)
+def test_asset_json_paths_stay_in_the_asset_folder(tmp_path, capsys, edit, words):
+    from test_untrusted_outputs import _env, _run, tiny_asset
+
+    asset = tiny_asset(tmp_path / "asset")
+    other = tiny_asset(tmp_path / "other")  # readable files outside: the probe's render exited 0
+    shutil.copy(other / "gaussians.ply", tmp_path / "outside.ply")
+    shutil.copy(other / "decoder.safetensors", tmp_path / "dec.safetensors")
+    (asset / "link.ply").symlink_to(tmp_path / "outside.ply")
+    meta = json.loads((asset / "asset.json").read_text())
+    edit(meta, tmp_path)
+    (asset / "asset.json").write_text(json.dumps(meta))
+    out = tmp_path / "out"
+    code, lines = _run(
+        ["render-asset", asset, "--env", _env(tmp_path / "e.exr"), "--out", out, "--turntable", 1], capsys
+    )
+    assert code == 2 and len(lines) == 1 and f"{asset / 'asset.json'}: {words}" in lines[0], lines
+    assert not out.exists()
+
+
+def test_asset_files_symlinked_out_are_refused(tmp_path):
+    from test_untrusted_outputs import _env, tiny_asset
+
+    from frng.apps.asset import AssetError, load_asset
+    from frng.apps.view import ViewError, collect_lights
+
+    asset = tiny_asset(tmp_path / "asset")
+    other = tiny_asset(tmp_path / "other")
+    (asset / "gaussians.ply").unlink()
+    (asset / "gaussians.ply").symlink_to(other / "gaussians.ply")
+    with pytest.raises(AssetError, match=r"asset\.json: field 'ply' names 'gaussians\.ply', which is a symlink out of"):
+        load_asset(asset)
+    (asset / "gaussians.ply").unlink()
+    shutil.copy(other / "gaussians.ply", asset / "gaussians.ply")
+    load_asset(asset)  # a copy inside is fine
+    (asset / "input_light.exr").symlink_to(_env(tmp_path / "light.exr"))
+    with pytest.raises(ViewError, match=r"input_light\.exr: is a symlink out of the folder"):
+        collect_lights(asset, None, [], None)
+    inside_link = asset / "sub"
+    inside_link.mkdir()
+    (asset / "input_light.exr").unlink()
+    _env(inside_link / "light.exr")
+    (asset / "input_light.exr").symlink_to(inside_link / "light.exr")  # a link inside the folder is fine
+    assert [x.label for x in collect_lights(asset, None, [], None)] == ["input light"]

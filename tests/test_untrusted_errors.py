@@ -7,6 +7,7 @@ truncated .hdr; importer fields of the wrong type; a text file named .png; a 120
 
 from __future__ import annotations
 
+import argparse
 import errno
 import json
 import shutil
@@ -259,3 +260,18 @@ def test_copied_results_folder_says_the_command(tmp_path):
     with pytest.raises(ConfigError) as err:
         frng_config.record(frng_config.load(tmp_path / "b.yaml"), tmp_path / "copy" / "config.yaml")
     assert "--config overwrite_config=true" in str(err.value) and "results" in str(err.value)
+
+
+def test_stale_cache_is_one_line(capsys):
+    """`frng train` on caches of another backbone raised StaleCacheError uncaught (issue 87): a stage ends in one line."""
+    from frng import cli
+    from frng.priors.cache import StaleCacheError
+
+    def run(args):
+        raise StaleCacheError("/r/cache/obj_0000.safetensors: made with another backbone; re-run `frng backbone-cache`")
+
+    assert cli.run_stage("train", run, argparse.Namespace()) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        "frng train: error: /r/cache/obj_0000.safetensors: made with another backbone; re-run `frng backbone-cache`"
+    ]

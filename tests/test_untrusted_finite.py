@@ -184,8 +184,9 @@ def test_asset_renders_finite(tmp_path):
 @pytest.mark.parametrize(
     "key, value, words",
     [
-        ("train.lr", float("inf"), "greater than the maximum"),
-        ("train.lr", float("nan"), "should not be valid"),
+        ("train.lr", float("inf"), "not a finite number"),
+        ("train.lr", float("nan"), "not a finite number"),
+        ("render.target_views", 10**6, "greater than the maximum"),
         ("render.spp", 10**12, "greater than the maximum"),
         ("shading.spp_infer", 10**9, "greater than the maximum"),
         ("render.resolution", 8 * 10**6, "greater than the maximum"),
@@ -202,3 +203,207 @@ def test_config_values_are_bounded(key, value, words):
     c.setdefault(section, {})[name] = value
     with pytest.raises(ConfigError, match=rf"config key '{key}': .*{words}"):
         config.validate(c)
+
+
+# -- issue 87, probe 7: every number of the config is finite; sizes bounded; a key given twice refused ------------------
+
+
+def _number_keys(node: dict, path: tuple = ()) -> list[tuple]:
+    """The dotted paths of every number key of the schema (``type`` number or integer, alone or with null), list
+    items as index 0."""
+    out = []
+    types = node.get("type")
+    types = types if isinstance(types, list) else [types]
+    if path and ("number" in types or "integer" in types):
+        out.append(path)
+    for name, sub in (node.get("properties") or {}).items():
+        if isinstance(sub, dict):
+            out += _number_keys(sub, (*path, name))
+    if isinstance(node.get("items"), dict):
+        out += _number_keys(node["items"], (*path, 0))
+    return out
+
+
+def _put(config: dict, path: tuple, value) -> None:
+    """Set ``path`` in ``config``, making the sections and one-item lists on the way (list items: copies of the
+    smallest valid item are not needed: the finite rule refuses before the schema looks at them)."""
+    node = config
+    for i, p in enumerate(path[:-1]):
+        nxt = path[i + 1]
+        if isinstance(p, int):
+            while len(node) <= p:
+                node.append({} if not isinstance(nxt, int) else [])
+            node = node[p]
+            continue
+        if not isinstance(node.get(p), (dict, list)) or (isinstance(nxt, int) != isinstance(node.get(p), list)):
+            node[p] = [] if isinstance(nxt, int) else {}
+        node = node[p]
+    last = path[-1]
+    if isinstance(last, int):
+        node[:] = [value]
+    else:
+        node[last] = value
+
+
+def test_every_number_key_of_the_schema_refuses_nan_and_inf():
+    from frng.confine import dotted
+    from frng.plan import config
+    from frng.plan.sections import ConfigError, load_schema
+
+    keys = _number_keys(load_schema())
+    assert len(keys) > 150, len(keys)
+    base = yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text())
+    for path in keys:
+        for bad in (float("nan"), float("inf"), float("-inf")):
+            c = copy.deepcopy(base)
+            _put(c, path, bad)
+            with pytest.raises(ConfigError, match="not a finite number") as err:
+                config.validate(c)
+            assert f"config key '{dotted(path)}'" in str(err.value), (path, str(err.value))
+
+
+def test_probe_7_nan_keys_and_sizes(tmp_path):
+    """The keys the probe set to NaN / inf (they passed validation, the dry run and the stages), from a YAML file."""
+    from frng.plan import config
+    from frng.plan.sections import ConfigError
+
+    text = (ROOT / "config" / "smoke.yaml").read_text()
+    for key, value in (
+        ("idm.train.head_lr", ".nan"),
+        ("idm.train.geo_lr", ".inf"),
+        ("train.loss.lambda_per", ".nan"),
+        ("backbone.near", ".nan"),
+        ("backbone.train.grad_clip", ".inf"),
+        ("train.weight_decay", ".nan"),
+        ("idm.depth_range", ".nan"),
+    ):
+        c = yaml.safe_load(text)
+        node = c
+        for part in key.split(".")[:-1]:
+            node = node.setdefault(part, {})
+        node[key.split(".")[-1]] = "@@"
+        f = tmp_path / "c.yaml"
+        f.write_text(yaml.safe_dump(c).replace("'@@'", value))
+        with pytest.raises(ConfigError, match=rf"config key '{key}': (nan|inf) is not a finite number"):
+            config.load(f)
+
+
+def test_duplicate_yaml_key_is_refused_naming_it(tmp_path):
+    from frng.plan import config
+    from frng.plan.sections import ConfigError
+
+    f = tmp_path / "c.yaml"
+    f.write_text("tier: smoke\ntrain:\n  lr: 0.001\n  steps: 3\n  lr: 10\n")
+    with pytest.raises(
+        ConfigError, match=r"c\.yaml, line 5 column 3: invalid YAML \(duplicate key 'lr' \(first given on line 3"
+    ):
+        config.read_yaml(f)
+    f.write_text("tier: smoke\ntier: paper\n")
+    with pytest.raises(ConfigError, match=r"duplicate key 'tier'"):
+        config.load(f)
+
+
+@pytest.mark.parametrize(
+    "arch, words",
+    [
+        ({"hidden": 300000}, r"field 'config\.hidden' is 300000; must be in 0\.\.8192"),
+        ({"geo_dim": 10**9}, r"field 'config\.geo_dim' is 1000000000; must be in 0\.\.8192"),
+        ({"saliency": {"box_size": 10**7}}, r"field 'config\.saliency\.box_size' is 10000000"),
+        ({"near": float("nan")}, r"field 'config\.near' is not a finite number"),
+        ({"depth": -3}, r"field 'config\.depth' is -3"),
+    ],
+)
+def test_model_file_architecture_sizes_are_bounded(tmp_path, arch, words):
+    path = tmp_path / "model.pt"
+    io.save_torch({"config": {"hidden": 64, **arch}, "state_dict": {"w": torch.ones(2)}}, path)
+    with pytest.raises(io.CorruptFileError, match=rf"{path}: F-RNG model file: {words}") as err:
+        io.load_torch(path, "F-RNG model file")
+    assert "\n" not in str(err.value)
+
+
+# -- issue 87, probe 6: silent wrong output -----------------------------------------------------------------------
+
+
+def test_probe_6_silent_wrong_renders_are_errors(tmp_path, capsys):
+    from test_untrusted_outputs import _env, _run
+
+    asset = tiny_asset(tmp_path / "a")
+    env = _env(tmp_path / "env.exr")
+    out = tmp_path / "o"
+    base = ["render-asset", asset, "--env", env, "--out", out, "--spp", 1, "--video", "none"]
+    # --turntable 0 rendered the default 24 views
+    code, lines = _run([*base, "--turntable", 0], capsys)
+    assert code == 2 and len(lines) == 1 and "--turntable 0: N must be 1..1000" in lines[0], lines
+    # an all-negative map rendered black
+    neg = tmp_path / "neg.exr"
+    envmap.write(neg, np.full((8, 16, 3), -1.0, np.float32))
+    code, lines = _run([*base[:3], neg, *base[4:], "--turntable", 1], capsys)
+    assert code == 2 and len(lines) == 1 and f"{neg}: environment map has only negative" in lines[0], lines
+    # asset.json rig.fov_deg NaN rendered all-zero frames (json reads NaN); a zero one too
+    meta_path = asset / "asset.json"
+    meta = json.loads(meta_path.read_text())
+    for fov, words in (
+        (float("nan"), "field 'rig.fov_deg' is not a finite number"),
+        (0.0, "field 'rig.fov_deg' is 0.0"),
+    ):
+        meta["rig"]["fov_deg"] = fov
+        meta_path.write_text(json.dumps(meta))
+        code, lines = _run([*base, "--turntable", 1], capsys)
+        assert code == 2 and len(lines) == 1 and f"{meta_path}: {words}" in lines[0], lines
+    meta["rig"]["fov_deg"] = 40.0
+    meta_path.write_text(json.dumps(meta))
+
+
+@pytest.mark.parametrize(
+    "fill, words",
+    [
+        ((0.0, 0.0), "no turntable view sees the asset"),  # empty frames (cameras 1e30 away, looking past it)
+        ((0.0, 1.0), "every view renders black under"),  # covered but black under a light that is not black
+        ((float("nan"), 1.0), "the render of view 'turn_000' has non-finite values"),
+    ],
+)
+def test_renders_empty_black_or_nan_are_errors(tmp_path, capsys, monkeypatch, fill, words):
+    from test_untrusted_outputs import _env, _run
+
+    asset = tiny_asset(tmp_path / "a")
+    out = tmp_path / "o"
+
+    def render(self, env, c2w, intr, h, w, spp=None, generator=None, **k):
+        img = torch.full((len(c2w), h, w, 4), fill[0])
+        img[..., 3] = fill[1]
+        return img
+
+    monkeypatch.setattr(AssetRenderer, "render", render)
+    argv = ["render-asset", asset, "--env", _env(tmp_path / "e.exr"), "--out", out, "--turntable", 2, "--video", "none"]
+    code, lines = _run(argv, capsys)
+    assert code == 2 and len(lines) == 1 and words in lines[0] and "nothing was written" in lines[0], lines
+    assert not out.exists() and not list(tmp_path.glob(".tmp-*"))
+
+
+@pytest.mark.parametrize(
+    "edit, words",
+    [
+        (lambda f: f.update(camera_angle_x=0), "field 'frames[0].camera_angle_x' must be a field of view"),
+        (lambda f: f.update(camera_angle_x=np.pi), "field 'frames[0].camera_angle_x' must be a field of view"),
+        (lambda f: f.update(camera_angle_x=np.pi - 1e-9), "field of view 180 deg"),
+        (lambda f: f["transform_matrix"][0].__setitem__(3, 1e30), "camera is 1e+30 from the origin"),
+        (lambda f: f.update(transform_matrix=[[0, 0, 0, 0]] * 3 + [[0, 0, 0, 1]]), "its rotation is singular"),
+    ],
+)
+def test_camera_files_degenerate_cameras_are_one_line(tmp_path, capsys, edit, words):
+    """A --cameras file (transforms.json) whose field of view is 0 (ZeroDivisionError) or pi (fx = 2.6e-14 stored),
+    whose camera is 1e30 away or whose matrix is singular (LinAlgError): one line naming the file, exit 2."""
+    from test_untrusted_outputs import _env, _run
+
+    from frng import camera
+
+    frame = {"file_path": "v0", "w": 16, "h": 16, "camera_angle_x": 0.7}
+    frame["transform_matrix"] = camera.look_at(camera.spherical_to_cartesian(0.0, 20.0, 3.0)).tolist()
+    edit(frame)
+    cams = tmp_path / "transforms.json"
+    cams.write_text(json.dumps({"frames": [frame]}))
+    asset = tiny_asset(tmp_path / "a")
+    argv = ["render-asset", asset, "--env", _env(tmp_path / "e.exr"), "--out", tmp_path / "o", "--cameras", cams]
+    code, lines = _run(argv, capsys)
+    assert code == 2 and len(lines) == 1 and f"{cams}: " in lines[0] and words in lines[0], lines
+    assert not (tmp_path / "o").exists()

@@ -11,6 +11,9 @@ folder, and the staging helper itself (frng.confine.staged_output).
 from __future__ import annotations
 
 import errno
+import hashlib
+import json
+import os
 
 import numpy as np
 import pytest
@@ -89,7 +92,9 @@ def test_staged_output_rules(tmp_path):
     with confine.staged_output(out, "render-asset") as stage:
         (stage / "a.exr").write_text("1")
         (stage / "b.exr").write_text("1")
-    assert confine.read_manifest(out) == {"command": "render-asset", "files": ["a.exr", "b.exr"]}
+    m = confine.read_manifest(out)
+    assert m["command"] == "render-asset" and m["hashed"] and sorted(m["files"]) == ["a.exr", "b.exr"]
+    assert m["files"]["a.exr"] == hashlib.sha256(b"1").hexdigest()
     (out / "mine.txt").write_text("the user's")
     # a rerun of the same command: its stale file goes, the user's file stays
     with confine.staged_output(out, "render-asset") as stage:
@@ -254,3 +259,170 @@ def test_reconstruct_export_object_refuses_a_foreign_folder(tmp_path, capsys):
     code, lines = _run(["reconstruct", "--export-object", "obj_0000", "--out", out, "--config", cfg], capsys)
     assert code == 2 and len(lines) == 1 and "--force" in lines[0], lines
     assert (out / "cameras.json").read_text() == "{}" and [p.name for p in out.iterdir()] == ["cameras.json"]
+
+
+# -- issue 87, probe 1: a forged manifest deleted the user's files -------------------------------------------------
+
+
+def _forged(folder, files, command="reconstruct"):
+    (folder / confine.MANIFEST).write_text(json.dumps({"command": command, "files": files}))
+
+
+def test_a_forged_manifest_proves_nothing(tmp_path, capsys):
+    """A manifest without hashes, with hashes of other content, or naming paths out of the folder owns nothing: the
+    folder is refused without --force, and with --force (or a rerun) its files are all kept."""
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    cfg = write_config(tmp_path / "c.yaml", tmp_path / "results")
+    outside = tmp_path / "outside.txt"
+    outside.write_text("outside")
+    for files in (
+        ["thesis.txt", "sub/data.csv"],
+        {"thesis.txt": "0" * 64, "sub/data.csv": hashlib.sha256(b"other").hexdigest()},
+        {"../outside.txt": hashlib.sha256(b"outside").hexdigest()},
+    ):
+        v = tmp_path / "V"
+        (v / "sub").mkdir(parents=True, exist_ok=True)
+        (v / "thesis.txt").write_text("my thesis")
+        (v / "sub" / "data.csv").write_text("1,2")
+        _forged(v, files)
+        before = snapshot(tmp_path)
+        code, lines = _run(["reconstruct", "--images", photos, "--out", v, "--config", cfg], capsys)
+        assert code == 2 and len(lines) == 1 and "--force" in lines[0], (files, lines)
+        assert snapshot(tmp_path) == before, files
+        m = confine.read_manifest(v)
+        assert confine.owned_files(v, m) == {}, files
+
+
+def test_a_rerun_replaces_only_unchanged_recorded_files(tmp_path):
+    out = tmp_path / "out"
+    with confine.staged_output(out, "render-asset") as stage:
+        (stage / "sub").mkdir()
+        (stage / "sub" / "a.exr").write_text("1")
+        (stage / "b.exr").write_text("1")
+    # the user edits a recorded file: refused (named), kept
+    (out / "b.exr").write_text("edited")
+    with pytest.raises(confine.OutputError, match=r"b\.exr changed since `frng render-asset` wrote it"):
+        with confine.staged_output(out, "render-asset"):
+            pass
+    # --force: the changed file is replaced only where the new output writes it; a stale unchanged one goes
+    with confine.staged_output(out, "render-asset", force=True) as stage:
+        (stage / "b.exr").write_text("2")
+    assert (out / "b.exr").read_text() == "2" and not (out / "sub").exists()
+    # a file of the user's where the new output writes one: refused at the end, nothing changed
+    (out / "c.exr").write_text("the user's")
+    before = snapshot(tmp_path)
+    with pytest.raises(confine.OutputError, match=r"holds c\.exr, which `frng render-asset` would write over"):
+        with confine.staged_output(out, "render-asset") as stage:
+            (stage / "b.exr").write_text("3")
+            (stage / "c.exr").write_text("3")
+    assert snapshot(tmp_path) == before
+    # a recorded file replaced by a symlink to the user's file (same bytes): not owned, the target untouched
+    mine = tmp_path / "mine.exr"
+    mine.write_text("2")
+    (out / "b.exr").unlink()
+    (out / "b.exr").symlink_to(mine)
+    with pytest.raises(confine.OutputError, match="changed since"):
+        confine.check_output(out, "render-asset")
+    with confine.staged_output(out, "render-asset", force=True) as stage:
+        (stage / "b.exr").write_text("4")
+    assert mine.read_text() == "2" and (out / "b.exr").read_text() == "4" and not (out / "b.exr").is_symlink()
+
+
+# -- issue 87, probe 2: --force through a symlinked --out moved the target's files ---------------------------------
+
+
+def test_force_writes_through_a_symlinked_out(tmp_path):
+    target = tmp_path / "target"
+    (target / "deep").mkdir(parents=True)
+    (target / "notes.txt").write_text("notes")
+    (target / "deep" / "x.csv").write_text("x")
+    link = tmp_path / "link"
+    link.symlink_to(target, target_is_directory=True)
+    with pytest.raises(confine.OutputError, match="not empty"):
+        with confine.staged_output(link, "reconstruct"):
+            pass
+    with confine.staged_output(link, "reconstruct", force=True) as stage:
+        assert stage.resolve().parent == target.resolve()  # staged on the target's file system
+        (stage / "asset.json").write_text("{}")
+    assert link.is_symlink() and os.readlink(link) == str(target)
+    assert (target / "notes.txt").read_text() == "notes" and (target / "deep" / "x.csv").read_text() == "x"
+    assert (target / "asset.json").read_text() == "{}" and (target / confine.MANIFEST).is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link", "target"]  # no .old-* / .tmp-* left
+    assert not [p for p in target.iterdir() if p.name.startswith((".tmp-", ".old-"))]
+    # a rerun through the link (a previous output now): the target's files stay
+    with confine.staged_output(link, "reconstruct") as stage:
+        (stage / "asset.json").write_text('{"v": 2}')
+    assert (target / "notes.txt").read_text() == "notes" and (target / "asset.json").read_text() == '{"v": 2}'
+
+
+def test_a_symlinked_folder_inside_out_is_not_written_through(tmp_path):
+    """An output folder whose sub-folder the new output writes into is a symlink out: refused, with --force the link
+    is replaced and its target untouched."""
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "a.png").write_text("theirs")
+    out = tmp_path / "out"
+    with confine.staged_output(out, "export", merge=True) as stage:
+        (stage / "x.json").write_text("1")
+    (out / "obj").symlink_to(elsewhere, target_is_directory=True)
+    with pytest.raises(confine.OutputError, match="holds obj,"):
+        with confine.staged_output(out, "export", merge=True) as stage:
+            (stage / "obj").mkdir()
+            (stage / "obj" / "a.png").write_text("ours")
+    with confine.staged_output(out, "export", force=True, merge=True) as stage:
+        (stage / "obj").mkdir()
+        (stage / "obj" / "a.png").write_text("ours")
+    assert (elsewhere / "a.png").read_text() == "theirs" and not (out / "obj").is_symlink()
+    assert (out / "obj" / "a.png").read_text() == "ours" and (out / "x.json").read_text() == "1"
+
+
+def test_a_failed_move_in_undoes_itself(tmp_path, monkeypatch):
+    out = tmp_path / "out"
+    with confine.staged_output(out, "render-asset") as stage:
+        for n in "abc":
+            (stage / f"{n}.exr").write_text("1")
+    (out / "mine.txt").write_text("mine")
+    before = snapshot(tmp_path)
+    real, calls = os.replace, {"n": 0}
+
+    def flaky(src, dst):
+        calls["n"] += 1
+        if calls["n"] == 5:
+            raise OSError(errno.EXDEV, "Invalid cross-device link")
+        return real(src, dst)
+
+    monkeypatch.setattr(confine.os, "replace", flaky)
+    with pytest.raises(OSError):
+        with confine.staged_output(out, "render-asset") as stage:
+            for n in "abd":
+                (stage / f"{n}.exr").write_text("2")
+    monkeypatch.undo()
+    assert snapshot(tmp_path) == before
+
+
+# -- issue 87, probe 3: export --object ../../X read and wrote outside ----------------------------------------------
+
+
+def test_ids_that_become_paths_are_plain(tmp_path, capsys):
+    results = tmp_path / "a" / "b" / "results"
+    make_curated(results)
+    cfg = write_config(tmp_path / "c.yaml", results)
+    x = tmp_path / "X"
+    x.mkdir()
+    (x / "mine.txt").write_text("mine")
+    before = snapshot(tmp_path)
+    out = tmp_path / "a" / "b" / "out"
+    export = ["export", "--config", cfg, "--layout", "nerf-synthetic", "--out", out]
+    for argv in (
+        [*export, "--object", "../../../X"],
+        [*export, "--object", "obj_0000", "--scene", ".."],
+        ["reconstruct", "--export-object", "../x", "--out", out, "--config", cfg],
+        ["view", "--object", "/etc", "--config", cfg],
+    ):
+        code, lines = _run(argv, capsys)
+        assert code == 2 and len(lines) == 1, (argv, lines)
+        assert "no path parts" in lines[0] or "plain name" in lines[0], lines
+    assert snapshot(tmp_path) == before
+    with pytest.raises(confine.UntrustedInputError, match="object id '../X'"):
+        export_object("nerf-synthetic", results, "../X", tmp_path / "o")

@@ -15,8 +15,27 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_schema_enum_is_the_table():
     schema = yaml.safe_load((ROOT / "config" / "schema.yaml").read_text())
     prop = schema["properties"]["frng"]["properties"]["variants"]
-    assert tuple(prop["items"]["enum"]) == V.BASE_VARIANTS
+    assert tuple(prop["items"]["enum"]) == tuple(V.VARIANTS)
     assert tuple(prop["default"]) == V.BASE_VARIANTS
+    assert set(V.VARIANTS) - set(V.BASE_VARIANTS) == set(V.LEAVE_OUT_VARIANTS)  # plus-no-{addition}, opt-in
+
+
+def test_each_leave_out_variant_is_f_rng_plus_with_one_addition_off():
+    """plus-no-{addition} (the additions table): F-RNG+'s configuration with exactly that addition's paper-form
+    fields, every other addition kept."""
+    from frng.training.frng import ModelSections, variant_config
+
+    sections = ModelSections.of(typed(frng_config.load(ROOT / "config" / "config.yaml")))
+    plus, ind_plus = variant_config(sections, V.PLUS)
+    assert set(V.LEAVE_OUT_VARIANTS.values()) == set(V.ADDITIONS)
+    for name, key in V.LEAVE_OUT_VARIANTS.items():
+        cfg, ind = variant_config(sections, name)
+        a = V.ADDITIONS[key]
+        assert {k: getattr(cfg, k) for k in a.arch} == a.arch and {k: getattr(ind, k) for k in a.loss} == a.loss
+        others = {f for b in V.ADDITIONS.values() if b is not a for f in b.arch if f not in a.arch}
+        assert {f: getattr(cfg, f) for f in others} == {f: getattr(plus, f) for f in others}, name
+        assert V.variant(name + "@s1") == V.VARIANTS[name] and V.reads_priors(name)
+    assert V.leave_out_variant("pixel_head") == "plus-no-pixel-head"
 
 
 def test_variant_config_applies_the_table():

@@ -515,19 +515,35 @@ def load_asset(folder: str | os.PathLike) -> tuple[Gaussians, torch.Tensor, dict
     from safetensors import SafetensorError
     from safetensors.torch import load_file
 
+    from frng import confine
+
     folder = Path(folder)
     if not folder.is_dir():
         raise AssetError(f"{folder}: asset folder does not exist")
-    meta_path, ply_path, dec_path = folder / META_FILE, folder / PLY_FILE, folder / DECODER_FILE
-    for p in (meta_path, ply_path, dec_path):
-        if not p.exists():
-            raise AssetError(f"{p}: missing file (an asset folder holds {META_FILE}, {PLY_FILE}, {DECODER_FILE})")
     try:
+        meta_path = confine.folder_file(folder, META_FILE, source=folder / META_FILE, field=None)
+        if not meta_path.exists():
+            raise AssetError(
+                f"{meta_path}: missing file (an asset folder holds {META_FILE}, {PLY_FILE}, {DECODER_FILE})"
+            )
         meta = read_json(meta_path)
-    except ValueError as e:
+    except ValueError as e:  # confine.UntrustedInputError too: a symlink out of the folder
         raise AssetError(str(e)) from e
     if not isinstance(meta, dict):
         raise AssetError(f"{meta_path}: not a JSON object (a {type(meta).__name__})")
+    try:  # the files asset.json names: plain names inside the folder, no symlink out (one check for every loader)
+        ply_path = confine.folder_file(folder, meta.get("ply", PLY_FILE), source=meta_path, field="ply")
+        dec_path = confine.folder_file(
+            folder, meta.get("decoder_weights", DECODER_FILE), source=meta_path, field="decoder_weights"
+        )
+    except confine.UntrustedInputError as e:
+        raise AssetError(str(e)) from None
+    for p in (ply_path, dec_path):
+        if not p.exists():
+            raise AssetError(f"{p}: missing file (an asset folder holds {META_FILE}, {PLY_FILE}, {DECODER_FILE})")
+    bad = confine.first_nonfinite(meta)
+    if bad is not None:  # json reads NaN / Infinity: a NaN field of view renders all-zero frames
+        raise AssetError(f"{meta_path}: field {confine.dotted(bad)!r} is not a finite number (NaN or inf)")
     if meta.get("format") != FORMAT:
         raise AssetError(f"{meta_path}: field 'format' is {meta.get('format')!r}, expected {FORMAT!r}")
     if meta.get("version") != FORMAT_VERSION:

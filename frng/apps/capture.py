@@ -35,6 +35,11 @@ Cameras (:func:`read_cameras`, :func:`rig_cameras`, :func:`normalise`)
       ``cv2.solvePnP``), or entries with ``c2w`` (4x4 OpenCV camera-to-world) + ``intrinsics`` (fx, fy, cx, cy)
       as :mod:`frng.data.rig` and ``meta.json`` write them (``width``/``height``: the size K refers to). Cameras
       are matched to photos by file stem, else by order when the counts agree.
+      Also a COLMAP model (text or binary), LLFF ``poses_bounds.npy`` and IDR / NeuS ``cameras_sphere.npz``, and
+      lens distortion (transforms.json ``k1 k2 p1 p2``, COLMAP's models), undistorted before anything else
+      (:mod:`frng.apps.camera_formats`); the world is turned upright and centred on the object, the transform
+      recorded (``world_to_asset``), and among more than :data:`MAX_VIEWS` photos (or ``--select N``) the views
+      are chosen and the rest held out (:mod:`frng.apps.capture_frame`).
       Normalisation to the training rig: the common centre (the point nearest every optical axis) moves to the
       origin and the world is scaled so the median camera distance is ``render.camera_distance``; each photo is
       then cropped to the window that has the training field of view (``render.fov_deg``) around the projection of
@@ -71,6 +76,8 @@ from pathlib import Path
 import numpy as np
 
 from frng import camera, confine, io
+from frng.apps import camera_formats, capture_frame
+from frng.apps.capture_errors import CaptureError
 from frng.render import envmap
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".exr")
@@ -81,10 +88,6 @@ MAX_AXIS_DEG = 15.0
 EMPTY_FRACTION = 0.001
 FRAMINGS = ("auto", "keep", "object")
 LIGHT_COLOUR = "neutral"  # "neutral": grey-world light colour (default, measured); "fit": as fitted
-
-
-class CaptureError(ValueError):
-    """Bad capture input (names the file at fault); nothing was written."""
 
 
 @dataclass
@@ -189,11 +192,13 @@ def parse_grid(text: str | None) -> tuple[int, int] | None:
     return r, c
 
 
-def load_images(source: str | Path, grid: tuple[int, int] | None = None, allow_outside: bool = True) -> list[Photo]:
+def load_images(
+    source: str | Path, grid: tuple[int, int] | None = None, allow_outside: bool = True, only=None
+) -> list[Photo]:
     """The photos of a capture: every image file of a folder (sorted by name), or with ``grid`` the tiles of one
     image (a file, or a folder holding exactly one). Checks the count (2-10) and that the aspect ratios agree.
     ``allow_outside=False``: a symlink out of the folder is refused (``frng reconstruct`` without
-    ``--allow-outside``)."""
+    ``--allow-outside``). ``only``: the file stems to read (the chosen views, :mod:`frng.apps.capture_frame`)."""
     source = Path(source)
     if grid is not None:
         files = [source] if source.is_file() else image_files(source, allow_outside=allow_outside)
@@ -218,6 +223,7 @@ def load_images(source: str | Path, grid: tuple[int, int] | None = None, allow_o
         if source.is_file():
             raise CaptureError(f"{source}: --images takes a folder of images (or one grid image with --grid)")
         files = image_files(source, allow_outside=allow_outside)
+        files = files if only is None else [f for f in files if f.stem in set(only)]
         photos = []
         for f in files:
             rgb, a = read_image(f)
@@ -229,7 +235,10 @@ def load_images(source: str | Path, grid: tuple[int, int] | None = None, allow_o
             f"{source}: {len(photos)} image(s); a capture needs at least {MIN_VIEWS} views ({', '.join(IMAGE_EXTS)})"
         )
     if len(photos) > MAX_VIEWS:
-        raise CaptureError(f"{source}: {len(photos)} images; a capture takes at most {MAX_VIEWS} views")
+        raise CaptureError(
+            f"{source}: {len(photos)} images; a capture takes at most {MAX_VIEWS} views (with --cameras the "
+            f"views are chosen among more photos)"
+        )
     w0, h0 = photos[0].size
     for p in photos[1:]:
         w, h = p.size
@@ -404,7 +413,11 @@ def read_cameras(path: str | Path, sizes: dict[str, tuple[int, int]] | None = No
                     ang = get("camera_angle_x")
                     if ang is None:
                         raise CaptureError(f"{path}: frame {name!r} has neither fl_x nor camera_angle_x")
-                    fx = 0.5 * float(w) / math.tan(0.5 * float(ang))
+                    try:  # 0 divided by zero; pi gave fx = 2.6e-14 (frng.confine.angle: in (0, pi))
+                        ang = confine.angle(ang, source=path, field=f"frames[{k}].camera_angle_x")
+                    except confine.UntrustedInputError as e:
+                        raise CaptureError(str(e)) from None
+                    fx = 0.5 * float(w) / math.tan(0.5 * ang)
                 fy = get("fl_y") or fx
                 cx, cy = get("cx"), get("cy")
                 intr = np.array([fx, fy, w / 2.0 if cx is None else cx, h / 2.0 if cy is None else cy], np.float64)
@@ -438,9 +451,11 @@ def read_cameras(path: str | Path, sizes: dict[str, tuple[int, int]] | None = No
         raise
     except (KeyError, TypeError, ValueError, AttributeError) as e:
         raise CaptureError(f"{path}: malformed camera entry ({type(e).__name__}: {e})") from None
-    for name, c in out:
-        if not (np.all(np.isfinite(c.c2w)) and np.all(np.isfinite(c.intr))) or c.intr[0] <= 0 or c.intr[1] <= 0:
-            raise CaptureError(f"{path}: camera {name!r} has non-finite values or a focal length <= 0")
+    for name, c in out:  # finite, not singular, not 1e30 away, a field of view (frng.confine.check_camera)
+        try:
+            confine.check_camera(c.c2w, c.intr, c.size, source=path, field=f"camera {name!r}")
+        except confine.UntrustedInputError as e:
+            raise CaptureError(str(e)) from None
     if not out:
         raise CaptureError(f"{path}: no cameras")
     return out
@@ -605,10 +620,29 @@ def prepare(
     grid: tuple[int, int] | None = None,
     framing: str = "auto",
     allow_outside: bool = True,
+    select: int | None = None,
 ) -> Capture:
     """Photos -> :class:`Capture` (module docstring). ``cameras`` (a file) or ``rig`` (``"paper"``, the default).
-    ``allow_outside=False``: photos and masks that are symlinks out of their folders are refused."""
-    photos = make_masks(load_images(images, grid, allow_outside), masks, grid, allow_outside)
+    ``allow_outside=False``: photos and masks that are symlinks out of their folders are refused. With ``cameras``
+    (any format of :mod:`frng.apps.camera_formats`) the photos are undistorted and the world turned upright, and
+    among more than :data:`MAX_VIEWS` photos (or with ``select``) the views are chosen
+    (:mod:`frng.apps.capture_frame`)."""
+    sel = None
+    if cameras is not None and grid is None and not Path(images).is_file():
+        sel = capture_frame.select_photos(
+            images,
+            cameras,
+            image_files(Path(images), allow_outside=allow_outside),
+            select=select,
+            load=lambda f: make_masks([Photo(f.stem, f, *read_image(f))], masks, None, allow_outside)[0],
+            read_set=lambda path, sizes: camera_formats.read_camera_set(path, sizes, fallback=read_cameras),
+            min_views=MIN_VIEWS,
+            max_views=MAX_VIEWS,
+        )
+    elif select is not None:
+        raise CaptureError(f"--select {select}: views are chosen among a folder of photos with --cameras")
+    only = None if sel is None else sel.chosen
+    photos = make_masks(load_images(images, grid, allow_outside, only), masks, grid, allow_outside)
     res = int(resolution)
     names = [p.name for p in photos]
     info: dict = {
@@ -619,8 +653,12 @@ def prepare(
         "fov_deg": fov_deg,
     }
     if cameras is not None:
-        cams = match_cameras(photos, read_cameras(Path(cameras), {p.name: p.size for p in photos}), Path(cameras))
+        cset = sel.cset if sel is not None else None
+        cset = cset or camera_formats.read_camera_set(Path(cameras), {p.name: p.size for p in photos}, read_cameras)
+        frame = capture_frame.Frame.build(cset, photos, sel)  # undistorts the photos, turns the world upright
+        cams = match_cameras(photos, frame.cameras, Path(cameras))
         centre = common_centre(cams, [p.path.name if p.path.stem == p.name else p.name for p in photos], cameras)
+        centre = frame.object_centre(cams, photos, centre)
         dists = [np.linalg.norm(k.c2w[:3, 3] - centre) for k in cams]
         scale = distance / float(np.median(dists))
         t = math.tan(math.radians(fov_deg) / 2)
@@ -637,6 +675,7 @@ def prepare(
             out_intr.append(np.array([fx * res / wc, fy * res / hc, (cx - x0) * res / wc, (cy - y0) * res / hc]))
             wins.append({"x0": x0, "y0": y0, "w": wc, "h": hc})
         info |= {"cameras": str(cameras), "centre": centre.tolist(), "scale": scale}
+        info |= frame.record(centre, scale)
     else:
         if rig not in (None, "paper"):
             raise CaptureError(f"--rig {rig!r}: the only rig is 'paper'")
@@ -647,7 +686,7 @@ def prepare(
         wins = frame_rig(photos, framing, distance, fov_deg, res)
         out_c2w = [k.c2w for k in cams]
         out_intr = [k.intr for k in cams]
-        info |= {"cameras": "rig:paper"}
+        info |= {"cameras": "rig:paper", "world_to_asset": np.eye(4).tolist()}
     rgba = [
         resample(np.concatenate([p.rgb, p.alpha[..., None]], -1), w["x0"], w["y0"], w["w"], w["h"], res)
         for p, w in zip(photos, wins)
@@ -757,6 +796,7 @@ def reconstruct(
     light_colour: str = LIGHT_COLOUR,
     force: bool = False,
     allow_outside: bool = False,
+    select: int | None = None,
 ) -> dict:
     """Photos -> an asset folder ``out`` (:mod:`frng.apps.asset`, plus ``input_light.exr`` and ``contact_sheet.png``).
 
@@ -769,7 +809,7 @@ def reconstruct(
     ``out`` is written through :func:`frng.confine.staged_output`: a non-empty folder that is not a previous asset
     (of ``frng reconstruct``) is refused unless ``force``, which replaces only the asset's files and keeps the
     others; a failure leaves the previous ``out`` whole. ``allow_outside``: read photos and masks that are symlinks
-    out of their folders."""
+    out of their folders. ``select``: how many views to choose among the photos (:func:`prepare`)."""
     import torch
 
     from frng.apps.asset import RIG_KEY, render_settings, save_asset
@@ -794,6 +834,7 @@ def reconstruct(
         grid=grid,
         framing=framing,
         allow_outside=allow_outside,
+        select=select,
     )
     if float(np.max(cap.rgb, initial=0.0)) < 1.0 / 4096:  # an asset lit by an all-zero light, else
         import sys
@@ -804,6 +845,8 @@ def reconstruct(
             file=sys.stderr,
         )
     env_given = read_light(light) if light is not None else None
+    if env_given is not None:  # given in the user's frame; the asset's is upright (frng.apps.capture_frame)
+        env_given = capture_frame.light_to_asset(env_given, cap.info["world_to_asset"])
     L = Layout(cfg.results)
     model = Path(model) if model is not None else default_model(L)
     backbone_path = Path(L.backbone_model())

@@ -28,6 +28,7 @@ VIDEO_MIN_SIZE = 128  # turntable video frames are upscaled (nearest neighbour, 
 MAX_RESOLUTION = 2048  # the largest image side rendered (--resolution or a camera file's sizes): memory grows with it
 MAX_VIEWS = 1000  # the most views one call renders (--turntable N or a camera file)
 MAX_SPP = 4096  # the most light samples per pixel (--spp, or the asset's shading.spp_infer)
+DEFAULT_TURNTABLE = 24  # views of a turntable when neither --turntable nor --cameras is given
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="output folder")
     cams = parser.add_mutually_exclusive_group()
     cams.add_argument("--cameras", help="camera file (transforms.json, OpenCV, frng cameras.json)")
-    cams.add_argument("--turntable", type=int, help="N views around the object (default 24)")
+    cams.add_argument("--turntable", type=int, help=f"N views around the object (default {DEFAULT_TURNTABLE})")
     parser.add_argument("--elevation", type=float, default=20.0, help="turntable elevation, degrees")
     parser.add_argument("--distance", type=float, help="turntable camera distance (default: the asset's rig)")
     parser.add_argument("--fov", type=float, help="turntable horizontal field of view (default: the asset's rig)")
@@ -52,6 +53,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="replace a non-empty --out that is not a previous render-asset output (only its files; others kept)",
     )
+
+
+def _rig_number(rig: dict, key: str, default: float, source: Path, low: float, high: float) -> float:
+    """``rig[key]`` of an asset (its training rig), checked: a finite number in (low, high] (a NaN field of view
+    rendered all-zero frames); the default where absent."""
+    from frng.apps.capture import CaptureError
+
+    v = rig.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (np.isfinite(v) and low < v <= high):
+        raise CaptureError(f"{source}: field 'rig.{key}' is {v!r}; must be a number in ({low:g}, {high:g}]")
+    return float(v)
 
 
 def turntable(n: int, elevation: float, distance: float, fov: float, res: int) -> list[dict]:
@@ -129,7 +141,7 @@ def render(args: argparse.Namespace) -> dict:
         raise CaptureError("--device cuda: no CUDA device available")
     r = open_renderer(args.asset, device)
     rig = r.rig
-    res = args.resolution or int(rig.get("resolution", 64))
+    res = args.resolution or int(_rig_number(rig, "resolution", 64, Path(args.asset) / "asset.json", 0, 1e9))
     if args.cameras:
         cams = []
         for name, c in read_cameras(Path(args.cameras)):
@@ -150,16 +162,13 @@ def render(args: argparse.Namespace) -> dict:
         if len({(c["width"], c["height"]) for c in cams}) != 1:
             raise CaptureError(f"{args.cameras}: cameras of different image sizes; render them separately")
     else:
-        n = args.turntable or 24
+        n = DEFAULT_TURNTABLE if args.turntable is None else args.turntable
         if not 1 <= n <= MAX_VIEWS:
-            raise CaptureError(f"--turntable N: N must be 1..{MAX_VIEWS}")
-        cams = turntable(
-            n,
-            args.elevation,
-            args.distance or float(rig.get("camera_distance", 4.0)),
-            args.fov or float(rig.get("fov_deg", 40.0)),
-            res,
-        )
+            raise CaptureError(f"--turntable {n}: N must be 1..{MAX_VIEWS}")
+        meta = Path(args.asset) / "asset.json"
+        distance = args.distance or _rig_number(rig, "camera_distance", 4.0, meta, 0.0, 1e4)
+        fov = args.fov or _rig_number(rig, "fov_deg", 40.0, meta, 0.0, 180.0)
+        cams = turntable(n, args.elevation, distance, fov, res)
     W, H = cams[0]["width"], cams[0]["height"]
     where = args.cameras or "the asset's rig (asset.json 'rig.resolution')"
     if not (1 <= W <= MAX_RESOLUTION and 1 <= H <= MAX_RESOLUTION):
@@ -191,17 +200,52 @@ def _render_into(out: Path, r, env: np.ndarray, cams: list[dict], args: argparse
     intr = torch.tensor(np.array([c["intrinsics"] for c in cams]), dtype=torch.float32)
     env_t = torch.from_numpy(env)
     frames = []
+    seen = lit = False
     for i0 in range(0, len(cams), 8):  # a few views at a time: bounded memory at large sizes
         g = torch.Generator().manual_seed(int(args.seed))
         rgba = r.render(env_t, c2w[i0 : i0 + 8], intr[i0 : i0 + 8], H, W, args.spp, g).cpu().numpy()
+        check_render(rgba, [c["name"] for c in cams[i0 : i0 + 8]], args.asset)
+        seen = seen or bool((rgba[..., 3] > 0).any())
+        lit = lit or bool((rgba[..., :3] > 0).any())
         for c, img in zip(cams[i0 : i0 + 8], rgba):
             io.write_exr(out / f"{c['name']}.exr", img, channels=["R", "G", "B", "A"])
             a = np.clip(img[..., 3:4], 0, 1)
             straight = np.where(a > 1e-6, img[..., :3] / np.maximum(a, 1e-6), 0.0)
             io.write_png(out / f"{c['name']}.png", np.concatenate([io.srgb_encode(straight), a], -1))
             frames.append((np.clip(io.srgb_encode(io.composite(img)), 0, 1) * 255 + 0.5).astype(np.uint8))
+    check_lit(seen, lit, float(env.max(initial=0.0)), args)
     io.write_json(out / "cameras.json", {"cameras": cams})
     if not args.cameras and args.video != "none":
         video = write_video(out / f"turntable.{args.video}", frames, args.fps)
         return str(Path(args.out) / video.name)
     return None
+
+
+def check_render(rgba: np.ndarray, names: list[str], asset) -> None:
+    """A rendered batch is finite, else one line naming the asset and the view (never a NaN image written)."""
+    from frng.apps.capture import CaptureError
+
+    bad = ~np.isfinite(rgba).reshape(len(rgba), -1).all(axis=1)
+    if bad.any():
+        raise CaptureError(
+            f"{asset}: the render of view {names[int(np.argmax(bad))]!r} has non-finite values (NaN or inf); nothing "
+            f"was written"
+        )
+
+
+def check_lit(seen: bool, lit: bool, light_max: float, args) -> None:
+    """After every view: a turntable (cameras around the object, looking at it) that sees nothing of the asset, or
+    an asset that renders black in every view it covers under a light that is not black, is an error, not a folder
+    of empty or black images. (A camera file may look away from the object: its empty frames are written.)"""
+    from frng.apps.capture import CaptureError
+
+    if not seen and not args.cameras:
+        raise CaptureError(
+            f"{args.asset}: no turntable view sees the asset (every pixel empty; check --distance / --fov and the "
+            f"asset's rig); nothing was written"
+        )
+    if light_max > 0 and not lit:
+        raise CaptureError(
+            f"{args.asset}: every view renders black under {args.env}, a light that is not black (its decoder or "
+            f"features give no light back); nothing was written"
+        )

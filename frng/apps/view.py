@@ -53,6 +53,8 @@ from pathlib import Path
 
 import numpy as np
 
+from frng import confine
+
 HOST = "127.0.0.1"
 DEFAULT_PORT = 8080
 REST_S = 0.3  # nothing changed for this long: render the full-quality frame
@@ -70,6 +72,9 @@ TILE_MIN = 128  # side-by-side tiles are upscaled (nearest neighbour, integer fa
 MAX_ASPECT = 4  # frames are at most 4:1 (or 1:4), whatever the browser window's shape
 FALLBACK_RESOLUTION = 64  # frame height when neither the asset's rig nor an object's views give one
 FULL, LOW = "full", "low"  # frame qualities, as the status line names them
+
+
+LOCAL_NAMES = ("127.0.0.1", "localhost")  # the Host / Origin names the viewer answers (frng.confine.local_request)
 
 
 class ViewError(ValueError):
@@ -128,7 +133,11 @@ def collect_lights(
     for f in env_files:
         add(f"{Path(f).stem} · file", Path(f))
     if (Path(asset) / "input_light.exr").exists():
-        add("input light", Path(asset) / "input_light.exr")
+        try:  # a symlink out of the asset's folder is not read (frng.confine.folder_file, as load_asset)
+            light = confine.folder_file(asset, "input_light.exr", source=Path(asset) / "input_light.exr", field=None)
+        except confine.UntrustedInputError as e:
+            raise ViewError(str(e)) from None
+        add("input light", light)
     if results is not None:
         L = Layout(results)
         if not (Path(asset) / "input_light.exr").exists() and object_id and Path(L.object_meta(object_id)).exists():
@@ -205,6 +214,36 @@ def viewport_camera(
     c2w[:3, 3] = np.asarray(position, np.float64)
     f = 0.5 * height / math.tan(0.5 * float(fov_y))
     return c2w, np.array([f, f, width / 2.0, height / 2.0])
+
+
+MAX_CLIENT_DISTANCE = 1e4  # a viewport camera farther from the origin is ignored (the object lies in the unit sphere)
+MAX_EXPOSURE_EV = 20.0  # the panel's slider is +-4; a client's value beyond this is ignored
+MAX_ROTATION_DEG = 360.0  # the panel's slider is +-180
+
+
+def client_camera(position, wxyz, fov, *, source: str) -> tuple[np.ndarray, np.ndarray, float]:
+    """A viewport camera from the browser, checked (:mod:`frng.confine`): a finite position within
+    :data:`MAX_CLIENT_DISTANCE`, a finite non-zero quaternion, a vertical field of view in (0, pi); else an
+    :class:`~frng.confine.UntrustedInputError` naming ``source`` and the field."""
+    pos = confine.finite(position, source=source, field="camera.position", shape=(3,), minimum=-MAX_CLIENT_DISTANCE,
+                         maximum=MAX_CLIENT_DISTANCE)  # fmt: skip
+    q = confine.finite(wxyz, source=source, field="camera.wxyz", shape=(4,))
+    if not np.linalg.norm(q) > 1e-8:
+        raise confine.NonFiniteError(f"{source}: field 'camera.wxyz' is not a rotation (zero quaternion)")
+    return pos, q, confine.angle(fov, source=source, field="camera.fov")
+
+
+def client_light(by_label: dict, label, rotation, exposure, *, source: str) -> tuple[str, float, float]:
+    """(map label, rotation degrees, exposure EV) from the browser's panel, checked: a label among ``by_label``, finite
+    numbers within :data:`MAX_ROTATION_DEG` / :data:`MAX_EXPOSURE_EV`; else an
+    :class:`~frng.confine.UntrustedInputError` naming ``source`` and the field."""
+    if not isinstance(label, str) or label not in by_label:
+        raise confine.UntrustedInputError(f"{source}: field 'map' is {str(label)[:80]!r}, not one of the viewer's maps")
+    rot = confine.finite(rotation, source=source, field="rotation", shape=(), minimum=-MAX_ROTATION_DEG,
+                         maximum=MAX_ROTATION_DEG)  # fmt: skip
+    ev = confine.finite(exposure, source=source, field="exposure", shape=(), minimum=-MAX_EXPOSURE_EV,
+                        maximum=MAX_EXPOSURE_EV)  # fmt: skip
+    return label, float(rot), float(ev)
 
 
 def camera_pose(c2w: np.ndarray, intr: Sequence[float], height: int) -> dict:
@@ -404,6 +443,45 @@ class TestObject:
 # -- the server ---------------------------------------------------------------------------------------------------
 
 
+_SERVE_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def own_page_only(port: int, log=print):
+    """While viser starts its server inside this block, every HTTP request and websocket handshake it gets first
+    passes :func:`frng.confine.local_request` (Host 127.0.0.1 / localhost on ``port``; an Origin, where sent, the
+    same): anything else is answered 403 and logged in one line. What Jupyter and TensorBoard do: a web page on
+    another origin cannot drive the viewer, and a DNS-rebound name (Host: evil.example) is not served.
+
+    viser (``viser.infra._infra``) passes its ``process_request`` hook to ``websockets.asyncio.server.serve`` and
+    exposes no option for it: ``serve`` is wrapped for the duration of the start (viser waits until it listens)."""
+    import websockets.asyncio.server as ws_server
+
+    from frng import confine
+
+    with _SERVE_LOCK:
+        real = ws_server.serve
+
+        def serve(*args, **kwargs):
+            inner = kwargs.get("process_request")
+
+            def process_request(connection, request):
+                refusal = confine.local_request(request.headers, port, LOCAL_NAMES)
+                if refusal is not None:
+                    log(f"frng view: refused {request.path[:80]!r}: {refusal}")
+                    return connection.respond(403, f"frng view: {refusal}\n")
+                return inner(connection, request) if inner is not None else None
+
+            kwargs["process_request"] = process_request
+            return real(*args, **kwargs)
+
+        ws_server.serve = serve
+        try:
+            yield
+        finally:
+            ws_server.serve = real
+
+
 def check_port(port: int, host: str = HOST) -> None:
     """A :class:`ViewError` when ``host:port`` cannot be listened on (in use, or not a port)."""
     if not 1 <= int(port) <= 65535:
@@ -444,6 +522,7 @@ class Viewer:
         self._save_lock = threading.Lock()
         self._rotated: dict[tuple[str, float], np.ndarray] = {}
         self._env_lock = threading.Lock()
+        self.log = lambda line: print(line, flush=True)  # one line per refused request or ignored client value
 
     def start(self, port: int) -> str:
         """Listen on 127.0.0.1:port; returns the URL. A :class:`ViewError` (nothing left running) when the port is
@@ -451,7 +530,7 @@ class Viewer:
         import viser
 
         check_port(port)
-        with contextlib.redirect_stdout(StringIO()):  # viser's banner: serve() prints one line instead
+        with contextlib.redirect_stdout(StringIO()), own_page_only(int(port), self.log):  # banner: serve() prints
             server = viser.ViserServer(host=HOST, port=int(port), label="frng view", verbose=False)
         if server.get_port() != int(port):  # taken between the check and the bind: viser moved on to another
             with contextlib.redirect_stdout(StringIO()):
@@ -599,6 +678,7 @@ class _Session:
         self.shown: tuple | None = None  # the key of the frame on screen
         self.last: tuple[tuple, np.ndarray, float] | None = None  # (render key, rgba, seconds)
         self.count = 0
+        self._ignored: str | None = None  # the last bad client value logged
         self._build_panel()
         client.camera.on_update(lambda _cam: self.touch())
         self.thread = threading.Thread(target=self._loop, name=f"frng-view-{client.client_id}", daemon=True)
@@ -641,8 +721,25 @@ class _Session:
         self.wake.set()
 
     def light_changed(self) -> None:
-        self.thumb.image = thumbnail(self.viewer.env(self.map.value, self.rotation.value))
+        try:
+            label, rot, _ = self._light()
+        except confine.UntrustedInputError as e:
+            self._ignore(e)
+            return
+        self.thumb.image = thumbnail(self.viewer.env(label, rot))
         self.touch()
+
+    def _ignore(self, e: Exception) -> None:
+        """A bad value from the browser: ignored (the last frame stays), logged once per distinct message."""
+        msg = str(e).splitlines()[0]
+        if msg != self._ignored:
+            self._ignored = msg
+            self.viewer.log(f"frng view: ignored a client value: {msg}")
+
+    def _light(self) -> tuple[str, float, float]:
+        """(map label, rotation, exposure) from the panel, checked (:func:`client_light`)."""
+        return client_light(self.viewer.by_label, self.map.value, self.rotation.value, self.exposure.value,
+                            source=f"client {self.client.client_id}")  # fmt: skip
 
     def target_changed(self) -> None:
         t = self.viewer.test_object
@@ -679,8 +776,8 @@ class _Session:
     def export(self) -> None:
         self.exported.content = "exporting..."
         try:
-            path, psnr = self.viewer.export(self.map.value, float(self.rotation.value), float(self.exposure.value),
-                                            self.export_format.value)  # fmt: skip
+            label, rot, ev = self._light()
+            path, psnr = self.viewer.export(label, rot, ev, str(self.export_format.value))
         except Exception as e:  # shown in the panel: the server keeps running
             self.exported.content = f"export failed: {str(e).splitlines()[0]}"
             return
@@ -695,11 +792,15 @@ class _Session:
         """(c2w, intr, width, height, map label, rotation, exposure) of the current state at ``quality``."""
         cam, st = self.client.camera, self.viewer.settings
         res = st.resolution if quality == FULL else max(MIN_LOW_HEIGHT, st.resolution // LOW_DIVISOR)
-        aspect = cam.image_width / max(cam.image_height, 1) if cam.image_height else 1.0
+        source = f"client {self.client.client_id}"
+        size = confine.finite([cam.image_width, cam.image_height], source=source, field="camera.image size",
+                              minimum=0, maximum=1e6)  # fmt: skip
+        aspect = size[0] / max(size[1], 1) if size[1] else 1.0
         aspect = min(max(aspect, 1.0 / MAX_ASPECT), float(MAX_ASPECT))
         w, h = frame_size(res, aspect)
-        c2w, intr = viewport_camera(cam.position, cam.wxyz, cam.fov, w, h)
-        return c2w, intr, w, h, self.map.value, float(self.rotation.value), float(self.exposure.value)
+        position, wxyz, fov = client_camera(cam.position, cam.wxyz, cam.fov, source=source)
+        c2w, intr = viewport_camera(position, wxyz, fov, w, h)
+        return c2w, intr, w, h, *self._light()
 
     def _spp(self, quality: str) -> int:
         full = self.viewer.settings.spp or self.viewer.frames.spp
@@ -712,6 +813,9 @@ class _Session:
             try:
                 view = self._view(quality)
             except (AssertionError, AttributeError):  # no camera message yet
+                view = None
+            except confine.UntrustedInputError as e:  # a bad value from the browser: the last frame stays
+                self._ignore(e)
                 view = None
             if view is not None:
                 key = (quality, view[0].tobytes(), *view[2:], self._spp(quality))
@@ -873,11 +977,14 @@ __all__ = [
     "camera_pose",
     "camera_record",
     "check_port",
+    "client_camera",
+    "client_light",
     "collect_lights",
     "display",
     "frame_size",
     "measure",
     "open_viewer",
+    "own_page_only",
     "quat_to_matrix",
     "serve",
     "thumbnail",

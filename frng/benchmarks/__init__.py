@@ -61,6 +61,8 @@ def import_scene(
 def export_object(layout: str, results: str | Path, oid: str, out: str | Path, scene: str | None = None) -> Path:
     """Write curated object ``oid`` of ``results`` in ``layout``'s published layout under ``out``; returns the path
     ``frng import {layout}`` takes."""
+    from frng import confine
     from frng.benchmarks.common import open_curated
 
+    confine.check_id(oid, "object id")  # it becomes a path (the curated folder read, the scene written)
     return module(layout).write(open_curated(results, oid), out, scene)

@@ -50,7 +50,7 @@ from frng.model.materialformer import (
 from frng.model.opacity import GEOMETRY_CHANNELS, OpacityHead, geometry_inputs
 from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, select_top_k
 from frng.model.tokenizers import PriorTokenizer, stack_priors
-from frng.plan.sections import register, section
+from frng.plan.sections import architecture_bounds, register, section
 from frng.render import RasterConfig, envmap, rasterize
 from frng.render.decoder import shade_decoder
 from frng.render.shading import (
@@ -480,7 +480,9 @@ class FRNG(nn.Module):
         """Load ``results/models/{variant}/model.pt`` in eval mode on ``device``."""
         from frng.io import load_torch
 
-        state = load_torch(path, "F-RNG model file")  # weights_only: a crafted model.pt runs nothing
+        state = load_torch(
+            path, "F-RNG model file", architecture_bounds()
+        )  # weights_only: a crafted model.pt runs nothing
         if not isinstance(state, dict) or state.get("kind") != MODEL_KIND:
             kind = state.get("kind") if isinstance(state, dict) else type(state).__name__
             raise ValueError(f"{path}: not an F-RNG model file (kind {kind!r})")

@@ -58,6 +58,7 @@ def validate(config: dict, schema: dict | None = None) -> dict:
 
     Raises :class:`ConfigError` naming the first offending key.
     """
+    check_finite(config)
     schema = schema if schema is not None else load_schema()
     validator = _validator_with_defaults(schema)
     errors = sorted(validator.iter_errors(config), key=lambda e: (len(e.absolute_path), str(e.absolute_path)))
@@ -72,6 +73,23 @@ def validate(config: dict, schema: dict | None = None) -> dict:
             msg = err.message
         raise ConfigError(f"config key '{_key(path)}': {msg}")
     check_semantics(config)
+    return config
+
+
+def check_finite(config: dict) -> None:
+    """One rule for every number of a config, whatever its key: NaN and inf are refused (JSON Schema's ``minimum``
+    and ``maximum`` let NaN through, and YAML reads ``.nan`` / ``.inf``), naming the key."""
+    from frng.confine import dotted, first_nonfinite
+
+    bad = first_nonfinite(config)
+    if bad is not None:
+        value = get_path(config, bad)
+        raise ConfigError(f"config key '{dotted(bad)}': {value!r} is not a finite number (NaN and inf are refused)")
+
+
+def get_path(config, path: tuple):
+    for p in path:
+        config = config[p]
     return config
 
 
@@ -132,7 +150,8 @@ def read_yaml(path: Path | str) -> dict:
     """Read a config YAML file as a mapping (no validation).
 
     Raises :class:`ConfigError` naming the file (and the line of a YAML syntax error) when the file is missing,
-    unreadable, not YAML, or not a mapping at the top level."""
+    unreadable, not YAML (a key given twice included: :func:`frng.confine.load_yaml`), or not a mapping at the top
+    level."""
     path = Path(path)
     if not path.exists():
         raise ConfigError(f"config file {path} does not exist")
@@ -143,7 +162,9 @@ def read_yaml(path: Path | str) -> dict:
     except OSError as e:
         raise ConfigError(f"config file {path}: cannot read ({e.strerror})") from e
     try:
-        config = yaml.safe_load(text)
+        from frng.confine import load_yaml
+
+        config = load_yaml(text)  # a key given twice is refused, naming it
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None) or getattr(e, "context_mark", None)
         where = f", line {mark.line + 1} column {mark.column + 1}" if mark is not None else ""

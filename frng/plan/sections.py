@@ -54,6 +54,38 @@ def schema_node(where: str | None) -> dict:
     return node
 
 
+def schema_bounds(schema: Mapping, sections: tuple[str, ...]) -> dict[str, tuple[float | None, float | None]]:
+    """Key name -> (minimum, maximum) of the number keys of the config schema's ``sections`` (dotted; a name in
+    several: the loosest bounds), from ``minimum`` / ``exclusiveMinimum`` / ``maximum`` / ``exclusiveMaximum``."""
+    out: dict[str, tuple[float | None, float | None]] = {}
+    for where in sections:
+        node = schema
+        for part in where.split("."):
+            node = (node.get("properties") or {}).get(part) or {}
+        for name, sub in (node.get("properties") or {}).items():
+            if not isinstance(sub, Mapping):
+                continue
+            lo = sub.get("minimum", sub.get("exclusiveMinimum"))
+            hi = sub.get("maximum", sub.get("exclusiveMaximum"))
+            if name in out:
+                a, b = out[name]
+                lo = None if a is None or lo is None else min(a, lo)
+                hi = None if b is None or hi is None else max(b, hi)
+            out[name] = (lo, hi)
+    return out
+
+
+ARCHITECTURE_SECTIONS = ("frng", "backbone", "idm", "shading", "raster", "model")  # schema sections a model records
+
+
+@functools.lru_cache(maxsize=1)
+def architecture_bounds() -> dict[str, tuple[float | None, float | None]]:
+    """Key name -> (None, maximum) over :data:`ARCHITECTURE_SECTIONS`: what a model file's architecture record is
+    checked against before a model is built from it (:func:`frng.io.check_architecture`). The schema's maxima only:
+    an ablation's record holds sizes below the config's minima (no-idm: prior_dim 0)."""
+    return {k: (None, hi) for k, (_, hi) in schema_bounds(_schema(), ARCHITECTURE_SECTIONS).items()}
+
+
 def schema_keys(where: str) -> list[str]:
     """The keys of the schema's section at dotted key ``where`` ("" = the top level)."""
     return list(schema_node(where).get("properties", {}))

@@ -120,8 +120,17 @@ def paper_form() -> tuple[dict, dict]:
 
 PLUS = "plus"  # F-RNG+: the paper form with the project's additions on
 PLUS_METHOD = "F-RNG+"  # its key in a relighting job's timing record (beside "F-RNG" and "backbone")
+LEAVE_OUT_PREFIX = "plus-no-"  # plus-no-{addition}: F-RNG+ with that one addition off (the additions table)
+
+
+def leave_out_variant(addition: str) -> str:
+    """Name of F-RNG+ without one addition of :data:`ADDITIONS` (``pixel_head`` -> ``plus-no-pixel-head``)."""
+    return LEAVE_OUT_PREFIX + addition.replace("_", "-")
+
+
 # The one table of the variants (the schema's frng.variants enum is checked against it by a test): the paper's full
-# model and its ablations (Table 4), all in the paper's form, and F-RNG+.
+# model and its ablations (Table 4), all in the paper's form, F-RNG+, and F-RNG+ without each addition (what that
+# addition is worth: the additions table; trained when frng.variants lists them).
 VARIANTS: dict[str, Variant] = {
     "full": Variant("full model"),
     "no-fine": Variant("w/o fine-grained Gaussians", arch={"fine": False}),
@@ -129,8 +138,13 @@ VARIANTS: dict[str, Variant] = {
     "no-ind": Variant("w/o light-independence regularization", loss={"lambda_c": 0.0, "lambda_kld": 0.0}),
     "no-neural": Variant("w/o neural appearance modeling", arch={"head": "pbr"}),
     PLUS: Variant("F-RNG+ (the project's additions)", additions=True),
+    **{
+        leave_out_variant(key): Variant(f"F-RNG+ without {key}", arch=a.arch, loss=a.loss, additions=True)
+        for key, a in ADDITIONS.items()
+    },
 }
-BASE_VARIANTS = tuple(VARIANTS)
+LEAVE_OUT_VARIANTS = {leave_out_variant(key): key for key in ADDITIONS}  # variant -> the addition it leaves out
+BASE_VARIANTS = tuple(v for v in VARIANTS if v not in LEAVE_OUT_VARIANTS)  # the default frng.variants
 ABLATION_VARIANTS = tuple(v for v in VARIANTS if not VARIANTS[v].additions)  # full and the paper's ablations
 RIG_VIEWS = 6  # the paper's input rig
 SWEEP_VIEWS = (2, 4, 6, 8, 10)  # the #views table

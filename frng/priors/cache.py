@@ -84,8 +84,9 @@ def reference_env(backbone) -> torch.Tensor:
     return envmap.reference_light(max(16, int(backbone.cfg.env_height)))
 
 
-class StaleCacheError(RuntimeError):
-    """A cache was made with another model (or an older cache version); re-run the cache rule."""
+class StaleCacheError(RuntimeError, io.CorruptFileError):
+    """A cache was made with another model (or an older cache version); re-run the cache rule. A
+    :class:`frng.io.CorruptFileError` too: a stage ends in one line naming the cache file (``frng.cli.run_stage``)."""
 
 
 def _save(tensors: dict[str, torch.Tensor], meta: dict[str, str], path: Path) -> None:

@@ -25,6 +25,7 @@ import torch
 from torch import nn
 
 from frng.io import CorruptFileError, load_torch
+from frng.plan.sections import architecture_bounds
 
 BACKBONES: dict[str, Callable[..., nn.Module]] = {}
 IDMS: dict[str, Callable[..., IDMPrior]] = {}
@@ -55,7 +56,7 @@ def freeze(module: nn.Module) -> nn.Module:
 def _load_relitlrm(path: str | Path, device: torch.device | str = "cpu") -> nn.Module:
     from frng.priors.backbone import BackboneConfig, RelitLRMBackbone
 
-    state = load_torch(path, "backbone model file")
+    state = load_torch(path, "backbone model file", architecture_bounds())
     model = RelitLRMBackbone(BackboneConfig.from_saved(state["config"]))
     model.load_state_dict(state["state_dict"])
     return model.to(device)
@@ -67,7 +68,9 @@ def load_backbone(path: str | Path, device: torch.device | str = "cpu", kind: st
     if not path.exists():
         raise FileNotFoundError(f"{path}: backbone model file does not exist; run `frng backbone-train` first")
     if kind is None:
-        state = load_torch(path, "backbone model file")  # weights_only: a crafted model.pt runs nothing
+        state = load_torch(
+            path, "backbone model file", architecture_bounds()
+        )  # weights_only: a crafted model.pt runs nothing
         if not isinstance(state, dict):
             raise CorruptFileError(f"{path}: not a backbone model file (a {type(state).__name__})")
         kind = state.get("kind", "relitlrm")
@@ -105,7 +108,7 @@ class LearnedIDMPrior:
         model_path = Path(model_path)
         if not model_path.exists():
             raise FileNotFoundError(f"{model_path}: IDM model file does not exist; run `frng idm-train` first")
-        state = load_torch(model_path, "IDM model file")
+        state = load_torch(model_path, "IDM model file", architecture_bounds())
         self.model = LearnedIDM(IDMConfig.from_dict(state["config"]))
         self.model.load_state_dict(state["state_dict"])
         self.model = freeze(self.model.to(device))

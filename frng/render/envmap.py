@@ -84,8 +84,8 @@ def read(path: str | Path) -> np.ndarray:
     """Read an equirect map (EXR, or Radiance HDR) as linear float32 (H, W, 3), negatives clamped to 0.
 
     Refused with one line naming the file: a missing, truncated or mislabelled file, a map of more than
-    :data:`MAX_PIXELS` pixels (checked from the header, before decoding), a non-2:1 map, NaN/inf, or a value above
-    :data:`MAX_RADIANCE`."""
+    :data:`MAX_PIXELS` pixels (checked from the header, before decoding), a non-2:1 map, NaN/inf, a value above
+    :data:`MAX_RADIANCE`, or a map with negative values and no positive one (clamped, it would light nothing)."""
     from frng import confine
 
     path = Path(path)
@@ -116,6 +116,11 @@ def read(path: str | Path) -> np.ndarray:
         raise EnvMapError(
             f"{path}: environment map has a value of {float(img.max()):.3g}, above the limit "
             f"{MAX_RADIANCE:g} (frng.render.envmap.MAX_RADIANCE; scale the map down)"
+        )
+    if img.size and float(img.min()) < 0.0 and float(img.max()) <= 0.0:  # clamped, it would light nothing
+        raise EnvMapError(
+            f"{path}: environment map has only negative or zero values (down to {float(img.min()):.3g}); radiance is "
+            f">= 0 (a sign-flipped map?)"
         )
     return np.maximum(img, 0.0).astype(np.float32)
 

@@ -88,7 +88,13 @@ def _row(c: Claim, measured: float, lo: float, hi: float, n: float = np.nan) -> 
 
 
 def claims_table(
-    vs_backbone: pd.DataFrame, ablation: pd.DataFrame, k_diffs: dict[float, dict], speedup: float, labels: dict
+    vs_backbone: pd.DataFrame,
+    ablation: pd.DataFrame,
+    k_diffs: dict[float, dict],
+    speedup: float,
+    labels: dict,
+    protocol: str = "aligned",
+    psnr_only: bool = False,
 ) -> pd.DataFrame:
     """The claims table from the other tables' rows.
 
@@ -96,11 +102,15 @@ def claims_table(
     difference to the backbone); ablation: the ``ablation`` table (an ablation's row labelled ``labels[variant]``);
     k_diffs:
     {K in %: paired-difference columns (``dpsnr``, ``dpsnr_lo``, ``dpsnr_hi``, ``objects``) of that K minus K = 2 %}
-    (empty without K = 2 %); speedup: the backbone's relighting time per image over F-RNG's (NaN: not timed)."""
+    (empty without K = 2 %); speedup: the backbone's relighting time per image over F-RNG's (NaN: not timed);
+    protocol: the metric protocol the tables were computed under (a column of every row); psnr_only: only the PSNR
+    claims (a second protocol's pass, where LPIPS and the timing were not re-measured)."""
     rows = []
     nan = float("nan")
     full = vs_backbone[(vs_backbone["dataset"] == "all") & (vs_backbone["method"] == labels["full"])]
     for c in CLAIMS:
+        if psnr_only and c.metric != "psnr":
+            continue
         if c.key.startswith("vs_backbone"):
             m = c.metric
             r = full.iloc[0] if len(full) else None
@@ -117,7 +127,7 @@ def claims_table(
             d = k_diffs.get(float(c.key[1:]))
             cells = (nan, nan, nan, nan) if d is None else (d["dpsnr"], d["dpsnr_lo"], d["dpsnr_hi"], d["objects"])
             rows.append(_row(c, *cells))
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows).assign(protocol=protocol)
 
 
 __all__ = ["CLAIMS", "Claim", "VERDICTS", "claims_table", "verdict"]

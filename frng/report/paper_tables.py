@@ -64,9 +64,11 @@ from frng import io
 from frng import metrics as M
 from frng.plan.variants import (
     ABLATION_VARIANTS,
+    ADDITIONS,
     BACKBONE,
     BASE_RUN,
     KNOWN_LIGHT_RUN,
+    LEAVE_OUT_VARIANTS,
     ORACLE_RUN,
     PLUS,
     PLUS_METHOD,
@@ -157,7 +159,7 @@ def seed_mean(df: pd.DataFrame, run: str) -> pd.DataFrame:
     if not parts:
         return df.iloc[:0]
     sub = pd.concat(parts.values(), ignore_index=True)
-    num = [c for c in sub.columns if c in (*M.METRICS, "psnr_interior") or c.startswith(("scale_", "brightness_"))]
+    num = [c for c in sub.columns if c in M.METRICS or c.startswith(("psnr_", "scale_", "brightness_"))]
     first = sub.drop_duplicates(list(IMAGE_KEYS)).set_index(list(IMAGE_KEYS)).drop(columns=num)
     mean = sub.groupby(list(IMAGE_KEYS), sort=False)[num].mean()
     out = first.join(mean).reset_index()
@@ -317,6 +319,33 @@ def ablation_table(df: pd.DataFrame) -> pd.DataFrame:
     return _ordered(pd.DataFrame(rows), "ablation")
 
 
+ALL_ADDITIONS = "all of them (F-RNG+ over the paper form)"
+
+
+def additions_table(df: pd.DataFrame) -> pd.DataFrame:
+    """What the project's additions are worth (issue 85; :data:`frng.plan.variants.ADDITIONS`): F-RNG+ over the paper
+    form (every addition at once: ``plus`` minus ``full``), then F-RNG+ over F-RNG+ without each addition the config
+    trained (``plus`` minus ``plus-no-{addition}``: what that one adds beside the others). Rows: the addition, the
+    paper section it departs from, the reference model's means (the paper form, or F-RNG+ without it), the paired
+    difference (F-RNG+ minus that reference) averaged over training seeds. Empty without F-RNG+."""
+    if not len(seed_parts(df, PLUS, _at_rig)):
+        return _ordered(pd.DataFrame(columns=["addition"]), "additions")
+    refs = [("full", ALL_ADDITIONS, "the paper's F-RNG (every section)")]
+    refs += [(v, key, ADDITIONS[key].departs_from) for v, key in LEAVE_OUT_VARIANTS.items()]
+    rows = []
+    for ref, name, section in refs:
+        ref_parts = [*seed_parts(df, ref, _at_rig).values()]
+        if not ref_parts:
+            continue
+        sub = seed_mean(df, ref)
+        rows.append(
+            {"addition": name, "departs_from": section, **image_means(sub[sub["views"] == RIG_VIEWS])}
+            | diff_to([*seed_parts(df, PLUS, _at_rig).values()], ref_parts)
+            | seed_columns(df, PLUS, ref)
+        )
+    return _ordered(pd.DataFrame(rows), "additions")
+
+
 def _at_rig(d: pd.DataFrame) -> pd.DataFrame:
     return d[d["views"] == RIG_VIEWS]
 
@@ -367,15 +396,25 @@ def k_against_paper_k(df: pd.DataFrame, paper_k: float = 2.0) -> dict[float, dic
 
 
 def claims(df: pd.DataFrame, timings: list[dict]) -> pd.DataFrame:
-    """The claims table (:mod:`frng.report.claims`) of these per-image rows and timings."""
+    """The claims table (:mod:`frng.report.claims`) of these per-image rows and timings: every claim under the rows'
+    protocol, then the PSNR claims again under the other protocol (the rows' ``psnr_{protocol}`` column, where the
+    per-image CSV has it): alignment absorbs the colour errors the paper attributes to w/o IDM and w/o L_ind."""
     from frng.report.claims import claims_table
 
-    vs, _ = vs_backbone_table(df, timings)
     labels = {**{v: VARIANT_LABELS[v] for v in ABLATION_VARIANTS if v != "full"}, "full": METHOD_LABELS["F-RNG"]}
     t = timing_table(timings)
     frng_row = t[t["method"] == METHOD_LABELS["F-RNG"]]
     speedup = float(frng_row["speedup"].iloc[0]) if len(frng_row) else float("nan")
-    return claims_table(vs, ablation_table(df), k_against_paper_k(df), speedup, labels)
+    protocol = str(df["protocol"].iloc[0]) if "protocol" in df and len(df) else M.DEFAULT_PROTOCOL
+    out = []
+    for p in [protocol, *(q for q in M.PROTOCOLS if q != protocol)]:
+        col = f"psnr_{p}"
+        if p != protocol and (col not in df or df[col].isna().all()):
+            continue  # per-image rows written before both protocols were scored
+        d = df if p == protocol else df.assign(psnr=df[col])
+        vs, _ = vs_backbone_table(d, timings)
+        out.append(claims_table(vs, ablation_table(d), k_against_paper_k(d), speedup, labels, p, p != protocol))
+    return pd.concat(out, ignore_index=True)
 
 
 LADDER_STEPS = (  # (step, what, source, task/run, method, reference step); source "prior" = backbone.csv
@@ -714,6 +753,15 @@ def write_tables(
         + seed_note.replace("F-RNG rows", "Every row"),
         ablation_rows(df),
     )
+    out["additions"] = table(
+        "additions",
+        additions_table(df),
+        "What the project's additions are worth under the paper's task (frng.plan.variants.ADDITIONS; "
+        "docs/model-and-training.md): each row's means are its reference model's (the paper's form for 'all of "
+        "them', F-RNG+ without that addition for the others); Δ = F-RNG+ minus that reference."
+        + seed_note.replace("F-RNG rows", "Every row"),
+        df[df["variant"].isin([PLUS, "full", *LEAVE_OUT_VARIANTS]) & (df["views"] == RIG_VIEWS)],
+    )
     out["views"] = table(
         "views",
         views_table(df),
@@ -797,7 +845,8 @@ def write_tables(
             "seeds where there are several); speed-up: the backbone's relighting time per image over F-RNG's. "
             "Verdict on the sign the paper claims: held / not held (the interval on the other side of 0) / not "
             "resolved (it contains 0) / not measured. F-RNG = the paper's form; every method is told no input "
-            f"light. Aligned protocol. Tier {tier}."
+            "light. Each claim under the tier's protocol, the PSNR claims again under the other (column protocol: "
+            f"aligned = per-channel scale, foreground; plain = no scale, whole image). Tier {tier}."
         ),
     )
     t = timing_table(timings)

@@ -58,6 +58,7 @@ HEADLINE_COLUMNS = (
 TABLE_TITLES: dict[str, str] = {
     "vs_backbone": "F-RNG vs the backbone",
     "ablation": "Ablations",
+    "additions": "The project's additions (F-RNG+) and what each is worth",
     "views": "Input views",
     "k": "Top-K",
     "ladder": "Quality ladder and light sensitivity",

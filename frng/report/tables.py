@@ -59,6 +59,8 @@ LADDER_COLUMNS = (
 TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
     "vs_backbone": ("dataset", "method", "psnr", "psnr_interior", "ssim", "lpips"),
     "ablation": ("variant", "psnr", "ssim", "lpips"),
+    # F-RNG+ over the paper form, and over F-RNG+ without each addition (frng/plan/variants.py ADDITIONS)
+    "additions": ("addition", "departs_from", "psnr", "ssim", "lpips"),
     "views": ("views", "psnr", "ssim", "lpips"),
     "k": ("k_percent", "psnr", "ssim", "lpips"),
     "timing": ("method", "reconstruction_s", "relight_ms_per_image", "resolution", "spp"),
@@ -73,7 +75,7 @@ TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
     # per material class of the test object (the per-image ``dataset``): its geometry's IoU and depth error too
     "ladder_by_class": ("dataset", *LADDER_COLUMNS),
     # the paper's claims beside this tier's measurements (frng/report/claims.py)
-    "claims": ("claim", "source", "paper", "measured", "measured_lo", "measured_hi", "objects", "verdict"),
+    "claims": ("claim", "source", "protocol", "paper", "measured", "measured_lo", "measured_hi", "objects", "verdict"),
 }
 
 DIFF_METRICS = ("psnr", "ssim", "lpips")

@@ -5,6 +5,9 @@ Images, masks, cameras, framing and the light estimate: :mod:`frng.apps.capture`
 ``--model`` (default ``{results}/models/plus/model.pt`` (F-RNG+) of the config, else ``models/full/model.pt``) and ``--config`` (default: the
 ``config.yaml`` recorded in the results folder the model lives in, ``{results}/models/full/model.pt`` ->
 ``{results}/config.yaml``), which gives the architecture, the resolution, the training rig and the priors.
+``--cameras`` reads transforms.json, OpenCV files, COLMAP models, LLFF and IDR / NeuS cameras
+(:mod:`frng.apps.camera_formats`); with more photos than the model takes it chooses the views (``--select N``,
+:mod:`frng.apps.capture_frame`) and prints which.
 ``--export-object OBJ`` instead writes a curated object's input views as plain PNGs into ``{out}/images/`` (+
 ``{out}/cameras.json`` and its input light ``{out}/light.exr``): files to try the command on.
 """
@@ -17,12 +20,27 @@ from pathlib import Path
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--images", help="folder of 2-10 images (PNG, JPEG, EXR), or one grid image with --grid")
+    parser.add_argument(
+        "--images",
+        help="folder of 2-10 images (PNG, JPEG, EXR; more with --cameras: the views are chosen), or one grid image "
+        "with --grid",
+    )
     parser.add_argument("--out", required=True, help="asset folder to write (with --export-object: a folder)")
     parser.add_argument("--masks", help="folder of mask images (default: alpha, else a keyed uniform background)")
     cams = parser.add_mutually_exclusive_group()
-    cams.add_argument("--cameras", help="transforms.json (NeRF) or an OpenCV camera file (JSON/YAML)")
+    cams.add_argument(
+        "--cameras",
+        help="transforms.json (NeRF, with k1 k2 p1 p2), an OpenCV camera file (JSON/YAML), a COLMAP model (folder "
+        "or its cameras/images files, text or binary), LLFF poses_bounds.npy or IDR/NeuS cameras_sphere.npz",
+    )
     cams.add_argument("--rig", choices=["paper"], help="the paper's 6-view rig (default when no --cameras)")
+    parser.add_argument(
+        "--select",
+        type=int,
+        metavar="N",
+        help="with --cameras: choose N views among the photos (default: 6 when there are more than 10 photos); "
+        "the others are held out (frng.apps.capture_frame)",
+    )
     parser.add_argument("--light", help="the photos' light as an equirect map (EXR/HDR, 2:1); default: estimated")
     parser.add_argument(
         "--light-colour",
@@ -149,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
             light_colour=args.light_colour,
             force=args.force,
             allow_outside=args.allow_outside,
+            select=args.select,
         )
     except (CaptureError, AssetError) as e:
         if cli.DEBUG:  # `frng --debug`: the traceback
@@ -165,5 +184,7 @@ def run(args: argparse.Namespace) -> int:
         f"reconstruct {record['object_id']}: {len(record['views'])} views ({', '.join(sorted(set(record['masks'])))}"
         f" masks, cameras {record['cameras']}), light {what} -> {args.out}"
     )
+    if "selection" in record:
+        print(record["selection"]["summary"])
     print(json.dumps(record["timing_s"]))
     return 0

@@ -166,6 +166,7 @@ class TrainConfig:
     grad_clip: float
     batch: int
     target_views: int
+    target_lights: int  # target lights per object and step at the same views (rasterized once, shaded per light)
     views: int
     perceptual_net: str
     perceptual_after: int
@@ -438,29 +439,33 @@ class StepLoss(nn.Module):
                 recs = m.reconstruct(
                     obj.views, lights, obj.priors, images, keep_tokens=True, input_env=envs, pixel_maps=maps
                 )
-            _, env, c2w, K, rgba = obj.targets[ti]
+            _, _, c2w, K, rgba = obj.targets[ti]
             vi = torch.as_tensor(vidx)
-            tgt = rgba[vi].to(dev)
-            H, W = tgt.shape[1:3]
+            H, W = rgba.shape[1:3]
             gen = torch.Generator().manual_seed(seed)
-            out = m.render(recs[0], env, c2w[vi], K[vi], H, W, spp=sc.spp_train, generator=gen, spp_grad=sc.spp_grad)
-            l2, rgb_out, rgb_tgt = l2_loss(out, tgt, self.tcfg.background, self.tcfg.l2_space, self.tcfg.l2_pixels)
-            loss = self.lambda_1 * l2
-            logs["l2"] += float(l2.detach())
-            if self.lambda_alpha > 0:
-                a = alpha_loss(out, tgt)
-                loss = loss + self.lambda_alpha * a
-                logs["alpha"] += float(a.detach())
+            raster = m.rasterize(recs[0], c2w[vi], K[vi], H, W)
+            loss = torch.zeros((), device=dev)
+            tis = same_view_lights(obj, ti, self.tcfg.target_lights, seed)
+            for t in tis:  # the same views under each light: one rasterization, shaded per light
+                env, tgt = obj.targets[t][1], obj.targets[t][4][vi].to(dev)
+                out = m.shade(raster, env, sc.spp_train, gen, sc.spp_grad)
+                l2, rgb_out, rgb_tgt = l2_loss(out, tgt, self.tcfg.background, self.tcfg.l2_space, self.tcfg.l2_pixels)
+                loss = loss + self.lambda_1 * l2 / len(tis)
+                logs["l2"] += float(l2.detach()) / len(tis)
+                if self.lambda_alpha > 0:
+                    a = alpha_loss(out, tgt)
+                    loss = loss + self.lambda_alpha * a / len(tis)
+                    logs["alpha"] += float(a.detach()) / len(tis)
+                if self.perceptual is not None and self.lambda_per > 0 and self.step >= self.tcfg.perceptual_after:
+                    per = self.perceptual(rgb_out.permute(0, 3, 1, 2), rgb_tgt.permute(0, 3, 1, 2))
+                    loss = loss + self.lambda_per * per / len(tis)
+                    logs["perceptual"] += float(per.detach()) / len(tis)
             if self.lambda_depth > 0:
                 if obj.depth_target is None:
                     raise ValueError(f"train.loss.lambda_depth > 0 but {obj.id} was loaded without its G-buffer depths")
                 dl = depth_loss(recs[0], obj.views, obj.depth_target)
                 loss = loss + self.lambda_depth * dl
                 logs["depth"] += float(dl.detach())
-            if self.perceptual is not None and self.lambda_per > 0 and self.step >= self.tcfg.perceptual_after:
-                per = self.perceptual(rgb_out.permute(0, 3, 1, 2), rgb_tgt.permute(0, 3, 1, 2))
-                loss = loss + self.lambda_per * per
-                logs["perceptual"] += float(per.detach())
             if len(recs) > 1:
                 mats = (recs[0].material, recs[1].material) if self.ind.pixels else (None, None)
                 ind, parts = light_independence_loss(recs[0].t_mat, recs[1].t_mat, self.ind, *mats)
@@ -471,6 +476,17 @@ class StepLoss(nn.Module):
             total = total + loss / len(samples)
             logs["total"] += float(loss.detach())
         return total, {k: v / len(samples) for k, v in logs.items()}
+
+
+def same_view_lights(obj: TrainObject, ti: int, n: int, seed: int) -> list[int]:
+    """``ti`` and up to ``n - 1`` other target lights of ``obj`` rendered at the same cameras (``train.target_lights``),
+    drawn with ``seed``: one rasterization shaded under each (a light-independent appearance cannot fit them all)."""
+    if n <= 1:
+        return [ti]
+    c2w = obj.targets[ti][2]
+    same = [t for t in range(len(obj.targets)) if t != ti and obj.targets[t][2].shape == c2w.shape]
+    same = [t for t in same if torch.equal(obj.targets[t][2], c2w)]
+    return [ti, *random.Random(seed).sample(same, min(n - 1, len(same)))]
 
 
 def sample(obj: TrainObject, rng: random.Random, n_views: int) -> tuple[int, int, list[int]]:
