@@ -42,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from frng import confine
 from frng.apps.capture_errors import CaptureError
 
 MAX_TANGENTIAL = 0.1
@@ -236,9 +237,11 @@ class CameraSet:
 def _check_cams(path: Path, cams: list[tuple[str, FileCamera]], strict: bool = True) -> None:
     if not cams:
         raise CaptureError(f"{path}: no cameras")
-    for name, c in cams:
-        if not (np.all(np.isfinite(c.c2w)) and np.all(np.isfinite(c.intr))) or c.intr[0] <= 0 or c.intr[1] <= 0:
-            raise CaptureError(f"{path}: camera {name!r} has non-finite values or a focal length <= 0")
+    for name, c in cams:  # finite, not singular, not 1e30 away, a field of view (the one shared check)
+        try:
+            confine.check_camera(c.c2w, c.intr, c.size, source=path, field=f"camera {name!r}")
+        except confine.UntrustedInputError as e:
+            raise CaptureError(str(e)) from None
         if strict and abs(np.linalg.det(c.c2w[:3, :3]) - 1.0) > 1e-3:
             raise CaptureError(
                 f"{path}: camera {name!r}: its rotation is not a rotation (det {np.linalg.det(c.c2w[:3, :3]):.3g})"

@@ -125,6 +125,8 @@ HEADERS: dict[str, str] = {
     "object_source": "Object source",
     "method": "Method",
     "variant": "Variant",
+    "addition": "Addition",
+    "departs_from": "Departs from (paper)",
     "views": "Input views",
     "k_percent": "K (%)",
     "reconstruction_s": "Reconstruction (s)",
