@@ -586,3 +586,43 @@ def test_several_target_lights_share_one_rasterization(frng_smoke):
     step = StepLoss(model, ind, replace(tc.train, target_lights=1, perceptual_after=10**6), None, False)
     _, logs_other = step([(obj, 1 if obj.lights > 1 else 0, other, [0], 7)])
     assert logs2["l2"] == pytest.approx(0.5 * (logs1["l2"] + logs_other["l2"]), rel=0.05)  # MC noise: own samples
+
+
+def test_normal_start_adds_each_pixels_normal_in_a_fixed_projection_and_saves_it(frng_smoke, tmp_path):
+    """frng.normal_start (an addition, off in the paper form): the paper form's features plus n P, n the input
+    pixel's IDM normal at each kept coarse Gaussian, P the fixed (3, C) projection of NORMAL_START_SEED x scale (a
+    buffer: saved and loaded with the model, not trained, the training's random stream untouched); off, the model
+    has no such buffer and reconstructs exactly as the paper form."""
+    import copy
+
+    from frng.model.frng import FRNG, NORMAL_START_SEED
+    from frng.training.frng import build_model
+
+    _, config = frng_smoke
+    res = Path(config["results"])
+    model, _ = build_model(_sections(config), "full", res / "backbone" / "model.pt", "cpu")
+    assert model.cfg.normal_start == 0.0 and model.normal_proj is None  # the paper form
+    assert "normal_proj" not in model.state_dict()
+    torch.manual_seed(5)
+    off = FRNG(model.cfg)
+    torch.manual_seed(5)
+    on = FRNG(replace(model.cfg, normal_start=0.5))  # the same parameters: the projection has its own generator
+    assert {k: v for k, v in on.state_dict().items() if k != "normal_proj"}.keys() == off.state_dict().keys()
+    assert all(torch.equal(v, on.state_dict()[k]) for k, v in off.state_dict().items())
+    on.load_state_dict({**copy.deepcopy(model.state_dict()), "normal_proj": on.normal_proj}, strict=True)
+    C = model.material.cfg.out_channels
+    g = torch.Generator().manual_seed(NORMAL_START_SEED)
+    assert on.normal_proj.shape == (3, C) and torch.equal(on.normal_proj, torch.randn(3, C, generator=g) * 0.5)
+    assert not any(p is on.normal_proj for p in on.parameters())  # fixed, not trained
+    obj = _objects(config)[0]
+    with torch.no_grad():
+        r0 = model.reconstruct(obj.views, 0, obj.priors, obj.images)
+        r1 = on.reconstruct(obj.views, 0, obj.priors, obj.images)
+    keep = obj.views["keep"].bool()
+    n = obj.priors.as_dict()["normal"][:6].reshape(-1, 3)[keep].float()  # the kept coarse pixels' IDM normals
+    k = n.shape[0]
+    assert k > 100 and r1.gaussians.features.shape == r0.gaussians.features.shape
+    assert torch.allclose(r1.gaussians.features[:k] - r0.gaussians.features[:k], n @ on.normal_proj, atol=1e-5)
+    on.save(tmp_path / "model.pt")
+    back = FRNG.load(tmp_path / "model.pt")
+    assert back.cfg.normal_start == 0.5 and torch.equal(back.normal_proj, on.normal_proj)

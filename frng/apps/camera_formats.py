@@ -212,6 +212,9 @@ class CameraSet:
     centre: np.ndarray | None = None  # (3,)
     centre_source: str = ""
     notes: dict = field(default_factory=dict)
+    # where the cameras come from a structure-from-motion run: per photo name, the pixel positions (K, 2) of its
+    # keypoints that became sparse points and their rows in ``points`` (K,) (what seeds the masks, frng.apps.masks)
+    observations: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
 
     def assign(self, names: list[str]) -> dict[str, FileCamera]:
         """Photo name -> its camera: by name (COLMAP, JSON files), else, for files whose cameras carry no names (or
@@ -509,12 +512,21 @@ def _colmap_binary(folder: Path):
 def read_colmap(folder: Path, ext: str = ".txt") -> CameraSet:
     """A COLMAP sparse model (text or binary) -> :class:`CameraSet` (sorted by image name)."""
     cams, images, points = (_colmap_text if ext == ".txt" else _colmap_binary)(folder)
+    return colmap_camera_set(folder / f"images{ext}", cams, images, points)
+
+
+def colmap_camera_set(path: Path, cams: dict, images: list, points, fmt: str = "COLMAP", **extra) -> CameraSet:
+    """A COLMAP model's records -> :class:`CameraSet` (sorted by image name); the one conversion shared by the model
+    files (:func:`read_colmap`) and a structure-from-motion run in memory (:mod:`frng.apps.sfm`). ``path``: what
+    errors name. ``cams``: camera id -> (model name, (W, H), params, where); ``images``: [(name, quaternion QW QX
+    QY QZ, translation TX TY TZ (world-to-camera), camera id, where)]; ``points``: (N, 3) or None. ``extra``: more
+    :class:`CameraSet` fields (``notes``, ``observations``)."""
     out = []
     intrinsics = {cid: colmap_intrinsics(m, p, where) + (size,) for cid, (m, size, p, where) in cams.items()}
     models = sorted({cams[cid][0] for _, _, _, cid, _ in images if cid in cams})
     for name, q, t, cid, where in sorted(images, key=lambda x: x[0]):
         if cid not in intrinsics:
-            raise CaptureError(f"{where}: camera id {cid} is not in cameras{ext}")
+            raise CaptureError(f"{where}: camera id {cid} is not in cameras{Path(path).suffix}")
         intr, dist, size = intrinsics[cid]
         if np.linalg.norm(q) < 1e-12 or not np.all(np.isfinite(q)):
             raise CaptureError(f"{where}: the rotation quaternion is not a rotation ({q})")
@@ -525,15 +537,17 @@ def read_colmap(folder: Path, ext: str = ".txt") -> CameraSet:
     stems = [n for n, _ in out]
     if len(set(stems)) != len(stems):
         dup = sorted({n for n in stems if stems.count(n) > 1})
-        raise CaptureError(f"{folder / ('images' + ext)}: two images share a name stem ({dup[:3]})")
-    if points is not None and len(points):
+        raise CaptureError(f"{path}: two images share a name stem ({dup[:3]})")
+    if points is not None and len(points) and "observations" not in extra:  # rows of observations must stay put
         points = points[np.all(np.isfinite(points), 1)]
+    notes = {"colmap_models": models, **extra.pop("notes", {})}
     return CameraSet(
-        folder / f"images{ext}",
-        "COLMAP",
+        path,
+        fmt,
         out,
         points=points if points is not None and len(points) else None,
-        notes={"colmap_models": models},
+        notes=notes,
+        **extra,
     )
 
 
@@ -646,6 +660,7 @@ __all__ = [
     "Distortion",
     "FileCamera",
     "MAX_TANGENTIAL",
+    "colmap_camera_set",
     "colmap_folder",
     "colmap_intrinsics",
     "decompose_projection",

@@ -19,8 +19,12 @@ Masks (:func:`make_masks`), in this order of precedence
        background when 95 % of the ring's pixels lie within :data:`KEY_UNIFORM` of it (sRGB, max over channels);
        a pixel's alpha ramps from 0 to 1 as its distance to that colour goes from :data:`KEY_LOW` to
        :data:`KEY_HIGH`; holes inside the object are filled and specks smaller than 1 % of the largest part
-       dropped; the background's share is removed from the edge colours (linear unmixing).
-    None of these -> an error naming the photo. A mask with fewer than max(4, 0.1 % of the pixels) above 0.5 is
+       dropped; the background's share is removed from the edge colours (linear unmixing);
+    4. a textured background (a table, a room): segmented by GrabCut, seeded by the image centre or, after
+       structure from motion (``--sfm``), by the sparse points near the object's centre and on the table
+       (:mod:`frng.apps.masks`; the source, ``grabcut:centre`` or ``grabcut:sfm-points``, is recorded).
+    None of these (the segmentation refused: too small, no object, colours not told apart) -> an error naming the
+    photo. A mask with fewer than max(4, 0.1 % of the pixels) above 0.5 is
     "empty" -> an error naming the mask (or photo).
 
 Cameras (:func:`read_cameras`, :func:`rig_cameras`, :func:`normalise`)
@@ -46,6 +50,10 @@ Cameras (:func:`read_cameras`, :func:`rig_cameras`, :func:`normalise`)
       the centre, and resampled to ``render.resolution`` (intrinsics follow exactly; outside the photo is
       transparent). A camera whose optical axis misses the common centre by more than :data:`MAX_AXIS_DEG`
       (or that has it behind) is an error naming the camera file and the photo.
+    * ``--sfm``: no camera file; structure from motion on the CPU finds the cameras from the photos themselves
+      (:mod:`frng.apps.sfm`, pycolmap) and they take the ``--cameras`` path from there: the same undistortion,
+      upright and centred frame (the object's centre from the sparse points inside the masks) and choice of views,
+      and the same normalisation to the training rig.
     * framing of rig photos (``framing``): ``keep`` -- each photo is centre-cropped to a square (along its long
       side, centred on the object) and resized: the object keeps its size in the frame (right for renders made
       with the training rig, e.g. the exported test views); ``object`` -- every photo is cropped around its
@@ -98,7 +106,7 @@ class Photo:
     path: Path
     rgb: np.ndarray  # (H, W, 3) float32 linear (premultiplied when alpha is not None)
     alpha: np.ndarray | None = None  # (H, W) float32 in [0, 1], or None (no alpha channel / opaque)
-    mask_source: str = ""  # where the mask came from: "alpha", "masks", "keyed"
+    mask_source: str = ""  # where the mask came from: "alpha", "masks:FILE", "keyed", "grabcut:centre|sfm-points"
     info: dict = field(default_factory=dict)
 
     @property
@@ -317,10 +325,12 @@ def make_masks(
     masks: str | Path | None = None,
     grid: tuple[int, int] | None = None,
     allow_outside: bool = True,
+    seeds: dict | None = None,
 ) -> list[Photo]:
-    """Give every photo a mask (module docstring: --masks, alpha, keyed background); RGB becomes premultiplied.
-    With ``grid``, a mask folder holding one image is split like the grid image. ``allow_outside=False``: a mask
-    that is a symlink out of its folder is refused."""
+    """Give every photo a mask (module docstring: --masks, alpha, keyed background, segmentation); RGB becomes
+    premultiplied. With ``grid``, a mask folder holding one image is split like the grid image.
+    ``allow_outside=False``: a mask that is a symlink out of its folder is refused. ``seeds``: photo name ->
+    :class:`frng.apps.masks.Seeds` for the segmentation (default: the image centre)."""
     if masks is not None:
         files = image_files(Path(masks), "masks", allow_outside)
         by_stem = {f.stem: f for f in files}
@@ -354,13 +364,22 @@ def make_masks(
             p.mask_source = "alpha"
         else:
             keyed = key_background(p)
-            if keyed is None:
-                raise CaptureError(
-                    f"{p.path}: no mask for this view: it has no alpha channel, no --masks folder "
-                    f"was given, and its border is not a uniform background to key out"
-                )
-            p.alpha, p.rgb = keyed
-            p.mask_source = "keyed"
+            if keyed is not None:
+                p.alpha, p.rgb = keyed
+                p.mask_source = "keyed"
+            else:
+                from frng.apps.masks import segment
+
+                alpha, seg = segment(p.rgb, None if seeds is None else seeds.get(p.name))
+                if alpha is None:
+                    raise CaptureError(
+                        f"{p.path}: no mask for this view: it has no alpha channel, no --masks folder was given, "
+                        f"its border is not a uniform background to key out, and segmenting it failed "
+                        f"({seg['reason']}); give --masks"
+                    )
+                p.alpha, p.rgb = alpha, (p.rgb * alpha[..., None]).astype(np.float32)
+                p.mask_source = seg["source"]
+                p.info["segmentation"] = seg
         _check_not_empty(p.alpha, p.path)
     return photos
 
@@ -621,12 +640,39 @@ def prepare(
     framing: str = "auto",
     allow_outside: bool = True,
     select: int | None = None,
+    sfm: bool = False,
+    work: str | Path | None = None,
+    progress=None,
 ) -> Capture:
-    """Photos -> :class:`Capture` (module docstring). ``cameras`` (a file) or ``rig`` (``"paper"``, the default).
-    ``allow_outside=False``: photos and masks that are symlinks out of their folders are refused. With ``cameras``
-    (any format of :mod:`frng.apps.camera_formats`) the photos are undistorted and the world turned upright, and
-    among more than :data:`MAX_VIEWS` photos (or with ``select``) the views are chosen
-    (:mod:`frng.apps.capture_frame`)."""
+    """Photos -> :class:`Capture` (module docstring). ``cameras`` (a file), ``sfm`` (structure from motion finds
+    them: :mod:`frng.apps.sfm`, its scratch folder in ``work``, ``progress(line)`` per stage, default stderr) or
+    ``rig`` (``"paper"``, the default). ``allow_outside=False``: photos and masks that are symlinks out of their
+    folders are refused. With ``cameras`` (any format of :mod:`frng.apps.camera_formats`) or ``sfm`` the photos
+    are undistorted and the world turned upright, and among more than :data:`MAX_VIEWS` photos (or with
+    ``select``) the views are chosen (:mod:`frng.apps.capture_frame`)."""
+    sfm_set, seeds = None, None
+    if sfm:
+        from frng.apps import sfm as structure_from_motion
+        from frng.apps.masks import seeds_from_sfm
+
+        if cameras is not None or rig is not None:
+            raise CaptureError("--sfm finds the cameras from the photos: give it without --cameras or --rig")
+        if grid is not None or Path(images).is_file():
+            raise CaptureError(f"{images}: --sfm takes a folder of photos taken from different places (no --grid)")
+        sfm_set = structure_from_motion.cameras_from_photos(
+            image_files(Path(images), allow_outside=allow_outside),
+            images,
+            work=work,
+            progress=progress or _progress,
+            read=read_image,
+        )
+        cameras, seeds = sfm_set.path, seeds_from_sfm(sfm_set)
+
+    def read_set(path, sizes):
+        if sfm_set is not None:
+            return sfm_set
+        return camera_formats.read_camera_set(path, sizes, fallback=read_cameras)
+
     sel = None
     if cameras is not None and grid is None and not Path(images).is_file():
         sel = capture_frame.select_photos(
@@ -634,15 +680,15 @@ def prepare(
             cameras,
             image_files(Path(images), allow_outside=allow_outside),
             select=select,
-            load=lambda f: make_masks([Photo(f.stem, f, *read_image(f))], masks, None, allow_outside)[0],
-            read_set=lambda path, sizes: camera_formats.read_camera_set(path, sizes, fallback=read_cameras),
+            load=lambda f: make_masks([Photo(f.stem, f, *read_image(f))], masks, None, allow_outside, seeds)[0],
+            read_set=read_set,
             min_views=MIN_VIEWS,
             max_views=MAX_VIEWS,
         )
     elif select is not None:
-        raise CaptureError(f"--select {select}: views are chosen among a folder of photos with --cameras")
+        raise CaptureError(f"--select {select}: views are chosen among a folder of photos with --cameras or --sfm")
     only = None if sel is None else sel.chosen
-    photos = make_masks(load_images(images, grid, allow_outside, only), masks, grid, allow_outside)
+    photos = make_masks(load_images(images, grid, allow_outside, only), masks, grid, allow_outside, seeds)
     res = int(resolution)
     names = [p.name for p in photos]
     info: dict = {
@@ -652,9 +698,12 @@ def prepare(
         "camera_distance": distance,
         "fov_deg": fov_deg,
     }
+    segmented = {p.name: p.info["segmentation"] for p in photos if "segmentation" in p.info}
+    if segmented:
+        info["segmentation"] = segmented
     if cameras is not None:
         cset = sel.cset if sel is not None else None
-        cset = cset or camera_formats.read_camera_set(Path(cameras), {p.name: p.size for p in photos}, read_cameras)
+        cset = cset or read_set(Path(cameras), {p.name: p.size for p in photos})
         frame = capture_frame.Frame.build(cset, photos, sel)  # undistorts the photos, turns the world upright
         cams = match_cameras(photos, frame.cameras, Path(cameras))
         centre = common_centre(cams, [p.path.name if p.path.stem == p.name else p.name for p in photos], cameras)
@@ -674,7 +723,9 @@ def prepare(
             out_c2w.append(c2w)
             out_intr.append(np.array([fx * res / wc, fy * res / hc, (cx - x0) * res / wc, (cy - y0) * res / hc]))
             wins.append({"x0": x0, "y0": y0, "w": wc, "h": hc})
-        info |= {"cameras": str(cameras), "centre": centre.tolist(), "scale": scale}
+        info |= {"cameras": "sfm" if sfm_set else str(cameras), "centre": centre.tolist(), "scale": scale}
+        if sfm_set is not None:
+            info["sfm"] = sfm_set.notes["sfm"]
         info |= frame.record(centre, scale)
     else:
         if rig not in (None, "paper"):
@@ -698,6 +749,12 @@ def prepare(
     alpha = np.clip(rgba[..., 3:4], 0.0, 1.0)
     rgb = np.maximum(rgba[..., :3], 0.0)
     return Capture(names, rgb, alpha, np.stack(out_c2w), np.stack(out_intr), info)
+
+
+def _progress(line: str) -> None:
+    import sys
+
+    print(line, file=sys.stderr, flush=True)
 
 
 def _t(a):
@@ -797,6 +854,7 @@ def reconstruct(
     force: bool = False,
     allow_outside: bool = False,
     select: int | None = None,
+    sfm: bool = False,
 ) -> dict:
     """Photos -> an asset folder ``out`` (:mod:`frng.apps.asset`, plus ``input_light.exr`` and ``contact_sheet.png``).
 
@@ -809,7 +867,9 @@ def reconstruct(
     ``out`` is written through :func:`frng.confine.staged_output`: a non-empty folder that is not a previous asset
     (of ``frng reconstruct``) is refused unless ``force``, which replaces only the asset's files and keeps the
     others; a failure leaves the previous ``out`` whole. ``allow_outside``: read photos and masks that are symlinks
-    out of their folders. ``select``: how many views to choose among the photos (:func:`prepare`)."""
+    out of their folders. ``select``: how many views to choose among the photos (:func:`prepare`). ``sfm``: the
+    cameras from structure from motion (:mod:`frng.apps.sfm`), its scratch folder where ``out``'s staging folder
+    goes (inside ``out`` when it exists, else beside it) and removed afterwards."""
     import torch
 
     from frng.apps.asset import RIG_KEY, render_settings, save_asset
@@ -823,6 +883,9 @@ def reconstruct(
         confine.check_output(out, "reconstruct", force, recognise=is_asset_folder)
     except confine.OutputError as e:
         raise CaptureError(str(e)) from None
+    if sfm:  # before minutes of structure from motion
+        L0 = Layout(cfg.results)
+        _check_models(Path(model) if model is not None else default_model(L0), Path(L0.backbone_model()))
     cap = prepare(
         images,
         resolution=rc.resolution,
@@ -835,6 +898,8 @@ def reconstruct(
         framing=framing,
         allow_outside=allow_outside,
         select=select,
+        sfm=sfm,
+        work=next((d for d in (Path(out), Path(out).parent) if d.is_dir()), None),
     )
     if float(np.max(cap.rgb, initial=0.0)) < 1.0 / 4096:  # an asset lit by an all-zero light, else
         import sys
@@ -850,9 +915,7 @@ def reconstruct(
     L = Layout(cfg.results)
     model = Path(model) if model is not None else default_model(L)
     backbone_path = Path(L.backbone_model())
-    for f, what in ((model, "F-RNG model"), (backbone_path, "backbone model")):
-        if not f.exists():
-            raise CaptureError(f"{f}: {what} missing (train the pipeline, or pass --model / --config)")
+    _check_models(model, backbone_path)
     oid = name or (Path(images).resolve().stem if Path(images).is_file() else Path(images).resolve().name)
     dev = resolve_device(device or cfg.device)
 
@@ -945,6 +1008,12 @@ def reconstruct(
     except confine.OutputError as e:
         raise CaptureError(str(e)) from None
     return record
+
+
+def _check_models(model: Path, backbone: Path) -> None:
+    for f, what in ((model, "F-RNG model"), (backbone, "backbone model")):
+        if not f.exists():
+            raise CaptureError(f"{f}: {what} missing (train the pipeline, or pass --model / --config)")
 
 
 def is_asset_folder(folder: Path) -> bool:

@@ -25,7 +25,7 @@ Formats and their conventions (each tested in tests/test_export.py):
           the glTF axes): ``(x, y, z)_spz = (x, z, -y)_asset``; SH fitted in those axes. Hand-written
           (:func:`write_spz`): the SPZ packages on PyPI are a Rust sdist (``spz``, needs a Rust toolchain), a
           Cython/CMake sdist (``alspz``) and ``gsply`` (needs numba and numpy >= 2; this project pins numpy 1.26
-          for bpy); the layout follows three.js's SPZLoader (read; no test loads an SPZ in a browser yet).
+          for bpy); tests/test_export_browser.py renders it in Spark, whose SPZ decoder reads RUB as three.js axes.
 ``glb``   glTF 2.0 binary, written with pygltflib: one POINTS primitive with KHR_gaussian_splatting (kernel
           ellipse, colorSpace srgb_rec709_display; POSITION, ROTATION (x, y, z, w), SCALE linear, OPACITY linear,
           SH_DEGREE_l_COEF_n, COLOR_0 fallback = the linear DC colour + opacity), glTF axes (Y up, +Z front):

@@ -8,6 +8,8 @@ For one object with V input views (backbone cache entry, IDM priors, input image
     T_fine-geo/prior/app, G_fine = Bilinear(...)_j, FineGeoDetokenizer(T_fine-geo | T_fine-prior)   Sec. 4.1
     T_mat                        = MaterialFormer(T_geo (+) T_app | T_prior)  over coarse + fine tokens  Sec. 4.2.1
     G_mat                        = MatDetokenizer(T_mat)  -> per-Gaussian neural features (or Cook-Torrance params)
+                                   (+ n P, the pixel's normal n in a fixed random projection P: our addition,
+                                   ``frng.normal_start``, :meth:`FRNG._normal_start`)
     opacity                      = sigmoid(logit(opacity) + OpacityHead(G_mat, pixel))   our addition (.opacity)
     L_o(p)                       = 1/K sum_k Theta(f(p), w_o, w_k) L(w_k) / pdf(w_k)   Sec. 4.3 + supplement,
                                    deferred shading of the rasterized feature map (:mod:`frng.render.shading`)
@@ -72,6 +74,7 @@ SAVED_DEFAULTS = {
     "depth_head": 0.0,
     "coverage_head": 0,
     "specular_start": False,
+    "normal_start": 0.0,
 }
 
 
@@ -98,6 +101,7 @@ class FRNGSection:
     depth_head: float
     coverage_head: int
     specular_start: bool
+    normal_start: float
     saliency: SaliencyConfig
 
 
@@ -144,6 +148,7 @@ class FRNGConfig:
     depth_head: float  # largest move of a coarse Gaussian along its input ray (0 = off; frng.depth_head)
     coverage_head: int  # hidden width of the silhouette rim's coverage head (0 = off; frng.coverage_head)
     specular_start: bool  # the specular base starts from the IDM's metallic / roughness (frng.specular_start)
+    normal_start: float  # scale of the fixed random projection of the pixel's normal added to G_mat (0 = off)
 
     @classmethod
     def from_dict(cls, d: dict) -> FRNGConfig:
@@ -207,6 +212,14 @@ RATIO_TRUST = 0.1
 PIXEL_GEO_NORMAL = 10  # geometry normal, 3 channels
 PIXEL_IDM_NORMAL = 16  # the IDM's normal, 3 channels (with priors)
 PIXEL_IDM_ROUGHNESS, PIXEL_IDM_METALLIC = 19, 20  # the IDM's roughness and metallic, 1 channel each (with priors)
+NORMAL_START_SEED = 1234  # the fixed random projection of frng.normal_start (a buffer saved with the model)
+
+
+def normal_start_projection(out_channels: int, scale: float) -> torch.Tensor:
+    """``frng.normal_start``'s projection (3, out_channels): N(0, 1) x ``scale`` from a generator of its own
+    (:data:`NORMAL_START_SEED`), so turning it on draws nothing from the training's random stream."""
+    g = torch.Generator().manual_seed(NORMAL_START_SEED)
+    return torch.randn(3, out_channels, generator=g) * float(scale)
 
 
 def pixel_channels(uses_priors: bool) -> int:
@@ -419,6 +432,10 @@ class FRNG(nn.Module):
             raise ValueError("frng.depth_head reads the pixel head's inputs: it needs frng.pixel_head > 0")
         self.depth_head = DepthHead(out_ch, n_pix, cfg.pixel_head, cfg.depth_head) if cfg.depth_head else None
         self.coverage_head = CoverageHead(out_ch, cfg.coverage_head) if cfg.coverage_head else None
+        if cfg.normal_start > 0:  # frng.normal_start: fixed (a buffer, not a parameter), saved with the model
+            self.register_buffer("normal_proj", normal_start_projection(out_ch, cfg.normal_start))
+        else:
+            self.normal_proj = None
         if lambertian_start and self.pixel_head is not None:  # start at the Lambertian relighting of the input views
             nn.init.zeros_(self.material.detokenizer.proj.weight)
             nn.init.zeros_(self.material.detokenizer.proj.bias)
@@ -637,6 +654,7 @@ class FRNG(nn.Module):
                     continue
                 pix_b[b] = kept_pixel_rows(maps[b], keep_c, fine, keep_f)
         geo = self._geometry_inputs(bv, keep_c, fine, keep_f)
+        start = None if self.normal_proj is None else self._normal_start(bv, priors, V, keep_c, fine, keep_f)
         n_coarse = int(keep_c.sum())
         # each kept coarse Gaussian's input camera centre (N = V*H*W pixels in view order), for the depth head
         origins = None if self.depth_head is None else DepthHead.origins(c2w, keep_c)
@@ -657,6 +675,8 @@ class FRNG(nn.Module):
                 parts[0] = replace(parts[0], means=DepthHead.move(parts[0].means, origins, dz))
             if self.pixel_head is not None:
                 raw = self.pixel_head(raw, pix_b[b])
+            if start is not None:
+                raw = raw + start
             n_front = raw.shape[0]
             if back is not None:
                 raw = torch.cat([raw, self._back_features(raw, back)])
@@ -707,6 +727,23 @@ class FRNG(nn.Module):
             else:
                 maps.append(pixel_map(im.to(dev).float(), pri, V, normals, env))
         return maps
+
+    def _normal_start(self, bv: dict, priors, V: int, keep_c: torch.Tensor, fine, keep_f) -> torch.Tensor:
+        """``frng.normal_start`` (our addition; the paper's MatDetokenizer, Sec. 4.2.1, is one linear layer from
+        T_mat): each kept Gaussian's input pixel's world normal (the IDM's with priors, else the backbone geometry's,
+        as :func:`pixel_normal_index`) through the fixed random projection ``normal_proj`` (3, C), added to the
+        detokenizer's output, (N, C) in the kept Gaussians' order. At initialisation the latent features then
+        already differ with the surface's orientation, which is what a decoder Theta(f | w_o, w_i) needs to shade;
+        study: docs/studies/2026-12-05-why-the-paper-form-does-not-relight.md section 5."""
+        if self.cfg.uses_priors:
+            if priors is None:
+                raise ValueError("this F-RNG variant needs IDM priors")
+            normals = priors.as_dict()["normal"][:V].to(self.device).float()
+        else:
+            from frng.priors.surfels import grid_normals  # lazy: importing frng.priors loads every prior
+
+            normals = grid_normals(bv["means"], keep_c, bv["c2w"].float())
+        return kept_pixel_rows(normals, keep_c, fine, keep_f) @ self.normal_proj
 
     def _geometry_inputs(self, bv: dict, keep_c: torch.Tensor, fine, keep_f) -> torch.Tensor | None:
         """The opacity head's extra inputs (:func:`frng.model.opacity.geometry_inputs`) of the kept Gaussians, coarse

@@ -101,6 +101,12 @@ ADDITIONS: dict[str, Addition] = {
         "Sec. 4.1 (FineGeoDetokenizer): fine Gaussians outside a silhouette dropped",
         arch={"fine_in_hull": False},
     ),
+    "normal_start": Addition(
+        "frng.normal_start",
+        "Sec. 4.2.1 (MatDetokenizer: one linear layer from T_mat): every Gaussian's feature also gets its input "
+        "pixel's normal in a fixed random projection, so the decoder Theta sees the orientation from the start",
+        arch={"normal_start": 0.0},
+    ),
     "ind_pixels": Addition(
         "train.loss.ind_pixels",
         "Sec. 4.2.2 (L_ind on T_mat): also on the per-Gaussian material, from the views under a second input light",

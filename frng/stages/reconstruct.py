@@ -6,8 +6,10 @@ Images, masks, cameras, framing and the light estimate: :mod:`frng.apps.capture`
 ``config.yaml`` recorded in the results folder the model lives in, ``{results}/models/full/model.pt`` ->
 ``{results}/config.yaml``), which gives the architecture, the resolution, the training rig and the priors.
 ``--cameras`` reads transforms.json, OpenCV files, COLMAP models, LLFF and IDR / NeuS cameras
-(:mod:`frng.apps.camera_formats`); with more photos than the model takes it chooses the views (``--select N``,
-:mod:`frng.apps.capture_frame`) and prints which.
+(:mod:`frng.apps.camera_formats`); ``--sfm`` finds them from the photos by structure from motion on the CPU
+(:mod:`frng.apps.sfm`); with more photos than the model takes it chooses the views (``--select N``,
+:mod:`frng.apps.capture_frame`) and prints which. Photos without masks on a textured background are segmented
+(:mod:`frng.apps.masks`).
 ``--export-object OBJ`` instead writes a curated object's input views as plain PNGs into ``{out}/images/`` (+
 ``{out}/cameras.json`` and its input light ``{out}/light.exr``): files to try the command on.
 """
@@ -26,20 +28,33 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "with --grid",
     )
     parser.add_argument("--out", required=True, help="asset folder to write (with --export-object: a folder)")
-    parser.add_argument("--masks", help="folder of mask images (default: alpha, else a keyed uniform background)")
+    parser.add_argument(
+        "--masks",
+        help="folder of mask images (default: alpha, else a keyed uniform background, else GrabCut segmentation "
+        "seeded by the image centre or the --sfm points; frng.apps.masks)",
+    )
     cams = parser.add_mutually_exclusive_group()
     cams.add_argument(
         "--cameras",
         help="transforms.json (NeRF, with k1 k2 p1 p2), an OpenCV camera file (JSON/YAML), a COLMAP model (folder "
         "or its cameras/images files, text or binary), LLFF poses_bounds.npy or IDR/NeuS cameras_sphere.npz",
     )
-    cams.add_argument("--rig", choices=["paper"], help="the paper's 6-view rig (default when no --cameras)")
+    cams.add_argument(
+        "--rig", choices=["paper"], help="the paper's 6-view rig (default when neither --cameras nor --sfm)"
+    )
+    cams.add_argument(
+        "--sfm",
+        action="store_true",
+        help="no camera file: find the cameras from the photos by structure from motion on the CPU (pycolmap: "
+        "SIFT, exhaustive matching, incremental mapping; 3+ overlapping photos, 20-100 around the object is "
+        "best; frng.apps.sfm)",
+    )
     parser.add_argument(
         "--select",
         type=int,
         metavar="N",
-        help="with --cameras: choose N views among the photos (default: 6 when there are more than 10 photos); "
-        "the others are held out (frng.apps.capture_frame)",
+        help="with --cameras or --sfm: choose N views among the photos (default: 6 when there are more than 10 "
+        "photos); the others are held out (frng.apps.capture_frame)",
     )
     parser.add_argument("--light", help="the photos' light as an equirect map (EXR/HDR, 2:1); default: estimated")
     parser.add_argument(
@@ -168,6 +183,7 @@ def run(args: argparse.Namespace) -> int:
             force=args.force,
             allow_outside=args.allow_outside,
             select=args.select,
+            sfm=args.sfm,
         )
     except (CaptureError, AssetError) as e:
         if cli.DEBUG:  # `frng --debug`: the traceback

@@ -51,7 +51,13 @@ CONFIG_READS = (
 
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)
-    parser.add_argument("--variant", default="full", help="full, no-fine, no-idm, no-ind, no-neural, k<percent>")
+    parser.add_argument(
+        "--variant",
+        default="full",
+        help="full (the paper's F-RNG), its ablations no-fine, no-idm, no-ind, no-neural, k<percent> (the K sweep), "
+        "plus (F-RNG+: the config's additions on) or plus-no-<addition> (F-RNG+ without one); --list-variants names "
+        "the config's",
+    )
     parser.add_argument("--out", help="output folder (default {results}/models/{variant})")
     parser.add_argument("--backbone", help="frozen backbone file (default {results}/backbone/model.pt)")
     parser.add_argument("--steps", type=int, help="override train.steps / train.ablation_steps")

@@ -112,7 +112,7 @@ def variant_config(
     cfg = FRNGConfig(
         **same(f, "prior_dim", "upsample", "hidden", "depth", "heads", "feature_dim", "pixel_head"),
         **same(f, "back_completion", "fine_in_hull", "opacity_head", "geometry_inputs", "depth_head", "coverage_head"),
-        **same(f, "specular_start"),
+        **same(f, "specular_start", "normal_start"),
         **same(sh, "decoder_width", "decoder_depth", "dir_freqs", "decoder_cosine"),
         **same(bb, "near", "far", "max_radius_px"),
         patch=sections.patch_size,
