@@ -377,6 +377,38 @@ def tonemap(linear_rgb: np.ndarray, exposure: float = 1.0) -> np.ndarray:
     return srgb_encode(linear_rgb * exposure)
 
 
+TIFF_MAGIC = (b"II*\x00", b"MM\x00*")
+
+
+def read_hdr(path: str | os.PathLike) -> np.ndarray:
+    """A Radiance .hdr (RGBE) as float32 linear RGB (H, W, 3), with OpenCV (``IMREAD_ANYDEPTH``: imageio's default
+    plugin for .hdr is OpenCV's 8-bit read once opencv-python is installed). A float TIFF named .hdr (what
+    :func:`write_hdr` wrote before it wrote RGBE) is read as TIFF. Errors propagate; callers name the file."""
+    path = Path(path)
+    with open(path, "rb") as f:
+        head = f.read(4)
+    if head in TIFF_MAGIC:
+        import imageio.v3 as iio
+
+        return np.asarray(iio.imread(path, plugin="tifffile"), dtype=np.float32)[..., :3]
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_COLOR)
+    if img is None:
+        raise ValueError("OpenCV could not decode it")
+    return np.ascontiguousarray(img[..., ::-1], dtype=np.float32)
+
+
+def write_hdr(path: str | os.PathLike, image: np.ndarray) -> None:
+    """A Radiance .hdr (RGBE, run-length encoded) of linear RGB (H, W, 3+), atomically, with OpenCV."""
+    import cv2
+
+    img = np.ascontiguousarray(np.asarray(image, dtype=np.float32)[..., 2::-1])
+    with atomic_path(path) as tmp:
+        if not cv2.imwrite(str(tmp), img):
+            raise write_failure(Path(path), OSError(f"OpenCV could not write {path}"))
+
+
 def write_png(path: str | os.PathLike, image: np.ndarray) -> None:
     """Write an already display-encoded float [0, 1] (H, W, 3|4) or uint8 image as PNG, atomically."""
     import imageio.v3 as iio

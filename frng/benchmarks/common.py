@@ -155,11 +155,8 @@ def read_map(path: Path) -> np.ndarray:
 
 
 def write_hdr(path: Path, image: np.ndarray) -> None:
-    """A Radiance .hdr (RGBE) map, atomically (imageio)."""
-    import imageio.v3 as iio
-
-    with io.atomic_path(path) as tmp:
-        iio.imwrite(tmp, np.asarray(image, dtype=np.float32)[..., :3])
+    """A Radiance .hdr (RGBE) map, atomically (:func:`frng.io.write_hdr`)."""
+    io.write_hdr(path, image)
 
 
 def same_size(views: list[View]) -> None:

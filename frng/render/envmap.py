@@ -98,10 +98,8 @@ def read(path: str | Path) -> np.ndarray:
         if path.suffix.lower() == ".exr":
             img = io.read_exr(path, ["R", "G", "B"])
         else:
-            import imageio.v3 as iio
-
             try:
-                img = np.asarray(iio.imread(path), dtype=np.float32)[..., :3]
+                img = io.read_hdr(path)
             except Exception as e:  # noqa: BLE001 -- a truncated .hdr: SyntaxError, ValueError, OSError ...
                 first = str(e).strip().splitlines()[0] if str(e).strip() else ""
                 raise EnvMapError(
