@@ -665,7 +665,7 @@ _MAGIC = {
     ".jpg": (b"\xff\xd8\xff",),
     ".jpeg": (b"\xff\xd8\xff",),
     ".exr": (b"\x76\x2f\x31\x01",),
-    # Radiance RGBE; a float TIFF named .hdr is what frng.io.write_hdr wrote before it wrote RGBE (frng.io.read_hdr)
+    # Radiance RGBE; a float TIFF named .hdr is what the benchmark writers wrote before frng.io.write_hdr (frng.io.read_hdr)
     ".hdr": (b"#?RADIANCE", b"#?RGBE", b"II*\x00", b"MM\x00*"),
 }
 

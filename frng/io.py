@@ -382,8 +382,8 @@ TIFF_MAGIC = (b"II*\x00", b"MM\x00*")
 
 def read_hdr(path: str | os.PathLike) -> np.ndarray:
     """A Radiance .hdr (RGBE) as float32 linear RGB (H, W, 3), with OpenCV (``IMREAD_ANYDEPTH``: imageio's default
-    plugin for .hdr is OpenCV's 8-bit read once opencv-python is installed). A float TIFF named .hdr (what
-    :func:`write_hdr` wrote before it wrote RGBE) is read as TIFF. Errors propagate; callers name the file."""
+    plugin for .hdr is OpenCV's 8-bit read once opencv-python is installed). A float TIFF named .hdr (what the
+    benchmark writers wrote before :func:`write_hdr`) is read as TIFF. Errors propagate; callers name the file."""
     path = Path(path)
     with open(path, "rb") as f:
         head = f.read(4)

@@ -241,7 +241,7 @@ def test_map_not_2_to_1(round_trips, tmp_path):
     path = round_trips["tensoir"][0]
     shutil.copytree(path, tmp_path / "scene")
     shutil.copytree(path.parent / "light_probes", tmp_path / "light_probes")
-    from frng.benchmarks.common import write_hdr
+    from frng.io import write_hdr
 
     write_hdr(tmp_path / "light_probes" / "sky_b.hdr", np.ones((16, 16, 3), np.float32))
     with pytest.raises(BenchmarkError, match=r"sky_b\.hdr.*2:1"):

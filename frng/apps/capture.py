@@ -663,7 +663,7 @@ def prepare(
             image_files(Path(images), allow_outside=allow_outside),
             images,
             work=work,
-            progress=progress or _progress,
+            progress=progress or structure_from_motion.say,
             read=read_image,
         )
         cameras, seeds = sfm_set.path, seeds_from_sfm(sfm_set)
@@ -749,12 +749,6 @@ def prepare(
     alpha = np.clip(rgba[..., 3:4], 0.0, 1.0)
     rgb = np.maximum(rgba[..., :3], 0.0)
     return Capture(names, rgb, alpha, np.stack(out_c2w), np.stack(out_intr), info)
-
-
-def _progress(line: str) -> None:
-    import sys
-
-    print(line, file=sys.stderr, flush=True)
 
 
 def _t(a):

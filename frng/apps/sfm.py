@@ -56,7 +56,7 @@ READABLE = (".png", ".jpg", ".jpeg")  # what COLMAP reads in place; others are c
 FORMAT = "SfM (pycolmap)"
 
 
-def _say(line: str) -> None:
+def say(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
 
 
@@ -173,7 +173,7 @@ def cameras_from_photos(
     folder: str | Path,
     *,
     work: str | Path | None = None,
-    progress: Callable[[str], None] | None = _say,
+    progress: Callable[[str], None] | None = say,
     single_camera: bool | None = None,
     read=None,
 ) -> camera_formats.CameraSet:

@@ -154,11 +154,6 @@ def read_map(path: Path) -> np.ndarray:
         raise BenchmarkError(str(e)) from e
 
 
-def write_hdr(path: Path, image: np.ndarray) -> None:
-    """A Radiance .hdr (RGBE) map, atomically (:func:`frng.io.write_hdr`)."""
-    io.write_hdr(path, image)
-
-
 def same_size(views: list[View]) -> None:
     """Every image of a split must have the same size as its mask (and the benchmarks ship one size per scene)."""
     for v in views:

@@ -46,7 +46,6 @@ from frng.benchmarks.common import (
     read_mask_png,
     read_png,
     rotate_map,
-    write_hdr,
 )
 
 LAYOUT = "owl"
@@ -220,7 +219,7 @@ def write(cur: Curated, out: str | Path, scene: str | None = None) -> Path:
     _text(inputs / "exposure.txt", f"{e_in!r}\n")
     _text(inputs / "object_bounding_box.txt", "-1 1 -1 1 -1 1\n")
     eye = "\n".join(" ".join(str(float(x)) for x in r) for r in np.eye(4)) + "\n"
-    write_hdr(root / "env.hdr", cur.envmap(cur.input_light))
+    io.write_hdr(root / "env.hdr", cur.envmap(cur.input_light))
     _text(root / "world_to_env.txt", eye)
     k = 0
     for light in cur.target_lights:
@@ -231,7 +230,7 @@ def write(cur: Curated, out: str | Path, scene: str | None = None) -> Path:
             )
             _write_camera(root / f"gt_camera_{k:04d}.txt", v)
             _text(root / f"gt_exposure_{k:04d}.txt", f"{e!r}\n")
-            write_hdr(root / f"gt_env_{k:04d}.hdr", env)
+            io.write_hdr(root / f"gt_env_{k:04d}.hdr", env)
             _text(root / f"gt_world_to_env_{k:04d}.txt", eye)
             k += 1
     return root

@@ -44,7 +44,6 @@ from frng.benchmarks.common import (
     read_json,
     read_map,
     read_srgba_png,
-    write_hdr,
     write_srgba_png,
 )
 
@@ -180,5 +179,5 @@ def write(cur: Curated, out: str | Path, scene: str | None = None) -> Path:
     probes = out / "light_probes"
     probes.mkdir(parents=True, exist_ok=True)
     for light in dict.fromkeys([cur.input_light, *cur.target_lights]):
-        write_hdr(probes / f"{light}.hdr", cur.envmap(light))
+        io.write_hdr(probes / f"{light}.hdr", cur.envmap(light))
     return root

@@ -735,9 +735,7 @@ class FRNG(nn.Module):
         detokenizer's output, (N, C) in the kept Gaussians' order. At initialisation the latent features then
         already differ with the surface's orientation, which is what a decoder Theta(f | w_o, w_i) needs to shade;
         study: docs/studies/2026-12-05-why-the-paper-form-does-not-relight.md section 5."""
-        if self.cfg.uses_priors:
-            if priors is None:
-                raise ValueError("this F-RNG variant needs IDM priors")
+        if self.cfg.uses_priors:  # reconstruct's prior_tokens has refused a call without priors
             normals = priors.as_dict()["normal"][:V].to(self.device).float()
         else:
             from frng.priors.surfels import grid_normals  # lazy: importing frng.priors loads every prior
