@@ -1,17 +1,18 @@
-# The paper's Tables 2 and 3 and its views table (frng/baselines/): per-scene baselines fitted on dense views
-# (3dgs, gsir), an image-based baseline, other methods' outputs read from files, scored beside F-RNG.
-# rule curate_baselines: ONE Blender process per test object renders its target views under its first input light
-# (the image-based methods' input; the novel-view ground truth) and, for the per-scene baselines' objects
-# (baselines.objects_per_class per material class), render.dense_views views on a sphere under that light.
+# Tables 2-3 and the views table (docs/baselines.md): per-scene, image-based and external baselines beside F-RNG.
 from frng.baselines import plan as frng_baselines
 
-frng_baselines.check_view_counts(config)
+try:  # baselines.view_counts and baselines.methods (frng/baselines/registry.py), checked once, in one line
+    frng_baselines.check_view_counts(config)
+    _PER_SCENE = frng_baselines.per_scene_methods(config)
+except ValueError as e:
+    raise WorkflowError(f"invalid config: {e}")
 BASELINE_OBJECTS = frng_baselines.baseline_objects(config, frng_baselines.test_objects(CATALOG))
 _BASELINES = config.get("baselines", {})
 # the extra views are rendered for every test object when the image-based baseline runs, else for the per-scene ones
 BASELINE_VIEW_IDS = TEST_IDS if _BASELINES.get("image_based", True) and BASELINE_OBJECTS else BASELINE_OBJECTS
 
 
+# rule curate_baselines: one Blender process per object renders its target views under its input light (+ dense views).
 rule curate_baselines:
     input:
         unpack(curation_inputs("curate_baselines", L.baseline_views_meta)),  # (rules/common.smk)
@@ -42,13 +43,10 @@ rule curate_baselines:
 add_targets(*expand(L.baseline_views_meta(), obj=BASELINE_VIEW_IDS))
 
 
-# rule baseline_fit: one per-scene method (3dgs / gsir) of one object, fitted on each baselines.view_counts subset of its
-# dense views in turn (runs {method}-v{n}), each re-rendered at the target views under the input light (novel views)
-# and, for gsir, relit under every target light. One job per (method, object), so that the paper tier's DAG grows by
-# 2 x its test objects (one job per fit: 8 x); one thread per job, like the relight jobs.
+# rule baseline_fit: one job per (method, object) fits every view count, so the DAG grows by methods x objects only.
 PER_SCENE_RUNS = frng_baselines.per_scene_runs(config)
-VIEW_COUNTS = [int(n) for n in _BASELINES.get("view_counts", [6])]
-PER_SCENE_METHODS = list(_BASELINES.get("methods", frng_baselines.PER_SCENE_METHODS)) if PER_SCENE_RUNS else []
+VIEW_COUNTS = frng_baselines.view_counts(config)
+PER_SCENE_METHODS = [m.name for m in _PER_SCENE] if PER_SCENE_RUNS else []
 
 
 rule baseline_fit:
@@ -83,8 +81,7 @@ rule baseline_fit:
         '--out "{params.runs}/{wildcards.method}-v$n/{wildcards.obj}" || exit 1; done) > {log:q} 2>&1'
 
 
-# rule baseline_image: the image-based baseline (each target view's photo under the input light decomposed by the
-# IDM and re-shaded under every target light), one job per test object
+# rule baseline_image: the IDM re-shading baseline, one job per test object.
 rule baseline_image:
     input:
         views=L.baseline_views_meta(),
@@ -114,8 +111,7 @@ rule baseline_image:
         "--out {params.out:q} > {log:q} 2>&1"
 
 
-# rule baseline_frng_nvs: F-RNG's `full` model rendered under each per-scene object's input light at its target
-# views (the views table's F-RNG column: novel-view synthesis from the 6 rig views)
+# rule baseline_frng_nvs: F-RNG's novel views under the input light, the views table's reference column.
 rule baseline_frng_nvs:
     input:
         model=L.model("full"),

@@ -1,9 +1,4 @@
-# Public relighting benchmarks (frng/benchmarks/): every `benchmarks:` entry of the config is imported into the
-# dataset contract (rule import_benchmark: `frng import LAYOUT PATH`), relit by the trained models exactly like a
-# held-out curated object (rule relight_benchmark: `frng relight-benchmark` = `frng relight`), and scored with its
-# benchmark's published protocol (rule evaluate_benchmarks: `frng evaluate-benchmarks` -> tables/benchmarks.*).
-# Imported ids contain a hyphen ({layout}-{scene}), so curate/relight ([a-z0-9_]+) never claim them.
-# Target: `snakemake ... evaluate_benchmarks` (also part of `all` when the config lists benchmarks).
+# Public benchmarks (docs/benchmarks.md); imported ids hold a hyphen, so curate/relight ([a-z0-9_]+) never claim them.
 import re as _re
 
 from frng.benchmarks.plan import BenchmarkError as _BenchmarkError

@@ -34,9 +34,7 @@ except ValueError as e:
 RESULTS = config["results"]
 L = Layout(RESULTS)  # every artefact's path (frng/plan/layout.py); rules pass their wildcards through
 ROOT = Path(workflow.basedir).parent
-# The effective config: validated, defaults filled, --config overrides applied; one per results folder. Every
-# stage reads it via `--config {CONFIG_FILE}`. It is written when jobs start (`onstart:` below: never by a dry
-# run, `--summary` or any other planning), and a run whose config differs from the recorded one is refused.
+# The effective config, recorded when jobs start (never by planning), so that a run with another config is refused.
 CONFIG_FILE = L.config()
 
 
@@ -103,8 +101,7 @@ onstart:
         logger.info(f"effective config {outcome}: {CONFIG_FILE}")
 
 
-# The family of a generated batch rule (backbone_cache_train0 -> backbone_cache, frng/plan/batches.py); config
-# digests, profile settings and job counts go by it.
+# A generated batch rule's family (backbone_cache_train0 -> backbone_cache): digests and profile settings go by it.
 rule_family = frng_batches.rule_family
 
 
@@ -112,17 +109,16 @@ def inherit_profile_settings(name):
     """Give generated batch rule `name` what the profile sets for its family (`set-threads`, `set-resources`, e.g.
     profiles/slurm's GPU partition for backbone_cache), unless the profile names the batch rule itself."""
     rs, family, r = workflow.resource_settings, rule_family(name), workflow.get_rule(name)
-    threads = getattr(rs, "_parsed_overwrite_threads", {})
+    threads = rs.overwrite_threads  # ResourceSettings' public fields: {rule: threads}, {rule: {resource: value}}
     if family in threads and name not in threads:
         r.resources["_cores"] = threads[family]
-    resources = getattr(rs, "_parsed_overwrite_resources", {})
+    resources = rs.overwrite_resources
     for key in (family, name):  # the batch rule's own entry last
         if key in resources:
             r.resources.update(resources[key])
 
 
-# Each rule's config digest travels with the results folder (see rules/digests.smk). Every job of a rule reads
-# {results}/.digests/{rule}-{digest}.txt; the default target asks for each of them.
+# Every job reads its rule's digest file, so that the digests travel with the results folder (rules/digests.smk).
 def digest_rules(rules):
     return [
         r

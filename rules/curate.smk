@@ -1,12 +1,9 @@
-# Curation: ONE Blender process per object renders its input views x input lights, target views x target
-# lights and the G-buffers (frng/data/curate.py); then one job draws a contact sheet per object.
+# Curation (docs/dataset-and-curation.md): ONE Blender process per object renders all its views, lights and G-buffers.
 OBJECT_IDS = CATALOG.object_ids
 _RENDER = config["render"]
 
 
-# The object's plan entry and its maps' plan records, in a file named by their digest (as rule config_digest's):
-# a changed record names a missing file, made here, newer than the object's curation, which reruns; an unchanged
-# one reruns nothing, in a copied folder too (Snakemake's params trigger lives in .snakemake/metadata only).
+# A record file named by the object's plan digest, so that a changed plan reruns its curation in a copied folder too.
 rule curate_record:
     output:
         L.curate_record(),
@@ -69,8 +66,7 @@ rule dataset_preview:
         "exec {params.py:q} -m frng dataset preview --config {params.config:q} --out {params.out:q} > {log:q} 2>&1"
 
 
-# The targets' noise floor (the quality ladder's step 0): the first test object of each class rendered as curation
-# renders its targets and as a high-spp reference (render.noise_floor; views 0: no such rule's output is asked for)
+# The targets' noise floor (the ladder's step 0): one test object per class, as curated and at high spp.
 NOISE_FLOOR = [L.metrics("noise_floor")] if _RENDER["noise_floor"]["views"] > 0 else []
 
 
@@ -99,8 +95,7 @@ rule noise_floor:
         "--out {output.csv:q} > {log:q} 2>&1"
 
 
-# the record files are targets too: Snakemake makes a missing input only for a job that runs anyway (the target makes
-# curate_record run, and then the object's curation)
+# the record files are targets too: Snakemake makes a missing input only for a job that runs anyway
 add_targets(
     *expand(L.object_meta(), obj=OBJECT_IDS),
     *expand(L.preview(), obj=OBJECT_IDS),

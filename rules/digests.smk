@@ -1,9 +1,4 @@
-# Each rule's config digest travels with the results folder: every job of a rule reads the rule's digest file
-# {results}/.digests/{rule}-{digest}.txt (added to each rule's input in workflow/Snakefile; `rule all` asks for every
-# one of them). Editing a key the rule reads names another file, which rule config_digest makes: newer than the
-# rule's outputs, so every job of the rule reruns, and what follows. A copied folder, a deleted .snakemake/ or
-# another checkout keep that promise (Snakemake's params trigger alone lives in the working directory's
-# .snakemake/metadata). Planning writes nothing; a run stopped half-way reruns the rest next time (mtime).
+# Config digests as files in the results folder, so that an edited key reruns its rule in a copy or checkout too.
 rule config_digest:
     output:
         L.rule_digest(),

@@ -1,7 +1,4 @@
-# Environment maps: one per (object, light) draw of the plan -- a base map of the light pool (Blender's bundled HDRIs,
-# baked skies, procedural studios, users' maps) rotated by the draw's own angle, resized, normalised; split
-# train/test by base map within each family. One job writes them all (~25 s for the default tier's 715 maps); see
-# frng/data/envmaps.py.
+# Environment maps (frng/data/envmaps.py): one job writes every map of the plan, split train/test by base map.
 ENVMAP_NAMES = [e.name for e in CATALOG.envmaps]
 USER_ENVMAP_FILES = sorted({e.origin for e in CATALOG.envmaps if e.source == "user"})
 
@@ -10,8 +7,7 @@ rule envmaps:
     input:
         USER_ENVMAP_FILES,
     output:
-        # the index only: the maps (one per object and light: 106k at the paper tier) as outputs made the paper DAG
-        # plan for minutes; `frng envmaps` writes all or nothing, the index last, and curation checks every map
+        # the index only, not one output per map (too many to plan); `frng envmaps` writes all or nothing
         index=L.envmap_index(),
     log:
         L.log("envmaps"),
@@ -20,7 +16,7 @@ rule envmaps:
     threads: config["render"]["threads"]
     resources:
         mem_mb=3000,
-        runtime=10 + len(ENVMAP_NAMES) // 300,  # ~0.04 s per map at 128 px; 0.2 s allowed
+        runtime=10 + len(ENVMAP_NAMES) // 300,  # about 0.2 s allowed per map
     params:
         **stage_params("envmaps"),
         out=lambda wildcards, output: os.path.dirname(output.index),

@@ -1,6 +1,4 @@
-# Evaluation (frng/stages/evaluate.py, frng/apps/scoring.py), the paper's tables and figures (stages frng/stages/{tables,figures}.py, drawn
-# by frng/report/).
-# Tables and figures are wrapped in report(...) for `snakemake --report` (captions in workflow/report/).
+# Evaluation, the paper's tables and figures (frng/stages/{evaluate,tables,figures}.py), also for `snakemake --report`.
 import shlex
 
 from frng.report.tables import TABLE_COLUMNS
@@ -22,8 +20,7 @@ _TABLE_CAPTIONS = {
     "ladder_by_class": "quality ladder per material class",
     "claims": "the paper's claims",
 }
-# The default tier's tables also write the repository's generated results page and the README's results block
-# (frng/report/results_page.py), so that `make reproduce` rewrites them; other tiers write neither.
+# The default tier's tables also rewrite the results page and README block, so that `make reproduce` refreshes them.
 RESULTS_PAGE_ARGS = (
     f"--results-page {shlex.quote(str(ROOT / 'docs' / 'results.md'))} --readme {shlex.quote(str(ROOT / 'README.md'))}"
     if config.get("tier") == "default"
@@ -33,8 +30,7 @@ RESULTS_PAGE_ARGS = (
 
 rule evaluate:
     input:
-        # one file per test object stands for all its runs (relight publishes every run before its timing file);
-        # listing every run.json would add runs x objects inputs to the paper DAG
+        # one timing file per test object stands for all its runs (relight writes it last): a small paper DAG
         timing=expand(rules.relight.output.timing, obj=TEST_IDS),
         seeded=expand(rules.relight_seed.output.runs, obj=TEST_IDS, seed=RELIGHT_SEEDS),
     output:

@@ -1,5 +1,4 @@
-# Frozen priors (frng/priors/): the RelitLRM-style backbone and the IDM are trained once on the TRAINING split,
-# then cached per object (one file per object, one job per batch of objects) so that F-RNG training reads caches only.
+# Frozen priors (docs/priors.md): trained once on the training split, then cached per object for F-RNG's training.
 
 
 rule backbone_train:
@@ -13,8 +12,7 @@ rule backbone_train:
         L.log("backbone_train"),
     conda:
         "../envs/torch.yaml"
-    # One thread on a CPU: two 2-thread runs of the default tier's 1000 steps parted in the 7th digit at step 73 /
-    # 464 (measured, README "Provenance"); one thread gives the same weights every time, like `frng train`'s.
+    # one thread on a CPU: the same weights every time (docs/provenance-and-reproducibility.md)
     threads: 1
     resources:
         mem_mb=6000,
@@ -54,10 +52,7 @@ rule idm_train:
         "exec {params.py:q} -m frng idm-train --config {params.config:q} --out {params.out:q} > {log:q} 2>&1"
 
 
-# One job per batch of objects (frng/plan/batches.py; `--config priors_batch=N`, default 32): each batch is its own
-# rule, {family}_{batch} (backbone_cache_train0, ..., idm_priors_test0), declaring every object's file as an output,
-# so the files, their bytes and everything downstream stay per object. A batch reruns as a whole when one of its
-# objects' inputs changes; a stopped batch leaves only complete files (written atomically) and reruns next time.
+# One rule per batch of objects ({family}_{batch}: frng/plan/batches.py), every object's file its own output.
 for _batch, _objs in PRIOR_BATCHES.items():
 
     rule:

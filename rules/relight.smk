@@ -1,10 +1,4 @@
-# Relighting of the held-out objects (frng/apps/relight.py): ONE job per test object runs every F-RNG run of the models'
-# seed (ablation variants, K sweep, #views sweep of the full model) and the backbone baseline, so that both are timed
-# side by side in the same job and the paper-scale DAG grows by the number of test objects only; each other training
-# seed (train.seeds) relights in its own job per object (rule relight_seed), so the first seed's runs relight while
-# the other seeds' models train. One thread per job: on the default tier's 2 cores two objects relight side by side
-# (one object: 34 s at one thread, 28 s at two, on the project's machine), so the timings are taken beside another
-# relighting job, both methods in the same job.
+# Relighting (frng/apps/relight.py): one job per test object and seed, F-RNG and the backbone timed in the same job.
 from frng.plan.variants import MAIN_GROUP, SEED_SEP, RunPlan, model_variants, seed_variant, seeded_bases
 
 _RUN_PLAN = RunPlan.of(config)

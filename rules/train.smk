@@ -1,9 +1,4 @@
-# F-RNG training (stage frng/stages/train.py, the training itself in frng/training/frng.py): one `train` job per
-# variant, reading the frozen priors' caches only.
-# The K-sweep entry equal to the full model's K (k2 with the paper's 2%) is the full model: `model_alias` copies it
-# into its own folder instead of training it twice.
-# Other training seeds (train.seeds) are variants too: `full@s1`, `no-fine@s1`, ... (frng/plan/variants.py), each its own
-# `train` job with train_seed = 1 (the stage reads the suffix); the K sweep is not repeated per seed.
+# F-RNG training (frng/stages/train.py): one `train` job per variant and seed, reading the priors' caches only.
 from frng.plan.variants import (
     all_variants,
     canonical_variant,
@@ -17,8 +12,7 @@ FRNG_TRAINED = trained_variants(config)
 FRNG_ALIASES = [v for v in all_variants(config) if canonical_variant(config, v) != v]
 
 
-# The train jobs depend on the training split through two indexes (rules training_set_*): the 8 training jobs of
-# the paper tier listing ~2700 per-object files each dominated the paper DAG's planning time.
+# The train jobs read the training split through two index files, so that the paper DAG plans fast.
 
 
 rule training_set_caches:
@@ -71,14 +65,11 @@ rule train:
         L.model_file("{variant}", "train.log"),
     wildcard_constraints:
         variant="|".join(re.escape(v) for v in FRNG_TRAINED),
-    # the models' seed first (2), then the other seeds (1), both before the relighting jobs (0): the first seed's
-    # relighting (rule relight) then fills the core the other seeds' last training leaves idle (13 trainings on 2
-    # cores at the default tier: the last one ran alone for ~6 min while relighting waited for every model)
+    # the models' seed first (2), other seeds next (1), relighting last (0): relighting fills cores trainings leave idle
     priority: lambda wildcards: 1 if split_seed(wildcards.variant)[1] is not None else 2
     conda:
         "../envs/torch.yaml"
-    # one thread: on a 2-core machine two trainings side by side at one thread each finish 8 variants ~20% sooner
-    # than one after another at two (measured: 1.6 + 1.6 vs 2.5 steps/s); clusters set their own (profiles/slurm)
+    # one thread: two 1-thread trainings side by side beat one 2-thread training; clusters set their own
     threads: 1
     resources:
         mem_mb=6000,

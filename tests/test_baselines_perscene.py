@@ -385,3 +385,129 @@ def test_gsir_fit_never_reads_the_input_light(toy, tmp_path):
     fourth = outputs("d")
     assert np.array_equal(fourth["images"]["lightA/t0.exr"], first["images"]["lightA/t0.exr"])
     assert not np.array_equal(fourth["images"]["lightB/t0.exr"], first["images"]["lightB/t0.exr"])
+
+
+@dataclasses.dataclass
+class _TintFitted:
+    """A toy per-scene model: 3dgs's fit, relit as its input-light render tinted by each target map's mean."""
+
+    inner: splat3d.FittedSplat3D
+    extra = {"toy": True}
+
+    @property
+    def curve(self):
+        return self.inner.curve
+
+    @property
+    def gaussians(self) -> int:
+        return self.inner.gaussians
+
+    def render(self, c2w, intr, height, width, envs):
+        lit, _ = self.inner.render(c2w, intr, height, width, {})
+        tint = {light: torch.cat([lit[..., :3] * env.mean(), lit[..., 3:]], -1) for light, env in envs.items()}
+        return lit, tint
+
+
+def _tint_fit(views, fit_settings, raster, seed, label="tint"):
+    return _TintFitted(splat3d.fit_baseline(views, fit_settings, raster, seed, label))
+
+
+def test_a_registered_method_is_planned_fitted_scored_and_tabled(toy, tmp_path, monkeypatch):
+    """Adding a per-scene baseline is one registry entry (frng/baselines/registry.py): a toy method that relights,
+    registered here alone, is planned on the smoke tier (its runs at each view count, scored on relighting and novel
+    views), accepted by the stage, fitted by the fit job (given the target maps), scored and labelled in the tables."""
+    import argparse
+
+    import pandas as pd
+
+    from frng import io
+    from frng.baselines import plan as P
+    from frng.baselines import registry, scoring
+    from frng.baselines.fit_job import FitJob, fit_object
+    from frng.plan import config as frng_config
+    from frng.plan.layout import Layout, ObjectFolder
+    from frng.report import baseline_tables as B
+    from frng.stages import baseline_fit
+    from frng.typedconfig import typed
+
+    spec = registry.PerSceneMethod("tint", "Tint (per-scene)", "3dgs, tinted per light", relights=True, fit=_tint_fit)
+    monkeypatch.setitem(registry.PER_SCENE, spec.name, spec)
+    smoke = Path(__file__).resolve().parent.parent / "config" / "smoke.yaml"
+    raw = frng_config.load(str(smoke), {"baselines": {"methods": ["tint"]}})
+    assert P.per_scene_runs(raw) == ["tint-v8", "tint-v4"]  # smoke: view_counts [8, 4]
+    runs = [r for r in scoring.planned_runs(raw, ["toy"], ["toy"], ["toy"]) if r.method == "tint"]
+    assert [(r.run, r.tasks, r.family) for r in runs] == [(f"tint-v{n}", ("relight", "nvs"), "dense") for n in (8, 4)]
+    parser = argparse.ArgumentParser()
+    baseline_fit.configure(parser)
+    assert (
+        parser.parse_args(["--config", "c", "--object", "toy", "--method", "tint", "--views", "4", "--out", "x"]).method
+        == "tint"
+    )
+
+    results = tmp_path / "results"
+    _write_object(results, toy)
+    job = dataclasses.replace(
+        FitJob.of(typed(raw)), results=str(results), device="cpu", fit=settings(steps=12, init_points=200)
+    )
+    for n in (8, 4):
+        rec = fit_object(job, "toy", "tint", n, results / "relight" / f"tint-v{n}" / "toy")
+        assert rec["lights"] == ["lightB"] and rec["toy"] is True and rec["steps"] == 12
+
+    # the ground truth scoring reads: the toy object under light B (relighting), under light A (novel views)
+    L = Layout(results)
+    meta = io.read_json(L.baseline_views_meta("toy"))
+    from frng.data.rig import View
+
+    targets = [View.from_record(d) for d in meta["views"]["targets"]]
+    truth = toy_model()
+    for light, params in (("lightA", STUDIO_A), ("lightB", STUDIO_B)):
+        gt = toy_views(truth, targets, gsir.Light.of(env(params)))
+        for k, v in enumerate(targets):
+            rgba = torch.cat([gt.rgb[k], gt.alpha[k]], -1).numpy()
+            path = L.object_image("toy", "targets", light, v.name) if light == "lightB" else None
+            path = path or ObjectFolder(L.baseline_views_dir("toy")).image("targets", light, v.name)
+            io.write_exr(path, rgba, channels=["R", "G", "B", "A"])
+    obj = io.read_json(L.object_meta("toy"))
+    obj |= {"material_class": "diffuse", "views": {"targets": meta["views"]["targets"]}}
+    io.write_json(L.object_meta("toy"), obj)
+    rows = [row for r in runs for row in scoring.score_run(results, r, "aligned", (1.0, 1.0, 1.0))]
+    df = pd.DataFrame(rows)
+    assert df.groupby(["task", "run"]).size().to_dict() == {
+        (task, f"tint-v{n}"): 2 for task in ("relight", "nvs") for n in (8, 4)
+    }
+    assert np.isfinite(df["psnr"]).all()
+    assert B.dense_runs(df) == ["tint-v8"] and B.nvs_runs(df) == ["tint-v4", "tint-v8"]
+    assert B.label("tint", "dense") == "Tint (per-scene)"
+
+
+def test_no_module_names_a_per_scene_method():
+    """The plan, the fit job, the scoring, the tables, the stage and the rules read the registry: none of them holds
+    a method's name as a string of its own (the registry is where ``3dgs`` and ``gsir`` are named)."""
+    import ast
+    import re
+
+    from frng.baselines import registry
+
+    root = Path(__file__).resolve().parent.parent
+    names = set(registry.names())
+    for rel in (
+        "frng/baselines/plan.py",
+        "frng/baselines/fit_job.py",
+        "frng/baselines/scoring.py",
+        "frng/report/baseline_tables.py",
+        "frng/stages/baseline_fit.py",
+    ):
+        consts = {n.value for n in ast.walk(ast.parse((root / rel).read_text())) if isinstance(n, ast.Constant)}
+        assert not names & consts, (rel, names & consts)
+    code = "\n".join(line.split("#", 1)[0] for line in (root / "rules" / "baselines.smk").read_text().splitlines())
+    assert not [n for n in names if re.search(rf"[\"']{re.escape(n)}[\"']", code)]
+
+
+def test_an_unknown_method_is_one_line_naming_the_key():
+    from frng.baselines import plan as P
+    from frng.plan import config as frng_config
+
+    smoke = Path(__file__).resolve().parent.parent / "config" / "smoke.yaml"
+    raw = frng_config.load(str(smoke), {"baselines": {"methods": ["3dgs", "nerf"]}})
+    with pytest.raises(ValueError, match=r"^config key 'baselines.methods': unknown per-scene baseline 'nerf' "):
+        P.per_scene_runs(raw)

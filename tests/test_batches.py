@@ -46,3 +46,36 @@ def test_object_outputs():
         object_outputs(["a", "b"], ["x"], str)
     with pytest.raises(ValueError, match="twice"):
         object_outputs(["a", "a"], ["x", "y"], str)
+
+
+def test_batch_rules_inherit_their_familys_profile_settings():
+    """rules/common.smk's inherit_profile_settings reads `--set-threads` / `--set-resources` through Snakemake's
+    public ResourceSettings fields (as its CLI parses them): a batch rule gets its family's threads and resources,
+    and its own entries win."""
+    import re
+    import types
+    from pathlib import Path
+
+    from snakemake.cli import parse_set_resources, parse_set_threads
+    from snakemake.resources import Resources
+    from snakemake.settings.types import ResourceSettings
+
+    text = (Path(__file__).resolve().parent.parent / "rules" / "common.smk").read_text()
+    source = re.search(r"(?ms)^def inherit_profile_settings\(name\):\n.*?(?=^\S)", text).group(0)
+    settings = ResourceSettings(
+        overwrite_threads=parse_set_threads(["backbone_cache=3", "idm_priors_test0=2"]),
+        overwrite_resources=parse_set_resources(
+            ["backbone_cache:mem_mb=1234", "idm_priors:mem_mb=500", "idm_priors_test0:mem_mb=700"]
+        ),
+    )
+    rules = {n: types.SimpleNamespace(resources=Resources()) for n in ("backbone_cache_train0", "idm_priors_test0")}
+    for r in rules.values():
+        r.resources["_cores"] = 1
+    workflow = types.SimpleNamespace(resource_settings=settings, get_rule=rules.__getitem__)
+    namespace = {"workflow": workflow, "rule_family": rule_family}
+    exec(source, namespace)
+    for name in rules:
+        namespace["inherit_profile_settings"](name)
+    cache, priors = (dict(rules[n].resources.unwrapped_items()) for n in rules)
+    assert cache["_cores"] == 3 and cache["mem_mb"] == 1234
+    assert priors["_cores"] == 1 and priors["mem_mb"] == 700  # its own --set-threads entry Snakemake applies itself

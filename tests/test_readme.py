@@ -102,3 +102,17 @@ def test_reference_by_topic_and_history_out_of_the_guide():
             shown.add((page.parent / link).resolve())
     unshown = [p.relative_to(ROOT) for p in (docs / "figures").rglob("*.png") if p.resolve() not in shown]
     assert not unshown, f"figures no page shows (remove them): {unshown}"
+
+
+def test_changelog_rows_are_short_and_linked():
+    """Issue 89: one CHANGELOG row per reproduction, each cell at most ~200 characters (240 allowed), each row with a
+    link to its study page or docs/results.md; a run's longer text lives on the linked page."""
+    changelog = (ROOT / "CHANGELOG.md").read_text()
+    rows = [line for line in changelog.splitlines() if re.match(r"\| 20\d\d-\d\d-\d\d \|", line)]
+    assert rows, "CHANGELOG.md has no reproduction rows"
+    long = [(row[:40], len(cell)) for row in rows for cell in row.strip().strip("|").split(" | ") if len(cell) > 240]
+    assert not long, f"CHANGELOG.md cells over 240 characters (row, length): {long}"
+    unlinked = [row[:40] for row in rows if not re.search(r"\]\(docs/[^)]+\.md(#[^)]*)?\)", row)]
+    assert not unlinked, f"CHANGELOG.md rows without a link to docs/: {unlinked}"
+    for page, anchor in re.findall(r"\]\((docs/[^)#]+\.md)#([^)]+)\)", changelog):
+        assert f'<a id="{anchor}"></a>' in (ROOT / page).read_text(), (page, anchor)

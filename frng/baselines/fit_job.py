@@ -1,19 +1,20 @@
 """One per-scene baseline job (stage :mod:`frng.stages.baseline_fit`, ``frng baseline-fit``): read an object's dense
-views, fit ``3dgs`` (:mod:`frng.baselines.splat3d`) or ``gsir`` (:mod:`frng.baselines.gsir`) on the first ``N`` of
-them (the nested spread subset :func:`frng.baselines.plan.dense_subset`) under its input light, and write the
-RelightFolder ``out`` (``{results}/relight/{method}-v{N}/{obj}``):
+views, fit a per-scene method of :mod:`frng.baselines.registry` (``3dgs``: :mod:`frng.baselines.splat3d`, ``gsir``:
+:mod:`frng.baselines.gsir`) on the first ``N`` of them (the nested spread subset
+:func:`frng.baselines.plan.dense_subset`) under its input light, and write the RelightFolder ``out``
+(``{results}/relight/{method}-v{N}/{obj}``):
 
-- ``{input_light}/{view}.exr``: the object's target views under the input light (novel-view synthesis), both methods
-  (gsir: under its learned light);
-- ``{light}/{view}.exr`` for every target light (``gsir`` only: ``3dgs`` cannot relight);
+- ``{input_light}/{view}.exr``: the object's target views under the input light (novel-view synthesis), every method
+  (a relighting one, gsir: under its learned light);
+- ``{light}/{view}.exr`` for every target light (methods that relight only: ``3dgs`` cannot);
 - ``run.json`` (run, method, views, source, fit_seconds, relight_seconds_per_image, threads, device, steps,
   train_psnr, final_loss, ...) and ``loss.csv`` (step, loss, psnr).
 
 Reads ``{results}/baselines/views/{obj}/`` (meta.json, ``dense/{light}/{view}.exr``), ``{results}/objects/{obj}/
-meta.json`` (``target_lights``) and ``{results}/envmaps/{light}.exr`` of the target lights alone (gsir, to relight:
-the task gives them). Neither method reads the input light's map: gsir learns its light, and its images under the
-input light are rendered under that learned light (a target light named as the input light is too). Config keys:
-``results``, ``seed``, ``device``, ``raster.*``, ``baselines.fit.*``.
+meta.json`` (``target_lights``) and ``{results}/envmaps/{light}.exr`` of the target lights alone (a method that
+relights: the task gives them). No method reads the input light's map: gsir learns its light, and its images under
+the input light are rendered under that learned light (a target light named as the input light is too). Config keys:
+``results``, ``seed``, ``device``, ``raster.*``, the method's settings section (``baselines.fit.*``).
 
 Everything is written into a temporary sibling of ``out`` and renamed onto it at the end: a failed job leaves
 nothing that looks valid (and an earlier run's folder as it was). Bad input is one line naming the file.
@@ -23,13 +24,14 @@ from __future__ import annotations
 
 import shutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from frng import io
+from frng.baselines import registry
 from frng.baselines.fit_settings import FitSettings
 from frng.baselines.plan import DENSE_KIND, dense_subset, per_scene_run
 from frng.plan.layout import Layout, ObjectFolder, RelightFolder, TrainingFolder
@@ -50,10 +52,24 @@ class FitJob:
     device: str
     raster: RasterConfig
     fit: FitSettings
+    config: TypedConfig | None = field(default=None, compare=False)  # another settings section a method reads
 
     @classmethod
     def of(cls, config: TypedConfig) -> FitJob:
-        return cls(str(config.results), int(config.seed), str(config.device), config.raster, config.baselines.fit)
+        return cls(
+            str(config.results), int(config.seed), str(config.device), config.raster, config.baselines.fit, config
+        )
+
+    def settings(self, method: registry.PerSceneMethod):
+        """The settings section ``method`` reads: ``baselines.fit`` (:attr:`fit`) or another of the config."""
+        if method.settings == "baselines.fit":
+            return self.fit
+        if self.config is None:
+            raise ValueError(f"per-scene baseline {method.name!r}: no config to read {method.settings!r} from")
+        out = self.config
+        for key in method.settings.split("."):
+            out = getattr(out, key)
+        return out
 
 
 class BaselineFitError(ValueError):
@@ -137,22 +153,23 @@ def fit_object(job: FitJob, oid: str, method: str, views: int, out: Path, device
     """The whole job (module docstring); returns the run record."""
     import torch
 
-    from frng.baselines import gsir, splat3d
+    from frng.baselines import splat3d
     from frng.baselines.perscene import TrainViews
     from frng.device import deterministic_kernels, resolve_device, training_threads
     from frng.plan import catalog
 
+    spec = registry.method(method)
     run = per_scene_run(method, views)
     inputs = read_inputs(job.results, oid, views)
-    envs = {}  # the target maps, given to relight; never the input light's (gsir learns it)
-    if method == "gsir":
+    envs = {}  # the target maps, given to relight; never the input light's (a relighting method learns it)
+    if spec.relights:
         for light in dict.fromkeys(inputs["target_lights"]):
             if light != inputs["light"]:
                 envs[light] = read_env(inputs["envmap"](light))
     threads = training_threads()
     device = resolve_device(device_name or job.device)
     deterministic_kernels(device)
-    settings, raster = job.fit, job.raster
+    settings, raster = job.settings(spec), job.raster
     seed = catalog.derive_seed(job.seed, "baseline-fit", oid, method, str(views))
 
     train = inputs["train"]
@@ -177,31 +194,13 @@ def fit_object(job: FitJob, oid: str, method: str, views: int, out: Path, device
     staging = io.temp_dir(f".staging-{out.name}-", out.parent)
     try:
         t0 = time.perf_counter()
-        if method == "3dgs":
-            model = splat3d.fit(tv, settings, raster, seed, label=f"3dgs {oid} v{views}")
-            fit_s = time.perf_counter() - t0
-
-            def render_fn(c, i, h, w):
-                return model.render(c, i, h, w, raster)
-
-            train_psnr = splat3d.train_psnr(render_fn, tv)
-            t1 = time.perf_counter()
-            images = {inputs["light"]: render_fn(t_c2w, t_intr, H, W)}
-            per_image = (time.perf_counter() - t1) / max(1, len(t_names))
-            extra = {"sh_degree": model.sh.degree}
-        else:
-            model = gsir.fit(tv, settings, raster, seed, label=f"gsir {oid} v{views}")
-            fit_s = time.perf_counter() - t0
-            lit_in = model.light  # the learned input light
-            train_psnr = splat3d.train_psnr(
-                lambda c, i, h, w: model.shade(model.gbuffer(c, i, h, w, raster), lit_in), tv
-            )
-            t1 = time.perf_counter()
-            buffers = model.gbuffer(t_c2w, t_intr, H, W, raster)
-            images = {inputs["light"]: model.shade(buffers, lit_in)}
-            images |= {light: model.shade(buffers, gsir.Light.of(env.to(device))) for light, env in envs.items()}
-            per_image = (time.perf_counter() - t1) / max(1, len(t_names) * len(images))
-            extra = {"geometry_steps": model.geometry_steps, "geometry_train_psnr": model.geometry_psnr}
+        model = spec.fit_function()(tv, settings, raster, seed, label=f"{method} {oid} v{views}")
+        fit_s = time.perf_counter() - t0
+        train_psnr = splat3d.train_psnr(lambda c, i, h, w: model.render(c, i, h, w, {})[0], tv)
+        t1 = time.perf_counter()
+        lit, relit = model.render(t_c2w, t_intr, H, W, {light: env.to(device) for light, env in envs.items()})
+        images = {inputs["light"]: lit} | relit
+        per_image = (time.perf_counter() - t1) / max(1, len(t_names) * len(images))
         folder = RelightFolder(staging)
         for light, rgba in images.items():
             arr = rgba.detach().float().cpu().numpy()
@@ -223,15 +222,15 @@ def fit_object(job: FitJob, oid: str, method: str, views: int, out: Path, device
             "train_psnr": train_psnr,
             "final_loss": curve.mean_loss(first=False, fraction=0.05),
             "first_loss": curve.mean_loss(first=True, fraction=0.05),
-            "gaussians": len(model.gs),
+            "gaussians": int(model.gaussians),
             "seed": seed,
             "resolution": int(H),
             "input_light": inputs["light"],
             "lights": [x for x in images if x != inputs["light"]],
             "target_views": t_names,
             "train_views": [v.name for v in train],
-            "init": settings.init,
-            **extra,
+            "init": getattr(settings, "init", None),
+            **model.extra,
         }
         io.write_json(folder.record(), record)
         if out.exists():

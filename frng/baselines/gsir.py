@@ -472,3 +472,36 @@ def _mean_diffuse(env: torch.Tensor) -> torch.Tensor:
     sh = envmap.sh_project(env.float())
     n = F.normalize(torch.as_tensor(np.random.default_rng(0).normal(size=(256, 3)), device=sh.device), dim=-1)
     return (envmap.sh_irradiance(sh, n).mean(0) / math.pi).float().clamp_min(1e-3)
+
+
+@dataclass
+class FittedGSIR:
+    """A fitted ``gsir`` as the fit job uses it (:class:`frng.baselines.registry.Fitted`): rasterized once per view
+    set, shaded under its learned input light and under each given map."""
+
+    model: GSIR
+    raster: RasterConfig
+
+    @property
+    def curve(self) -> Curve:
+        return self.model.curve
+
+    @property
+    def gaussians(self) -> int:
+        return len(self.model.gs)
+
+    @property
+    def extra(self) -> dict:
+        return {"geometry_steps": self.model.geometry_steps, "geometry_train_psnr": self.model.geometry_psnr}
+
+    def render(self, c2w: torch.Tensor, intr: torch.Tensor, height: int, width: int, envs) -> tuple:
+        buffers = self.model.gbuffer(c2w, intr, height, width, self.raster)
+        lit = self.model.shade(buffers, self.model.light)
+        return lit, {light: self.model.shade(buffers, Light.of(env)) for light, env in envs.items()}
+
+
+def fit_baseline(
+    views: TrainViews, settings: FitSettings, raster: RasterConfig, seed: int, label: str = "gsir"
+) -> FittedGSIR:
+    """The registry's ``gsir`` (:mod:`frng.baselines.registry`): :func:`fit`."""
+    return FittedGSIR(fit(views, settings, raster, seed, label), raster)

@@ -3,9 +3,9 @@ objects the per-scene baselines run on, the dense views on a sphere and their sp
 
 Run names (folders under ``{results}/relight/``, :class:`frng.plan.layout.RelightFolder`):
 
-- ``{method}-v{n}``: per-scene ``method`` (``3dgs`` | ``gsir``) fitted on ``n`` of the object's dense views
-  (:func:`dense_subset`); relit under every target light (``gsir``) and re-rendered under the input light at the
-  target views (novel-view synthesis, both methods);
+- ``{method}-v{n}``: per-scene ``method`` (:mod:`frng.baselines.registry`: ``3dgs``, ``gsir``) fitted on ``n`` of
+  the object's dense views (:func:`dense_subset`); relit under every target light (a method that relights: ``gsir``)
+  and re-rendered under the input light at the target views (novel-view synthesis, every method);
 - ``idm-reshade``: the image-based baseline;
 - ``ext-{name}``: another method's outputs read from files (``baselines.external``).
 """
@@ -18,11 +18,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from frng.baselines import registry
 from frng.baselines.fit_settings import FitSettings
 from frng.data.rig import View, make_view
 from frng.plan.sections import register
 
-PER_SCENE_METHODS = ("3dgs", "gsir")
 IMAGE_BASED_RUN = "idm-reshade"
 FRNG_RUN = "full"  # the F-RNG run the baselines are compared with (rule relight)
 FRNG_NVS_RUN = "full-nvs"  # its novel views under the input light (rule baseline_frng_nvs)
@@ -45,8 +45,7 @@ class BaselinesConfig:
 
 def per_scene_run(method: str, views: int) -> str:
     """The run name of per-scene ``method`` fitted on ``views`` dense views."""
-    if method not in PER_SCENE_METHODS:
-        raise ValueError(f"unknown per-scene baseline {method!r} (known: {', '.join(PER_SCENE_METHODS)})")
+    registry.method(method)
     return f"{method}-v{int(views)}"
 
 
@@ -82,14 +81,22 @@ def test_objects(catalog) -> list[tuple[str, str]]:
     return [(o.id, o.material) for o in catalog.objects if o.split == "test"]
 
 
-def per_scene_runs(config: Mapping) -> list[str]:
-    """Every per-scene run name the config asks for (methods x view counts); none without dense views."""
+def per_scene_methods(config: Mapping) -> list[registry.PerSceneMethod]:
+    """The specs of the per-scene methods the config asks for (``baselines.methods``, checked against
+    :mod:`frng.baselines.registry` here, once: a one-line ValueError naming the key); none without dense views."""
     if int(config["render"].get("dense_views", 0) or 0) == 0:
         return []
-    sec = _section(config)
-    methods = sec.get("methods", list(PER_SCENE_METHODS))
-    counts = sec.get("view_counts", [6])
-    return [per_scene_run(m, n) for m in methods for n in counts]
+    return [registry.method(m) for m in _section(config).get("methods", registry.names())]
+
+
+def view_counts(config: Mapping) -> list[int]:
+    """``baselines.view_counts``: the dense-view counts each per-scene method is fitted with."""
+    return [int(n) for n in _section(config).get("view_counts", [6])]
+
+
+def per_scene_runs(config: Mapping) -> list[str]:
+    """Every per-scene run name the config asks for (methods x view counts); none without dense views."""
+    return [per_scene_run(m.name, n) for m in per_scene_methods(config) for n in view_counts(config)]
 
 
 def check_view_counts(config: Mapping) -> None:
@@ -97,8 +104,8 @@ def check_view_counts(config: Mapping) -> None:
     dense = int(config["render"].get("dense_views", 0) or 0)
     if dense == 0:
         return
-    for n in _section(config).get("view_counts", [6]):
-        if int(n) > dense:
+    for n in view_counts(config):
+        if n > dense:
             raise ValueError(f"baselines.view_counts: {n} views asked, render.dense_views is {dense}")
 
 

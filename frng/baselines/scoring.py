@@ -16,8 +16,8 @@ run                       relight  nvs      source       objects
 ========================= ======== ======== ============ ===============================================
 ``full``                  yes      --       trained here every test object (``frng relight``)
 ``full-nvs``              --       yes      trained here objects with baseline views (``frng baseline-frng-nvs``)
-``3dgs-v{n}``             --       yes      trained here the per-scene baselines' objects
-``gsir-v{n}``             yes      yes      trained here the per-scene baselines' objects
+``{method}-v{n}``         relights yes      trained here the per-scene baselines' objects (``3dgs``: nvs;
+                                                         ``gsir``: both; :mod:`frng.baselines.registry`)
 ``idm-reshade``           yes      --       trained here objects with baseline views (``baselines.image_based``)
 ``ext-{name}``            yes      dense*   files        every test object (``baselines.external``)
 ========================= ======== ======== ============ ===============================================
@@ -113,7 +113,7 @@ def planned_runs(
     ``full`` and the external methods are scored on those they have). ``config``: the validated mapping or typed
     config."""
     from frng.baselines.external import methods
-    from frng.baselines.plan import per_scene_runs
+    from frng.baselines.plan import per_scene_methods, per_scene_run, view_counts
 
     as_map = config if isinstance(config, dict) else config.to_dict()
     sec = as_map.get("baselines", {})
@@ -121,10 +121,11 @@ def planned_runs(
     runs = [ScoredRun(FRNG_RUN, "F-RNG", "frng", TRAINED, ("relight",), tuple(test_objects), optional=bench)]
     if with_frng_nvs and view_objects and per_scene_objects:
         runs.append(ScoredRun(FRNG_NVS_RUN, "F-RNG", "frng", TRAINED, ("nvs",), tuple(per_scene_objects)))
-    for name in per_scene_runs(as_map):
-        method = name.rsplit("-v", 1)[0]
-        tasks = ("relight", "nvs") if method == "gsir" else ("nvs",)
-        runs.append(ScoredRun(name, method, "dense", TRAINED, tasks, tuple(per_scene_objects)))
+    for m in per_scene_methods(as_map):
+        for n in view_counts(as_map):
+            runs.append(
+                ScoredRun(per_scene_run(m.name, n), m.name, "dense", TRAINED, m.tasks, tuple(per_scene_objects))
+            )
     if sec.get("image_based", True) and view_objects:
         runs.append(ScoredRun(IMAGE_BASED_RUN, IMAGE_BASED_RUN, "image", TRAINED, ("relight",), tuple(view_objects)))
     for m in methods(as_map):

@@ -255,3 +255,33 @@ def train_psnr(model_render, views: TrainViews) -> float:
     rgba = model_render(views.c2w, views.intr, H, W)
     mse = float(((rgba[..., :3].clamp(0, 1) - views.rgb.clamp(0, 1)) ** 2).mean())
     return 10.0 * math.log10(1.0 / max(mse, 1e-12))
+
+
+@dataclass
+class FittedSplat3D:
+    """A fitted ``3dgs`` as the fit job uses it (:class:`frng.baselines.registry.Fitted`): novel views only."""
+
+    model: Splat3D
+    raster: RasterConfig
+
+    @property
+    def curve(self) -> Curve:
+        return self.model.curve
+
+    @property
+    def gaussians(self) -> int:
+        return len(self.model.gs)
+
+    @property
+    def extra(self) -> dict:
+        return {"sh_degree": self.model.sh.degree}
+
+    def render(self, c2w: torch.Tensor, intr: torch.Tensor, height: int, width: int, envs) -> tuple:
+        return self.model.render(c2w, intr, height, width, self.raster), {}
+
+
+def fit_baseline(
+    views: TrainViews, settings: FitSettings, raster: RasterConfig, seed: int, label: str = "3dgs"
+) -> FittedSplat3D:
+    """The registry's ``3dgs`` (:mod:`frng.baselines.registry`): :func:`fit`."""
+    return FittedSplat3D(fit(views, settings, raster, seed, label), raster)

@@ -12,7 +12,7 @@ table              task     rows                                             ref
                             ``dense`` folders)
 ``vs_image_based`` relight  per dataset, then ``all``: F-RNG, the IDM         F-RNG, same images
                             re-shading baseline, external ``image`` folders
-``views_nvs``      nvs      ``3dgs`` and ``gsir`` at each view count,         F-RNG's novel views (run
+``views_nvs``      nvs      each per-scene method at each view count,         F-RNG's novel views (run
                             external dense folders, F-RNG from 6 views        ``full-nvs``), same images
 ================== ======== ================================================ ====================================
 
@@ -41,6 +41,7 @@ import numpy as np
 import pandas as pd
 
 from frng import metrics as M
+from frng.baselines import registry
 from frng.baselines.plan import FRNG_NVS_RUN, FRNG_RUN
 from frng.report import tables as T
 from frng.report.paper_tables import IMAGE_KEYS, diff_to, image_means
@@ -48,10 +49,8 @@ from frng.report.paper_tables import IMAGE_KEYS, diff_to, image_means
 FRNG, FRNG_NVS = FRNG_RUN, FRNG_NVS_RUN
 METHOD_LABELS = {
     "F-RNG": "F-RNG (ours)",
-    "3dgs": "3DGS (per-scene)",
-    "gsir": "GS-IR-style (per-scene)",
     "idm-reshade": "IDM re-shading (image-based)",
-}
+}  # and each per-scene method's label (frng.baselines.registry)
 COLUMNS = (
     "dataset",
     "method",
@@ -73,6 +72,8 @@ NOTE = (
 def label(method: str, family: str) -> str:
     if method in METHOD_LABELS:
         return METHOD_LABELS[method]
+    if method in registry.PER_SCENE:
+        return registry.PER_SCENE[method].label
     return f"{method} ({'per-scene' if family == 'dense' else 'image-based'}, from files)"
 
 

@@ -1,6 +1,7 @@
-"""Stage ``frng baseline-fit --object OBJ --method {3dgs,gsir} --views N --out DIR`` (rule ``baseline_fit``, one job
+"""Stage ``frng baseline-fit --object OBJ --method METHOD --views N --out DIR`` (rule ``baseline_fit``, one job
 per baseline object, method and view count): one per-scene baseline fitted on N of the object's dense views, its
-novel views and (gsir) relit images written to the RelightFolder DIR. What the job reads and writes:
+novel views and (a method that relights: gsir) relit images written to the RelightFolder DIR. Methods:
+:mod:`frng.baselines.registry`. What the job reads and writes:
 :mod:`frng.baselines.fit_job`.
 """
 
@@ -10,8 +11,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from frng.baselines import registry
 from frng.baselines.fit_job import BaselineFitError, FitJob, fit_object
-from frng.baselines.plan import PER_SCENE_METHODS
 from frng.plan import config as frng_config
 from frng.typedconfig import typed
 
@@ -23,7 +24,7 @@ CONFIG_READS = ("@plan", "train_seed", "device", "render", "!render.noise_floor"
 def configure(parser: argparse.ArgumentParser) -> None:
     frng_config.add_config_argument(parser)
     parser.add_argument("--object", required=True, help="test object id (with {results}/baselines/views/{obj})")
-    parser.add_argument("--method", required=True, choices=list(PER_SCENE_METHODS), help="per-scene baseline")
+    parser.add_argument("--method", required=True, choices=list(registry.names()), help="per-scene baseline")
     parser.add_argument("--views", required=True, type=int, help="dense views fitted on (the nested spread subset)")
     parser.add_argument("--out", required=True, help="output RelightFolder ({results}/relight/{method}-v{N}/{obj})")
     parser.add_argument("--device", help="override the config's device")
