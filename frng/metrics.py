@@ -79,8 +79,7 @@ HIGHER_IS_BETTER = {"psnr": True, "ssim": True, "lpips": False}
 @register("eval")
 @dataclass(frozen=True)
 class EvalConfig:
-    """The config's ``eval`` section: the protocol and background of the relighting metrics (frng.plan.sections.section;
-    defaults: config/schema.yaml)."""
+    """The config's ``eval`` section: the protocol and background of the relighting metrics (each key declared on its field)."""
 
     CONFIG_DOC = "relighting metrics (frng/apps/scoring.py, frng/metrics.py)"
 

@@ -19,8 +19,7 @@ from frng.plan.sections import key, register
 @register("model")
 @dataclass(frozen=True)
 class ModelConfig:
-    """The config's ``model`` section: the patch size of every tokenizer (frng.plan.sections.section; defaults:
-    config/schema.yaml)."""
+    """The config's ``model`` section: the patch size of every tokenizer (each key declared on its field)."""
 
     patch_size: int = key(
         8,

@@ -1,5 +1,5 @@
 """The ``baselines.fit`` config section: the per-scene baselines' optimisation budget and schedule (torch-free: the
-planning code imports it through :mod:`frng.baselines.plan`). Defaults and descriptions: config/schema.yaml; the
+planning code imports it through :mod:`frng.baselines.plan`). Each key is declared on its field below; the
 measured costs behind the default tier's values: :mod:`frng.baselines.splat3d`."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ INITS = ("hull", "sphere")
 @register("baselines.fit")
 @dataclass(frozen=True)
 class FitSettings:
-    """The config's ``baselines.fit`` section (defaults and descriptions: config/schema.yaml)."""
+    """The config's ``baselines.fit`` section (each key declared on its field)."""
 
     CONFIG_DOC = (
         "the per-scene baselines' optimisation (frng/baselines/perscene.py, splat3d.py, gsir.py; stage baseline-fit); "

@@ -33,7 +33,7 @@ TARGETS_KIND = "targets"  # ... and of the target views under the input light (t
 @register("baselines")
 @dataclass(frozen=True)
 class BaselinesConfig:
-    """The config's ``baselines`` section (defaults and descriptions: config/schema.yaml)."""
+    """The config's ``baselines`` section (each key declared on its field)."""
 
     CONFIG_DOC = (
         "the comparisons of the paper's Tables 2-3 and its views table (frng/baselines): per-scene models fitted on "

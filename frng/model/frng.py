@@ -81,8 +81,7 @@ SAVED_DEFAULTS = {
 @register("frng")
 @dataclass(frozen=True)
 class FRNGSection:
-    """The config's ``frng`` section: the variants to train and the architecture (see config/README.md; defaults:
-    config/schema.yaml). :func:`frng.training.frng.variant_config` turns it into a variant's :class:`FRNGConfig`."""
+    """The config's ``frng`` section: the variants to train and the architecture (each key declared on its field). :func:`frng.training.frng.variant_config` turns it into a variant's :class:`FRNGConfig`."""
 
     CONFIG_DOC = "the F-RNG model and its variants (frng/model/frng.py)"
 

@@ -78,7 +78,7 @@ OWN_SPECULAR_METALLIC = 0.5  # mean metallic at or above this -> specular
 @register("envmaps.skies")
 @dataclass(frozen=True)
 class SkiesConfig:
-    """The config's ``envmaps.skies`` section (frng.plan.sections.section; defaults: config/schema.yaml)."""
+    """The config's ``envmaps.skies`` section (each key declared on its field)."""
 
     models: tuple[str, ...] = key(
         ["preetham", "hosek_wilkie"],
@@ -204,7 +204,7 @@ class StudioConfig:
 @register("envmaps")
 @dataclass(frozen=True)
 class EnvmapsConfig:
-    """The config's ``envmaps`` section (frng.plan.sections.section; defaults: config/schema.yaml). ``extra`` holds the
+    """The config's ``envmaps`` section (each key declared on its field). ``extra`` holds the
     user's entries as mappings (path, split, licence)."""
 
     width: int = key(
@@ -293,7 +293,7 @@ class EnvmapsConfig:
 @dataclass(frozen=True)
 class RenderConfig:
     """The config's ``render`` section: Cycles settings, the camera rig (:mod:`frng.data.rig`) and the lights per
-    object (frng.plan.sections.section; defaults: config/schema.yaml)."""
+    object (each key declared on its field)."""
 
     resolution: int = key(
         REQUIRED,
@@ -456,7 +456,7 @@ class NoiseFloorConfig:
 @register("objects")
 @dataclass(frozen=True)
 class ObjectsConfig:
-    """The config's ``objects`` section (frng.plan.sections.section; defaults: config/schema.yaml). ``material_mix`` maps a
+    """The config's ``objects`` section (each key declared on its field). ``material_mix`` maps a
     material class to its fraction; ``extra`` holds the user's entries as mappings (path, split, up, material,
     licence)."""
 

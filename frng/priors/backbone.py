@@ -86,7 +86,7 @@ GEO_CHANNELS = 9  # distance 1, scale 3, rotation 4, opacity 1 (RelitLRM's split
 
 @dataclass(frozen=True)
 class BackboneArch:
-    """The architecture keys of the config's ``backbone`` section (defaults: config/schema.yaml), shared by the
+    """The architecture keys of the config's ``backbone`` section (each key declared on its field), shared by the
     section (:class:`BackboneSection`) and a model's architecture record (:class:`BackboneConfig`)."""
 
     width: int = key(

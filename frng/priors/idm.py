@@ -66,7 +66,7 @@ RAW_CHANNELS = 9
 
 @dataclass(frozen=True)
 class IDMArch:
-    """The learned IDM's architecture keys of the config's ``idm`` section (defaults: config/schema.yaml), shared by
+    """The learned IDM's architecture keys of the config's ``idm`` section (each key declared on its field), shared by
     the section (:class:`IDMSection`) and a model's architecture record (:class:`IDMConfig`)."""
 
     width: int = key(

@@ -18,7 +18,7 @@ BACKENDS = ("auto", "torch", "native", "gsplat", "reference")
 @register("raster")
 @dataclass(frozen=True)
 class RasterConfig:
-    """The config's ``raster`` section (see config/README.md; defaults: config/schema.yaml)."""
+    """The config's ``raster`` section (each key declared on its field)."""
 
     CONFIG_DOC = "Gaussian rasterizer (frng/render/raster.py, RasterConfig)"
 

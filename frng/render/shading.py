@@ -52,7 +52,7 @@ COSINE_NORMAL, GGX_NORMAL = (
 @register("shading")
 @dataclass(frozen=True)
 class ShadingConfig:
-    """The config's ``shading`` section (see config/README.md; defaults: config/schema.yaml)."""
+    """The config's ``shading`` section (each key declared on its field)."""
 
     CONFIG_DOC = "deferred neural shading (frng/render/shading.py, ShadingConfig)"
 

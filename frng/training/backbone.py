@@ -60,7 +60,7 @@ from frng.training import loop as tr
 @register("backbone.train")
 @dataclass(frozen=True)
 class BackboneTrainConfig:
-    """The config's ``backbone.train`` section (defaults: config/schema.yaml)."""
+    """The config's ``backbone.train`` section (each key declared on its field)."""
 
     steps: int = key(
         600,

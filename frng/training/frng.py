@@ -138,7 +138,7 @@ def variant_config(
 @register("train.loss")
 @dataclass(frozen=True)
 class LossConfig:
-    """The config's ``train.loss`` section: the loss weights (see config/README.md; defaults: config/schema.yaml)."""
+    """The config's ``train.loss`` section: the loss weights (each key declared on its field)."""
 
     CONFIG_DOC = "paper (lambda_c, lambda_kld, lambda_1, lambda_per) = (0.2, 0.2, 1.0, 0.5)"
 
@@ -204,7 +204,7 @@ class LossConfig:
 @register("train")
 @dataclass(frozen=True)
 class TrainConfig:
-    """The config's ``train`` section (see config/README.md; defaults: config/schema.yaml)."""
+    """The config's ``train`` section (each key declared on its field)."""
 
     CONFIG_DOC = "F-RNG training (frng/training/frng.py, `frng train`)"
 

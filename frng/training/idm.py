@@ -38,7 +38,7 @@ from frng.training import loop as tr
 @register("idm.train")
 @dataclass(frozen=True)
 class IDMTrainConfig:
-    """The config's ``idm.train`` section (defaults: config/schema.yaml) plus two internal fields."""
+    """The config's ``idm.train`` section (each key declared on its field) plus two internal fields."""
 
     steps: int = key(
         400,
@@ -108,7 +108,7 @@ class IDMTrainConfig:
         type="string",
         enum=["l1", "bce"],
     )
-    # internal, not config keys (config/schema.yaml has none for the IDM): the values the IDM has always trained with
+    # internal, not config keys: the values the IDM has always trained with
     weight_decay: float = 0.01
     grad_clip: float = 1.0
 
