@@ -165,7 +165,7 @@ class ShadingConfig:
         False,
         "relighting decodes under bf16 autocast (~2x on AMX CPUs and GPUs, ~1e-3 relative error); a CPU without bf16 "
         "units should leave it off. Inference settings (`chunk_*`, `bf16_infer`, `sampling`) come from the relighting "
-        "config, not from the model file. Paper: true",
+        "config, not from the model file. The paper tier sets it true",
         type="boolean",
     )
     normal_blur: float = key(
