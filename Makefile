@@ -15,7 +15,7 @@ SNAKEMAKE := $(VENV)/bin/snakemake --snakefile workflow/Snakefile --profile prof
 # message for these names neither).
 CHECK = $(PY) -m frng config --check
 
-.PHONY: reproduce seeds test setup smoke dry-run lint format bench gpu-check clean-results
+.PHONY: reproduce seeds test setup smoke dry-run lint format bench gpu-check clean-results config-docs
 
 setup: $(STAMP) $(NATIVE)
 
@@ -62,6 +62,11 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff format --check $(LINT_PY)
 	$(VENV)/bin/snakefmt --check $(LINT_SMK)
 	$(SNAKEMAKE) --configfile config/smoke.yaml --lint
+
+# config/schema.yaml and config/README.md's key tables, generated from the keys the section dataclasses declare
+# (frng.plan.sections.key); tests/test_config_declared.py fails when they differ from what this writes.
+config-docs: $(STAMP)
+	$(PY) -m frng config --write-docs
 
 format: $(STAMP)
 	$(VENV)/bin/ruff check --fix $(LINT_PY)

@@ -66,7 +66,7 @@ from pathlib import Path
 import numpy as np
 
 from frng.io import atomic_path, composite, read_rgba, srgb_encode
-from frng.plan.sections import register
+from frng.plan.sections import key, register
 
 PROTOCOLS = ("aligned", "plain")
 DEFAULT_PROTOCOL = "aligned"
@@ -79,11 +79,27 @@ HIGHER_IS_BETTER = {"psnr": True, "ssim": True, "lpips": False}
 @register("eval")
 @dataclass(frozen=True)
 class EvalConfig:
-    """The config's ``eval`` section: the protocol and background of the relighting metrics (frng.plan.sections.section;
-    defaults: config/schema.yaml)."""
+    """The config's ``eval`` section: the protocol and background of the relighting metrics (each key declared on its field)."""
 
-    protocol: str
-    background: tuple[float, ...]
+    CONFIG_DOC = "relighting metrics (frng/apps/scoring.py, frng/metrics.py)"
+
+    protocol: str = key(
+        "aligned",
+        "`aligned`: each RGB channel of a prediction scaled to the ground truth (least squares over the foreground), "
+        "PSNR/SSIM over the foreground (RelitLRM, Neural Gaffer, TensoIR); `plain`: no scaling, whole image. Every "
+        "table caption names it",
+        type="string",
+        enum=["aligned", "plain"],
+    )
+    background: tuple[float, ...] = key(
+        [1.0, 1.0, 1.0],
+        "linear colour both images are composited on before sRGB encoding (LPIPS always sees the whole composited "
+        "image)",
+        type="array",
+        items={"type": "number", "minimum": 0},
+        minItems=3,
+        maxItems=3,
+    )
 
 
 # skimage structural_similarity settings (Wang et al. 2004 Gaussian SSIM).

@@ -13,16 +13,22 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from frng.plan.sections import register
+from frng.plan.sections import key, register
 
 
 @register("model")
 @dataclass(frozen=True)
 class ModelConfig:
-    """The config's ``model`` section: the patch size of every tokenizer (frng.plan.sections.section; defaults:
-    config/schema.yaml)."""
+    """The config's ``model`` section: the patch size of every tokenizer (each key declared on its field)."""
 
-    patch_size: int
+    patch_size: int = key(
+        8,
+        "patch size of every tokenizer (paper: 8; the default tier 12 at 96 px: 8 x 8 tokens per view); "
+        "`render.resolution` must be a multiple",
+        type="integer",
+        minimum=1,
+        maximum=256,
+    )
 
 
 class Attention(nn.Module):

@@ -3,8 +3,9 @@
 Each component declares the dataclass of the config section it reads beside its own code and registers it by its
 dotted schema key (:func:`frng.plan.sections.register`); this module imports them all, so it is the one place that knows
 every section, and only the stage layer (``frng/stages``; tests, benchmarks) imports it. A stage builds the whole
-config once (:func:`typed`) and hands each library the section(s) it reads. ``config/schema.yaml`` is the one place
-defaults are written (:func:`frng.plan.sections.section`; tests/test_config_typed.py).
+config once (:func:`typed`) and hands each library the section(s) it reads. Each key is declared once, on its
+section's field (:func:`frng.plan.sections.key`): ``config/schema.yaml`` and config/README.md's key tables are
+generated from :class:`Config` (:mod:`frng.plan.schema_gen`; tests/test_config_declared.py).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from frng.plan.catalog import (
     SkiesConfig,
     StudioConfig,
 )
-from frng.plan.sections import register, section, section_dict
+from frng.plan.sections import REQUIRED, key, register, section, section_dict
 from frng.render.raster import RasterConfig
 from frng.render.shading import ShadingConfig
 from frng.training.backbone import BackboneTrainConfig, BackboneTrainingSection
@@ -43,24 +44,98 @@ class Config:
 
     Build it once per stage with :func:`typed`; ``config.train.steps``, ``config.render.resolution``, ..."""
 
-    tier: str
-    seed: int
-    train_seed: int | None
-    results: str
-    device: str
-    envmaps: EnvmapsConfig
-    objects: ObjectsConfig
-    render: RenderConfig
-    backbone: BackboneTrainingSection
-    idm: IDMTrainingSection
-    eval: EvalConfig
-    raster: RasterConfig
-    shading: ShadingConfig
-    model: ModelConfig
-    frng: FRNGSection
-    train: TrainConfig
-    benchmarks: tuple  # imported benchmark folders (frng/benchmarks; rules/benchmarks.smk)
-    baselines: BaselinesConfig  # Tables 2-3 and the views table (frng/baselines)
+    CONFIG_DOC = (
+        "Validated by rules/common.smk (and by every `frng` stage) before any job runs. Unknown keys are errors. "
+        "Generated, like the key tables of config/README.md, from the keys the section dataclasses declare "
+        "(frng.plan.sections.key)."
+    )
+
+    tier: str = key(
+        REQUIRED,
+        "informational label shown in tables and reports",
+        type="string",
+        enum=["smoke", "default", "paper", "custom"],
+    )
+    seed: int = key(
+        0,
+        "master seed of the data (objects, splits, lights, views: the dataset plan); also the models' seed unless "
+        "`train_seed` is set",
+        type="integer",
+        minimum=0,
+    )
+    train_seed: int | None = key(
+        None,
+        "seed of the learned models (backbone, IDM, F-RNG: initialisation and sample order); null = `seed`. A second "
+        "seed on the same data: `--config train_seed=1` (in its own results folder)",
+        type=["integer", "null"],
+        minimum=0,
+    )
+    results: str = key(
+        "results",
+        "folder every output goes to; any characters but braces (Snakemake wildcards) and control characters (spaces "
+        "and quotes are fine: the rules quote every path). Besides the outputs it holds `config.yaml`, `.digests/` "
+        "(each rule's config digest) and `.lock` (see the docs/provenance-and-reproducibility.md)",
+        type="string",
+        minLength=1,
+    )
+    device: str = key(
+        "auto",
+        "torch device for model stages",
+        type="string",
+        enum=["auto", "cpu", "cuda"],
+    )
+    benchmarks: tuple = key(
+        [],
+        "public benchmark scenes imported into the dataset contract, relit by the trained models and scored with "
+        "their published protocols (see `benchmarks` below)",
+        type="array",
+        items={
+            "type": "object",
+            "additionalProperties": False,
+            "required": ["layout", "path"],
+            "properties": {
+                "layout": {
+                    "type": "string",
+                    "enum": ["tensoir", "orb", "owl", "nerf-synthetic"],
+                    "description": "the published layout (`frng import LAYOUT PATH`)",
+                },
+                "path": {
+                    "type": "string",
+                    "description": "tensoir: the scene folder (`train_*/`, `test_*/`; maps in `../light_probes/`); orb: `blender_HDR/{scene}` (maps in `../../ground_truth/`); owl: `dataset/{object}/test`; nerf-synthetic: the scene folder",
+                },
+                "id": {
+                    "type": ["string", "null"],
+                    "pattern": "^[a-z0-9_]+-[a-z0-9_-]+$",
+                    "default": None,
+                    "description": "object id, must contain a hyphen (default `{layout}-{scene}`)",
+                },
+                "max_targets": {
+                    "type": ["integer", "null"],
+                    "minimum": 1,
+                    "maximum": 10000,
+                    "default": None,
+                    "description": "keep the first N test views (null: all)",
+                },
+                "options": {
+                    "type": "object",
+                    "default": {},
+                    "description": "reader options: envmaps, input_light, lights (tensoir), ground_truth (orb), envmap_file (nerf-synthetic), allow_outside (any: true reads files the scene's files name outside its folder; docs/reliability.md)",
+                },
+            },
+        },
+    )
+    envmaps: EnvmapsConfig = key({}, required=True)
+    objects: ObjectsConfig = key(REQUIRED)
+    render: RenderConfig = key(REQUIRED)
+    baselines: BaselinesConfig = key({})
+    backbone: BackboneTrainingSection = key({})
+    idm: IDMTrainingSection = key({})
+    eval: EvalConfig = key({})
+    raster: RasterConfig = key({})
+    shading: ShadingConfig = key({})
+    model: ModelConfig = key({})
+    frng: FRNGSection = key({})
+    train: TrainConfig = key({})
 
     @property
     def model_seed(self) -> int:

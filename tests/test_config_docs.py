@@ -1,5 +1,6 @@
-"""config/README.md's key tables and config/schema.yaml name the same keys (issue 26 item 3): the schema is the one
-place defaults and descriptions are written; the README table must list every key the schema has, and no other.
+"""config/README.md's key tables and config/schema.yaml name the same keys (issue 26 item 3). Both are generated from
+the keys the section dataclasses declare (frng.plan.sections.key; tests/test_config_declared.py checks they are what
+``make config-docs`` writes); this checks the README's tables still list every key the schema has, and no other.
 
 A table row names config keys when its first cell starts with a backticked key whose first part is a top-level
 key of the schema: ``| `backbone.width` / `heads` |`` names backbone.width and backbone.heads (siblings);

@@ -1,7 +1,7 @@
 """The typed config (frng/typedconfig.py ``Config``, ``typed``; frng/plan/sections.py ``section``): one frozen dataclass per
-schema section, strict (unknown keys are errors), with config/schema.yaml as the one place defaults are written: every
-object section of the schema has a registered class whose fields are its keys (a key added to the schema and not to
-its class, or the other way round, fails here)."""
+schema section, strict (unknown keys are errors), each key declared once on its field (frng.plan.sections.key: the
+generated config/schema.yaml holds the same defaults, tests/test_config_declared.py): every object section of the schema
+has a registered class whose fields are its keys, and a missing key takes its declared default."""
 
 import dataclasses
 import subprocess

@@ -21,7 +21,7 @@ import numpy as np
 from frng.baselines import registry
 from frng.baselines.fit_settings import FitSettings
 from frng.data.rig import View, make_view
-from frng.plan.sections import register
+from frng.plan.sections import key, register
 
 IMAGE_BASED_RUN = "idm-reshade"
 FRNG_RUN = "full"  # the F-RNG run the baselines are compared with (rule relight)
@@ -33,14 +33,58 @@ TARGETS_KIND = "targets"  # ... and of the target views under the input light (t
 @register("baselines")
 @dataclass(frozen=True)
 class BaselinesConfig:
-    """The config's ``baselines`` section (defaults and descriptions: config/schema.yaml)."""
+    """The config's ``baselines`` section (each key declared on its field)."""
 
-    objects_per_class: int | None
-    view_counts: tuple[int, ...]
-    methods: tuple[str, ...]
-    image_based: bool
-    external: tuple  # plain mappings {name, path, encoding, family}
-    fit: FitSettings  # the per-scene fits' budget and schedule (frng.baselines.fit_settings)
+    CONFIG_DOC = (
+        "the comparisons of the paper's Tables 2-3 and its views table (frng/baselines): per-scene models fitted on "
+        "dense views, image-based relighting, and other methods' outputs read from files"
+    )
+
+    objects_per_class: int | None = key(
+        None,
+        "test objects per material class the per-scene baselines run on (the first of each class in the test split's "
+        "order); null: every test object",
+        type=["integer", "null"],
+        minimum=1,
+        maximum=100000,
+    )
+    view_counts: tuple[int, ...] = key(
+        [6],
+        "input-view counts the per-scene baselines are fitted with (nested spread subsets of the dense views); the "
+        "largest is Table 2's dense setting, all of them the views table's columns",
+        type="array",
+        items={"type": "integer", "minimum": 1, "maximum": 1000},
+    )
+    methods: tuple[str, ...] = key(
+        list(registry.names()),
+        "per-scene baselines trained here, by name in frng/baselines/registry.py: `3dgs` (plain splatting, novel "
+        "views only), `gsir` (GS-IR-style relightable)",
+        type="array",
+        items={"type": "string"},
+    )
+    image_based: bool = key(
+        True,
+        "the image-based baseline: each target view's photo under the input light decomposed by the IDM and re-shaded",
+        type="boolean",
+    )
+    external: tuple = key(
+        [],
+        "other methods' outputs read from files: items `{name, path, encoding: srgb|linear, family: dense|image}`, "
+        "layout `{path}/{obj}/{light}/{view}.{png,exr}`",
+        type="array",
+        items={
+            "type": "object",
+            "additionalProperties": False,
+            "required": ["name", "path"],
+            "properties": {
+                "name": {"type": "string", "pattern": "^[a-z0-9_]+$"},
+                "path": {"type": "string"},
+                "encoding": {"type": "string", "enum": ["srgb", "linear"], "default": "srgb"},
+                "family": {"type": "string", "enum": ["dense", "image"], "default": "image"},
+            },
+        },
+    )
+    fit: FitSettings = key({})
 
 
 def per_scene_run(method: str, views: int) -> str:

@@ -52,7 +52,7 @@ from frng.model.materialformer import (
 from frng.model.opacity import GEOMETRY_CHANNELS, OpacityHead, geometry_inputs
 from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, select_top_k
 from frng.model.tokenizers import PriorTokenizer, stack_priors
-from frng.plan.sections import architecture_bounds, register, section
+from frng.plan.sections import architecture_bounds, key, register, section
 from frng.render import RasterConfig, envmap, rasterize
 from frng.render.decoder import shade_decoder
 from frng.render.shading import (
@@ -81,28 +81,189 @@ SAVED_DEFAULTS = {
 @register("frng")
 @dataclass(frozen=True)
 class FRNGSection:
-    """The config's ``frng`` section: the variants to train and the architecture (see config/README.md; defaults:
-    config/schema.yaml). :func:`frng.training.frng.variant_config` turns it into a variant's :class:`FRNGConfig`."""
+    """The config's ``frng`` section: the variants to train and the architecture (each key declared on its field). :func:`frng.training.frng.variant_config` turns it into a variant's :class:`FRNGConfig`."""
 
-    variants: tuple[str, ...]
-    k_sweep: tuple[float, ...]
-    top_k_percent: float
-    upsample: int
-    prior_dim: int
-    hidden: int
-    depth: int
-    heads: int
-    feature_dim: int
-    pixel_head: int
-    back_completion: bool
-    fine_in_hull: bool
-    opacity_head: bool
-    geometry_inputs: bool
-    depth_head: float
-    coverage_head: int
-    specular_start: bool
-    normal_start: float
-    saliency: SaliencyConfig
+    CONFIG_DOC = "the F-RNG model and its variants (frng/model/frng.py)"
+
+    variants: tuple[str, ...] = key(
+        ["full", "no-fine", "no-idm", "no-ind", "no-neural", "plus"],
+        "variants trained into `results/models/{variant}/`: `full` (the paper's F-RNG: every addition of "
+        "`frng.plan.variants.ADDITIONS` off), its ablations in the paper's form, `no-fine` (no fine-grained "
+        "Gaussians), `no-idm` (no prior tokens anywhere; its `train` job does not even depend on the IDM priors), "
+        "`no-ind` (lambda_c = lambda_KLD = 0), `no-neural` (Cook-Torrance head + GGX shader), and `plus` (F-RNG+: the "
+        "config's additions on, i.e. the `frng.pixel_head`, "
+        "`shading.decoder_cosine`/`decoder_attenuation`/`decoder_specular`, `frng.coverage_head`, "
+        "`frng.back_completion`, `frng.fine_in_hull`, `frng.normal_start` and `train.loss.ind_pixels` keys act on "
+        "`plus` only), and `plus-no-{addition}` (F-RNG+ with that addition off, e.g. `plus-no-pixel-head`: the "
+        "additions table; not in the default list)",
+        type="array",
+        items={
+            "type": "string",
+            "enum": [
+                "full",
+                "no-fine",
+                "no-idm",
+                "no-ind",
+                "no-neural",
+                "plus",
+                "plus-no-pixel-head",
+                "plus-no-decoder-bases",
+                "plus-no-coverage-head",
+                "plus-no-back-completion",
+                "plus-no-fine-in-hull",
+                "plus-no-normal-start",
+                "plus-no-ind-pixels",
+            ],
+        },
+    )
+    k_sweep: tuple[float, ...] = key(
+        [1, 2, 4, 8],
+        "top-K sweep -> variants `k1`, `k2`, ...; the entry equal to `top_k_percent` IS the full model (rule "
+        "`model_alias` copies `full` there, no second training)",
+        type="array",
+        items={"type": "number", "exclusiveMinimum": 0, "maximum": 100},
+    )
+    top_k_percent: float = key(
+        2,
+        "K: salient patches per view that get fine tokens, ceil(K h w) (paper 2%)",
+        type="number",
+        exclusiveMinimum=0,
+        maximum=100,
+    )
+    upsample: int = key(
+        2,
+        "fine tokens per salient patch = upsample^2 (sub-pixel Gaussians s x denser)",
+        type="integer",
+        minimum=1,
+        maximum=16,
+    )
+    back_completion: bool = key(
+        True,
+        "fewer views: every input pixel whose ray's visual-hull exit point no input view sees gets a copy of its "
+        "Gaussian there (its features, its normal mirrored across the plane normal to the ray; "
+        "`frng/priors/multiview.py`, `back_gaussians`), so the far side of an object seen from 2 views renders as a "
+        "plausible surface instead of the background. With the 6-view rig ~4 % of the pixels get one. Cached per view "
+        "count (`v{V}.back_*`, backbone cache version 3)",
+        type="boolean",
+    )
+    fine_in_hull: bool = key(
+        True,
+        "the fine Gaussians a reconstruction keeps are those that project onto a foreground pixel (alpha > 0.5, the "
+        "mask dilated by 1 px) of every input view (`frng.priors.multiview.inside_silhouettes`): a point outside one "
+        "view's silhouette is not on the object. Without it about half of them (85 682 of 177 476 on the 21 test "
+        "objects) lay off the object and rendered as a faint haze around its silhouette, which the backbone's renders "
+        "do not have (docs/model-and-training.md). Models saved before the key keep every fine Gaussian",
+        type="boolean",
+    )
+    opacity_head: bool = key(
+        True,
+        "a per-Gaussian residual on the opacity logit of the Gaussians F-RNG renders (the backbone's per-pixel ones, "
+        "the fine ones, the far-side copies with their source's), from the pixel head's inputs and the detokenizer's "
+        "output (`frng/model/opacity.py`, a 2-layer MLP of width `pixel_head` whose last layer starts at zero: an "
+        "untrained head keeps the backbone's opacities); needs `pixel_head` > 0. With six views the hull's slivers "
+        "and a silhouette about a pixel too wide cost LPIPS and the rim's PSNR; the head thins them "
+        "(docs/model-and-training.md). Models saved before the key have none",
+        type="boolean",
+    )
+    geometry_inputs: bool = key(
+        True,
+        "the opacity head also reads the backbone's own geometry at each Gaussian's input pixel: how far the backbone "
+        "moved the surface off its multi-view (hull) prior and its raw opacity logit (`frng/model/opacity.py` "
+        "`geometry_inputs`; the backbone cache's `raw` / `raw_prior`). Models saved before the key have none",
+        type="boolean",
+    )
+    depth_head: float = key(
+        0.15,
+        "largest move (world units; the object's radius is 1) of each coarse Gaussian along its input camera's ray by "
+        "a learned per-Gaussian offset, `depth_head * tanh(MLP)` from the opacity head's pixel inputs, last layer at "
+        "zero (`frng/model/depth.py`); needs `pixel_head` > 0; 0 = off. The fine Gaussians and the far-side copies "
+        "stay. Models saved before the key have none",
+        type="number",
+        minimum=0,
+    )
+    coverage_head: int = key(
+        16,
+        "hidden width of a screen-space CNN (`frng/model/coverage.py`; 0 = off) that, once per rasterized view and "
+        "before shading, scales the alpha of the render's 1-px silhouette rim by a learned gain (its features "
+        "unchanged; last layer at zero: an untrained head changes nothing). The ground truth's outermost pixel ring "
+        "is anti-aliased, part background, where the hull's splats cover it fully. Scratch, two seeds: +0.29 dB with "
+        "LPIPS unchanged (docs/model-and-training.md). It changes the silhouette, not the relighting: compare "
+        "interior PSNR too. Models saved before the key have none",
+        type="integer",
+        minimum=0,
+        maximum=4096,
+    )
+    specular_start: bool = key(
+        True,
+        "the pixel head's start (an untrained F-RNG re-renders its inputs as a Lambertian surface) also splits each "
+        "pixel's colour by the IDM's metallic m and roughness r: diffuse c / E(n) (1 - m), the specular base's colour "
+        "m pi c / E(n), its roughness r where m = 1 (`frng/model/frng.py` PixelHead; the neural head with IDM priors "
+        "and `shading.decoder_specular` only; no-idm and no-neural start as before). Needs `idm.train.metallic_loss: "
+        "bce` (with `l1` the IDM's metallic is ~0 everywhere and this changes nothing). Scratch, both on, two seeds, "
+        "vs bce alone: overall +0.00 / +0.04 dB (noise), studio sensitivity 1.43 -> 1.55 / 1.56, the mirror-metal "
+        "test object +1.1 / +1.8 dB under the studio, LPIPS 0.150 -> 0.130 / 0.121; sky sensitivity -0.08 / -0.10. On "
+        "by default since 7abdda7's reproduction (CHANGELOG.md): overall the same, studio sensitivity +1.47 -> +1.54 "
+        "(a second training seed +1.53), sky -0.11. Models saved before the key start as before",
+        type="boolean",
+    )
+    normal_start: float = key(
+        0.0,
+        "an addition (departs from Sec. 4.2.1's one-layer MatDetokenizer): each Gaussian's latent feature also gets "
+        "its input pixel's world normal (the IDM's; the geometry's without priors) times a fixed random 3 x C matrix "
+        "of this scale (N(0, 1) from its own seed, saved with the model, not trained; `frng/model/frng.py` "
+        "`FRNG._normal_start`). The paper form's features start the same on every side of an object, and its decoder "
+        "learned a light-independent colour; with this start they differ with the orientation from the first step. "
+        "Off by default (acts on `plus` and configs that train it); measured over the paper form in "
+        "docs/studies/2026-12-05-why-the-paper-form-does-not-relight.md",
+        type="number",
+        minimum=0,
+        maximum=10,
+    )
+    prior_dim: int = key(
+        64,
+        "IDM prior token width (PriorTokenizer, shared by FineGeoDetokenizer and MaterialFormer)",
+        type="integer",
+        minimum=1,
+        maximum=8192,
+    )
+    hidden: int = key(
+        256,
+        "MaterialFormer width (Pre-LN, GeLU; paper 1024)",
+        type="integer",
+        minimum=8,
+        maximum=8192,
+    )
+    depth: int = key(
+        4,
+        "MaterialFormer layers (paper 4)",
+        type="integer",
+        minimum=1,
+        maximum=256,
+    )
+    heads: int = key(
+        4,
+        "MaterialFormer attention heads",
+        type="integer",
+        minimum=1,
+        maximum=128,
+    )
+    feature_dim: int = key(
+        16,
+        "neural material features per Gaussian (the universal decoder's input; decoder size under `shading`)",
+        type="integer",
+        minimum=1,
+        maximum=4096,
+    )
+    pixel_head: int = key(
+        32,
+        "hidden width of the per-Gaussian pixel head: the Gaussian's input pixel (gamma colour, alpha, and the IDM's "
+        "albedo/normal/roughness/metallic unless no-idm) -> a residual on the MatDetokenizer's output; 0 = the "
+        "paper's linear detokenizer alone",
+        type="integer",
+        minimum=0,
+        maximum=4096,
+    )
+    saliency: SaliencyConfig = key({})
 
 
 def kept_pixel_rows(m: torch.Tensor, keep_c: torch.Tensor, fine, keep_f) -> torch.Tensor:

@@ -41,7 +41,7 @@ import torch
 import torch.nn.functional as F
 from scipy import ndimage
 
-from frng.plan.sections import register
+from frng.plan.sections import key, register
 
 LUMA = (0.2126, 0.7152, 0.0722)  # Rec. 709 on linear RGB
 
@@ -49,14 +49,33 @@ LUMA = (0.2126, 0.7152, 0.0722)  # Rec. 709 on linear RGB
 @register("frng.saliency")
 @dataclass(frozen=True)
 class SaliencyConfig:
-    """Saliency / patch-selection parameters: the config's ``frng.saliency`` section (defaults:
-    config/schema.yaml) plus two internal fields, ``margin`` (not a config key) and ``top_k`` (set from
+    """Saliency / patch-selection parameters: the config's ``frng.saliency`` section (each key declared on its field) plus two internal fields, ``margin`` (not a config key) and ``top_k`` (set from
     ``frng.top_k_percent`` by :meth:`frng.model.frng.FRNGConfig.saliency_config`)."""
 
-    box_size: int  # beta, odd, pixels
-    ramp: float  # pixels over which W rises linearly from 0 to 1 after the margin
-    sigma: float  # Gaussian blur of W_linear, pixels
-    tonemap: bool
+    box_size: int = key(
+        5,
+        "box size (beta, odd, pixels) of the saliency map's box filter (frng/model/saliency.py)",
+        type="integer",
+        minimum=1,
+        maximum=255,
+    )
+    ramp: float = key(
+        4.0,
+        "pixels over which the saliency weight W rises linearly from 0 to 1 after the margin",
+        type="number",
+        minimum=0,
+    )
+    sigma: float = key(
+        1.0,
+        "Gaussian blur (pixels) of the linear saliency weight",
+        type="number",
+        minimum=0,
+    )
+    tonemap: bool = key(
+        True,
+        "tone-map the image before the saliency map is computed",
+        type="boolean",
+    )
     margin: float | None = None  # internal: pixels from the background with W = 0; None -> box_size // 2 + 1
     top_k: float = 0.02  # internal: K as a fraction of the patches of one view (paper 2%)
 

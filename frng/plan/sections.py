@@ -1,18 +1,23 @@
-"""Typed config sections: the frozen dataclass of a config section, built strictly from its mapping.
+"""Typed config sections: the frozen dataclass of a config section, built strictly from its mapping, and the one
+declaration of every config key.
 
 A leaf module (it imports no frng module): every component declares the dataclass of the section it reads beside its
 own code and registers it here by its dotted schema key (:func:`register`), so nothing here names a component.
+Each config key is declared once, on its section's field, with :func:`key`: its default, its JSON-schema constraints
+and what it means. ``config/schema.yaml`` and the key tables of ``config/README.md`` are generated from those
+declarations (:mod:`frng.plan.schema_gen`, ``make config-docs``; tests/test_config_declared.py fails when they drift).
+A section's own description is its class's ``CONFIG_DOC``.
+
 Building a section is strict (:func:`section`): an unknown key is a :class:`ConfigError` naming it, a missing key
-takes the schema's default -- ``config/schema.yaml`` is the one place defaults are written; a section class's fields
-have no defaults of their own (tests/test_config_typed.py checks both). A class may hold fields the schema does not
-have ("internal" fields: values the code sets, e.g. SaliencyConfig.top_k from frng.top_k_percent, the IDM trainer's
-fixed weight decay); those keep a Python default or are always passed, and are not part of the config
+takes its field's declared default. A class may hold fields that are no config keys ("internal" fields: values the
+code sets, e.g. SaliencyConfig.top_k from frng.top_k_percent, the IDM trainer's fixed weight decay); those keep a
+Python default or are always passed, are declared without :func:`key`, and are not part of the config
 (:func:`section_dict` leaves them out).
 
 The architecture records stored in model files (BackboneConfig, IDMConfig, FRNGConfig) and the module settings
 derived from them (:class:`Settings`: MaterialFormerConfig, FineGeometryConfig, GaussianDecodeConfig,
 LightIndependenceConfig) map to no section; they are built with the same helper, so a model file's ``config`` with a
-key the code does not know (or without one it needs) fails, naming it.
+key the code does not know (or without one it needs) fails, naming it (a record takes no declared default).
 
 The whole typed config (``frng.typedconfig.Config``, one section per top-level key) is assembled where every
 section's class is imported: the stages build it once and hand each library its section(s).
@@ -92,9 +97,51 @@ def schema_keys(where: str) -> list[str]:
 
 
 def schema_defaults(where: str) -> dict[str, Any]:
-    """The schema's defaults of the section at dotted key ``where`` (deep copies)."""
+    """The schema's defaults of the section at dotted key ``where`` (deep copies; the declared defaults, as
+    config/schema.yaml is generated from the declarations)."""
     props = schema_node(where).get("properties", {})
     return {k: copy.deepcopy(v["default"]) for k, v in props.items() if "default" in v}
+
+
+# -- declaring a config key ----------------------------------------------------------------------------------------
+
+
+class _Required:
+    def __repr__(self) -> str:
+        return "REQUIRED"
+
+
+REQUIRED: Any = _Required()
+"""The default of a key every config must set (``objects.count``, ``render.resolution``, ``tier``)."""
+
+FINITE: dict = {"not": {"minimum": 1, "maximum": 0}}
+"""JSON-schema fragment that refuses NaN: every comparison with NaN is false, so only NaN satisfies "at least 1 and at
+most 0", and the ``not`` rejects it (``key(0.001, ..., **FINITE)``)."""
+
+CONFIG = "config"
+"""The field-metadata entry of a declared config key (:func:`key`)."""
+
+
+def key(default: Any = REQUIRED, doc: str = "", *, required: bool = False, **schema: Any) -> Any:
+    """Declare a section dataclass field as a config key: its ``default`` (:data:`REQUIRED`: the config must set it;
+    a section field: ``{}``), ``doc`` -- what the key means (the schema's description and the README table's
+    meaning) -- and its JSON-schema constraints as keywords (``type``, ``minimum``, ``enum``, ``items``, ...; a list's
+    or a plain mapping's whole schema fragment; ``**FINITE`` refuses NaN). ``required``: the config must name it even
+    though it has a default. The field itself has no Python default: :func:`section` fills a missing key from here."""
+    meta = {"default": default, "doc": " ".join(doc.split()), "required": required or default is REQUIRED}
+    return dataclasses.field(metadata={CONFIG: {**meta, "schema": schema}})
+
+
+def declaration(f: dataclasses.Field) -> dict | None:
+    """The :func:`key` declaration of a dataclass field (default, doc, required, schema); None for an internal
+    field."""
+    return f.metadata.get(CONFIG)
+
+
+def declared_default(f: dataclasses.Field) -> Any:
+    """A deep copy of a declared field's default (:data:`REQUIRED` when it has none)."""
+    default = declaration(f)["default"]
+    return default if default is REQUIRED else copy.deepcopy(default)
 
 
 # -- the registry: dotted schema key -> the dataclass that holds that section ---------------------------------------
@@ -108,7 +155,7 @@ Sections not registered (objects.material_mix) and list items (objects.extra, en
 def register(where: str):
     """Class decorator: ``cls`` holds the config section at dotted key ``where``, and gets its one constructor,
     ``cls.from_dict(mapping)``: strict (:func:`section` at ``where``: an unknown key is an error naming it, a missing
-    one takes the schema's default; ``{}`` or None: the defaults). A section of the whole config is
+    one takes its declared default; ``{}`` or None: the defaults). A section of the whole config is
     :func:`config_section` (the stages: ``typed(config).<key>``); a class spells no constructor of its own."""
 
     def deco(cls: type) -> type:
@@ -169,8 +216,8 @@ def section(cls: type, d: Mapping | None, where: str | None = None):
 
     ``where``: the dotted schema key the mapping is (``"train"``, ``"backbone.train"``; None for a class that maps
     to no section, e.g. a model file's architecture record). A key of ``d`` that is no field of ``cls`` raises
-    :class:`ConfigError` naming it (``train.stepz: unknown key; known: ...``); a missing field takes the schema's
-    default at ``where``, else its dataclass default (internal fields only), else raises naming it. A field whose
+    :class:`ConfigError` naming it (``train.stepz: unknown key; known: ...``); a missing field takes its declared
+    default (:func:`key`; sections only), else its dataclass default (internal fields only), else raises naming it. A field whose
     dotted key is a registered section (:data:`SECTIONS`) is built from its mapping the same way; lists become
     tuples.
     """
@@ -180,13 +227,12 @@ def section(cls: type, d: Mapping | None, where: str | None = None):
     label = where if where is not None else cls.__name__
     if unknown:
         raise ConfigError(f"{_dotted(label, str(unknown[0]))}: unknown key; known: {', '.join(sorted(names))}")
-    defaults = schema_defaults(where) if where is not None else {}
     kwargs = {}
     for f in dataclasses.fields(cls):
         if f.name in d:
             value = d[f.name]
-        elif f.name in defaults:
-            value = defaults[f.name]
+        elif where is not None and declaration(f) is not None and declared_default(f) is not REQUIRED:
+            value = declared_default(f)
         elif f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING:
             continue
         else:
@@ -245,7 +291,7 @@ def is_typed(config: Any) -> bool:
 
 def config_section(config: Any, key: str):
     """The top-level entry ``key`` of the typed config, or of a config mapping: a section is built from it
-    (:func:`section`; the mapping may be partial: missing keys take the schema's defaults), a scalar (``seed``,
+    (:func:`section`; the mapping may be partial: missing keys take the declared defaults), a scalar (``seed``,
     ``results``, ...) is returned as it is. Only that section's class is needed (registered by the caller's own
     module): the planning helpers stay torch-free."""
     if is_typed(config):

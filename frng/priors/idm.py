@@ -56,7 +56,7 @@ from torch import nn
 
 from frng import camera
 from frng.nn import PatchDetokenizer, PatchTokenizer, Transformer
-from frng.plan.sections import section
+from frng.plan.sections import key, section
 from frng.priors.diffusion import to_diffusion_space
 from frng.priors.intrinsics import IntrinsicPriors
 from frng.priors.multiview import CUE_CHANNELS, geometry_cues
@@ -66,20 +66,86 @@ RAW_CHANNELS = 9
 
 @dataclass(frozen=True)
 class IDMArch:
-    """The learned IDM's architecture keys of the config's ``idm`` section (defaults: config/schema.yaml), shared by
+    """The learned IDM's architecture keys of the config's ``idm`` section (each key declared on its field), shared by
     the section (:class:`IDMSection`) and a model's architecture record (:class:`IDMConfig`)."""
 
-    width: int
-    heads: int
-    depth: int
-    pixel_features: int
-    cues: bool  # visual-hull geometry cues in, depth/normals decoded as hull + residual
-    cue_bins: int  # plane-sweep samples per ray of the hull (frng.priors.multiview)
-    depth_range: float  # bound of the learned camera-z residual on the hull depth (world units)
-    head_hidden: int  # pixel head width
-    head_layers: int  # hidden layers of the pixel head
-    head_kernel: int  # pixel head kernel size (1 = per-pixel MLP, 3 = 3x3 convs)
-    head_global: bool  # pixel head also sees object-level statistics of its inputs (object_context)
+    width: int = key(
+        128,
+        "learned IDM: width of the transformer over all input views jointly",
+        type="integer",
+        minimum=8,
+        maximum=8192,
+    )
+    heads: int = key(
+        4,
+        "learned IDM: attention heads",
+        type="integer",
+        minimum=1,
+        maximum=128,
+    )
+    depth: int = key(
+        3,
+        "learned IDM: transformer layers",
+        type="integer",
+        minimum=1,
+        maximum=256,
+    )
+    pixel_features: int = key(
+        16,
+        "learned IDM: features the transformer hands to the per-pixel head",
+        type="integer",
+        minimum=1,
+        maximum=4096,
+    )
+    cues: bool = key(
+        True,
+        "learned IDM on the visual hull of the input masks (`frng/priors/multiview.py`): hull cues (distance, normal, "
+        "photo agreement, hit) into the tokenizer and the pixel head; depth = hull camera z + `tanh(raw) * "
+        "depth_range`, normal = normalise(hull normal + raw) (a zero-initialised geometry output = the hull); false = "
+        "no cues",
+        type="boolean",
+    )
+    cue_bins: int = key(
+        48,
+        "samples per ray of the hull sweep (cost ~ bins x V^2 per object: ~2.5 s for 10 views at 64 px on one CPU "
+        "thread)",
+        type="integer",
+        minimum=4,
+        maximum=4096,
+    )
+    depth_range: float = key(
+        0.5,
+        "bound of the learned camera-z residual on the hull depth (world units)",
+        type="number",
+        exclusiveMinimum=0,
+    )
+    head_hidden: int = key(
+        64,
+        "channels of the pixel head's `head_layers` convolutions",
+        type="integer",
+        minimum=1,
+        maximum=8192,
+    )
+    head_layers: int = key(
+        2,
+        "hidden layers (convolutions) of the pixel head, then 1x1 output layers (geometry residuals zero-initialised, "
+        "material logits at PyTorch init)",
+        type="integer",
+        minimum=0,
+        maximum=64,
+    )
+    head_kernel: int = key(
+        1,
+        "kernel of the pixel head's convolutions: 1 (per-pixel MLP) or 3 (3x3; ~3x slower training on a CPU)",
+        type="integer",
+        enum=[1, 3, 5],
+    )
+    head_global: bool = key(
+        True,
+        "the pixel head also sees the object context: mean and std over all views' foreground of its inputs and the "
+        "local contrast, standardised by running training statistics (roughness / metallic are per-object properties)",
+        type="boolean",
+    )
 
 
 @dataclass(frozen=True)
@@ -107,10 +173,27 @@ class IDMSection(IDMArch):
     the DiffusionRenderer adapter's settings. The config holds :class:`frng.training.idm.IDMTrainingSection`, which
     adds the training (``idm.train``)."""
 
-    kind: str
-    diffusion_renderer_dir: str | None
-    normal_space: str
-    depth_invert: bool
+    kind: str = key(
+        "learned",
+        "`learned` (trained, frozen), `oracle` (the rendered G-buffers), `diffusion-renderer` (reads its PNGs)",
+        type="string",
+    )
+    diffusion_renderer_dir: str | None = key(
+        None,
+        "`diffusion-renderer`: folder with one sub-folder per object of `<chunk>.<frame>.<pass>.png`",
+        type=["string", "null"],
+    )
+    normal_space: str = key(
+        "camera-opengl",
+        "frame of DiffusionRenderer's normal PNGs",
+        type="string",
+        enum=["camera-opengl", "world"],
+    )
+    depth_invert: bool = key(
+        False,
+        "DiffusionRenderer depth PNG is bright = near",
+        type="boolean",
+    )
 
 
 def idm_config(idm: IDMSection, patch_size: int, near: float, far: float) -> IDMConfig:

@@ -6,7 +6,7 @@ from dataclasses import dataclass, fields
 
 import torch
 
-from frng.plan.sections import register
+from frng.plan.sections import key, register
 from frng.render import gsplat_backend
 from frng.render.project import project_gaussians
 from frng.render.reference import rasterize_reference
@@ -18,16 +18,64 @@ BACKENDS = ("auto", "torch", "native", "gsplat", "reference")
 @register("raster")
 @dataclass(frozen=True)
 class RasterConfig:
-    """The config's ``raster`` section (see config/README.md; defaults: config/schema.yaml)."""
+    """The config's ``raster`` section (each key declared on its field)."""
 
-    backend: str
-    tile_size: int
-    chunk: int
-    compile: bool
-    max_radius_px: float | None
-    min_transmittance: float
-    eps2d: float
-    near: float
+    CONFIG_DOC = "Gaussian rasterizer (frng/render/raster.py, RasterConfig)"
+
+    backend: str = key(
+        "auto",
+        "`auto`: gsplat on CUDA when installed, else `native` on CPU when it builds, else the pure-PyTorch tile "
+        "rasterizer `torch`; `native` is that tile rasterizer with its binning and compositing in fused C++ CPU "
+        "kernels (built by `make setup`); `reference` is the brute-force test oracle",
+        type="string",
+        enum=["auto", "torch", "native", "gsplat", "reference"],
+    )
+    tile_size: int = key(
+        4,
+        "tile edge (px) of the `torch` and `native` backends; the image does not depend on it, only the speed",
+        type="integer",
+        minimum=1,
+        maximum=64,
+    )
+    chunk: int = key(
+        64,
+        "Gaussians per depth chunk (`torch`); early termination is checked between chunks",
+        type="integer",
+        minimum=1,
+        maximum=65536,
+    )
+    compile: bool = key(
+        False,
+        "`torch.compile` the compositing kernels of `torch` (first call compiles for a while)",
+        type="boolean",
+    )
+    max_radius_px: float | None = key(
+        None,
+        "shrink screen footprints whose 3-sigma radius exceeds this (bounds cost); null = no cap",
+        type=["number", "null"],
+        exclusiveMinimum=0,
+        maximum=1024,
+    )
+    min_transmittance: float = key(
+        0.0001,
+        "`torch`: a tile stops once all its pixels' transmittance is below this; `native`: each pixel stops once its "
+        "own is (0: never)",
+        type="number",
+        minimum=0,
+        maximum=1,
+    )
+    eps2d: float = key(
+        0.3,
+        "screen-space low-pass added to the 2D covariance (px^2), as 3DGS/gsplat",
+        type="number",
+        minimum=0,
+    )
+    near: float = key(
+        0.01,
+        "Gaussians closer than this (camera z) are dropped",
+        type="number",
+        exclusiveMinimum=0,
+    )
 
     def kwargs(self) -> dict:
         """Keyword arguments for :func:`rasterize`."""

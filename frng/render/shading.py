@@ -27,7 +27,7 @@ import torch
 from torch import nn
 
 from frng import camera
-from frng.plan.sections import register
+from frng.plan.sections import key, register
 from frng.render import envmap
 from frng.render.envmap import EnvSamples
 
@@ -52,26 +52,155 @@ COSINE_NORMAL, GGX_NORMAL = (
 @register("shading")
 @dataclass(frozen=True)
 class ShadingConfig:
-    """The config's ``shading`` section (see config/README.md; defaults: config/schema.yaml)."""
+    """The config's ``shading`` section (each key declared on its field)."""
 
-    spp_train: int
-    spp_grad: int
-    spp_infer: int
-    decoder_width: int
-    decoder_depth: int
-    dir_freqs: int
-    decoder_cosine: bool
-    decoder_attenuation: bool
-    decoder_specular: bool
-    diffuse: str
-    sampling: str
-    alpha_eps: float
-    chunk_pixels: int
-    chunk_pairs: int
-    bf16_infer: bool
-    normal_blur: float
-    specular_param: str
-    specular_model: str
+    CONFIG_DOC = "deferred neural shading (frng/render/shading.py, ShadingConfig)"
+
+    spp_train: int = key(
+        16,
+        "light samples per image in training. Paper: 64",
+        type="integer",
+        minimum=1,
+        maximum=4096,
+    )
+    spp_grad: int = key(
+        8,
+        "of these, how many carry gradients (value = full estimate, gradient = this subset's); <= spp_train. Paper: 24",
+        type="integer",
+        minimum=1,
+        maximum=4096,
+    )
+    spp_infer: int = key(
+        32,
+        "light samples per image at inference. Paper: 128",
+        type="integer",
+        minimum=1,
+        maximum=4096,
+    )
+    decoder_width: int = key(
+        64,
+        "units per hidden layer of the decoder MLP. Paper: 256",
+        type="integer",
+        minimum=1,
+        maximum=4096,
+    )
+    decoder_depth: int = key(
+        3,
+        "hidden layers of the decoder MLP. Paper: 4",
+        type="integer",
+        minimum=1,
+        maximum=64,
+    )
+    dir_freqs: int = key(
+        0,
+        "frequency bands of the direction encoding (0: raw unit vectors)",
+        type="integer",
+        minimum=0,
+        maximum=32,
+    )
+    diffuse: str = key(
+        "sh",
+        "how the cosine decoder's Lambertian base is integrated: `sh` in closed form from the env map's degree-2 SH "
+        "irradiance (no Monte-Carlo noise; the light samples integrate only the MLP's residual; "
+        "`frng.render.shading.lambert_sh`), `mc` with the light samples like the rest of the decoder (the paper's "
+        "estimator). The no-neural ablation's GGX diffuse lobe likewise. Saved with the model",
+        enum=["sh", "mc"],
+    )
+    decoder_cosine: bool = key(
+        True,
+        "the decoder reads a normal (features 0:3) and a diffuse BRDF value (features 3:6) and returns (diffuse + "
+        "softplus(MLP)) x max(0, n.w_i); F-RNG's pixel head fills them with the best normal (IDM, else geometry) and "
+        "the input colour divided by the input light's irradiance, so an untrained model already relights its input "
+        "views as a Lambertian surface (frng/render/shading.py, frng/model/frng.py). false = the decoder learns "
+        "reflectance x cosine from scratch",
+        type="boolean",
+    )
+    decoder_attenuation: bool = key(
+        True,
+        "with `decoder_cosine`: 3 more decoder outputs t scale the Lambertian base by 1 - sigmoid(t) per (w_o, w_i), "
+        "so the decoder can darken it (shadowing, occlusion, fur) as well as add to it; measured on the default tier "
+        "(full model, train_seed 0/1/2, same priors): median abs log2 colour scale 0.229/0.221/0.248 vs "
+        "0.268/0.214/0.256 without, signed -0.12 vs -0.16 on average, fur objects 0.48-0.79 vs 0.77-1.01, PSNR +0.06 "
+        "dB, SSIM/LPIPS equal (frng/render/shading.py)",
+        type="boolean",
+    )
+    decoder_specular: bool = key(
+        True,
+        "with `decoder_cosine`: a closed-form specular base beside the Lambertian one, k_s L_level(r): the env map "
+        "prefiltered with vMF lobes at a few sharpnesses (frng/render/prefilter.py), looked up at the reflected view "
+        "direction, k_s and the level (roughness) from feature channels 6:10 (feature_dim >= 10); false = the "
+        "decoder's Monte-Carlo residual alone carries highlights; ignored without `decoder_cosine`",
+        type="boolean",
+    )
+    sampling: str = key(
+        "sobol",
+        "the unit-square sequence behind the light samples",
+        type="string",
+        enum=["random", "stratified", "sobol"],
+    )
+    alpha_eps: float = key(
+        0.001,
+        "only pixels with alpha above this are decoded",
+        type="number",
+        minimum=0,
+    )
+    chunk_pixels: int = key(
+        4096,
+        "pixels decoded at once (memory ~ chunk x spp x width floats); on CUDA x 64 "
+        "(`frng.render.shading.CUDA_CHUNK_SCALE`)",
+        type="integer",
+        minimum=1,
+        maximum=16777216,
+    )
+    chunk_pairs: int = key(
+        16384,
+        "at most this many (pixel, light sample) pairs decoded at once: keeps activations cache-sized (1.7x faster "
+        "than 4096-pixel chunks at 128 spp on the 2-core CPU); on CUDA x 64 (`CUDA_CHUNK_SCALE`: 512 px shading 29x "
+        "faster on an H200, docs/performance.md)",
+        type="integer",
+        minimum=1,
+        maximum=67108864,
+    )
+    bf16_infer: bool = key(
+        False,
+        "relighting decodes under bf16 autocast (~2x on AMX CPUs and GPUs, ~1e-3 relative error); a CPU without bf16 "
+        "units should leave it off. Inference settings (`chunk_*`, `bf16_infer`, `sampling`) come from the relighting "
+        "config, not from the model file. The paper tier sets it true",
+        type="boolean",
+    )
+    normal_blur: float = key(
+        0.05,
+        "screen-space normal filtering before shading (`frng.render.shading.smooth_normals`): the normal channels of "
+        "the rasterized maps (cosine decoder 0:3, Cook-Torrance 5:8) take the direction of their alpha-weighted "
+        "Gaussian average, standard deviation this fraction of the image width (3.2 px at 64 px). Different input "
+        "views' Gaussians interleave in stripes at a new view, each with its own view's normal: without it, shading "
+        "that reads the normal is striped (dark stripes in the Cook-Torrance ablation). Training and relighting both "
+        "use it; 0 = off",
+        type="number",
+        minimum=0,
+    )
+    specular_param: str = key(
+        "linear",
+        "how feature channels 6:10 become the specular base's k_s and level "
+        "(`frng.render.prefilter.specular_params`): `linear` = k_s ~ max(f - 0.035, 0) with a smooth floor (0.02 at f "
+        "= 0, the diffuse channels' scale), level 3 sigmoid(4 f); `softplus` = softplus(f - 4), 3 sigmoid(f), the "
+        "models saved before the key: their k_s never left its initial 0.02 (Adam moves a feature by ~lr per step, a "
+        "metal's k_s of 0.5 needs f ~ 4.5). A model file or asset records its value; records without it read as "
+        "`softplus` (and without `normal_blur` as 0), i.e. as they were trained",
+        enum=["linear", "softplus"],
+    )
+    specular_model: str = key(
+        "ggx",
+        "the specular base of the cosine decoder (`shading.decoder_specular`): `ggx` = a Cook-Torrance (GGX) lobe "
+        "with F0 = k_s (channels 6:9), roughness from channel 9 (0.5 at f = 0) and the normal turned to face the "
+        "camera, estimated by Monte Carlo together with the decoder's residual "
+        "(`frng.render.prefilter.with_ggx_specular`); `prefiltered` = the env map convolved with four von "
+        "Mises-Fisher lobes, looked up at the mirror direction (closed form). Measured on the 4839079 reproduction's "
+        "caches (docs/results.md, docs/studies/, scratch; 800 steps, training seeds 0 and 1): `ggx` +0.10 / +0.08 dB "
+        "(+0.09 [0.04, 0.14] averaged, 16/21 objects), above the Cook-Torrance ablation by +0.03 [-0.10, +0.17]; "
+        "training steps ~15 % longer. Records without the key read as `prefiltered`",
+        enum=["prefiltered", "ggx"],
+    )
 
     def __post_init__(self):
         if self.spp_grad > self.spp_train:

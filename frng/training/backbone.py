@@ -49,7 +49,7 @@ from frng import checkpoint, io
 from frng.device import autocast, bf16_ok, resolve_device
 from frng.hashing import data_digest
 from frng.memo import TensorMemo
-from frng.plan.sections import register
+from frng.plan.sections import FINITE, key, register
 from frng.priors import backbone as bb
 from frng.priors.dataset import PriorObject, Views
 from frng.priors.diffusion import to_diffusion_space
@@ -60,25 +60,129 @@ from frng.training import loop as tr
 @register("backbone.train")
 @dataclass(frozen=True)
 class BackboneTrainConfig:
-    """The config's ``backbone.train`` section (defaults: config/schema.yaml)."""
+    """The config's ``backbone.train`` section (each key declared on its field)."""
 
-    steps: int
-    batch: int
-    lr: float
-    warmup: int
-    weight_decay: float
-    grad_clip: float
-    lambda_alpha: float
-    lambda_depth: float
-    lambda_opacity: float
-    lambda_per: float
-    perceptual_after: int
-    perceptual_net: str
-    supervision_views: int
-    inference_geometry: bool
-    cue_noise: float
-    bf16: bool
-    checkpoint_every: int
+    steps: int = key(
+        600,
+        "training steps of the backbone",
+        type="integer",
+        minimum=1,
+        maximum=10000000,
+    )
+    batch: int = key(
+        1,
+        "objects per step",
+        type="integer",
+        minimum=1,
+        maximum=1024,
+    )
+    lr: float = key(
+        0.0004,
+        "AdamW's peak learning rate: cosine decay after a linear warm-up",
+        type="number",
+        exclusiveMinimum=0,
+        maximum=10,
+        **FINITE,
+    )
+    warmup: int = key(
+        50,
+        "steps of the linear learning-rate warm-up",
+        type="integer",
+        minimum=0,
+        maximum=10000000,
+    )
+    weight_decay: float = key(
+        0.05,
+        "AdamW's weight decay",
+        type="number",
+        minimum=0,
+    )
+    grad_clip: float = key(
+        1.0,
+        "gradient-norm clip",
+        type="number",
+        exclusiveMinimum=0,
+    )
+    lambda_alpha: float = key(
+        1.0,
+        "weight of the alpha-mask L2",
+        type="number",
+        minimum=0,
+    )
+    lambda_depth: float = key(
+        0.5,
+        "weight of the G-buffer ray-distance L1 (a training aid)",
+        type="number",
+        minimum=0,
+    )
+    lambda_opacity: float = key(
+        0.5,
+        "mean L1 between each foreground pixel's Gaussian's opacity and its input alpha (a pixel-aligned Gaussian "
+        "covers what its pixel covers); 0 = opacities free, which the backbone drives to ~0.3 (ghosted, washed-out "
+        "renders at inference)",
+        type="number",
+        minimum=0,
+    )
+    lambda_per: float = key(
+        0.5,
+        "weight of the LPIPS loss",
+        type="number",
+        minimum=0,
+    )
+    perceptual_after: int = key(
+        200,
+        "the perceptual loss is switched on after this many steps",
+        type="integer",
+        minimum=0,
+        maximum=10000000,
+    )
+    perceptual_net: str = key(
+        "vgg",
+        "LPIPS backbone of the perceptual loss",
+        type="string",
+        enum=["vgg", "alex"],
+    )
+    supervision_views: int = key(
+        2,
+        "extra views of the target light rendered for the loss beside the denoising views",
+        type="integer",
+        minimum=0,
+        maximum=64,
+    )
+    inference_geometry: bool = key(
+        False,
+        "the loss renders what inference renders: the per-pixel Gaussians as their pixels' surfels "
+        "(`backbone.surfels`) less the layers the frontal view selection drops (`backbone.view_select`), normals "
+        "taken without gradient; false = the learned shapes of every foreground pixel (the backbone then learns "
+        "near-point Gaussians that inference replaces). Measured on the 4839079 reproduction's data (docs/results.md, "
+        "docs/studies/, scratch): 1.7x faster steps (fewer Gaussians rendered), backbone relighting -0.17 [-0.25, "
+        "-0.09] dB (as large as a second training seed's -0.17), F-RNG on its caches -0.03 [-0.09, +0.03]; 10 views "
+        "still below 8. Not the default",
+        type="boolean",
+    )
+    cue_noise: float = key(
+        0.0,
+        "scale of the Gaussian noise added in training to the multi-view cues the geometry transformer reads "
+        "(`frng.training.backbone.CUE_NOISE_SIGMA`: 0.01 on the normalised hull distance, 0.1 on each hull-normal "
+        "component and on photo agreement, none on the hit flag; the prior's Gaussians and the light cue are not "
+        "perturbed); 0 = none. At 1, scratch runs gave F-RNG +0.08 / +0.10 dB on two backbone seeds, but the "
+        "fresh-clone reproduction of f2a4ab1 only +0.01 [-0.03, +0.05] and the Cook-Torrance ablation -1.34: off by "
+        "default (docs/priors.md)",
+        type="number",
+        minimum=0,
+    )
+    bf16: bool = key(
+        True,
+        "bf16 autocast of the transformers",
+        type="boolean",
+    )
+    checkpoint_every: int = key(
+        50,
+        "resumable checkpoint period (steps)",
+        type="integer",
+        minimum=1,
+        maximum=10000000,
+    )
 
 
 def _gamma(rgb: torch.Tensor) -> torch.Tensor:
@@ -91,7 +195,9 @@ class BackboneTrainingSection(bb.BackboneSection):
     """The config's whole ``backbone`` section: what inference reads (:class:`frng.priors.backbone.BackboneSection`)
     and the training (``backbone.train``; :class:`BackboneTrainConfig`)."""
 
-    train: BackboneTrainConfig
+    CONFIG_DOC = "the frozen RelitLRM-style backbone (frng/priors/backbone.py)"
+
+    train: BackboneTrainConfig = key({})
 
 
 def sample_views(obj: PriorObject, rng: random.Random) -> tuple[str, list[int]]:
