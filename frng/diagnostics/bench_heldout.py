@@ -40,9 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from frng.plan import config as frng_config
-from frng.plan.variants import GEOMETRIES, RIG_VIEWS
-from frng.stages._heldout import (
+from frng.diagnostics._heldout import (
     AT,
     _model_arg,
     add_bench_arguments,
@@ -51,6 +49,8 @@ from frng.stages._heldout import (
     selected_objects,
     summary,
 )
+from frng.plan import config as frng_config
+from frng.plan.variants import GEOMETRIES, RIG_VIEWS
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
