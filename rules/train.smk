@@ -1,4 +1,4 @@
-# F-RNG training (stage frng/stages/train.py, the training itself in frng/training/frng.py): one `train` job per
+# F-RNG training (stage frng/stages/train.py, the training itself in frng/training/frng_trainer.py): one `train` job per
 # variant, reading the frozen priors' caches only.
 # The K-sweep entry equal to the full model's K (k2 with the paper's 2%) is the full model: `model_alias` copies it
 # into its own folder instead of training it twice.

@@ -51,7 +51,7 @@ LUMA = (0.2126, 0.7152, 0.0722)  # Rec. 709 on linear RGB
 class SaliencyConfig:
     """Saliency / patch-selection parameters: the config's ``frng.saliency`` section (defaults:
     config/schema.yaml) plus two internal fields, ``margin`` (not a config key) and ``top_k`` (set from
-    ``frng.top_k_percent`` by :meth:`frng.model.frng.FRNGConfig.saliency_config`)."""
+    ``frng.top_k_percent`` by :meth:`frng.model.composed.FRNGConfig.saliency_config`)."""
 
     box_size: int  # beta, odd, pixels
     ramp: float  # pixels over which W rises linearly from 0 to 1 after the margin

@@ -18,7 +18,7 @@ Token layout and Gaussian order follow the contract in :mod:`frng.model` (coarse
 Gaussians in (view, row, col) order, fine ones in (view, fine token, y*p + x) order). Background Gaussians are
 dropped: coarse ones with the cache's ``keep`` (input alpha >= 0.5), fine ones with :func:`fine_keep_mask`.
 
-Variants (:func:`frng.training.frng.variant_config`, from the one table :data:`frng.plan.variants.VARIANTS`): ``full``; ``no-fine`` (no FineGeometry, coarse tokens only); ``no-idm``
+Variants (:func:`frng.training.frng_trainer.variant_config`, from the one table :data:`frng.plan.variants.VARIANTS`): ``full``; ``no-fine`` (no FineGeometry, coarse tokens only); ``no-idm``
 (``prior_dim = 0``: no tokenizer, no prior parameters anywhere; ``reconstruct`` refuses priors); ``no-ind``
 (lambda_c = lambda_KLD = 0, training only); ``no-neural`` (MaterialFormer head ``pbr`` -> Cook-Torrance per
 Gaussian, rendered with the GGX shader through the same deferred pipeline); ``k{P}`` (top-K = P% of the patches).
@@ -82,7 +82,7 @@ SAVED_DEFAULTS = {
 @dataclass(frozen=True)
 class FRNGSection:
     """The config's ``frng`` section: the variants to train and the architecture (see config/README.md; defaults:
-    config/schema.yaml). :func:`frng.training.frng.variant_config` turns it into a variant's :class:`FRNGConfig`."""
+    config/schema.yaml). :func:`frng.training.frng_trainer.variant_config` turns it into a variant's :class:`FRNGConfig`."""
 
     variants: tuple[str, ...]
     k_sweep: tuple[float, ...]
@@ -117,7 +117,7 @@ def kept_pixel_rows(m: torch.Tensor, keep_c: torch.Tensor, fine, keep_f) -> torc
 @dataclass
 class FRNGConfig:
     """Architecture of one F-RNG variant (everything needed to rebuild it from ``model.pt``). Not a config section:
-    :func:`frng.training.frng.variant_config` sets every field from the config (and the frozen backbone), so none has a default."""
+    :func:`frng.training.frng_trainer.variant_config` sets every field from the config (and the frozen backbone), so none has a default."""
 
     patch: int
     geo_dim: int  # the backbone's token width (T_geo and T_app)
