@@ -1,7 +1,10 @@
-"""The ``frng`` command line: one subcommand per pipeline stage.
+"""The ``frng`` command line: the commands a user runs (:data:`USER_COMMANDS`), then one subcommand per pipeline stage
+(:data:`PIPELINE_STAGES`); ``frng --help`` lists them in two groups, in that order.
 
-Each stage lives in its own module, ``frng/stages/<rule>.py`` named after the Snakemake rule that runs it
-(:mod:`frng.stages`; ``frng config`` is :mod:`frng.stages.config`), which provides two functions::
+Each pipeline stage lives in its own module, ``frng/stages/<rule>.py`` named after the Snakemake rule that runs it
+(:mod:`frng.stages`); a command no rule runs lives in :mod:`frng.commands` (``frng config`` is
+:mod:`frng.commands.config`), the benchmarks behind ``frng bench`` in :mod:`frng.diagnostics`. Each module provides
+two functions::
 
     def configure(parser: argparse.ArgumentParser) -> None   # add arguments (or sub-subcommands)
     def run(args: argparse.Namespace) -> int | None           # do the work
@@ -19,15 +22,39 @@ import importlib
 import os
 import sys
 
-# name -> (module, one-line help). Order is the pipeline order.
-STAGES: dict[str, tuple[str, str]] = {
-    "config": ("frng.stages.config", "validate a config file and print it with defaults filled in"),
+# What a user runs, name -> (module, one-line help): the commands of frng.commands (no rule runs them), `frng import`
+# (also the rule import_benchmark's stage) and `frng bench` (frng.diagnostics). Listed first by `frng --help`.
+USER_COMMANDS: dict[str, tuple[str, str]] = {
+    "reconstruct": ("frng.commands.reconstruct", "your own photos (2-10 views) -> a relightable asset folder"),
+    "render-asset": ("frng.commands.render_asset", "render an asset folder under any env map (views, turntable)"),
+    "view": ("frng.commands.view", "interactive relighting viewer of an asset in the browser (127.0.0.1, viser)"),
+    "export-asset": (
+        "frng.commands.export_asset",
+        "bake an asset under one env map into plain 3D Gaussian splatting (PLY, SPZ, glTF KHR_gaussian_splatting)",
+    ),
+    "import": (
+        "frng.stages.import_benchmark",
+        "a public benchmark scene (tensoir, orb, owl, nerf-synthetic) into the dataset contract",
+    ),
+    "export": ("frng.commands.export_benchmark", "a curated object in a public benchmark's published layout"),
+    "export-image-inputs": (
+        "frng.commands.export_image_inputs",
+        "the inputs of image-based relighting methods (photo under the input light, mask, camera, target maps)",
+    ),
+    "bench": (
+        "frng.diagnostics.bench",
+        "benchmarks and diagnostics (frng.diagnostics): timings, held-out quality, noise floor",
+    ),
+    "results-page": (
+        "frng.commands.results_page",
+        "docs/results.md, the README's results block: from a results folder",
+    ),
+    "config": ("frng.commands.config", "validate a config file and print it with defaults filled in"),
+}
+# The pipeline's stages, each run by a Snakemake rule (frng.stages, one module per rule), in pipeline order.
+PIPELINE_STAGES: dict[str, tuple[str, str]] = {
     "envmaps": ("frng.stages.envmaps", "collect, bake and rotate the environment maps (train/test split)"),
     "curate": ("frng.stages.curate", "render one object's views x lights + G-buffers with Blender Cycles"),
-    "curate-baselines": (
-        "frng.stages.curate_baselines",
-        "render one test object's target views under its input light (+ dense views) for the baselines",
-    ),
     "dataset-preview": (
         "frng.stages.dataset_preview",
         "PNG contact sheet per curated object (views x lights + G-buffers)",
@@ -36,7 +63,10 @@ STAGES: dict[str, tuple[str, str]] = {
         "frng.stages.noise_floor",
         "the curated targets' noise floor against high-spp renders of the same views (the quality ladder's step 0)",
     ),
-    "bench": ("frng.stages.bench", "benchmarks: rasterizer, shading, relighting"),
+    "curate-baselines": (
+        "frng.stages.curate_baselines",
+        "render one test object's target views under its input light (+ dense views) for the baselines",
+    ),
     "backbone-train": ("frng.stages.backbone_train", "train the RelitLRM-style backbone (training split), then freeze"),
     "idm-train": ("frng.stages.idm_train", "train the learned IDM on the training split's G-buffers"),
     "backbone-cache": ("frng.stages.backbone_cache", "cache one object's backbone tokens + Gaussians"),
@@ -44,11 +74,15 @@ STAGES: dict[str, tuple[str, str]] = {
     "eval-backbone": ("frng.stages.eval_backbone", "backbone NVS/relighting and IDM accuracy vs trivial baselines"),
     "train": ("frng.stages.train", "train one F-RNG variant from the cached priors (training split)"),
     "relight": ("frng.stages.relight", "relight one test object with every F-RNG run and the backbone; timings"),
+    "relight-seed": (
+        "frng.stages.relight_seed",
+        "relight one test object's runs of another training seed (as relight)",
+    ),
+    "evaluate": ("frng.stages.evaluate", "per-image PSNR/SSIM/LPIPS of every relit image (configured protocol)"),
     "baseline-fit": (
         "frng.stages.baseline_fit",
         "fit one per-scene baseline (3dgs / gsir) on an object's dense views; its novel views and relit images",
     ),
-    "evaluate": ("frng.stages.evaluate", "per-image PSNR/SSIM/LPIPS of every relit image (configured protocol)"),
     "baseline-image": (
         "frng.stages.baseline_image",
         "image-based baseline: each target view's photo decomposed by the IDM and re-shaded under the target lights",
@@ -67,33 +101,14 @@ STAGES: dict[str, tuple[str, str]] = {
     ),
     "tables": ("frng.stages.tables", "the paper's tables (vs backbone, ablation, #views, K, timing)"),
     "figures": ("frng.stages.figures", "comparison grids, ablation grid, saliency maps, loss curves"),
-    "results-page": ("frng.stages.results_page", "docs/results.md, the README's results block: from a results folder"),
-    "import": (
-        "frng.stages.import_benchmark",
-        "a public benchmark scene (tensoir, orb, owl, nerf-synthetic) into the dataset contract",
-    ),
-    "export": ("frng.stages.export_benchmark", "a curated object in a public benchmark's published layout"),
-    "export-image-inputs": (
-        "frng.stages.export_image_inputs",
-        "the inputs of image-based relighting methods (photo under the input light, mask, camera, target maps)",
-    ),
-    "reconstruct": ("frng.stages.reconstruct", "your own photos (2-10 views) -> a relightable asset folder"),
-    "render-asset": ("frng.stages.render_asset", "render an asset folder under any env map (views, turntable)"),
-    "export-asset": (
-        "frng.stages.export_asset",
-        "bake an asset under one env map into plain 3D Gaussian splatting (PLY, SPZ, glTF KHR_gaussian_splatting)",
-    ),
-    "view": ("frng.stages.view", "interactive relighting viewer of an asset in the browser (127.0.0.1, viser)"),
     "relight-benchmark": ("frng.stages.relight_benchmark", "relight one imported benchmark object (as relight)"),
-    "relight-seed": (
-        "frng.stages.relight_seed",
-        "relight one test object's runs of another training seed (as relight)",
-    ),
     "evaluate-benchmarks": (
         "frng.stages.evaluate_benchmarks",
         "relit benchmark objects scored with each benchmark's published protocol; the benchmarks table",
     ),
 }
+# Every subcommand (tests/test_stages.py checks the rule -> subcommand -> module map).
+STAGES: dict[str, tuple[str, str]] = {**USER_COMMANDS, **PIPELINE_STAGES}
 
 # older spellings still accepted -> the stage they name (rules/curate.smk runs `frng dataset preview`)
 ALIASES: dict[tuple[str, ...], str] = {("dataset", "preview"): "dataset-preview"}
@@ -111,14 +126,20 @@ class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaults
     pass
 
 
+def _listing(table: dict[str, tuple[str, str]]) -> str:
+    return "\n".join(f"  {name:<19} {help_}" for name, (_, help_) in table.items())
+
+
 def _top_parser() -> argparse.ArgumentParser:
-    lines = [f"  {name:<19} {help_}" for name, (_, help_) in STAGES.items()]
     return argparse.ArgumentParser(
         prog="frng",
         formatter_class=_Formatter,
-        description="F-RNG pipeline stages (each is called by a Snakemake rule).\n\nstages:\n"
-        + "\n".join(lines)
-        + "\n\nRun `frng <stage> --help` for a stage's options.",
+        description="F-RNG: relightable assets from a few photos, and the pipeline that reproduces the paper.\n\n"
+        "commands (what you run):\n"
+        + _listing(USER_COMMANDS)
+        + "\n\npipeline stages (each run by a Snakemake rule of `make reproduce`, in pipeline order):\n"
+        + _listing(PIPELINE_STAGES)
+        + "\n\nRun `frng <command> --help` for a command's options.",
     )
 
 
@@ -141,9 +162,9 @@ def main(argv: list[str] | None = None) -> None:
     argv = canonical(argv)
     if not argv or argv[0] in ("-h", "--help") or argv[0] not in STAGES:
         parser = _top_parser()
-        parser.add_argument("stage", choices=list(STAGES), help="pipeline stage")
+        parser.add_argument("command", choices=list(STAGES), metavar="COMMAND", help="a command or pipeline stage")
         if argv and argv[0] not in ("-h", "--help"):
-            parser.error(f"unknown stage {argv[0]!r}; choose from {', '.join(STAGES)}")
+            parser.error(f"unknown command {argv[0]!r}; choose from {', '.join(STAGES)}")
         parser.print_help()
         sys.exit(0 if argv else 2)
     parser = stage_parser(argv[0])

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from frng.baselines.fit_settings import FitSettings
 from frng.baselines.plan import BaselinesConfig
 from frng.metrics import EvalConfig
-from frng.model.frng import FRNGSection
+from frng.model.composed import FRNGSection
 from frng.model.saliency import SaliencyConfig
 from frng.nn import ModelConfig
 from frng.plan.catalog import (
@@ -33,7 +33,7 @@ from frng.plan.sections import REQUIRED, key, register, section, section_dict
 from frng.render.raster import RasterConfig
 from frng.render.shading import ShadingConfig
 from frng.training.backbone import BackboneTrainConfig, BackboneTrainingSection
-from frng.training.frng import LossConfig, TrainConfig
+from frng.training.frng_trainer import LossConfig, TrainConfig
 from frng.training.idm import IDMTrainConfig, IDMTrainingSection
 
 

@@ -1,4 +1,4 @@
-# F-RNG training (frng/stages/train.py): one `train` job per variant and seed, reading the priors' caches only.
+# F-RNG training (frng/stages/train.py, the training in frng/training/frng_trainer.py): one `train` job per variant and seed.
 from frng.plan.variants import (
     all_variants,
     canonical_variant,

@@ -1,12 +1,12 @@
-"""frng.stages.bench_backbone's --model argument: NAME=PATH with inference settings, bad input named."""
+"""frng.diagnostics.bench_backbone's --model argument: NAME=PATH with inference settings, bad input named."""
 
 import argparse
 from pathlib import Path
 
 import pytest
 
+from frng.diagnostics.bench_backbone import _model_arg
 from frng.priors.backbone_settings import BackboneSettings
-from frng.stages.bench_backbone import _model_arg
 
 
 def test_model_takes_a_path_and_settings():

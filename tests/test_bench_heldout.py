@@ -1,4 +1,4 @@
-"""frng.stages.bench_heldout's report: models named NAME@sS are training seeds of NAME, compared as one model."""
+"""frng.diagnostics.bench_heldout's report: models named NAME@sS are training seeds of NAME, compared as one model."""
 
 import argparse
 
@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from frng.stages._heldout import _model_arg, seed_groups, summary
+from frng.diagnostics._heldout import _model_arg, seed_groups, summary
 
 
 def _rows(model, shift):
@@ -60,7 +60,7 @@ def test_seeds_are_averaged_and_resampled_in_the_comparison():
 
 
 def test_validation_objects_are_every_fifth_of_the_sorted_training_split():
-    from frng.stages._heldout import validation_objects
+    from frng.diagnostics._heldout import validation_objects
 
     train = [f"obj_{i:04d}" for i in range(12, 0, -1)] + ["libero_mug"]
     assert validation_objects(train) == ["libero_mug", "obj_0005", "obj_0010"]
@@ -69,7 +69,7 @@ def test_validation_objects_are_every_fifth_of_the_sorted_training_split():
 def test_selected_objects_names_what_is_wrong(tmp_path, capsys):
     """Repeated model names, a missing model file and objects outside the config are errors naming them; otherwise
     the --split's (or --objects') objects."""
-    from frng.stages._heldout import selected_objects
+    from frng.diagnostics._heldout import selected_objects
 
     class Plan:
         object_ids = ["a", "b", "c", "t"]

@@ -11,7 +11,7 @@ import pytest
 import yaml
 from conftest import ROOT
 
-from frng.stages.bench_train import _step_seconds
+from frng.diagnostics.bench_train import _step_seconds
 
 
 def test_step_seconds_are_the_differences_after_the_skipped_steps(tmp_path):

@@ -41,7 +41,7 @@ def _has_default(f: dataclasses.Field) -> bool:
 def _records():
     """Architecture records of model files built with ``section``: (class, schema section or None, fields that are
     no keys of that section)."""
-    from frng.model.frng import FRNGConfig
+    from frng.model.composed import FRNGConfig
     from frng.priors.backbone import BackboneConfig
     from frng.priors.idm import IDMConfig
 
@@ -99,9 +99,9 @@ def test_unknown_nested_key_and_model_records():
     bad = fc.merge(d, {"train": {"loss": {"lambda_x": 1.0}}})
     with pytest.raises(ConfigError, match=r"^train[.]loss[.]lambda_x: unknown key"):
         typed(bad)
-    from frng.model.frng import FRNGConfig
+    from frng.model.composed import FRNGConfig
     from frng.priors.backbone import BackboneConfig
-    from frng.training.frng import ModelSections, variant_config
+    from frng.training.frng_trainer import ModelSections, variant_config
 
     cfg, _ = variant_config(ModelSections.of(typed(d)), "full")
     assert FRNGConfig.from_dict(cfg.to_dict()) == cfg  # a model file's config loads back

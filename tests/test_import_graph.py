@@ -1,6 +1,6 @@
 """The package's floor plan, checked on its import graph (built from the sources with ``ast``): no import cycle among
 the ``frng`` modules (issue 26), none between its packages either (no arrow back up), stages import no stage, only the
-stages and the typed config import a trainer, the models do not plan (issue 58).
+command layer (stages, commands, diagnostics) and the typed config import a trainer, the models do not plan (issue 58).
 
 What counts as an edge A -> B: EVERY ``import`` / ``from ... import`` statement in module A that names a frng module
 B, wherever it stands -- at module level, under ``if TYPE_CHECKING:``, or inside a function. A ``TYPE_CHECKING``
@@ -111,13 +111,18 @@ def test_the_cycle_finder_finds_one():
     assert find_cycle({"a": {"b"}, "b": set()}) is None
 
 
+# The command layer: what a subcommand runs -- the pipeline's stages (one per rule), the commands a user runs by hand,
+# the benchmarks and diagnostics (``frng bench``). Each is arguments and orchestration around the libraries.
+COMMAND_LAYER = ("frng.stages", "frng.commands", "frng.diagnostics")
+
+
 def test_sections_is_a_leaf_and_only_stages_assemble_the_config():
     """frng.plan.sections imports no frng module; frng.typedconfig (which imports every component declaring a section) is
-    imported by the stage layer only -- libraries get the typed config, or their section, handed to them."""
+    imported by the command layer only -- libraries get the typed config, or their section, handed to them."""
     graph = import_graph()
     assert graph["frng.plan.sections"] == set()
     importers = sorted(m for m, deps in graph.items() if "frng.typedconfig" in deps)
-    outside = [m for m in importers if not m.startswith("frng.stages")]
+    outside = [m for m in importers if not m.startswith(COMMAND_LAYER)]
     assert not outside, f"libraries importing frng.typedconfig: {outside}"
 
 
@@ -137,22 +142,24 @@ def test_no_arrow_runs_back_up_between_packages():
 
 
 def test_stages_import_no_stage():
-    """A stage is arguments and orchestration around the libraries; what two stages share lives in a library or in
-    a private helper of the stage layer (``frng.stages._name``, not a stage: no rule runs it)."""
+    """A stage (or a command, or a benchmark) is arguments and orchestration around the libraries; what two of them
+    share lives in a library or in a private helper of their package (``frng.stages._name``, not a stage: no rule
+    runs it). None imports another stage, command or benchmark."""
+    layer = tuple(f"{p}." for p in COMMAND_LAYER)
     bad = [
         f"{a} -> {b}"
         for a, deps in import_graph().items()
-        if a.startswith("frng.stages.")
+        if a.startswith(layer)
         for b in deps
-        if b.startswith("frng.stages.") and not b.rpartition(".")[2].startswith("_")
+        if b.startswith(layer) and not b.rpartition(".")[2].startswith("_")
     ]
     assert not bad, bad
 
 
 def test_models_and_applications_import_no_trainer():
-    """Only the stages, the typed config (which assembles every section) and the trainers themselves import a trainer
-    (``frng.training``): a model file loads and relights without the training code."""
-    allowed = ("frng.stages", "frng.training", "frng.typedconfig")
+    """Only the command layer, the typed config (which assembles every section) and the trainers themselves import a
+    trainer (``frng.training``): a model file loads and relights without the training code."""
+    allowed = (*COMMAND_LAYER, "frng.training", "frng.typedconfig")
     bad = [
         f"{a} -> {b}"
         for a, deps in import_graph().items()

@@ -41,7 +41,7 @@ def smoke(request):
 def test_capture_of_a_test_object_reproduces_relight(smoke, tmp_path):
     import pandas as pd
 
-    from frng.apps.capture import measure
+    from frng.apps.capture_measure import measure
 
     config, oid = smoke
     df = pd.DataFrame(measure(typed(config), oid, tmp_path))

@@ -54,7 +54,7 @@ def _crafted(tmp_path: Path, name: str, zipped: bool) -> tuple[Path, Path]:
 @pytest.mark.parametrize("zipped", [True, False])
 def test_crafted_pickles_run_nothing(tmp_path, zipped):
     from frng.checkpoint import load_resumable
-    from frng.model.frng import FRNG
+    from frng.model.composed import FRNG
     from frng.priors import LearnedIDMPrior, load_backbone
     from frng.priors.cache import load_backbone_cache, load_idm_priors
 
@@ -154,7 +154,7 @@ def test_real_checkpoint_state_loads_safely(tmp_path):
 
 
 def test_truncated_files_are_named(tmp_path):
-    from frng.model.frng import FRNG
+    from frng.model.composed import FRNG
     from frng.priors.cache import _save, load_idm_priors
 
     cache = tmp_path / "priors" / "obj.safetensors"

@@ -158,7 +158,7 @@ def test_too_few_photos_and_bad_combinations(scene, tmp_path):
         prepare(images, resolution=32, distance=DIST, fov_deg=30.0, sfm=True, rig="paper")
     import argparse
 
-    from frng.stages import reconstruct
+    from frng.commands import reconstruct
 
     parser = argparse.ArgumentParser()
     reconstruct.configure(parser)

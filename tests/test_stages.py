@@ -1,6 +1,7 @@
-"""Stage modules are named after their rules (issue 13, item 2): every Snakemake rule's stage exists and is what the
-rule's ``frng <subcommand>`` runs, every module of frng/stages/ has a rule (or is a documented exception), and
-``frng <stage> --help`` works for each."""
+"""Stage modules are named after their rules (issue 13, item 2), one to one (issue 89): every Snakemake rule that runs
+``frng <subcommand>`` runs the module of frng/stages/ named after it, every module of frng/stages/ is run by exactly
+one rule; what a user runs by hand lives in frng/commands/, the benchmarks in frng/diagnostics/; ``frng --help``
+lists the user's commands before the pipeline's stages, and ``frng <command> --help`` works for each."""
 
 import ast
 import importlib
@@ -12,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from frng import cli
+from frng.diagnostics.bench import BENCHES
 from frng.plan.variants import torchrun_command
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -55,31 +57,22 @@ NO_STAGE = {
     "curate_record": "Snakemake bookkeeping: a `run:` block recording an object's plan entry and maps' records in "
     "the results folder (frng.plan.catalog.write_curate_record)",
 }
-# stage modules without a rule, and why
-STAGES_WITHOUT_RULE = {
-    "frng.stages.bench": "benchmarks are run by hand (`make bench`), never by the workflow",
-    "frng.stages.bench_render": "`frng bench render` (frng.stages.bench.BENCHES), run by hand",
-    "frng.stages.bench_relight": "`frng bench relight` (frng.stages.bench.BENCHES), run by hand",
-    "frng.stages.bench_perceptual": "`frng bench perceptual` (frng.stages.bench.BENCHES), run by hand",
-    "frng.stages.bench_cues": "`frng bench cues` (frng.stages.bench.BENCHES), run by hand",
-    "frng.stages.bench_heldout": "`frng bench heldout` (frng.stages.bench.BENCHES), run by hand on a finished run",
-    "frng.stages.bench_backbone": "`frng bench backbone` (frng.stages.bench.BENCHES), run by hand on a finished run",
-    "frng.stages.bench_train": "`frng bench train` (frng.stages.bench.BENCHES), run by hand on a finished run",
-    "frng.stages.bench_targets_noise": "`frng bench targets-noise` (frng.stages.bench.BENCHES), run by hand (the "
-    "curated images' noise floor; tests/test_clean_targets.py)",
-    "frng.stages.export_benchmark": "writes curated objects in the public benchmarks' layouts, run by hand and by "
-    "tests/test_benchmarks.py (nothing downstream in the workflow reads it)",
-    "frng.stages.reconstruct": "your own photos -> an asset, run by hand (tests/test_reconstruct.py)",
-    "frng.stages.render_asset": "renders an asset folder, run by hand (tests/test_reconstruct.py)",
-    "frng.stages.export_asset": "bakes an asset into plain 3DGS files, run by hand and by the viewer's Export button "
+# the commands a user runs that no rule runs (frng.commands), and where they are exercised
+COMMANDS = {
+    "frng.commands.reconstruct": "your own photos -> an asset (tests/test_reconstruct.py)",
+    "frng.commands.render_asset": "renders an asset folder (tests/test_reconstruct.py)",
+    "frng.commands.export_asset": "bakes an asset into plain 3DGS files, also the viewer's Export button "
     "(tests/test_export.py)",
-    "frng.stages.view": "the interactive relighting viewer (frng.apps.view), run by hand (tests/test_viewer.py)",
-    "frng.stages.export_image_inputs": "writes the image-based methods' inputs (one photo + target maps), run by hand "
-    "(tests/test_baselines_tables.py)",
-    "frng.stages.config": "`frng config` validates a config file and prints it, run by make before snakemake",
-    "frng.stages.results_page": "regenerates docs/results.md by hand; the rule tables does it through `frng tables "
+    "frng.commands.view": "the interactive relighting viewer, frng.apps.view (tests/test_viewer.py)",
+    "frng.commands.export_benchmark": "writes curated objects in the public benchmarks' layouts (tests/test_benchmarks.py;"
+    " nothing downstream in the workflow reads it)",
+    "frng.commands.export_image_inputs": "writes the image-based methods' inputs (tests/test_baselines_tables.py)",
+    "frng.commands.config": "validates a config file and prints it, run by make before snakemake",
+    "frng.commands.results_page": "regenerates docs/results.md by hand; the rule tables does it through `frng tables "
     "--results-page` (tests/test_results_page.py)",
 }
+COMMANDS_DIR = ROOT / "frng" / "commands"
+DIAGNOSTICS_DIR = ROOT / "frng" / "diagnostics"
 # ``frng`` subcommands whose module is not in frng/stages/, and why
 OUTSIDE_STAGES: dict[str, str] = {}
 # ``frng <subcommand> <action>`` of the rules' commands (a stage with sub-subcommands)
@@ -151,29 +144,65 @@ def test_training_launcher_runs_the_frng_cli():
     assert torchrun_command(2, python="py").endswith(" -m frng")
 
 
-def test_every_stage_has_a_rule_and_a_subcommand():
+def test_rules_and_stage_modules_map_one_to_one():
+    """Every module of frng/stages/ (but the ``_`` helpers) is run by exactly one rule, and each rule that runs a stage
+    runs its own module. Rules that do the same work run thin stages of their own rather than one shared stage:
+    ``relight``, ``relight_seed`` and ``relight_benchmark`` each run the stage named after them (whose body is
+    frng.stages._relight), as ``backbone_train`` and ``idm_train`` share frng.stages._priors; a stage of its own per
+    rule carries the rule's own ``CONFIG_READS`` and so its own config digest (frng.plan.digests), which one shared
+    module could not."""
     modules = stage_modules()
-    ruled, exempt = set(RULE_STAGES.values()), set(STAGES_WITHOUT_RULE)
-    assert not ruled & exempt
-    assert set(modules) == ruled | exempt, (
-        f"stages without a rule: {sorted(set(modules) - ruled - exempt)}; "
-        f"missing stage modules: {sorted(ruled | exempt - set(modules))}"
-    )
-    from frng.stages.bench import BENCHES
+    runs: dict[str, list[str]] = {m: [] for m in modules}
+    for rule, block in rule_blocks().items():
+        sub = frng_subcommand(block)
+        if sub is None:
+            continue
+        module = cli.STAGES[sub][0]
+        assert module in runs, f"rule {rule} runs `frng {sub}` ({module}), which is no module of frng/stages/"
+        runs[module].append(rule)
+    not_one = {m: rules for m, rules in runs.items() if len(rules) != 1}
+    assert not not_one, f"stage modules not run by exactly one rule: {not_one}"
+    assert sorted(runs) == sorted(RULE_STAGES.values())
 
-    dispatched = {m for m, _ in cli.STAGES.values()} | {m for m, _ in BENCHES.values()}
-    assert set(modules) <= dispatched, f"stages no subcommand runs: {sorted(set(modules) - dispatched)}"
+
+def test_commands_and_diagnostics_are_dispatched_and_run_by_no_rule():
+    commands = sorted(f"frng.commands.{p.stem}" for p in COMMANDS_DIR.glob("*.py") if p.stem != "__init__")
+    assert commands == sorted(COMMANDS)
+    assert set(commands) <= {m for m, _ in cli.USER_COMMANDS.values()}
+    benches = sorted(f"frng.diagnostics.{p.stem}" for p in DIAGNOSTICS_DIR.glob("bench_*.py"))
+    assert benches == sorted(m for m, _ in BENCHES.values())
+    assert cli.USER_COMMANDS["bench"][0] == "frng.diagnostics.bench"
+    ruled = {cli.STAGES[sub][0] for sub in map(frng_subcommand, rule_blocks().values()) if sub}
+    assert not ruled & (set(commands) | set(benches) | {"frng.diagnostics.bench"})
 
 
-def test_every_subcommand_is_a_stage_module():
+def test_the_subcommand_groups_split_the_subcommands():
+    """Every rule's stage is a pipeline stage but ``frng import`` (rule import_benchmark), which a user runs too."""
+    assert not set(cli.USER_COMMANDS) & set(cli.PIPELINE_STAGES)
+    assert cli.STAGES == {**cli.USER_COMMANDS, **cli.PIPELINE_STAGES}
+    in_rules = {frng_subcommand(b) for b in rule_blocks().values()} - {None}
+    assert set(cli.PIPELINE_STAGES) == in_rules - {"import"}
+    assert all(m.startswith("frng.stages.") for m, _ in cli.PIPELINE_STAGES.values())
+
+
+def test_every_subcommand_is_a_stage_a_command_or_the_benchmarks():
     for sub, (module, _) in cli.STAGES.items():
-        assert module.startswith("frng.stages.") or sub in OUTSIDE_STAGES, f"`frng {sub}` -> {module}"
+        assert (
+            module.startswith(("frng.stages.", "frng.commands."))
+            or module == "frng.diagnostics.bench"
+            or (sub in OUTSIDE_STAGES)
+        ), f"`frng {sub}` -> {module}"
 
 
-@pytest.mark.parametrize("module", stage_modules())
+def cli_modules() -> list[str]:
+    """The stages, the commands and the benchmarks: the modules a subcommand runs."""
+    return stage_modules() + sorted(COMMANDS) + sorted(m for m, _ in BENCHES.values())
+
+
+@pytest.mark.parametrize("module", cli_modules())
 def test_stage_module_holds_only_cli_and_orchestration(module):
     """configure(parser) and run(args) at least; no classes (types and algorithms live in the libraries)."""
-    tree = ast.parse((STAGES_DIR / f"{module.rsplit('.', 1)[1]}.py").read_text())
+    tree = ast.parse((ROOT / (module.replace(".", "/") + ".py")).read_text())
     functions = {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}
     classes = [n.name for n in tree.body if isinstance(n, ast.ClassDef)]
     assert {"configure", "run"} <= functions and not classes, (module, sorted(functions), classes)
@@ -204,13 +233,21 @@ def test_older_spelling_runs_the_same_stage(capsys):
         assert capsys.readouterr().out.startswith(f"usage: frng {name}")
 
 
-def test_top_level_help_lists_every_stage():
+def test_top_level_help_lists_the_users_commands_first():
     proc = subprocess.run(
         [sys.executable, "-m", "frng", "--help"], cwd=ROOT, capture_output=True, text=True, timeout=60
     )
     assert proc.returncode == 0, proc.stderr
+    where = {}
     for sub in cli.STAGES:
-        assert re.search(rf"^  {re.escape(sub)}\s", proc.stdout, re.M), sub
+        m = re.search(rf"^  {re.escape(sub)}\s", proc.stdout, re.M)
+        assert m, sub
+        where[sub] = m.start()
+    users, stages = proc.stdout.index("commands (what you run):"), proc.stdout.index("pipeline stages")
+    assert all(users < where[s] < stages for s in cli.USER_COMMANDS)
+    assert all(stages < where[s] for s in cli.PIPELINE_STAGES)
+    order = [where[s] for s in cli.PIPELINE_STAGES]
+    assert order == sorted(order)
 
 
 def test_a_diagnostic_geometry_never_overwrites_the_pipelines_model(capsys):

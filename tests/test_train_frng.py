@@ -1,4 +1,4 @@
-"""F-RNG training on the smoke tier (frng/training/frng.py): frozen backbone gets no gradient, no-idm never reads priors,
+"""F-RNG training on the smoke tier (frng/training/frng_trainer.py): frozen backbone gets no gradient, no-idm never reads priors,
 a short run lowers the relighting loss, kill + rerun resumes. Priors: the session's smoke run's tiny backbone and
 its token caches + oracle IDM priors (G-buffers) made here, on that run's dataset (tests/conftest.py)."""
 
@@ -38,7 +38,7 @@ def frng_smoke(smoke_dataset, tmp_path_factory):
 
 def _objects(config, use_priors=True, alt_light=False):
     from frng.plan import catalog
-    from frng.training.frng import load_objects
+    from frng.training.frng_trainer import load_objects
 
     res = Path(config["results"])
     ids = catalog.plan(config).split("train")
@@ -46,15 +46,15 @@ def _objects(config, use_priors=True, alt_light=False):
 
 
 def _sections(config):
-    from frng.training.frng import ModelSections
+    from frng.training.frng_trainer import ModelSections
 
     return ModelSections.of(typed(config))
 
 
 def _train(config, variant, out, **kw):
-    """frng.training.frng.train handed the sections as the stage hands them (frng/stages/train.py)."""
+    """frng.training.frng_trainer.train handed the sections as the stage hands them (frng/stages/train.py)."""
     from frng.plan import catalog
-    from frng.training.frng import TrainRun, train
+    from frng.training.frng_trainer import TrainRun, train
 
     tc = typed(config)
     job = TrainRun(tc.results, tc.model_seed, tc.device, tc.idm.kind, tuple(catalog.plan(tc).split("train")))
@@ -64,7 +64,7 @@ def _train(config, variant, out, **kw):
 def _fixed_loss(model, objects, config) -> float:
     """Mean L_2 (the training loss's term, over the training background) over every object's first two target
     views of each target light, fixed light-sample seeds, no gradient."""
-    from frng.training.frng import l2_loss
+    from frng.training.frng_trainer import l2_loss
 
     bg = config_section(config, "train").background
     vals = []
@@ -87,13 +87,13 @@ def _fixed_loss(model, objects, config) -> float:
 
 def test_frozen_backbone_gets_no_gradient(frng_smoke):
     from frng.priors import load_backbone
-    from frng.training.frng import StepLoss, build_model
+    from frng.training.frng_trainer import StepLoss, build_model
 
     _, config = frng_smoke
     res = Path(config["results"])
     backbone = load_backbone(res / "backbone" / "model.pt")
     model, ind = build_model(_sections(config), "plus", res / "backbone" / "model.pt", "cpu")
-    from frng.model.frng import FRNG
+    from frng.model.composed import FRNG
 
     model = FRNG.from_backbone(model.cfg, backbone, model.raster_cfg, model.shading_cfg)
     objs = _objects(config)
@@ -131,7 +131,7 @@ def test_light_independence_sees_the_inputs_under_the_second_input_light(frng_sm
     light (no second photos: tokens only), so the re-lit photos here are the inputs tinted (a mere scale is divided out with the estimated light)."""
     from dataclasses import replace
 
-    from frng.training.frng import StepLoss, build_model
+    from frng.training.frng_trainer import StepLoss, build_model
 
     _, config = frng_smoke
     res = Path(config["results"])
@@ -195,7 +195,7 @@ def test_no_idm_never_reads_priors(frng_smoke, tmp_path, monkeypatch):
     monkeypatch.setattr(cache_mod, "load_idm_priors", boom)
     out = _train(cfg, "no-idm", tmp_path / "no-idm", steps=2)
     assert out.exists()
-    from frng.model.frng import FRNG
+    from frng.model.composed import FRNG
 
     m = FRNG.load(out, "cpu")
     assert m.tokenizer is None and not m.cfg.uses_priors
@@ -207,7 +207,7 @@ def test_pixel_memo_changes_nothing(frng_smoke, tmp_path, monkeypatch):
     making them every step, and the memo is used."""
     from conftest import assert_same_weights, record_instances
 
-    from frng.training import frng as train_mod
+    from frng.training import frng_trainer as train_mod
 
     _, config = frng_smoke
     objs = _objects(config, alt_light=True)  # both image sets (L_ind on the second input light's pixels)
@@ -224,8 +224,8 @@ STEPS = 80  # the smoke tier's 20 steps only start the descent
 def test_training_overfits_one_object(frng_smoke, tmp_path):
     """F-RNG fits one object: its fixed-sample relighting L_2 falls well below where the untrained model (already a
     Lambertian relighting of its input views) starts."""
-    from frng.model.frng import FRNG
-    from frng.training import frng as train_mod
+    from frng.model.composed import FRNG
+    from frng.training import frng_trainer as train_mod
 
     _, config = frng_smoke
     # the architecture's capacity to fit, measured on every pixel either image covers (train.l2_pixels: union):
@@ -252,7 +252,7 @@ def test_training_overfits_one_object(frng_smoke, tmp_path):
 def test_no_neural_ablation_starts_at_the_same_lambertian_relighting(frng_smoke):
     """The no-neural (GGX) variant's pixel head starts where the full model's does -- a rough dielectric of albedo
     pi c / E(n) with the pixel's normal -- so the ablation compares appearance models, not initialisations."""
-    from frng.training import frng as train_mod
+    from frng.training import frng_trainer as train_mod
 
     _, config = frng_smoke
     config = {**config, "train": {**config["train"], "l2_pixels": "union"}}  # every pixel either image covers
@@ -290,7 +290,7 @@ def test_no_neural_renders_no_black_holes(frng_smoke):
     the ground truth). Before the fix (one-sided GGX, unbounded parameters) the same count on the smoke tier's
     4 objects was 4.0 % after its 8 ablation steps (15.8 % on the held-out object after 1500 steps): Gaussian
     normals facing away from a new camera. Now 0 there; measured here 1 of 3196 lit pixels, hence <= 1 in 1000."""
-    from frng.model.frng import FRNG
+    from frng.model.composed import FRNG
 
     _, config = frng_smoke
     objs = _objects(config)[:2]
@@ -335,7 +335,7 @@ def test_train_killed_then_resumed(frng_smoke, tmp_path):
 
 
 def test_l2_loss_composites_over_the_training_background():
-    from frng.training.frng import l2_loss
+    from frng.training.frng_trainer import l2_loss
 
     tgt = torch.zeros(1, 4, 4, 4)
     tgt[..., :3], tgt[..., 3] = 0.2, 1.0
@@ -350,7 +350,7 @@ def test_l2_loss_composites_over_the_training_background():
 def test_l2_pixels_target_ignores_over_coverage():
     """train.l2_pixels: target averages over the target's foreground only (the metric's mask): a render that also
     covers background pixels is not pulled towards the white background there; union counts those pixels."""
-    from frng.training.frng import l2_loss
+    from frng.training.frng_trainer import l2_loss
 
     tgt = torch.zeros(1, 4, 4, 4)
     tgt[:, :2, :, :3], tgt[:, :2, :, 3] = 0.3, 1.0  # top half opaque
@@ -365,7 +365,7 @@ def test_l2_pixels_target_ignores_over_coverage():
 def test_alpha_loss_counts_faint_stray_coverage():
     """train.loss.lambda_alpha's term: zero for the target's own alpha, and it sees faint coverage outside the
     silhouette (alpha < 0.5 everywhere there) that the target-foreground L_2 ignores."""
-    from frng.training.frng import alpha_loss, l2_loss
+    from frng.training.frng_trainer import alpha_loss, l2_loss
 
     tgt = torch.zeros(1, 4, 4, 4)
     tgt[:, :2, :, :3], tgt[:, :2, :, 3] = 0.3, 1.0
@@ -380,7 +380,7 @@ def test_fine_gaussians_stay_inside_the_silhouettes(frng_smoke):
     """frng.fine_in_hull: the fine Gaussians a reconstruction keeps all project onto every input view's (dilated)
     silhouette; without it the untrained fine detokenizer puts some off the object (the haze of the renders)."""
     from frng.priors.multiview import inside_silhouettes
-    from frng.training.frng import build_model
+    from frng.training.frng_trainer import build_model
 
     _, config = frng_smoke
     res = Path(config["results"])
@@ -407,7 +407,7 @@ def test_opacity_head_starts_at_the_backbone_opacities_and_moves_them(frng_smoke
     """frng.opacity_head: an untrained head keeps the backbone's opacities (clamped), the coarse Gaussians' and their
     far-side copies' alike; a residual moves every opacity the same way, copies with their sources."""
     from frng.model.opacity import OPACITY_EPS
-    from frng.training.frng import build_model
+    from frng.training.frng_trainer import build_model
 
     _, config = frng_smoke
     res = Path(config["results"])
@@ -432,7 +432,7 @@ def test_coverage_head_scales_only_the_silhouette_rim(frng_smoke):
     alpha of the render's 1-px silhouette rim by sigmoid(out + GAIN_LOGIT) / sigmoid(GAIN_LOGIT), and the payload with
     it (the features it shades stay the same); the interior and the background stay as rasterized."""
     from frng.model.coverage import ALPHA_MIN, GAIN_LOGIT, CoverageHead, silhouette_rim
-    from frng.training.frng import build_model
+    from frng.training.frng_trainer import build_model
 
     _, config = frng_smoke
     res = Path(config["results"])
@@ -466,7 +466,7 @@ def test_depth_head_starts_at_the_backbone_depths_and_moves_along_the_input_rays
     each along its input camera's ray by at most max_offset, nothing else moves. frng.geometry_inputs: the opacity
     head reads the backbone's raw maps, and says so when a caller's views lack them."""
     from frng.model.opacity import GEOMETRY_CHANNELS, OpacityHead
-    from frng.training.frng import build_model
+    from frng.training.frng_trainer import build_model
 
     _, config = frng_smoke
     res = Path(config["results"])
@@ -499,13 +499,13 @@ def test_depth_head_starts_at_the_backbone_depths_and_moves_along_the_input_rays
 def test_depth_loss_measures_the_moved_coarse_gaussians_and_trains_the_depth_head(frng_smoke):
     """train.loss.lambda_depth: L_depth is the mean |ray distance - G-buffer distance| of the kept coarse Gaussians
     with a surface (0 at the backbone's own distances as the target), and its gradient reaches the depth head."""
-    from frng.training.frng import build_model, depth_loss
+    from frng.training.frng_trainer import build_model, depth_loss
 
     _, config = frng_smoke
     res = Path(config["results"])
     model, _ = build_model(_sections(config), "plus", res / "backbone" / "model.pt", "cpu")
     from frng.plan import catalog
-    from frng.training.frng import load_objects
+    from frng.training.frng_trainer import load_objects
 
     ids = catalog.plan(config).split("train")[:1]
     obj = load_objects(res, config["idm"]["kind"], ids, res / "backbone" / "model.pt", True, 6, with_depth=True)[0]
@@ -529,7 +529,7 @@ def test_gbuffer_geometry_puts_the_pixel_gaussians_on_the_rendered_surface(frng_
     others, and the far-side copies, are the cache's."""
     from frng.model.depth import at_distances
     from frng.plan import catalog
-    from frng.training.frng import load_objects
+    from frng.training.frng_trainer import load_objects
 
     _, config = frng_smoke
     res = Path(config["results"])
@@ -565,7 +565,7 @@ def test_several_target_lights_share_one_rasterization(frng_smoke):
     """train.target_lights: the sampled light and others at the same target cameras (never the other input lights'
     views); one step under several lights is the mean of the per-light losses, and with 1 the step is the one-light
     step exactly."""
-    from frng.training.frng import StepLoss, build_model, same_view_lights
+    from frng.training.frng_trainer import StepLoss, build_model, same_view_lights
 
     path, config = frng_smoke
     obj = _objects(config)[0]
@@ -595,8 +595,8 @@ def test_normal_start_adds_each_pixels_normal_in_a_fixed_projection_and_saves_it
     has no such buffer and reconstructs exactly as the paper form."""
     import copy
 
-    from frng.model.frng import FRNG, NORMAL_START_SEED
-    from frng.training.frng import build_model
+    from frng.model.composed import FRNG, NORMAL_START_SEED
+    from frng.training.frng_trainer import build_model
 
     _, config = frng_smoke
     res = Path(config["results"])

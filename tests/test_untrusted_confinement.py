@@ -395,7 +395,7 @@ def test_asset_files_symlinked_out_are_refused(tmp_path):
     from test_untrusted_outputs import _env, tiny_asset
 
     from frng.apps.asset import AssetError, load_asset
-    from frng.apps.view import ViewError, collect_lights
+    from frng.apps.view_scene import ViewError, collect_lights
 
     asset = tiny_asset(tmp_path / "asset")
     other = tiny_asset(tmp_path / "other")

@@ -38,7 +38,7 @@ def _one_line(lines: list[str], *words: str) -> str:
 
 
 def test_model_file_holding_a_list_or_missing_config(tmp_path):
-    from frng.model.frng import FRNG
+    from frng.model.composed import FRNG
     from frng.priors.registry import LearnedIDMPrior
 
     p = tmp_path / "model.pt"
@@ -178,7 +178,8 @@ def test_text_file_named_png_and_huge_png(tmp_path):
 
 
 def test_all_black_photos_warn(tmp_path, capsys):
-    from frng.apps.capture import CaptureError, reconstruct
+    from frng.apps.capture import CaptureError
+    from frng.apps.reconstruct import reconstruct
     from frng.plan import config as frng_config
     from frng.typedconfig import typed
 

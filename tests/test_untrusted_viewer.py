@@ -125,7 +125,7 @@ def test_running_viewer_refuses_a_foreign_origin_and_host(tmp_path):
 
 
 def test_client_values_are_checked():
-    from frng.apps.view import client_camera, client_light
+    from frng.apps.view_scene import client_camera, client_light
 
     pos, q, fov = client_camera((0, 0, 3), (1, 0, 0, 0), 0.7, source="client 0")
     assert fov == 0.7 and pos.tolist() == [0, 0, 3]

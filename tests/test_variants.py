@@ -23,7 +23,7 @@ def test_schema_enum_is_the_table():
 def test_each_leave_out_variant_is_f_rng_plus_with_one_addition_off():
     """plus-no-{addition} (the additions table): F-RNG+'s configuration with exactly that addition's paper-form
     fields, every other addition kept."""
-    from frng.training.frng import ModelSections, variant_config
+    from frng.training.frng_trainer import ModelSections, variant_config
 
     sections = ModelSections.of(typed(frng_config.load(ROOT / "config" / "config.yaml")))
     plus, ind_plus = variant_config(sections, V.PLUS)
@@ -39,7 +39,7 @@ def test_each_leave_out_variant_is_f_rng_plus_with_one_addition_off():
 
 
 def test_variant_config_applies_the_table():
-    from frng.training.frng import ModelSections, variant_config
+    from frng.training.frng_trainer import ModelSections, variant_config
 
     config = frng_config.load(ROOT / "config" / "smoke.yaml")
     sections = ModelSections.of(typed(config))
@@ -132,7 +132,7 @@ def test_only_the_labelled_oracle_run_is_told_the_input_light():
 
 def test_full_and_the_ablations_are_the_paper_form_and_plus_has_the_additions():
     """Every variant but F-RNG+ has every addition off (frng.plan.variants.ADDITIONS); F-RNG+ keeps the config's."""
-    from frng.training.frng import ModelSections, variant_config
+    from frng.training.frng_trainer import ModelSections, variant_config
 
     config = frng_config.load(ROOT / "config" / "config.yaml")
     sections = ModelSections.of(typed(config))

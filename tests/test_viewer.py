@@ -205,7 +205,7 @@ def test_viewer_in_a_browser(smoke_asset, browser_paths, tmp_path):
 
     from frng import camera, io
     from frng.apps.asset import load_asset
-    from frng.apps.view import display
+    from frng.apps.view_scene import display
     from frng.plan.layout import Layout
     from frng.render import envmap
 
@@ -396,7 +396,7 @@ def test_viewport_camera_is_visers_and_frngs():
     import viser.transforms as vtf
 
     from frng import camera
-    from frng.apps.view import camera_pose, frame_size, quat_to_matrix, viewport_camera
+    from frng.apps.view_scene import camera_pose, frame_size, quat_to_matrix, viewport_camera
 
     rng = np.random.default_rng(0)
     for _ in range(5):
@@ -418,7 +418,7 @@ def test_viewport_camera_is_visers_and_frngs():
 def test_object_opens_f_rng_plus_and_either_asset_is_a_test_object(smoke_asset):
     """``--object`` shows F-RNG+ (the run that relights photos best) where the results folder relit the object with
     it; the full run's asset, opened as an ASSET, is still recognised as that test object's (with full's images)."""
-    from frng.apps.view import TestObject, shown_run
+    from frng.apps.view_scene import TestObject, shown_run
     from frng.plan.layout import Layout, RelightFolder
     from frng.plan.variants import VIEW_RUN
 

@@ -602,7 +602,7 @@ DECODER_FIELDS = ("feature_dim", "width", "depth", "dir_freqs", "cosine", "atten
 def render_settings(raster_cfg, shading_cfg, max_radius_px: float | None = None) -> dict:
     """The ``render`` record of ``asset.json`` from a model's :class:`frng.render.RasterConfig` and
     :class:`frng.render.shading.ShadingConfig` (dataclasses); ``max_radius_px``: the footprint cap the model
-    rasterizes with when its raster config leaves it unset (:meth:`frng.model.frng.FRNG.rasterize`)."""
+    rasterizes with when its raster config leaves it unset (:meth:`frng.model.composed.FRNG.rasterize`)."""
     from dataclasses import asdict
 
     raster = asdict(raster_cfg)
@@ -615,7 +615,7 @@ class AssetRenderer:
     """Render an asset folder (or a relightable GLB's parts: :func:`frng.apps.gltf_asset.open_renderer`) under any
     environment map, with the asset's own decoder and render settings.
 
-    What :meth:`frng.model.frng.FRNG.rasterize` + :meth:`~frng.model.frng.FRNG.shade` do for the neural head,
+    What :meth:`frng.model.composed.FRNG.rasterize` + :meth:`~frng.model.composed.FRNG.shade` do for the neural head,
     from the asset alone: the Gaussians and features (``gaussians.ply``), the decoder built from ``asset.json``'s
     ``decoder`` (feature_dim, width, depth, dir_freqs, cosine, attenuation, specular) with the weights of
     ``decoder.safetensors``, and the rasterizer / shading settings of ``asset.json``'s ``render`` (the schema's

@@ -249,7 +249,7 @@ def relight_object(
     Writes into ``out_root`` (a staging folder): ``{run}/...`` folders and, for a group holding the full run and the
     backbone, ``timing.json``. Returns the timing (without ``speedup`` and the methods' entries when the group has
     neither)."""
-    from frng.model.frng import FRNG
+    from frng.model.composed import FRNG
     from frng.plan import catalog
     from frng.priors import build_idm, load_backbone, view_priors
     from frng.priors.dataset import load_object
@@ -389,7 +389,7 @@ def relight_object(
 
 def shade_base(model, raster: tuple, env: torch.Tensor) -> torch.Tensor:
     """The run ``plus-base`` (:data:`frng.plan.variants.BASE_RUN`, the quality ladder's Lambertian row): what
-    :meth:`frng.model.frng.FRNG.shade` renders with the decoder's residual and attenuation (and the closed-form
+    :meth:`frng.model.composed.FRNG.shade` renders with the decoder's residual and attenuation (and the closed-form
     specular base of ``shading.decoder_specular``) dropped, i.e. only its closed-form Lambertian base d E(n)
     (:func:`frng.render.shading.lambert_sh`, the term ``shade`` adds to the Monte-Carlo residual with
     ``shading.diffuse: sh``; checked equal to ``shade`` with the residual and the specular term zeroed). ``raster``: :meth:`FRNG.rasterize`'s output. Returns RGBA

@@ -1,4 +1,4 @@
-"""``frng render-asset ASSET --env MAP --out DIR`` (stage :mod:`frng.stages.render_asset`, no rule: run by hand, and
+"""``frng render-asset ASSET --env MAP --out DIR`` (stage :mod:`frng.commands.render_asset`, no rule: run by hand, and
 the viewer's "Save frame"): render a relightable asset folder
 (:mod:`frng.apps.asset`, e.g. from ``frng reconstruct`` or ``frng relight``'s ``asset/``) under any equirect map, with
 only the asset's files and its decoder (:class:`frng.apps.asset.AssetRenderer`: no F-RNG model, no training code), on

@@ -1,4 +1,4 @@
-"""The curated images' Monte-Carlo noise floor (``frng bench targets-noise``, :mod:`frng.stages.bench_targets_noise`):
+"""The curated images' Monte-Carlo noise floor (``frng bench targets-noise``, :mod:`frng.diagnostics.bench_targets_noise`):
 target views of planned objects rendered exactly as curation renders them (:func:`frng.data.curate.object_scene`:
 the same mesh, material, seed and rig views) under several sampling settings (:class:`Sampling`: samples per pixel,
 OpenImageDenoise, Cycles' clamps) and scored against a high-spp reference of the same view with the pipeline's

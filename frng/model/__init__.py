@@ -2,6 +2,8 @@
 
 Modules
 -------
+- :mod:`.composed`            Sec. 4 the composed model (:class:`~.composed.FRNG`): the components below put together,
+                                frozen priors in, relightable neural Gaussians out
 - :mod:`.saliency`            supplement "Saliency map computation": S_final and top-K% salient patches per view
 - :mod:`.tokenizers`          Sec. 4.1 T_prior = Tokenizer(Patchify(n, a, r, m)); patchify / unpatchify
 - :mod:`.fine_geometry`       Sec. 4.1 latent-interpolated fine-grained geometry (Bilinear, FineGeoDetokenizer)
@@ -10,7 +12,7 @@ Modules
 - :mod:`.opacity`             our addition: a per-Gaussian residual on the backbone Gaussians' opacity logits
 - :mod:`.coverage`            our addition: a screen-space gain on the rendered silhouette rim's coverage (alpha)
 - :mod:`.depth`               our addition: a per-Gaussian move of the backbone's Gaussians along their input rays
-- its trainer: :mod:`frng.training.frng` (L_2, L_per, L_ind, one step; stage ``frng train``)
+- its trainer: :mod:`frng.training.frng_trainer` (L_2, L_per, L_ind, one step; stage ``frng train``)
 - :mod:`frng.gaussians`       raw per-pixel parameters -> Gaussians (shared with the backbone)
 
 Token layout contract (shared with the backbone, :mod:`frng.priors.backbone`)

@@ -10,14 +10,14 @@ The head lets F-RNG change each kept Gaussian's opacity from what F-RNG already 
     opacity' = sigmoid(logit(opacity) + MLP([g, pixel]))
 
 with ``g`` (N, C_out) the Gaussian's MaterialDetokenizer output (its token's geometry, appearance and prior
-context) and ``pixel`` (N, C_pix) its input pixel (:func:`frng.model.frng.pixel_map`: colour, alpha, irradiance,
+context) and ``pixel`` (N, C_pix) its input pixel (:func:`frng.model.composed.pixel_map`: colour, alpha, irradiance,
 normals, IDM priors), with ``frng.geometry_inputs`` also the backbone's own geometry at that pixel
 (:func:`geometry_inputs`: how far it moved the surface off the hull prior, its raw opacity logit). The last layer
 starts at zero: an untrained head keeps the backbone's opacities (clamped to [OPACITY_EPS, 1 - OPACITY_EPS]). It
 is trained by F-RNG's own losses through the rasterizer (L_2 on the target's foreground, the perceptual term on the
 whole composited image, which sees the slivers outside it).
 
-Two steps, because :meth:`frng.model.frng.FRNG.reconstruct` computes the residual of the input pixels' Gaussians
+Two steps, because :meth:`frng.model.composed.FRNG.reconstruct` computes the residual of the input pixels' Gaussians
 and applies it after the far-side copies have joined them (each copy takes its source's): :meth:`OpacityHead.residual`
 (g (N, C_out), pixel (N, C_pix)) -> (N,) logits, :meth:`OpacityHead.apply` (opacities (M,), logits (M,)) -> (M,)
 opacities in (0, 1).

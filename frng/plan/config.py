@@ -10,7 +10,7 @@ followed by cross-key checks that a schema cannot express (see :func:`check_sema
 The rest of the config's machinery lives beside it, one concept a module: :mod:`frng.plan.sections` (a section's frozen
 dataclass, built strictly from its mapping; a leaf), :mod:`frng.typedconfig` (the whole typed ``Config``, assembled
 from the sections the components declare), :mod:`frng.plan.digests` (the config keys each rule reads) and
-:mod:`frng.stages.config` (the ``frng config`` subcommand).
+:mod:`frng.commands.config` (the ``frng config`` subcommand).
 """
 
 from __future__ import annotations

@@ -310,6 +310,6 @@ TypedConfig = Any
 """How a library annotates the whole typed config (``frng.typedconfig.Config``): libraries do not import
 ``frng.typedconfig`` (it imports every component that declares a section). Library functions take the sections
 they read (their classes) and small typed arguments, not the whole config; what still takes it: the section
-selectors a stage calls (:func:`config_section`, ``frng.training.frng.ModelSections.of``, ``frng.apps.relight.RelightJob.of``)
+selectors a stage calls (:func:`config_section`, ``frng.training.frng_trainer.ModelSections.of``, ``frng.apps.relight.RelightJob.of``)
 and the torch-free planning helpers of :mod:`frng.plan.catalog` and :mod:`frng.plan.variants` (the dataset plan, the
 variants and runs follow from many sections; the rule files call them with the validated dict)."""

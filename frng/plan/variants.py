@@ -39,7 +39,7 @@ from frng.plan.sections import TypedConfig, as_dict
 class Variant:
     """One F-RNG variant: what the paper's ablation table calls it and how it differs from the full model.
 
-    arch: FRNGConfig fields replaced (:func:`frng.training.frng.variant_config`); loss: LightIndependenceConfig fields
+    arch: FRNGConfig fields replaced (:func:`frng.training.frng_trainer.variant_config`); loss: LightIndependenceConfig fields
     replaced; reads_priors: whether its reconstruction reads the IDM's priors (the ``train`` rule of a variant that
     does not never waits for them)."""
 
@@ -162,7 +162,7 @@ KNOWN_LIGHT_RUN = "plus-known-light"  # oracle: F-RNG+ told the input views' lig
 # `frng view --object` shows (it relights photos best under the paper's task: docs/model-and-training.md)
 ASSET_RUNS = ("full", PLUS)
 VIEW_RUN = PLUS
-# What F-RNG's coarse Gaussians sit on (frng.training.frng.load_objects): the backbone's geometry, or, diagnostics
+# What F-RNG's coarse Gaussians sit on (frng.training.frng_trainer.load_objects): the backbone's geometry, or, diagnostics
 # (`frng train` / `frng bench heldout --geometry ...`), the input pixels' G-buffer surface distances, their visual
 # hull's, or the hull refined by multi-view stereo (frng.priors.stereo)
 GEOMETRIES = ("backbone", "gbuffer", "hull", "stereo")

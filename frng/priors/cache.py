@@ -263,7 +263,7 @@ def make_idm_priors(
 
     The IDM sees the rig's views only (the paper's 6), what training and the default relighting give F-RNG: it
     attends across the views it is given (:func:`frng.priors.registry.view_priors`). Other view counts take live
-    priors (:func:`frng.training.frng.load_objects`, :mod:`frng.apps.relight`)."""
+    priors (:func:`frng.training.frng_trainer.load_objects`, :mod:`frng.apps.relight`)."""
     from frng.priors.dataset import load_object
 
     idm = build_idm(idm_section, backbone_section, results, device, kind)

@@ -215,7 +215,7 @@ def specular_at_cameras(
 ) -> torch.Tensor:
     """:func:`specular_base` of rasterized maps (V, H, W, C) seen by cameras c2w (V, 4, 4), intr (V, 4) under an
     env map (He, We, 3): the view rays and the (memoised) prefiltered map made here. The one entry point of both
-    renderers (:meth:`frng.model.frng.FRNG.specular`, :class:`frng.apps.asset.AssetRenderer`)."""
+    renderers (:meth:`frng.model.composed.FRNG.specular`, :class:`frng.apps.asset.AssetRenderer`)."""
     from frng import camera
 
     _, d = camera.pixel_rays(c2w.float(), intr.float(), maps.shape[1], maps.shape[2])

@@ -13,7 +13,9 @@ the rule's config digest follows (:mod:`frng.plan.digests`: read from the source
 
 ``run`` reads the config, loops over objects, calls the libraries (:mod:`frng.data`, :mod:`frng.priors`,
 :mod:`frng.model`, :mod:`frng.render`, :mod:`frng.report`, ...) and writes the outputs; the algorithms live in the
-libraries. ``tests/test_stages.py`` checks that every rule's stage exists and every stage has a rule; the one
-stage without a rule is :mod:`.bench` (benchmarks, run by hand: ``make bench``). Modules whose name starts with
-``_`` are helpers shared by stages, not stages.
+libraries. ``tests/test_stages.py`` maps the rules to these modules one to one: every rule that runs ``frng <stage>`` runs the
+module named after it, and every module here is run by exactly one rule. Modules whose name starts with ``_`` are
+helpers shared by stages, not stages: :mod:`._priors` (the two priors' trainings) and :mod:`._relight` (the three
+relighting rules). What a user runs by hand with no rule lives in :mod:`frng.commands`; the benchmarks and
+diagnostics (``frng bench``) in :mod:`frng.diagnostics`.
 """

@@ -43,7 +43,7 @@ def render_nvs(job, oid: str, out, device) -> dict:
 
     from frng import io
     from frng.apps.relight import RelightError, Timer, backbone_views, validate_inputs
-    from frng.model.frng import FRNG
+    from frng.model.composed import FRNG
     from frng.plan import catalog
     from frng.plan.layout import Layout, RelightFolder
     from frng.plan.variants import ALL_GROUPS

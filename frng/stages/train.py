@@ -2,7 +2,7 @@
 rank): train one F-RNG variant on the training split from the frozen priors' caches.
 
 The loss, the step and the outputs (``model.pt``, ``checkpoint.pt``, ``loss.csv/png``, ``train.json``):
-:mod:`frng.training.frng`; the loop: :func:`frng.training.loop.fit`; ranks: :mod:`frng.training.distributed`.
+:mod:`frng.training.frng_trainer`; the loop: :func:`frng.training.loop.fit`; ranks: :mod:`frng.training.distributed`.
 """
 
 from __future__ import annotations
@@ -24,13 +24,13 @@ from frng.plan.variants import (
     trained_variants,
 )
 from frng.training import distributed
-from frng.training.frng import ModelSections, TrainRun, train, variant_config
+from frng.training.frng_trainer import ModelSections, TrainRun, train, variant_config
 from frng.typedconfig import typed
 
 # The config keys this stage reads (frng.plan.digests: its rule's digest): train.* (but the seeds: a variant's seed is
 # its name's), the architecture (frng.* but the variant lists), decoder and training shading (not the
 # inference-only spp_infer / bf16_infer: relight takes those from the config), rasterizer, idm.kind (which priors
-# file), the training split, the models' seed, device (frng/training/frng.py + variant_config)
+# file), the training split, the models' seed, device (frng/training/frng_trainer.py + variant_config)
 CONFIG_READS = (
     "@plan",
     "train_seed",

@@ -133,14 +133,14 @@ def synthetic_env(height: int, seed: int, dev: torch.device) -> torch.Tensor:
 def build(path: str, args: argparse.Namespace, dev: torch.device) -> SimpleNamespace:
     """One config's untrained models at its architecture sizes, built once for every resolution: a namespace of
     path, config, backbone, idm, frng and shading."""
-    from frng.model.frng import FRNG
+    from frng.model.composed import FRNG
     from frng.plan import config as frng_config
     from frng.priors import backbone as backbone_mod
     from frng.priors import freeze
     from frng.priors import idm as idm_mod
     from frng.priors.backbone import backbone_config
     from frng.priors.idm import idm_config
-    from frng.training.frng import ModelSections, variant_config
+    from frng.training.frng_trainer import ModelSections, variant_config
 
     config = typed(frng_config.load(path))
     patch = int(config.model.patch_size)

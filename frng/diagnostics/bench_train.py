@@ -3,7 +3,7 @@ and with bf16 autocast off / on, on the machine it runs on (named in the first l
 
 Each measurement is a separate process (the thread count is fixed before torch runs an op,
 :func:`frng.device.training_threads`) that runs the real trainer (:func:`frng.training.backbone.train`,
-:func:`frng.training.frng.train`) for ``--skip + --steps`` steps on the first ``--objects`` training objects of the
+:func:`frng.training.frng_trainer.train`) for ``--skip + --steps`` steps on the first ``--objects`` training objects of the
 config's results folder, in a temporary folder, and reports the median and the mean of the last ``--steps`` steps'
 times (from its ``loss.csv``): the mean is what sets a training run's minutes (the backbone's steps are bimodal:
 those that sample a random view subset sweep its visual hull, the rig views' sweeps are cached). It needs the folder's curated data (backbone) and, for F-RNG, its backbone model and caches: run it
@@ -82,7 +82,7 @@ def _measure(config, model: str, bf16: bool, args: argparse.Namespace, out: Path
             steps=total,
         )
     else:
-        from frng.training.frng import ModelSections, TrainRun, train
+        from frng.training.frng_trainer import ModelSections, TrainRun, train
 
         backbone = Path(Layout(config.results).backbone_model())
         if not backbone.is_file():

@@ -6,7 +6,7 @@ What it does per test object (``catalog.plan(config).split("test")``; ``--split 
 :func:`validation_objects`, for choices that must not look at the test objects; or ``--objects``) and model:
 
 1. reads the object's CACHED backbone tokens and IDM priors (``{results}/backbone/cache``, ``{results}/idm/priors``,
-   what the pipeline's cache rules wrote for the test split; :func:`frng.training.frng.load_objects`, the training
+   what the pipeline's cache rules wrote for the test split; :func:`frng.training.frng_trainer.load_objects`, the training
    loader) instead of running the backbone and the IDM live as ``frng relight`` does (the test split's caches are
    the same tensors: same DDIM seeds);
 2. reconstructs from ``--views`` input views, rasterizes the target views once and shades them under every target
@@ -40,9 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from frng.plan import config as frng_config
-from frng.plan.variants import GEOMETRIES, RIG_VIEWS
-from frng.stages._heldout import (
+from frng.diagnostics._heldout import (
     AT,
     _model_arg,
     add_bench_arguments,
@@ -51,6 +49,8 @@ from frng.stages._heldout import (
     selected_objects,
     summary,
 )
+from frng.plan import config as frng_config
+from frng.plan.variants import GEOMETRIES, RIG_VIEWS
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -92,11 +92,11 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from frng.io import read_json
-    from frng.model.frng import FRNG
+    from frng.model.composed import FRNG
     from frng.plan import catalog
     from frng.plan.layout import Layout, TrainingFolder
     from frng.priors import build_idm
-    from frng.training.frng import load_objects
+    from frng.training.frng_trainer import load_objects
     from frng.typedconfig import typed
 
     if args.threads:

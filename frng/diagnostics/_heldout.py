@@ -96,7 +96,7 @@ def selected_objects(plan, args: argparse.Namespace, models: list[tuple[str, Pat
 
 
 def relit(obj, model, c2w, intr, envs: dict, seed: int, spp: int) -> dict:
-    """One model's renders of one :class:`frng.training.frng.TrainObject` at cameras c2w (Vt, 4, 4), intr (Vt, 4)
+    """One model's renders of one :class:`frng.training.frng_trainer.TrainObject` at cameras c2w (Vt, 4, 4), intr (Vt, 4)
     (rasterized once) under each of ``envs`` (light name -> HDR map), with ``frng relight``'s light-sample seeds:
     {("full", light): (Vt, H, W, 4), and ("base", light): the Lambertian base alone where the decoder has one}."""
     import torch
@@ -121,8 +121,8 @@ def relit(obj, model, c2w, intr, envs: dict, seed: int, spp: int) -> dict:
 def score_object(
     obj, models: dict, target_lights: list[str], view_names: list[str], seed: int, spp: int, protocol: str, background
 ) -> list:
-    """Per-image rows of one :class:`frng.training.frng.TrainObject` (test object) under each of ``models`` (name ->
-    loaded :class:`frng.model.frng.FRNG`): ``model``, ``decoder`` (``full`` / ``base``), ``light``, ``view``
+    """Per-image rows of one :class:`frng.training.frng_trainer.TrainObject` (test object) under each of ``models`` (name ->
+    loaded :class:`frng.model.composed.FRNG`): ``model``, ``decoder`` (``full`` / ``base``), ``light``, ``view``
     (``view_names``: the target views in the order of the object's cameras), psnr/ssim/lpips and
     ``psnr_other_light``."""
     import torch
@@ -160,7 +160,7 @@ def score_object(
 
 def score_inputs(obj, models: dict, results, seed: int, spp: int, protocol: str, background) -> list:
     """Per-image rows of one test object's own V input views (``--at inputs``): each of ``models`` (name -> loaded
-    :class:`frng.model.frng.FRNG`) reconstructs from them, rasterizes them once and shades them under the input light
+    :class:`frng.model.composed.FRNG`) reconstructs from them, rasterizes them once and shades them under the input light
     (``case`` "reconstruction") and every other input light of the object (``case`` "relight"), scored against
     the photographs (the ``decoder`` "base" rows: the Lambertian base alone). Columns as :func:`score_object`'s,
     ``psnr_other_light`` NaN, plus ``case``."""

@@ -49,8 +49,8 @@ from frng import checkpoint, io
 from frng.device import autocast, bf16_ok
 from frng.hashing import data_digest, file_sha256
 from frng.memo import TensorMemo
+from frng.model.composed import FRNG, FRNGConfig, FRNGSection
 from frng.model.depth import DepthHead, at_distances
-from frng.model.frng import FRNG, FRNGConfig, FRNGSection
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
 from frng.plan.layout import Layout
 from frng.plan.sections import FINITE, TypedConfig, key, register, section_dict
@@ -71,7 +71,7 @@ LOSS_NAMES = ["total", "l2", "alpha", "depth", "perceptual", "ind", "ind_cos", "
 @dataclass(frozen=True)
 class ModelSections:
     """The config sections an F-RNG variant's model is built from (:func:`variant_config`,
-    :func:`frng.training.frng.build_model`); a stage picks them out of the typed config (:meth:`of`)."""
+    :func:`frng.training.frng_trainer.build_model`); a stage picks them out of the typed config (:meth:`of`)."""
 
     frng: FRNGSection
     shading: ShadingConfig
@@ -150,14 +150,14 @@ class LossConfig:
     )
     lambda_alpha: float = key(
         0.0,
-        "not in the paper: weight of an alpha squared error per covered pixel (frng.training.frng.alpha_loss)",
+        "not in the paper: weight of an alpha squared error per covered pixel (frng.training.frng_trainer.alpha_loss)",
         type="number",
         minimum=0,
     )
     lambda_depth: float = key(
         0.0,
         "not in the paper: weight of an L1 between the depth head's moved coarse Gaussians' distances along their "
-        "input rays and the input views' G-buffer distances (`frng.training.frng.depth_loss`; the training split's "
+        "input rays and the input views' G-buffer distances (`frng.training.frng_trainer.depth_loss`; the training split's "
         "G-buffers, read only when > 0 and `frng.depth_head` > 0). Without it the rasterizer's gradient moves them "
         "~0.01. Scratch, 2026-12-01, at 1.0 on the 2026-11-30 reproduction's caches: the head learns the backbone's "
         "bias (depth error 0.062-0.079 -> 0.042-0.043 on three procedural test objects) but not the thin book or the "
@@ -206,7 +206,7 @@ class LossConfig:
 class TrainConfig:
     """The config's ``train`` section (each key declared on its field)."""
 
-    CONFIG_DOC = "F-RNG training (frng/training/frng.py, `frng train`)"
+    CONFIG_DOC = "F-RNG training (frng/training/frng_trainer.py, `frng train`)"
 
     steps: int = key(
         300,
@@ -528,7 +528,7 @@ def depth_weight(model: FRNG, loss: LossConfig) -> float:
 
 def depth_loss(rec, views: dict, target: torch.Tensor) -> torch.Tensor:
     """L_depth: mean |distance - target| of the reconstruction's coarse Gaussians (after the depth head's move) from
-    their input cameras, over the kept pixels with a surface in the G-buffer. rec: a :class:`frng.model.frng.
+    their input cameras, over the kept pixels with a surface in the G-buffer. rec: a :class:`frng.model.composed.
     Reconstruction`; views: the cache entry (keep (N,), c2w (V, 4, 4)); target (N,) ray distances (0 = no surface),
     N = V*H*W. Not in the paper: the depth head's only other signal is the rasterizer's gradient on the means,
     which moved them ~0.01 (the hull's error on a thin slab is ~0.2)."""

@@ -98,13 +98,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         metavar="OBJ",
         nargs="+",
         help="instead: score reconstruct + render-asset on curated test objects against `frng "
-        "relight` (frng.apps.capture.measure); writes {out}/measure.csv and prints the means",
+        "relight` (frng.apps.capture_measure.measure); writes {out}/measure.csv and prints the means",
     )
 
 
 def resolve_config(config: str | None, model: str | None):
     """The config to use: ``--config``, else the one recorded beside the model (``{results}/config.yaml``)."""
-    from frng.apps.capture import CaptureError, results_of_model
+    from frng.apps.capture import CaptureError
+    from frng.apps.reconstruct import results_of_model
     from frng.plan import config as frng_config
     from frng.typedconfig import typed
 
@@ -123,11 +124,11 @@ def resolve_config(config: str | None, model: str | None):
 
 
 def measure_table(config, oids: list[str], out: Path) -> str:
-    """:func:`frng.apps.capture.measure` over ``oids``; per-image rows to ``{out}/measure.csv``; returns the per-setting
+    """:func:`frng.apps.capture_measure.measure` over ``oids``; per-image rows to ``{out}/measure.csv``; returns the per-setting
     means (over objects, lights and views) with the PSNR difference to ``relight`` as Markdown."""
     import pandas as pd
 
-    from frng.apps.capture import measure
+    from frng.apps.capture_measure import measure
 
     rows = []
     for oid in oids:
@@ -147,7 +148,9 @@ def measure_table(config, oids: list[str], out: Path) -> str:
 def run(args: argparse.Namespace) -> int:
     from frng import cli
     from frng.apps.asset import AssetError
-    from frng.apps.capture import CaptureError, export_object, parse_grid, reconstruct
+    from frng.apps.capture import CaptureError, parse_grid
+    from frng.apps.capture_measure import export_object
+    from frng.apps.reconstruct import reconstruct
 
     try:
         config = resolve_config(args.config, args.model)

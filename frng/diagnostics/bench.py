@@ -1,8 +1,8 @@
 """``frng bench <name>``: benchmarks (not timed tests). Each benchmark is a module with ``configure(parser)`` and
 ``run(args)``, registered in :data:`BENCHES` (add yours with one line).
 
-The one stage without a rule: benchmarks are run by hand (``make bench``), never by the workflow. The benchmarks
-are stage modules beside it, ``frng/stages/bench_<name>.py``."""
+Run by hand (``make bench``), never by the workflow. The benchmarks are the modules beside it,
+``frng/diagnostics/bench_<name>.py`` (:mod:`frng.diagnostics`)."""
 
 from __future__ import annotations
 
@@ -11,27 +11,30 @@ import importlib
 
 # name -> (module, one-line help)
 BENCHES: dict[str, tuple[str, str]] = {
-    "render": ("frng.stages.bench_render", "rasterizer fwd/fwd+bwd and deferred-shading cost at 32/64/128 px"),
+    "render": ("frng.diagnostics.bench_render", "rasterizer fwd/fwd+bwd and deferred-shading cost at 32/64/128 px"),
     "relight": (
-        "frng.stages.bench_relight",
+        "frng.diagnostics.bench_relight",
         "F-RNG vs backbone relighting/reconstruction time at each config's model sizes",
     ),
-    "cues": ("frng.stages.bench_cues", "the backbone's multi-view geometry cues (visual-hull sweep) per call and size"),
-    "perceptual": ("frng.stages.bench_perceptual", "training perceptual loss (LPIPS-alex / -vgg) fwd+bwd cost"),
+    "cues": (
+        "frng.diagnostics.bench_cues",
+        "the backbone's multi-view geometry cues (visual-hull sweep) per call and size",
+    ),
+    "perceptual": ("frng.diagnostics.bench_perceptual", "training perceptual loss (LPIPS-alex / -vgg) fwd+bwd cost"),
     "heldout": (
-        "frng.stages.bench_heldout",
+        "frng.diagnostics.bench_heldout",
         "held-out relighting quality of trained F-RNG models from the cached tokens (experiments; paired CIs)",
     ),
     "backbone": (
-        "frng.stages.bench_backbone",
+        "frng.diagnostics.bench_backbone",
         "held-out relighting quality and light sensitivity of trained backbones under inference settings (paired CIs)",
     ),
     "train": (
-        "frng.stages.bench_train",
+        "frng.diagnostics.bench_train",
         "seconds per training step of the backbone and F-RNG, per thread count, bf16 off/on",
     ),
     "targets-noise": (
-        "frng.stages.bench_targets_noise",
+        "frng.diagnostics.bench_targets_noise",
         "the curated images' noise floor against a high-spp render; denoising, spp and clamps (aligned metrics)",
     ),
 }

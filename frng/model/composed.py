@@ -18,7 +18,7 @@ Token layout and Gaussian order follow the contract in :mod:`frng.model` (coarse
 Gaussians in (view, row, col) order, fine ones in (view, fine token, y*p + x) order). Background Gaussians are
 dropped: coarse ones with the cache's ``keep`` (input alpha >= 0.5), fine ones with :func:`fine_keep_mask`.
 
-Variants (:func:`frng.training.frng.variant_config`, from the one table :data:`frng.plan.variants.VARIANTS`): ``full``; ``no-fine`` (no FineGeometry, coarse tokens only); ``no-idm``
+Variants (:func:`frng.training.frng_trainer.variant_config`, from the one table :data:`frng.plan.variants.VARIANTS`): ``full``; ``no-fine`` (no FineGeometry, coarse tokens only); ``no-idm``
 (``prior_dim = 0``: no tokenizer, no prior parameters anywhere; ``reconstruct`` refuses priors); ``no-ind``
 (lambda_c = lambda_KLD = 0, training only); ``no-neural`` (MaterialFormer head ``pbr`` -> Cook-Torrance per
 Gaussian, rendered with the GGX shader through the same deferred pipeline); ``k{P}`` (top-K = P% of the patches).
@@ -81,9 +81,9 @@ SAVED_DEFAULTS = {
 @register("frng")
 @dataclass(frozen=True)
 class FRNGSection:
-    """The config's ``frng`` section: the variants to train and the architecture (each key declared on its field). :func:`frng.training.frng.variant_config` turns it into a variant's :class:`FRNGConfig`."""
+    """The config's ``frng`` section: the variants to train and the architecture (each key declared on its field). :func:`frng.training.frng_trainer.variant_config` turns it into a variant's :class:`FRNGConfig`."""
 
-    CONFIG_DOC = "the F-RNG model and its variants (frng/model/frng.py)"
+    CONFIG_DOC = "the F-RNG model and its variants (frng/model/composed.py)"
 
     variants: tuple[str, ...] = key(
         ["full", "no-fine", "no-idm", "no-ind", "no-neural", "plus"],
@@ -197,7 +197,7 @@ class FRNGSection:
         True,
         "the pixel head's start (an untrained F-RNG re-renders its inputs as a Lambertian surface) also splits each "
         "pixel's colour by the IDM's metallic m and roughness r: diffuse c / E(n) (1 - m), the specular base's colour "
-        "m pi c / E(n), its roughness r where m = 1 (`frng/model/frng.py` PixelHead; the neural head with IDM priors "
+        "m pi c / E(n), its roughness r where m = 1 (`frng/model/composed.py` PixelHead; the neural head with IDM priors "
         "and `shading.decoder_specular` only; no-idm and no-neural start as before). Needs `idm.train.metallic_loss: "
         "bce` (with `l1` the IDM's metallic is ~0 everywhere and this changes nothing). Scratch, both on, two seeds, "
         "vs bce alone: overall +0.00 / +0.04 dB (noise), studio sensitivity 1.43 -> 1.55 / 1.56, the mirror-metal "
@@ -210,7 +210,7 @@ class FRNGSection:
         0.0,
         "an addition (departs from Sec. 4.2.1's one-layer MatDetokenizer): each Gaussian's latent feature also gets "
         "its input pixel's world normal (the IDM's; the geometry's without priors) times a fixed random 3 x C matrix "
-        "of this scale (N(0, 1) from its own seed, saved with the model, not trained; `frng/model/frng.py` "
+        "of this scale (N(0, 1) from its own seed, saved with the model, not trained; `frng/model/composed.py` "
         "`FRNG._normal_start`). The paper form's features start the same on every side of an object, and its decoder "
         "learned a light-independent colour; with this start they differ with the orientation from the first step. "
         "Off by default (acts on `plus` and configs that train it); measured over the paper form in "
@@ -278,7 +278,7 @@ def kept_pixel_rows(m: torch.Tensor, keep_c: torch.Tensor, fine, keep_f) -> torc
 @dataclass
 class FRNGConfig:
     """Architecture of one F-RNG variant (everything needed to rebuild it from ``model.pt``). Not a config section:
-    :func:`frng.training.frng.variant_config` sets every field from the config (and the frozen backbone), so none has a default."""
+    :func:`frng.training.frng_trainer.variant_config` sets every field from the config (and the frozen backbone), so none has a default."""
 
     patch: int
     geo_dim: int  # the backbone's token width (T_geo and T_app)

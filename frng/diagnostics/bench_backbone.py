@@ -18,7 +18,7 @@ A model is ``NAME=PATH`` with optional inference settings after commas (``--mode
 guidance=2,normals=gbuffer,head=zero``): the denoiser's guidance scale, where the light cue reads its normals, and
 whether the per-pixel head's learned output is kept (:mod:`frng.priors.backbone_settings`).
 
-The report is ``frng bench heldout``'s (:func:`frng.stages._heldout.summary`): per model PSNR / SSIM / LPIPS, the
+The report is ``frng bench heldout``'s (:func:`frng.diagnostics._heldout.summary`): per model PSNR / SSIM / LPIPS, the
 light sensitivity, PSNR per material class, target-view elevation and target light, and every model after the first
 against the first with paired 95% bootstrap intervals over objects. ``--out`` writes the per-image rows (CSV)."""
 
@@ -31,8 +31,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from frng.diagnostics._heldout import SCORES, add_bench_arguments, named_path, selected_objects, summary
 from frng.plan import config as frng_config
-from frng.stages._heldout import SCORES, add_bench_arguments, named_path, selected_objects, summary
 
 if TYPE_CHECKING:  # torch is imported when a benchmark runs, not by `frng bench --help`
     from frng.priors.backbone_settings import BackboneSettings
