@@ -846,7 +846,10 @@ def write_tables(
             "Verdict on the sign the paper claims: held / not held (the interval on the other side of 0) / not "
             "resolved (it contains 0) / not measured. F-RNG = the paper's form; every method is told no input "
             "light. Each claim under the tier's protocol, the PSNR claims again under the other (column protocol: "
-            f"aligned = per-channel scale, foreground; plain = no scale, whole image). Tier {tier}."
+            "aligned = per-channel scale, foreground; plain = no scale, whole image). Where a claim is not held, "
+            "why is measured, not tuned away: docs/studies/2026-12-05-why-the-paper-form-does-not-relight.md "
+            "(at the default tier the paper's form learns no light dependence, so its ablation rows compare models "
+            f"that do not relight). Tier {tier}."
         ),
     )
     t = timing_table(timings)

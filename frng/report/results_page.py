@@ -57,6 +57,7 @@ HEADLINE_COLUMNS = (
 
 TABLE_TITLES: dict[str, str] = {
     "vs_backbone": "F-RNG vs the backbone",
+    "claims": "The paper's claims beside this tier's (held / not held / not resolved)",
     "ablation": "Ablations",
     "additions": "The project's additions (F-RNG+) and what each is worth",
     "views": "Input views",
