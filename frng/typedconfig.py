@@ -19,7 +19,7 @@ from frng.metrics import EvalConfig
 from frng.model.composed import FRNGSection
 from frng.model.saliency import SaliencyConfig
 from frng.nn import ModelConfig
-from frng.plan.catalog import (
+from frng.plan.dataset_config import (
     EnvmapsConfig,
     LiberoConfig,
     NoiseFloorConfig,

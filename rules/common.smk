@@ -14,6 +14,7 @@ from frng.plan import batches as frng_batches
 from frng.plan import config as frng_config
 from frng.plan import digests as frng_digests
 from frng.plan import catalog as frng_catalog
+from frng.plan import dataset_config as frng_dataset_config
 from frng.plan.layout import Layout
 from frng.plan.variants import all_variants
 
@@ -160,7 +161,7 @@ def stage_params(rule, *, py=True):
 # Shared state of the rule files (defined here so that include order does not matter).
 try:
     CATALOG = frng_catalog.plan(config)  # the dataset plan: env maps, objects, splits, lights (no bpy, fast)
-except frng_catalog.CatalogError as e:
+except frng_dataset_config.CatalogError as e:
     raise WorkflowError(f"invalid dataset plan: {e}")
 TRAIN_IDS = CATALOG.split("train")
 TEST_IDS = CATALOG.split("test")

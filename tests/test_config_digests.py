@@ -283,7 +283,7 @@ def test_a_light_edit_reruns_the_curation_of_the_objects_it_changes(folder):
 
 
 def test_curate_records_are_written_and_replaced(tmp_path):
-    from frng.plan import catalog
+    from frng.plan import catalog, dataset_config
     from frng.plan.layout import Layout
 
     cfg = frng_config.validate(yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text()))
@@ -299,7 +299,7 @@ def test_curate_records_are_written_and_replaced(tmp_path):
     second = Path(L.curate_record(spec.id, catalog.curate_digest(edited, edited.object(spec.id))))
     catalog.write_curate_record(edited, edited.object(spec.id), second)
     assert second != first and second.exists() and not first.exists()
-    with pytest.raises(catalog.CatalogError, match="not the curation record"):
+    with pytest.raises(dataset_config.CatalogError, match="not the curation record"):
         catalog.write_curate_record(plan, spec, second)
 
 
