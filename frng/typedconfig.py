@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from frng.baselines.fit_settings import FitSettings
 from frng.baselines.plan import BaselinesConfig
 from frng.metrics import EvalConfig
-from frng.model.composed import FRNGSection
+from frng.model.composed_config import FRNGSection
 from frng.model.saliency import SaliencyConfig
 from frng.nn import ModelConfig
 from frng.plan.dataset_config import (

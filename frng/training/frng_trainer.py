@@ -49,7 +49,8 @@ from frng import checkpoint, io
 from frng.device import autocast, bf16_ok
 from frng.hashing import data_digest, file_sha256
 from frng.memo import TensorMemo
-from frng.model.composed import FRNG, FRNGConfig, FRNGSection
+from frng.model.composed import FRNG
+from frng.model.composed_config import FRNGConfig, FRNGSection
 from frng.model.depth import DepthHead, at_distances
 from frng.model.light_independence import LightIndependenceConfig, light_independence_loss
 from frng.plan.layout import Layout
