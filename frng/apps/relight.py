@@ -77,7 +77,7 @@ from frng.plan.variants import (  # noqa: F401
     model_variants,
     runs,
 )
-from frng.priors.backbone import BackboneSection
+from frng.priors.backbone_config import BackboneSection
 from frng.priors.idm import IDMSection
 from frng.render import envmap
 from frng.render.shading import ShadingConfig

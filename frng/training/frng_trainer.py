@@ -56,7 +56,7 @@ from frng.model.light_independence import LightIndependenceConfig, light_indepen
 from frng.plan.layout import Layout
 from frng.plan.sections import FINITE, TypedConfig, key, register, section_dict
 from frng.plan.variants import GEOMETRIES, canonical_for, paper_form, variant
-from frng.priors.backbone import BackboneConfig, BackboneSection
+from frng.priors.backbone_config import BackboneConfig, BackboneSection
 from frng.render import envmap
 from frng.render.raster import RasterConfig
 from frng.render.shading import ShadingConfig
