@@ -33,7 +33,7 @@ from frng.plan.sections import REQUIRED, key, register, section, section_dict
 from frng.render.raster import RasterConfig
 from frng.render.shading import ShadingConfig
 from frng.training.backbone import BackboneTrainConfig, BackboneTrainingSection
-from frng.training.frng_trainer import LossConfig, TrainConfig
+from frng.training.frng_trainer_config import LossConfig, TrainConfig
 from frng.training.idm import IDMTrainConfig, IDMTrainingSection
 
 
