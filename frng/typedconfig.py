@@ -16,10 +16,10 @@ from dataclasses import dataclass
 from frng.baselines.fit_settings import FitSettings
 from frng.baselines.plan import BaselinesConfig
 from frng.metrics import EvalConfig
-from frng.model.composed import FRNGSection
+from frng.model.composed_config import FRNGSection
 from frng.model.saliency import SaliencyConfig
 from frng.nn import ModelConfig
-from frng.plan.catalog import (
+from frng.plan.dataset_config import (
     EnvmapsConfig,
     LiberoConfig,
     NoiseFloorConfig,
@@ -33,7 +33,7 @@ from frng.plan.sections import REQUIRED, key, register, section, section_dict
 from frng.render.raster import RasterConfig
 from frng.render.shading import ShadingConfig
 from frng.training.backbone import BackboneTrainConfig, BackboneTrainingSection
-from frng.training.frng_trainer import LossConfig, TrainConfig
+from frng.training.frng_trainer_config import LossConfig, TrainConfig
 from frng.training.idm import IDMTrainConfig, IDMTrainingSection
 
 

@@ -28,7 +28,7 @@ rule curate_baselines:
     threads: _RENDER["threads"]
     resources:
         mem_mb=2500,
-        runtime=lambda wildcards: frng_catalog.curate_minutes(config, CATALOG.object(wildcards.obj)),
+        runtime=lambda wildcards: frng_curate_jobs.curate_minutes(config, CATALOG.object(wildcards.obj)),
     params:
         **stage_params("curate_baselines"),
         envmaps=lambda wildcards, input: os.path.dirname(input.index),

@@ -14,6 +14,8 @@ from frng.plan import batches as frng_batches
 from frng.plan import config as frng_config
 from frng.plan import digests as frng_digests
 from frng.plan import catalog as frng_catalog
+from frng.plan import curate_jobs as frng_curate_jobs
+from frng.plan import dataset_config as frng_dataset_config
 from frng.plan.layout import Layout
 from frng.plan.variants import all_variants
 
@@ -160,7 +162,7 @@ def stage_params(rule, *, py=True):
 # Shared state of the rule files (defined here so that include order does not matter).
 try:
     CATALOG = frng_catalog.plan(config)  # the dataset plan: env maps, objects, splits, lights (no bpy, fast)
-except frng_catalog.CatalogError as e:
+except frng_dataset_config.CatalogError as e:
     raise WorkflowError(f"invalid dataset plan: {e}")
 TRAIN_IDS = CATALOG.split("train")
 TEST_IDS = CATALOG.split("test")
@@ -187,13 +189,13 @@ def curation_inputs(rule_name, output):
     """Input function of rules curate and curate_baselines (`output`: the job's meta.json). The env-map index orders
     the job after `frng envmaps`; where the job is otherwise up to date it is ancient, so its rewrite (whenever any
     object's maps change, e.g. an object added) reruns nothing: what the object's own maps are is its record file
-    (rule curate_record) and the rule's digest (envmaps.width, envmaps.normalize), frng.plan.catalog.curate_inputs.
+    (rule curate_record) and the rule's digest (envmaps.width, envmaps.normalize), frng.plan.curate_jobs.curate_inputs.
     Ancient only then: Snakemake 9.27 never plans a job that hangs below a rerunning job by ancient files alone,
     whatever its own reason (a missing output, a newer input)."""
 
     def inputs(wildcards):
         spec = CATALOG.object(wildcards.obj)
-        got = frng_catalog.curate_inputs(config, spec)
+        got = frng_curate_jobs.curate_inputs(config, spec)
         own = [f for k, v in got.items() if k != "index" for f in ([v] if isinstance(v, str) else v)]
         own.append(L.rule_digest(rule_name, frng_digests.rule_digest(config, rule_name)))
         if rule_name == "curate_baselines":
@@ -206,8 +208,8 @@ def curation_inputs(rule_name, output):
 
 
 def write_curate_record(obj, path, log):
-    """Rule curate_record's job: the object's record file (frng.plan.catalog.write_curate_record) and its log line."""
-    frng_catalog.write_curate_record(CATALOG, CATALOG.object(obj), path)
+    """Rule curate_record's job: the object's record file (frng.plan.curate_jobs.write_curate_record) and its log line."""
+    frng_curate_jobs.write_curate_record(CATALOG, CATALOG.object(obj), path)
     Path(log).write_text(f"recorded {path}\n")
 
 

@@ -33,7 +33,7 @@ rule curate:
     threads: _RENDER["threads"]
     resources:
         mem_mb=2500,
-        runtime=lambda wildcards: frng_catalog.curate_minutes(config, CATALOG.object(wildcards.obj)),
+        runtime=lambda wildcards: frng_curate_jobs.curate_minutes(config, CATALOG.object(wildcards.obj)),
     params:
         **stage_params("curate"),
         spec=lambda wildcards: json.dumps(CATALOG.object(wildcards.obj).to_dict(), sort_keys=True),
@@ -99,6 +99,6 @@ rule noise_floor:
 add_targets(
     *expand(L.object_meta(), obj=OBJECT_IDS),
     *expand(L.preview(), obj=OBJECT_IDS),
-    *(L.curate_record(o.id, frng_catalog.curate_digest(CATALOG, o)) for o in CATALOG.objects),
+    *(L.curate_record(o.id, frng_curate_jobs.curate_digest(CATALOG, o)) for o in CATALOG.objects),
     *NOISE_FLOOR,
 )

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from frng.plan import catalog
+from frng.plan import catalog, object_files
 
 
 def _usable(path) -> bool:
@@ -15,11 +15,11 @@ def _usable(path) -> bool:
 
 
 def test_broken_random_urdfs_list_matches_a_scan():
-    root = catalog.pybullet_data_dir() / "random_urdfs"
-    broken = {i for i in range(catalog.PYBULLET_RANDOM) if not _usable(root / f"{i:03d}" / f"{i:03d}.obj")}
-    assert broken == set(catalog.PYBULLET_BROKEN)
+    root = object_files.pybullet_data_dir() / "random_urdfs"
+    broken = {i for i in range(object_files.PYBULLET_RANDOM) if not _usable(root / f"{i:03d}" / f"{i:03d}.obj")}
+    assert broken == set(object_files.PYBULLET_BROKEN)
 
 
 def test_pool_excludes_broken_meshes():
     paths = [entry[0] for entry in catalog._pybullet_pool(0)]
-    assert not any(f"random_urdfs/{i:03d}/" in p for p in paths for i in catalog.PYBULLET_BROKEN)
+    assert not any(f"random_urdfs/{i:03d}/" in p for p in paths for i in object_files.PYBULLET_BROKEN)

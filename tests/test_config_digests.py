@@ -271,36 +271,38 @@ def test_an_added_object_reruns_its_own_curation_only(folder, tmp_path):
 
 def test_a_light_edit_reruns_the_curation_of_the_objects_it_changes(folder):
     """envmaps.skies.sun_share changes the sky maps only: the objects with a sky draw rerun, the others stay."""
-    from frng.plan import catalog
+    from frng.plan import curate_jobs
 
     edited = set_key(folder.config, "envmaps.skies.sun_share", 0.5)
     before, after = _plans(folder, edited)
-    changed = [o.id for o in before.objects if catalog.curate_digest(before, o) != catalog.curate_digest(after, o)]
-    skies = [o.id for o in before.objects if any(e.source == "sky" for e in catalog.object_envmaps(before, o))]
+    changed = [
+        o.id for o in before.objects if curate_jobs.curate_digest(before, o) != curate_jobs.curate_digest(after, o)
+    ]
+    skies = [o.id for o in before.objects if any(e.source == "sky" for e in curate_jobs.object_envmaps(before, o))]
     assert changed == skies and 0 < len(changed) < len(before.objects), (changed, skies)
     jobs = folder.jobs(edited, "sun_share.yaml")
     assert jobs["envmaps"] == 1 and jobs["curate"] == len(changed), jobs
 
 
 def test_curate_records_are_written_and_replaced(tmp_path):
-    from frng.plan import catalog
+    from frng.plan import catalog, curate_jobs, dataset_config
     from frng.plan.layout import Layout
 
     cfg = frng_config.validate(yaml.safe_load((ROOT / "config" / "smoke.yaml").read_text()))
     L, plan = Layout(tmp_path), catalog.plan(cfg)
     spec = plan.objects[0]
-    first = Path(L.curate_record(spec.id, catalog.curate_digest(plan, spec)))
-    catalog.write_curate_record(plan, spec, first)
+    first = Path(L.curate_record(spec.id, curate_jobs.curate_digest(plan, spec)))
+    curate_jobs.write_curate_record(plan, spec, first)
     record = yaml.safe_load(first.read_text())
     assert record["object"]["id"] == spec.id and [r["name"] for r in record["lights"]] == list(
         dict.fromkeys(spec.input_lights + spec.target_lights)
     )
     edited = catalog.plan(set_key(cfg, "seed", 1))
-    second = Path(L.curate_record(spec.id, catalog.curate_digest(edited, edited.object(spec.id))))
-    catalog.write_curate_record(edited, edited.object(spec.id), second)
+    second = Path(L.curate_record(spec.id, curate_jobs.curate_digest(edited, edited.object(spec.id))))
+    curate_jobs.write_curate_record(edited, edited.object(spec.id), second)
     assert second != first and second.exists() and not first.exists()
-    with pytest.raises(catalog.CatalogError, match="not the curation record"):
-        catalog.write_curate_record(plan, spec, second)
+    with pytest.raises(dataset_config.CatalogError, match="not the curation record"):
+        curate_jobs.write_curate_record(plan, spec, second)
 
 
 # -- the digests travel with the results folder (issue 24, item 2) -----------------------------------------------

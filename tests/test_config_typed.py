@@ -41,8 +41,8 @@ def _has_default(f: dataclasses.Field) -> bool:
 def _records():
     """Architecture records of model files built with ``section``: (class, schema section or None, fields that are
     no keys of that section)."""
-    from frng.model.composed import FRNGConfig
-    from frng.priors.backbone import BackboneConfig
+    from frng.model.composed_config import FRNGConfig
+    from frng.priors.backbone_config import BackboneConfig
     from frng.priors.idm import IDMConfig
 
     return [
@@ -99,8 +99,8 @@ def test_unknown_nested_key_and_model_records():
     bad = fc.merge(d, {"train": {"loss": {"lambda_x": 1.0}}})
     with pytest.raises(ConfigError, match=r"^train[.]loss[.]lambda_x: unknown key"):
         typed(bad)
-    from frng.model.composed import FRNGConfig
-    from frng.priors.backbone import BackboneConfig
+    from frng.model.composed_config import FRNGConfig
+    from frng.priors.backbone_config import BackboneConfig
     from frng.training.frng_trainer import ModelSections, variant_config
 
     cfg, _ = variant_config(ModelSections.of(typed(d)), "full")

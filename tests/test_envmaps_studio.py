@@ -9,7 +9,7 @@ from data_helpers import frng, write_config
 
 from frng import io
 from frng.data import envmaps
-from frng.plan import catalog
+from frng.plan import catalog, dataset_config
 from frng.plan import config as frng_config
 from frng.plan.sections import schema_defaults
 from frng.render import envmap
@@ -41,7 +41,7 @@ def test_studio_plan_is_seeded_and_off_by_default():
     assert {e.base for e in studios} <= {"procstudio_0", "procstudio_1", "procstudio_2"}
     assert [e.to_dict() for e in a] == [e.to_dict() for e in b]
     assert [e.studio for e in studios] != [e.studio for e in catalog.envmap_plan(_cfg(seed=1)) if e.source == "studio"]
-    d = catalog.StudioConfig(
+    d = dataset_config.StudioConfig(
         **{k: tuple(v) if isinstance(v, list) else v for k, v in schema_defaults("envmaps.studio").items()}
     )
     for e in studios:

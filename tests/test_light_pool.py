@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from frng.data import envmaps
-from frng.plan import catalog
+from frng.plan import catalog, dataset_config
 from frng.plan import config as frng_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -126,7 +126,7 @@ def test_targets_spread_over_the_families():
 
 
 def test_a_split_without_hard_lights_is_a_plan_error():
-    with pytest.raises(catalog.CatalogError, match="envmaps.hard_input_fraction"):
+    with pytest.raises(dataset_config.CatalogError, match="envmaps.hard_input_fraction"):
         catalog.plan(_cfg(studio={"count": 0}))
     assert catalog.plan(_cfg(studio={"count": 0}, hard_input_fraction=0.0)).objects  # 0: no constraint
 

@@ -12,7 +12,7 @@ from asset_writers import halves, srgb_to_linear, write_glb, write_obj, write_pl
 from data_helpers import frng, write_config
 
 from frng.data.dataset import open_object
-from frng.plan import catalog
+from frng.plan import catalog, object_files
 from frng.plan import config as frng_config
 
 RED, BLUE = (230, 40, 30), (30, 60, 220)  # sRGB bytes of the texture halves (u < 0.5: RED)
@@ -64,13 +64,13 @@ def _assets(root):
 def test_file_material_detection(tmp_path):
     _assets(tmp_path)
     write_obj(tmp_path / "plain", "bare", None)
-    assert catalog.file_material(tmp_path / "objmtl" / "crate.obj") == "mtl"
-    assert catalog.file_material(tmp_path / "pbr.glb") == "gltf"
-    assert catalog.file_material(tmp_path / "painted.ply") == "ply"
-    assert catalog.file_material(tmp_path / "plain" / "bare.obj") is None
-    assert catalog.own_material_class(0.2, 0.0) == "specular"
-    assert catalog.own_material_class(0.9, 0.9) == "specular"
-    assert catalog.own_material_class(0.7, 0.1) == "diffuse"
+    assert object_files.file_material(tmp_path / "objmtl" / "crate.obj") == "mtl"
+    assert object_files.file_material(tmp_path / "pbr.glb") == "gltf"
+    assert object_files.file_material(tmp_path / "painted.ply") == "ply"
+    assert object_files.file_material(tmp_path / "plain" / "bare.obj") is None
+    assert object_files.own_material_class(0.2, 0.0) == "specular"
+    assert object_files.own_material_class(0.9, 0.9) == "specular"
+    assert object_files.own_material_class(0.7, 0.1) == "diffuse"
 
 
 def _albedo_halves(obj):
@@ -167,7 +167,7 @@ def test_own_materials_are_curated_with_their_aovs(tmp_path):
     slot = obj.meta["material"]["slots"][0]
     assert slot["base_color"]["textures"] and slot["roughness"]["textures"] and slot["normal"]["textures"]
     # the class follows the documented rule on the AOV means
-    assert obj.meta["material_class"] == catalog.own_material_class(float(rough.mean()), float(metal.mean()))
+    assert obj.meta["material_class"] == object_files.own_material_class(float(rough.mean()), float(metal.mean()))
 
     # glass: reported per object in meta.json and in the rule's log, not guessed silently
     obj = open_object(results, "user_glass")
@@ -212,7 +212,7 @@ def test_builtin_meshes_keep_their_materials_when_asked(tmp_path):
     fg = g["alpha"][..., 0] > 0.99
     tex = srgb_to_linear(
         np.asarray(
-            __import__("PIL.Image").Image.open(catalog.pybullet_data_dir() / "duckCM.png").convert("RGB")
+            __import__("PIL.Image").Image.open(object_files.pybullet_data_dir() / "duckCM.png").convert("RGB")
         ).reshape(-1, 3)
     )
     # the duck is yellow with an orange beak: every albedo pixel lies inside the texture's colour range

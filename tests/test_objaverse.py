@@ -17,7 +17,7 @@ from conftest import ROOT, venv_bin
 from data_helpers import frng, write_config
 
 from frng.data.dataset import open_object
-from frng.plan import catalog
+from frng.plan import catalog, dataset_config
 from frng.plan import config as frng_config
 
 UIDS = ["0123456789abcdef0123456789abcdef", "fedcba9876543210fedcba9876543210", "00000000000000000000000000000abc"]
@@ -90,7 +90,7 @@ def test_cache_is_read_and_missing_uids_are_named(tmp_path, monkeypatch):
     stub.load_objects = lambda uids, **kw: pytest.fail("nothing may be fetched when the files are there")
     monkeypatch.setitem(sys.modules, "objaverse", stub)
     assert catalog.objaverse_file(cfg, UIDS[0]) == path
-    with pytest.raises(catalog.CatalogError) as e:
+    with pytest.raises(dataset_config.CatalogError) as e:
         catalog.objaverse_file(cfg, UIDS[1])
     msg = str(e.value)
     assert "\n" not in msg and UIDS[1] in msg and UIDS[0] not in msg and str(cache) in msg
@@ -132,11 +132,11 @@ def test_annotation_filter_and_count(tmp_path, monkeypatch):
     assert sorted(o.mesh for o in catalog.plan(cfg).objects if o.source == "objaverse") == sorted([UIDS[0], UIDS[2]])
     ov = catalog.config_section(cfg, "objects").objaverse
     assert len(list((cache / "frng-selections").glob("*.json"))) == 1  # the draw is remembered ...
-    monkeypatch.setattr(catalog, "_objaverse_annotations", lambda *a: pytest.fail("annotations re-read"))
+    monkeypatch.setattr(catalog, "objaverse_annotations", lambda *a: pytest.fail("annotations re-read"))
     assert sorted(catalog.objaverse_select(ov, 0)) == sorted([UIDS[0], UIDS[2]])  # ... and re-used
     monkeypatch.undo()
     cfg = _cfg(cache, filter={"licenses": ["cc0"]}, count=2)
-    with pytest.raises(catalog.CatalogError, match="objaverse.count"):
+    with pytest.raises(dataset_config.CatalogError, match="objaverse.count"):
         catalog.plan(cfg)
 
 

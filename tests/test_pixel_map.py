@@ -1,10 +1,10 @@
-"""F-RNG's per-pixel inputs (frng.model.composed.pixel_map): the albedo estimate c / E(n) behind the Lambertian start."""
+"""F-RNG's per-pixel inputs (frng.model.pixel_head.pixel_map): the albedo estimate c / E(n) behind the Lambertian start."""
 
 import math
 
 import torch
 
-from frng.model.composed import PIXEL_RATIO, RATIO_TRUST, pixel_map
+from frng.model.pixel_head import PIXEL_RATIO, RATIO_TRUST, pixel_map
 from frng.priors.intrinsics import IntrinsicPriors
 from frng.render import envmap
 
@@ -56,7 +56,13 @@ def test_specular_start_splits_a_metals_colour_into_the_specular_base():
     non-metal (metallic 0) starts exactly as without it; a head without the IDM's channels refuses it."""
     import pytest
 
-    from frng.model.composed import PIXEL_IDM_METALLIC, PIXEL_IDM_NORMAL, PIXEL_IDM_ROUGHNESS, PixelHead, pixel_channels
+    from frng.model.pixel_head import (
+        PIXEL_IDM_METALLIC,
+        PIXEL_IDM_NORMAL,
+        PIXEL_IDM_ROUGHNESS,
+        PixelHead,
+        pixel_channels,
+    )
 
     C, P = 16, pixel_channels(True)
     g = torch.randn(2, C)

@@ -148,13 +148,14 @@ def test_backbone_overfits_one_object(smoke):
     import random
 
     from frng.priors import backbone as bb
+    from frng.priors.backbone_config import backbone_config
     from frng.priors.dataset import load_split
     from frng.training import backbone as bt
 
     _, config = smoke
     obj = load_split(config["results"], plan(config).split("train"))[0]
     torch.manual_seed(0)
-    model = bb.RelitLRMBackbone(bb.backbone_config(typed(config).backbone, config["model"]["patch_size"]))
+    model = bb.RelitLRMBackbone(backbone_config(typed(config).backbone, config["model"]["patch_size"]))
     tcfg = bt.BackboneTrainConfig.from_dict({**config["backbone"]["train"], "bf16": False})
     opt = torch.optim.Adam(model.parameters(), lr=3e-3)
     l2 = []
@@ -175,13 +176,14 @@ def test_backbone_opacity_term_keeps_pixels_gaussians_as_opaque_as_their_pixels(
     import random
 
     from frng.priors import backbone as bb
+    from frng.priors.backbone_config import backbone_config
     from frng.priors.dataset import load_split
     from frng.training import backbone as bt
 
     _, config = smoke
     obj = load_split(config["results"], plan(config).split("train"))[0]
     torch.manual_seed(0)
-    model = bb.RelitLRMBackbone(bb.backbone_config(typed(config).backbone, config["model"]["patch_size"]))
+    model = bb.RelitLRMBackbone(backbone_config(typed(config).backbone, config["model"]["patch_size"]))
     base = {**config["backbone"]["train"], "bf16": False, "lambda_per": 0.0}
 
     def losses(lam):
@@ -204,13 +206,14 @@ def test_backbone_cue_noise_perturbs_what_the_geometry_transformer_reads(smoke, 
     import random
 
     from frng.priors import backbone as bb
+    from frng.priors.backbone_config import backbone_config
     from frng.priors.dataset import load_split
     from frng.training import backbone as bt
 
     _, config = smoke
     obj = load_split(config["results"], plan(config).split("train"))[0]
     torch.manual_seed(0)
-    model = bb.RelitLRMBackbone(bb.backbone_config(typed(config).backbone, config["model"]["patch_size"]))
+    model = bb.RelitLRMBackbone(backbone_config(typed(config).backbone, config["model"]["patch_size"]))
     seen = []
     encode = model.encode_geometry
     monkeypatch.setattr(model, "encode_geometry", lambda *a: seen.append(a[4]) or encode(*a))

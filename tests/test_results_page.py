@@ -24,7 +24,8 @@ from frng import io
 from frng.plan import config as frng_config
 from frng.plan import variants as V
 from frng.report import results_page as RP
-from frng.report.paper_tables import LADDER_STEPS, write_tables
+from frng.report.ladder import LADDER_STEPS
+from frng.report.paper_tables import write_tables
 
 ROOT = Path(__file__).resolve().parents[1]
 OBJECTS = (("o_diffuse", "diffuse"), ("o_specular", "specular"), ("o_fur", "fur"))

@@ -55,7 +55,7 @@ NO_STAGE = {
     "config_digest": "Snakemake bookkeeping: a `run:` block recording a rule's config digest in the results folder "
     "(frng.plan.digests.write_rule_digest)",
     "curate_record": "Snakemake bookkeeping: a `run:` block recording an object's plan entry and maps' records in "
-    "the results folder (frng.plan.catalog.write_curate_record)",
+    "the results folder (frng.plan.curate_jobs.write_curate_record)",
 }
 # the commands a user runs that no rule runs (frng.commands), and where they are exercised
 COMMANDS = {

@@ -314,7 +314,7 @@ def test_vs_backbone_per_object_source(tmp_path):
 def test_ladder_per_material_class(tmp_path):
     """The ladder per material class: each class's objects only (the prior rows follow their object's class), the
     geometry columns kept, the paired differences within the class; write_tables writes it beside the others."""
-    from frng.report import paper_tables as P
+    from frng.report.ladder import ladder_by_class
 
     rows = []
     for run, variant, shift in (("backbone", "backbone", 0.0), ("full", "full", 1.0)):
@@ -332,7 +332,7 @@ def test_ladder_per_material_class(tmp_path):
             for r in _per_image("x", "x", 3.0)
         ]
     )
-    lad = P.ladder_by_class(df, prior)
+    lad = ladder_by_class(df, prior)
     assert list(lad.columns[: len(T.TABLE_COLUMNS["ladder_by_class"])]) == list(T.TABLE_COLUMNS["ladder_by_class"])
     assert list(zip(lad["dataset"], lad["step"])) == [(c, s) for c in ("diffuse", "specular") for s in "bde"]
     b = lad[lad["step"] == "b"].set_index("dataset")
@@ -349,9 +349,10 @@ def test_ladder_step_0_is_the_targets_noise_floor(tmp_path):
     other, and step 0, the tier's targets against the reference, with their metrics; the raw reference rows (no
     scores) stay out."""
     from frng.data import noise_floor as N
+    from frng.report import ladder
     from frng.report import paper_tables as P
 
-    assert N.LADDER_METHODS == {N.TIER: P.TARGETS_METHOD, N.HALF: P.REFERENCE_HALF_METHOD}
+    assert N.LADDER_METHODS == {N.TIER: ladder.TARGETS_METHOD, N.HALF: ladder.REFERENCE_HALF_METHOD}
     scored = []
     for o, psnr in (("o0", 36.0), ("o2", 34.0)):
         for setting, value in ((N.REFERENCE, None), (N.HALF, 45.0), (N.TIER, psnr)):
@@ -364,7 +365,7 @@ def test_ladder_step_0_is_the_targets_noise_floor(tmp_path):
     ladder_rows = N.ladder_rows(scored)
     assert [(r["method"], r["task"]) for r in ladder_rows] == [
         ("high-spp-reference-half", "relight"),
-        (P.TARGETS_METHOD, "relight"),
+        (ladder.TARGETS_METHOD, "relight"),
     ] * 2
     noise_csv = tmp_path / "noise_floor.csv"
     pd.DataFrame(ladder_rows).to_csv(noise_csv, index=False)

@@ -595,7 +595,8 @@ def test_normal_start_adds_each_pixels_normal_in_a_fixed_projection_and_saves_it
     has no such buffer and reconstructs exactly as the paper form."""
     import copy
 
-    from frng.model.composed import FRNG, NORMAL_START_SEED
+    from frng.model.composed import FRNG
+    from frng.model.pixel_head import NORMAL_START_SEED
     from frng.training.frng_trainer import build_model
 
     _, config = frng_smoke

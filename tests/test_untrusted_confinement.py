@@ -325,7 +325,8 @@ def test_photo_symlinked_out_of_the_images_folder(tmp_path):
 
 
 def test_objaverse_glb_symlinked_out_of_the_cache(tmp_path):
-    from frng.plan.catalog import CatalogError, _cached_glb
+    from frng.plan.dataset_config import CatalogError
+    from frng.plan.object_files import _cached_glb
 
     sentinel = make_sentinel(tmp_path)
     uid = "0123456789abcdef0123456789abcdef"

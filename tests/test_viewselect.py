@@ -145,6 +145,7 @@ def test_silhouette_cull_drops_floaters_only():
     background's distance) land on another view's background and are not; without the key they are."""
     from frng.gaussians import Gaussians
     from frng.priors import backbone as bb
+    from frng.priors.backbone_config import BackboneConfig
 
     V, H, R = 8, 24, 0.5
     c2w, intr, o, d = _ring(V, H)
@@ -168,8 +169,6 @@ def test_silhouette_cull_drops_floaters_only():
     assert torch.equal(rendered[False], keep)
     assert not (rendered[True] & floaters).any()  # every floater is off some view's silhouette
     assert (rendered[True] == (keep & ~floaters)).float().mean() > 0.999  # and the surface stays
-    assert bb.BackboneConfig.from_saved(
-        {**tiny, **bb.build(tiny).cfg.to_dict(), "silhouette_cull": True}
-    ).silhouette_cull
+    assert BackboneConfig.from_saved({**tiny, **bb.build(tiny).cfg.to_dict(), "silhouette_cull": True}).silhouette_cull
     saved = {k: v for k, v in bb.build(tiny).cfg.to_dict().items() if k != "silhouette_cull"}
-    assert not bb.BackboneConfig.from_saved(saved).silhouette_cull  # models saved before the key: off
+    assert not BackboneConfig.from_saved(saved).silhouette_cull  # models saved before the key: off

@@ -7,7 +7,7 @@ import subprocess
 import pytest
 from conftest import ROOT, venv_bin
 
-from frng.plan import catalog
+from frng.plan import catalog, dataset_config
 from frng.plan import config as frng_config
 from frng.plan import variants as V
 
@@ -93,7 +93,7 @@ def test_plan_splits_lights_and_materials(path):
 
 def test_too_few_test_lights_is_a_plan_error():
     cfg = frng_config.load(ROOT / "config/smoke.yaml", {"render": {"target_lights": 5}})
-    with pytest.raises(catalog.CatalogError, match="target_lights=5"):
+    with pytest.raises(dataset_config.CatalogError, match="target_lights=5"):
         catalog.plan(cfg)
 
 

@@ -77,7 +77,7 @@ from frng.plan.variants import (  # noqa: F401
     model_variants,
     runs,
 )
-from frng.priors.backbone import BackboneSection
+from frng.priors.backbone_config import BackboneSection
 from frng.priors.idm import IDMSection
 from frng.render import envmap
 from frng.render.shading import ShadingConfig
@@ -169,7 +169,7 @@ def check_test_split(plan: Catalog, oid: str, meta: dict, meta_path: Path) -> No
     """Refuse an object of the training split: its split as curated (``meta.json``'s ``split``) and as the config's
     dataset plan ``plan`` (:class:`frng.plan.catalog.Catalog`) has it must both be ``test``. Raises
     :class:`RelightError` naming the object and the file."""
-    from frng.plan import catalog
+    from frng.plan import dataset_config
 
     curated = meta.get("split")
     if isinstance(meta.get("benchmark"), dict):  # imported by `frng import` (frng/benchmarks): no dataset plan
@@ -178,7 +178,7 @@ def check_test_split(plan: Catalog, oid: str, meta: dict, meta_path: Path) -> No
         return
     try:
         planned = plan.object(oid).split
-    except catalog.CatalogError as e:
+    except dataset_config.CatalogError as e:
         raise RelightError(f"{meta_path}: object {oid!r} is not planned by this config ({e})") from e
     for split, source in ((curated, f"{meta_path} (split)"), (planned, "the config's dataset plan")):
         if split is not None and split != "test":

@@ -23,7 +23,7 @@ from frng.baselines.plan import DENSE_KIND, TARGETS_KIND, dense_views
 from frng.data.curate import CurationError, check_envmaps, object_scene, render_view, staged_object
 from frng.data.rig import View
 from frng.data.stopguard import NoGuard, StopGuard
-from frng.plan import catalog
+from frng.plan import catalog, dataset_config
 from frng.plan.layout import EnvmapFolder
 
 META_VERSION = 1
@@ -31,9 +31,9 @@ META_VERSION = 1
 
 def curate_baselines(
     plan: catalog.Catalog,
-    objaverse: catalog.ObjaverseConfig,
-    render: catalog.RenderConfig,
-    envmaps: catalog.EnvmapsConfig,
+    objaverse: dataset_config.ObjaverseConfig,
+    render: dataset_config.RenderConfig,
+    envmaps: dataset_config.EnvmapsConfig,
     oid: str,
     object_meta: Path,
     env_dir: Path,

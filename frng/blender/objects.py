@@ -528,7 +528,7 @@ def load(
         path = mesh_path(spec, pybullet_dir, path)
         try:
             if spec.source == "libero":  # an object folder: its visual OBJs, joined
-                from frng.plan.catalog import libero_meshes
+                from frng.plan.object_files import libero_meshes
 
                 parts = [import_file(f, keep_materials, root=path) for f in libero_meshes(path)]
                 if len(parts) > 1:

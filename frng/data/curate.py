@@ -43,7 +43,7 @@ from frng import io
 from frng.data import rig
 from frng.data.envmaps import read_index
 from frng.data.stopguard import NoGuard, StopGuard
-from frng.plan import catalog
+from frng.plan import catalog, dataset_config, object_files
 from frng.plan.layout import EnvmapFolder, Layout, ObjectFolder
 from frng.render import envmap
 
@@ -158,7 +158,7 @@ def gbuffer_from_passes(passes: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 
 def own_class(spec: catalog.ObjectSpec, folder: ObjectFolder, views) -> tuple[str, str]:
     """(class, how it was chosen) of an own material: the config's ``class``, else
-    :func:`frng.plan.catalog.own_material_class` of the mean roughness / metallic AOVs over the foreground
+    :func:`frng.plan.object_files.own_material_class` of the mean roughness / metallic AOVs over the foreground
     (coverage > 0.5) of the input views' G-buffers."""
     if spec.material_class is not None:
         return spec.material_class, "from the config (objects.extra[].class)"
@@ -169,10 +169,10 @@ def own_class(spec: catalog.ObjectSpec, folder: ObjectFolder, views) -> tuple[st
         rough.append(ch["roughness.Y"][fg])
         metal.append(ch["metallic.Y"][fg])
     r, m = float(np.concatenate(rough).mean()), float(np.concatenate(metal).mean())
-    return catalog.own_material_class(r, m), (
+    return object_files.own_material_class(r, m), (
         f"mean roughness {r:.3f}, metallic {m:.3f}: specular if metallic >= "
-        f"{catalog.OWN_SPECULAR_METALLIC} or roughness < "
-        f"{catalog.OWN_SPECULAR_ROUGHNESS}, else diffuse"
+        f"{object_files.OWN_SPECULAR_METALLIC} or roughness < "
+        f"{object_files.OWN_SPECULAR_ROUGHNESS}, else diffuse"
     )
 
 
@@ -196,7 +196,9 @@ def check_envmaps(spec: catalog.ObjectSpec, env_dir: Path) -> dict[str, dict]:
     return out
 
 
-def object_scene(plan: catalog.Catalog, objaverse: catalog.ObjaverseConfig, render: catalog.RenderConfig, spec, log):
+def object_scene(
+    plan: catalog.Catalog, objaverse: dataset_config.ObjaverseConfig, render: dataset_config.RenderConfig, spec, log
+):
     """Inside Blender: a new scene holding object ``spec`` (:class:`frng.plan.catalog.ObjectSpec`) with its mesh and
     material exactly as every curation of it builds them (the shape and material draws seeded by ``spec.seed``),
     a camera and the G-buffer passes. Returns ``(scene, camera, material record, shape record, licence,
@@ -215,11 +217,11 @@ def object_scene(plan: catalog.Catalog, objaverse: catalog.ObjaverseConfig, rend
     own = spec.material == catalog.OWN
     mat = {"class": catalog.OWN} if own else materials.sample(mat_rng, spec.material, render.fur_strands)
     radius = 1.0 - mat["hair"]["length"] if "hair" in mat else 1.0  # fur stays inside the unit sphere
-    pybullet_dir = catalog.pybullet_data_dir() if spec.source == "pybullet" else None
-    mesh_path = catalog.objaverse_glb(objaverse, spec.mesh, lambda: plan) if spec.source == "objaverse" else None
+    pybullet_dir = object_files.pybullet_data_dir() if spec.source == "pybullet" else None
+    mesh_path = object_files.objaverse_glb(objaverse, spec.mesh, lambda: plan) if spec.source == "objaverse" else None
     licence, provenance = spec.licence, None
     if mesh_path is not None:
-        ann = catalog.objaverse_glb_annotation(objaverse, spec.mesh, mesh_path) or {}
+        ann = object_files.objaverse_glb_annotation(objaverse, spec.mesh, mesh_path) or {}
         provenance = {"uid": spec.mesh, "file": str(mesh_path)} | {
             k: ann[k] for k in ("name", "license", "viewerUrl", "uri") if k in ann
         }
@@ -267,9 +269,9 @@ def render_view(scene, cam, raw: Path, view: rig.View, spec, what: str) -> tuple
 
 def curate(
     plan: catalog.Catalog,
-    objaverse: catalog.ObjaverseConfig,
-    render: catalog.RenderConfig,
-    envmaps: catalog.EnvmapsConfig,
+    objaverse: dataset_config.ObjaverseConfig,
+    render: dataset_config.RenderConfig,
+    envmaps: dataset_config.EnvmapsConfig,
     oid: str,
     env_dir: Path,
     out_root: Path,

@@ -33,7 +33,7 @@ import numpy as np
 
 from frng import io
 from frng.data.stopguard import NoGuard
-from frng.plan import catalog
+from frng.plan import catalog, dataset_config
 from frng.plan.layout import EnvmapFolder
 from frng.render import envmap
 
@@ -178,7 +178,7 @@ def load_base(spec: catalog.EnvMapSpec, work: Path, threads: int) -> np.ndarray:
 
 
 def prepare(
-    env: catalog.EnvmapsConfig,
+    env: dataset_config.EnvmapsConfig,
     specs: list[catalog.EnvMapSpec],
     threads: int,
     out: Path,

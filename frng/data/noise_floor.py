@@ -197,7 +197,7 @@ against the reference (the ladder's step 0), and one reference render against th
 def ladder_rows(rows: list[dict]) -> list[dict]:
     """:func:`score`'s rows of the ``tier`` and ``reference-half`` settings in the layout of the priors' evaluation
     (``metrics/backbone.csv``: task, object, light, view, method, metrics), the rows the quality ladder reads
-    (:data:`frng.report.paper_tables.LADDER_STEPS`, steps 0 and 0r): task ``relight`` (the held-out relighting images'
+    (:data:`frng.report.ladder.LADDER_STEPS`, steps 0 and 0r): task ``relight`` (the held-out relighting images'
     objects, lights and views), method :data:`LADDER_METHODS`."""
     out = []
     for r in rows:

@@ -102,7 +102,7 @@ def target_views(rng: np.random.Generator, count: int, distance: float, fov_deg:
 
 def object_views(rng: np.random.Generator, render) -> tuple[list[View], list[View]]:
     """Input and target views of one object from the ``render`` config section
-    (:class:`frng.plan.catalog.RenderConfig`)."""
+    (:class:`frng.plan.dataset_config.RenderConfig`)."""
     args = (render.camera_distance, render.fov_deg, render.resolution)
     inputs = input_views(rng, render.extra_input_views, *args)
     targets = target_views(rng, render.target_views, *args)

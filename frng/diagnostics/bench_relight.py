@@ -138,7 +138,7 @@ def build(path: str, args: argparse.Namespace, dev: torch.device) -> SimpleNames
     from frng.priors import backbone as backbone_mod
     from frng.priors import freeze
     from frng.priors import idm as idm_mod
-    from frng.priors.backbone import backbone_config
+    from frng.priors.backbone_config import backbone_config
     from frng.priors.idm import idm_config
     from frng.training.frng_trainer import ModelSections, variant_config
 

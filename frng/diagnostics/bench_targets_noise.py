@@ -65,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     import bpy  # noqa: F401
 
-    from frng.plan import catalog
+    from frng.plan import catalog, dataset_config
 
     plan = catalog.plan(config)
     sized = dataclasses.replace(
@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
             args.save_images,
             log=lambda m: print(m, flush=True),
         )
-    except (FileNotFoundError, catalog.CatalogError) as e:
+    except (FileNotFoundError, dataset_config.CatalogError) as e:
         print(f"frng bench targets-noise: error: {e}", file=sys.stderr)
         return 1
     rows = N.score(records, args.protocol)

@@ -4,6 +4,8 @@ Modules
 -------
 - :mod:`.composed`            Sec. 4 the composed model (:class:`~.composed.FRNG`): the components below put together,
                                 frozen priors in, relightable neural Gaussians out
+- :mod:`.composed_config`     its records: the config's ``frng`` section and a variant's architecture (``model.pt``)
+- :mod:`.pixel_head`          our addition: the per-pixel inputs and the pixel head (the Lambertian start)
 - :mod:`.saliency`            supplement "Saliency map computation": S_final and top-K% salient patches per view
 - :mod:`.tokenizers`          Sec. 4.1 T_prior = Tokenizer(Patchify(n, a, r, m)); patchify / unpatchify
 - :mod:`.fine_geometry`       Sec. 4.1 latent-interpolated fine-grained geometry (Bilinear, FineGeoDetokenizer)

@@ -29,7 +29,6 @@ FineGeoDetokenizer at construction (:meth:`FRNG.from_backbone`); its outputs com
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -39,25 +38,32 @@ from torch import nn
 from frng import io
 from frng.device import bf16_ok
 from frng.gaussians import GaussianDecodeConfig, Gaussians
+from frng.model.composed_config import FRNGConfig
 from frng.model.coverage import COVERAGE_PREFIX, CoverageHead
 from frng.model.depth import DepthHead
-from frng.model.fine_geometry import FineGeometry, FineGeometryConfig, fine_keep_mask, sample_pixels
+from frng.model.fine_geometry import FineGeometry, FineGeometryConfig, fine_keep_mask
 from frng.model.materialformer import (
-    MaterialFormerConfig,
     MaterialHead,
     decode_pbr,
     kept_rows,
     to_sequence,
 )
 from frng.model.opacity import GEOMETRY_CHANNELS, OpacityHead, geometry_inputs
-from frng.model.saliency import SaliencyConfig, patch_scores, saliency_map, select_top_k
+from frng.model.pixel_head import (
+    PixelHead,
+    kept_pixel_rows,
+    normal_start_projection,
+    pixel_channels,
+    pixel_map,
+    pixel_normal_index,
+)
+from frng.model.saliency import patch_scores, saliency_map, select_top_k
 from frng.model.tokenizers import PriorTokenizer, stack_priors
-from frng.plan.sections import architecture_bounds, key, register, section
+from frng.plan.sections import architecture_bounds
 from frng.render import RasterConfig, envmap, rasterize
 from frng.render.decoder import shade_decoder
 from frng.render.shading import (
     COSINE_NORMAL,
-    GGX_MIN_ALBEDO,
     GGX_NORMAL,
     NeuralDecoder,
     ShadingConfig,
@@ -66,276 +72,6 @@ from frng.render.shading import (
 )
 
 MODEL_KIND = "frng"
-# FRNGConfig keys added after models were saved without them: the value that reproduces what those models did
-SAVED_DEFAULTS = {
-    "fine_in_hull": False,
-    "opacity_head": False,
-    "geometry_inputs": False,
-    "depth_head": 0.0,
-    "coverage_head": 0,
-    "specular_start": False,
-    "normal_start": 0.0,
-}
-
-
-@register("frng")
-@dataclass(frozen=True)
-class FRNGSection:
-    """The config's ``frng`` section: the variants to train and the architecture (each key declared on its field). :func:`frng.training.frng_trainer.variant_config` turns it into a variant's :class:`FRNGConfig`."""
-
-    CONFIG_DOC = "the F-RNG model and its variants (frng/model/composed.py)"
-
-    variants: tuple[str, ...] = key(
-        ["full", "no-fine", "no-idm", "no-ind", "no-neural", "plus"],
-        "variants trained into `results/models/{variant}/`: `full` (the paper's F-RNG: every addition of "
-        "`frng.plan.variants.ADDITIONS` off), its ablations in the paper's form, `no-fine` (no fine-grained "
-        "Gaussians), `no-idm` (no prior tokens anywhere; its `train` job does not even depend on the IDM priors), "
-        "`no-ind` (lambda_c = lambda_KLD = 0), `no-neural` (Cook-Torrance head + GGX shader), and `plus` (F-RNG+: the "
-        "config's additions on, i.e. the `frng.pixel_head`, "
-        "`shading.decoder_cosine`/`decoder_attenuation`/`decoder_specular`, `frng.coverage_head`, "
-        "`frng.back_completion`, `frng.fine_in_hull`, `frng.normal_start` and `train.loss.ind_pixels` keys act on "
-        "`plus` only), and `plus-no-{addition}` (F-RNG+ with that addition off, e.g. `plus-no-pixel-head`: the "
-        "additions table; not in the default list)",
-        type="array",
-        items={
-            "type": "string",
-            "enum": [
-                "full",
-                "no-fine",
-                "no-idm",
-                "no-ind",
-                "no-neural",
-                "plus",
-                "plus-no-pixel-head",
-                "plus-no-decoder-bases",
-                "plus-no-coverage-head",
-                "plus-no-back-completion",
-                "plus-no-fine-in-hull",
-                "plus-no-normal-start",
-                "plus-no-ind-pixels",
-            ],
-        },
-    )
-    k_sweep: tuple[float, ...] = key(
-        [1, 2, 4, 8],
-        "top-K sweep -> variants `k1`, `k2`, ...; the entry equal to `top_k_percent` IS the full model (rule "
-        "`model_alias` copies `full` there, no second training)",
-        type="array",
-        items={"type": "number", "exclusiveMinimum": 0, "maximum": 100},
-    )
-    top_k_percent: float = key(
-        2,
-        "K: salient patches per view that get fine tokens, ceil(K h w) (paper 2%)",
-        type="number",
-        exclusiveMinimum=0,
-        maximum=100,
-    )
-    upsample: int = key(
-        2,
-        "fine tokens per salient patch = upsample^2 (sub-pixel Gaussians s x denser)",
-        type="integer",
-        minimum=1,
-        maximum=16,
-    )
-    back_completion: bool = key(
-        True,
-        "fewer views: every input pixel whose ray's visual-hull exit point no input view sees gets a copy of its "
-        "Gaussian there (its features, its normal mirrored across the plane normal to the ray; "
-        "`frng/priors/multiview.py`, `back_gaussians`), so the far side of an object seen from 2 views renders as a "
-        "plausible surface instead of the background. With the 6-view rig ~4 % of the pixels get one. Cached per view "
-        "count (`v{V}.back_*`, backbone cache version 3)",
-        type="boolean",
-    )
-    fine_in_hull: bool = key(
-        True,
-        "the fine Gaussians a reconstruction keeps are those that project onto a foreground pixel (alpha > 0.5, the "
-        "mask dilated by 1 px) of every input view (`frng.priors.multiview.inside_silhouettes`): a point outside one "
-        "view's silhouette is not on the object. Without it about half of them (85 682 of 177 476 on the 21 test "
-        "objects) lay off the object and rendered as a faint haze around its silhouette, which the backbone's renders "
-        "do not have (docs/model-and-training.md). Models saved before the key keep every fine Gaussian",
-        type="boolean",
-    )
-    opacity_head: bool = key(
-        True,
-        "a per-Gaussian residual on the opacity logit of the Gaussians F-RNG renders (the backbone's per-pixel ones, "
-        "the fine ones, the far-side copies with their source's), from the pixel head's inputs and the detokenizer's "
-        "output (`frng/model/opacity.py`, a 2-layer MLP of width `pixel_head` whose last layer starts at zero: an "
-        "untrained head keeps the backbone's opacities); needs `pixel_head` > 0. With six views the hull's slivers "
-        "and a silhouette about a pixel too wide cost LPIPS and the rim's PSNR; the head thins them "
-        "(docs/model-and-training.md). Models saved before the key have none",
-        type="boolean",
-    )
-    geometry_inputs: bool = key(
-        True,
-        "the opacity head also reads the backbone's own geometry at each Gaussian's input pixel: how far the backbone "
-        "moved the surface off its multi-view (hull) prior and its raw opacity logit (`frng/model/opacity.py` "
-        "`geometry_inputs`; the backbone cache's `raw` / `raw_prior`). Models saved before the key have none",
-        type="boolean",
-    )
-    depth_head: float = key(
-        0.15,
-        "largest move (world units; the object's radius is 1) of each coarse Gaussian along its input camera's ray by "
-        "a learned per-Gaussian offset, `depth_head * tanh(MLP)` from the opacity head's pixel inputs, last layer at "
-        "zero (`frng/model/depth.py`); needs `pixel_head` > 0; 0 = off. The fine Gaussians and the far-side copies "
-        "stay. Models saved before the key have none",
-        type="number",
-        minimum=0,
-    )
-    coverage_head: int = key(
-        16,
-        "hidden width of a screen-space CNN (`frng/model/coverage.py`; 0 = off) that, once per rasterized view and "
-        "before shading, scales the alpha of the render's 1-px silhouette rim by a learned gain (its features "
-        "unchanged; last layer at zero: an untrained head changes nothing). The ground truth's outermost pixel ring "
-        "is anti-aliased, part background, where the hull's splats cover it fully. Scratch, two seeds: +0.29 dB with "
-        "LPIPS unchanged (docs/model-and-training.md). It changes the silhouette, not the relighting: compare "
-        "interior PSNR too. Models saved before the key have none",
-        type="integer",
-        minimum=0,
-        maximum=4096,
-    )
-    specular_start: bool = key(
-        True,
-        "the pixel head's start (an untrained F-RNG re-renders its inputs as a Lambertian surface) also splits each "
-        "pixel's colour by the IDM's metallic m and roughness r: diffuse c / E(n) (1 - m), the specular base's colour "
-        "m pi c / E(n), its roughness r where m = 1 (`frng/model/composed.py` PixelHead; the neural head with IDM priors "
-        "and `shading.decoder_specular` only; no-idm and no-neural start as before). Needs `idm.train.metallic_loss: "
-        "bce` (with `l1` the IDM's metallic is ~0 everywhere and this changes nothing). Scratch, both on, two seeds, "
-        "vs bce alone: overall +0.00 / +0.04 dB (noise), studio sensitivity 1.43 -> 1.55 / 1.56, the mirror-metal "
-        "test object +1.1 / +1.8 dB under the studio, LPIPS 0.150 -> 0.130 / 0.121; sky sensitivity -0.08 / -0.10. On "
-        "by default since 7abdda7's reproduction (CHANGELOG.md): overall the same, studio sensitivity +1.47 -> +1.54 "
-        "(a second training seed +1.53), sky -0.11. Models saved before the key start as before",
-        type="boolean",
-    )
-    normal_start: float = key(
-        0.0,
-        "an addition (departs from Sec. 4.2.1's one-layer MatDetokenizer): each Gaussian's latent feature also gets "
-        "its input pixel's world normal (the IDM's; the geometry's without priors) times a fixed random 3 x C matrix "
-        "of this scale (N(0, 1) from its own seed, saved with the model, not trained; `frng/model/composed.py` "
-        "`FRNG._normal_start`). The paper form's features start the same on every side of an object, and its decoder "
-        "learned a light-independent colour; with this start they differ with the orientation from the first step. "
-        "Off by default (acts on `plus` and configs that train it); measured over the paper form in "
-        "docs/studies/2026-12-05-why-the-paper-form-does-not-relight.md",
-        type="number",
-        minimum=0,
-        maximum=10,
-    )
-    prior_dim: int = key(
-        64,
-        "IDM prior token width (PriorTokenizer, shared by FineGeoDetokenizer and MaterialFormer)",
-        type="integer",
-        minimum=1,
-        maximum=8192,
-    )
-    hidden: int = key(
-        256,
-        "MaterialFormer width (Pre-LN, GeLU; paper 1024)",
-        type="integer",
-        minimum=8,
-        maximum=8192,
-    )
-    depth: int = key(
-        4,
-        "MaterialFormer layers (paper 4)",
-        type="integer",
-        minimum=1,
-        maximum=256,
-    )
-    heads: int = key(
-        4,
-        "MaterialFormer attention heads",
-        type="integer",
-        minimum=1,
-        maximum=128,
-    )
-    feature_dim: int = key(
-        16,
-        "neural material features per Gaussian (the universal decoder's input; decoder size under `shading`)",
-        type="integer",
-        minimum=1,
-        maximum=4096,
-    )
-    pixel_head: int = key(
-        32,
-        "hidden width of the per-Gaussian pixel head: the Gaussian's input pixel (gamma colour, alpha, and the IDM's "
-        "albedo/normal/roughness/metallic unless no-idm) -> a residual on the MatDetokenizer's output; 0 = the "
-        "paper's linear detokenizer alone",
-        type="integer",
-        minimum=0,
-        maximum=4096,
-    )
-    saliency: SaliencyConfig = key({})
-
-
-def kept_pixel_rows(m: torch.Tensor, keep_c: torch.Tensor, fine, keep_f) -> torch.Tensor:
-    """A per-pixel map m (V, H, W, C) at the kept Gaussians, in their order: the coarse ones' pixels (keep_c,
-    (V*H*W,)), then the fine ones sampled at their sub-pixel uv (keep_f; none without ``fine``) -> (N, C)."""
-    rows = [m.reshape(-1, m.shape[-1])[keep_c]]
-    if fine is not None:
-        rows.append(sample_pixels(m, fine.uv).reshape(-1, m.shape[-1])[keep_f])
-    return torch.cat(rows)
-
-
-@dataclass
-class FRNGConfig:
-    """Architecture of one F-RNG variant (everything needed to rebuild it from ``model.pt``). Not a config section:
-    :func:`frng.training.frng_trainer.variant_config` sets every field from the config (and the frozen backbone), so none has a default."""
-
-    patch: int
-    geo_dim: int  # the backbone's token width (T_geo and T_app)
-    prior_dim: int  # 0 = no-idm
-    fine: bool  # latent-interpolated fine geometry on/off (no-fine)
-    top_k: float  # K as a fraction of patches per view (paper 2%)
-    upsample: int  # fine tokens per selected patch = upsample^2
-    hidden: int  # MaterialFormer width (paper 1024)
-    depth: int  # MaterialFormer layers (paper 4)
-    heads: int
-    feature_dim: int  # neural material features per Gaussian
-    head: str  # "neural" | "pbr" (no-neural)
-    decoder_width: int  # universal decoder (paper 4 x 256)
-    decoder_depth: int
-    dir_freqs: int
-    near: float  # the backbone's ray-distance bounds (Gaussian decoding)
-    far: float
-    max_radius_px: float | None  # footprint cap at render time (the backbone's, unless raster sets one)
-    saliency: dict  # the frng.saliency keys (SaliencyConfig; top_k is taken from ``top_k``)
-    pixel_head: int  # hidden width of the per-Gaussian pixel head (0 = off: the paper's linear detokenizer only)
-    decoder_cosine: bool  # decoder output x max(0, n.w_i), n = features 0:3 (shading.decoder_cosine)
-    decoder_attenuation: bool  # the decoder may also darken its Lambertian base (shading.decoder_attenuation)
-    back_completion: bool  # Gaussians on the hull's unseen far side, copied from their pixels (frng.back_completion)
-    decoder_specular: bool  # closed-form prefiltered specular base, features 6:10 (shading.decoder_specular)
-    fine_in_hull: bool  # fine Gaussians only inside every input view's silhouette (frng.fine_in_hull)
-    opacity_head: bool  # per-Gaussian opacity residual on the backbone's geometry (frng.opacity_head)
-    geometry_inputs: bool  # the opacity head also reads the backbone's raw geometry (frng.geometry_inputs)
-    depth_head: float  # largest move of a coarse Gaussian along its input ray (0 = off; frng.depth_head)
-    coverage_head: int  # hidden width of the silhouette rim's coverage head (0 = off; frng.coverage_head)
-    specular_start: bool  # the specular base starts from the IDM's metallic / roughness (frng.specular_start)
-    normal_start: float  # scale of the fixed random projection of the pixel's normal added to G_mat (0 = off)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> FRNGConfig:
-        """Strict (:func:`frng.plan.sections.section`): a model file's ``config`` with a key this code does not know, or
-        without one it needs, is an error naming it."""
-        return section(cls, d)
-
-    @classmethod
-    def from_saved(cls, d: dict) -> FRNGConfig:
-        """A model file's ``config``: keys added after it was saved take :data:`SAVED_DEFAULTS` (what the model was
-        trained with), then :meth:`from_dict`."""
-        return cls.from_dict({**SAVED_DEFAULTS, **dict(d)})
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @property
-    def uses_priors(self) -> bool:
-        return self.prior_dim > 0
-
-    def saliency_config(self) -> SaliencyConfig:
-        return SaliencyConfig.from_dict({**self.saliency, "top_k": self.top_k})
-
-    def materialformer_config(self) -> MaterialFormerConfig:
-        same = ("prior_dim", "hidden", "depth", "heads", "patch", "feature_dim", "head")
-        return MaterialFormerConfig(geo_dim=self.geo_dim, app_dim=self.geo_dim, **{k: getattr(self, k) for k in same})
 
 
 @dataclass
@@ -361,185 +97,6 @@ class Reconstruction:
     num_coarse: int
     t_mat: torch.Tensor | None = None
     material: torch.Tensor | None = None
-
-
-PRIOR_PIXEL_CHANNELS = ("albedo", "normal", "roughness", "metallic")
-PBR_INIT_ROUGHNESS_LOGIT, PBR_INIT_METALLIC_LOGIT = 2.0, -4.0  # pbr pixel head's start: roughness ~0.9, metallic ~0.02
-# Where things sit in :func:`pixel_map`'s channels (one place for the layout).
-PIXEL_RATIO = slice(4, 7)  # shading-normalised colour (gamma)
-# pixel_map trusts c / E(n) fully where E is at least this share of the view's bright irradiance (bright_irradiance),
-# and blends to the IDM's albedo below it (shadows of hard lights, where c / E is noise clamped at its bound)
-RATIO_TRUST = 0.1
-PIXEL_GEO_NORMAL = 10  # geometry normal, 3 channels
-PIXEL_IDM_NORMAL = 16  # the IDM's normal, 3 channels (with priors)
-PIXEL_IDM_ROUGHNESS, PIXEL_IDM_METALLIC = 19, 20  # the IDM's roughness and metallic, 1 channel each (with priors)
-NORMAL_START_SEED = 1234  # the fixed random projection of frng.normal_start (a buffer saved with the model)
-
-
-def normal_start_projection(out_channels: int, scale: float) -> torch.Tensor:
-    """``frng.normal_start``'s projection (3, out_channels): N(0, 1) x ``scale`` from a generator of its own
-    (:data:`NORMAL_START_SEED`), so turning it on draws nothing from the training's random stream."""
-    g = torch.Generator().manual_seed(NORMAL_START_SEED)
-    return torch.randn(3, out_channels, generator=g) * float(scale)
-
-
-def pixel_channels(uses_priors: bool) -> int:
-    """Channels of :func:`pixel_map`: gamma colour 3, alpha 1, shading-normalised colour 3, input irradiance 3,
-    geometry normal 3 (+ albedo 3, normal 3, roughness 1, metallic 1 with IDM priors)."""
-    return 13 + (8 if uses_priors else 0)
-
-
-def pixel_normal_index(uses_priors: bool) -> int:
-    """Where the best available world normal starts in :func:`pixel_map`: the IDM's, else the geometry's."""
-    return PIXEL_IDM_NORMAL if uses_priors else PIXEL_GEO_NORMAL
-
-
-def bright_irradiance(E: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
-    """Per view, the 90th percentile of the irradiance E (V, H, W, 3) over the view's foreground (alpha (V, H, W, 1)
-    > 0.5; the whole view where it has none): how much light the lit side receives, (V, 1, 1, 3)."""
-    V = E.shape[0]
-    fg = alpha[..., 0] > 0.5
-    out = []
-    for v in range(V):
-        e = E[v][fg[v]] if fg[v].any() else E[v].reshape(-1, 3)
-        out.append(torch.quantile(e.float(), 0.9, dim=0))
-    return torch.stack(out)[:, None, None, :].to(E.dtype)
-
-
-UNKNOWN_ALBEDO = 0.5  # the albedo the input-light estimate assumes where a model has no IDM priors (no-idm)
-
-
-def input_light_sh(images: torch.Tensor, albedo: torch.Tensor | None, normals: torch.Tensor) -> torch.Tensor:
-    """The input views' light as degree-2 SH radiance (9, 3), estimated from the views alone
-    (:func:`frng.render.light_estimate.estimate_light_sh`: colour / albedo fitted as E(n) / pi): images (V, H, W, 4)
-    linear premultiplied RGBA, albedo (V, H, W, 3) the IDM's (None: :data:`UNKNOWN_ALBEDO` everywhere), normals
-    (V, H, W, 3) world. Where too few pixels are confident, a uniform light that makes the mean foreground colour
-    an albedo of :data:`UNKNOWN_ALBEDO`."""
-    from frng.render.light_estimate import LightEstimateError, estimate_light_sh
-    from frng.render.sh import C0
-
-    rgb, a = images[..., :3].detach().float().cpu(), images[..., 3:4].detach().float().cpu()
-    alb = torch.full_like(rgb, UNKNOWN_ALBEDO) if albedo is None else albedo.detach().float().cpu()
-    try:
-        return estimate_light_sh(rgb, a, alb, normals.detach().float().cpu())[0]
-    except LightEstimateError:
-        fg = a[..., 0] > 0.5
-        mean = (rgb[fg] / a[fg]).mean(0).double() if bool(fg.any()) else torch.ones(3, dtype=torch.float64)
-        coeffs = torch.zeros(9, 3, dtype=torch.float64)
-        coeffs[0] = mean.clamp_min(1e-3) / UNKNOWN_ALBEDO / C0  # uniform radiance r: colour = albedo x r
-        return coeffs
-
-
-def pixel_map(
-    images: torch.Tensor, priors, V: int, normals: torch.Tensor, input_env: torch.Tensor | None = None
-) -> torch.Tensor:
-    """Per-pixel inputs of the pixel head.
-
-    images (V, H, W, 4) linear premultiplied RGBA under the input light; priors IntrinsicPriors (first V views) or
-    None; normals (V, H, W, 3) world normals of the backbone's geometry (:func:`frng.priors.surfels.grid_normals`);
-    input_env (He, We, 3) the input light's HDR map. Returns (V, H, W, C) = [unpremultiplied gamma-2.2 colour, alpha,
-    shading-normalised colour (gamma of c * pi / E(n): an albedo estimate under a Lambertian assumption, clamped
-    to [0, 1]; with priors blended towards the IDM's albedo where E(n) is under :data:`RATIO_TRUST` of the view's
-    :func:`bright_irradiance`: in a hard light's shadow c / E is noise, and an albedo of 4 there, the old bound,
-    rendered those pixels several times too bright under any other light and drove the Lambertian base below 0
-    for the whole model), input irradiance (gamma of E(n) / pi), the geometry normal, (IDM albedo, world normal, roughness,
-    metallic)], where E(n) is
-    the input light's irradiance at the shading normal n (the IDM's normal with priors, else the geometry's;
-    degree-2 SH, :func:`frng.render.envmap.sh_irradiance`). The paper's task gives no input light: by default
-    (``input_env`` None) it is ESTIMATED from these images (:func:`input_light_sh`); an ``input_env`` (He, We, 3) is
-    the oracle setting "told the input light" (a labelled run, never a headline number). Dividing the light out is
-    what lets the same decoder relight under another light."""
-    from frng.render import envmap
-
-    rgb, a = images[..., :3].float(), images[..., 3:4].float()
-    col = (rgb / a.clamp_min(1e-3)).clamp(0, 1)
-    d = priors.as_dict() if priors is not None else None
-    shading_normals = d["normal"][:V] if d is not None else normals
-    if input_env is None:
-        coeffs = input_light_sh(images, d["albedo"][:V] if d is not None else None, shading_normals)
-    else:
-        coeffs = envmap.sh_project(input_env.float().cpu())
-    E = envmap.sh_irradiance(coeffs.float(), shading_normals.float().cpu())
-    E = E.to(images.device).clamp_min(0.0) / math.pi
-    ratio = (col / E.clamp_min(1e-3)).clamp(0, 1)
-    if d is not None:  # where the input light barely reaches (hard lights' shadows) c / E is noise: the IDM's albedo
-        w = (E / (RATIO_TRUST * bright_irradiance(E, a)).clamp_min(1e-6)).clamp(0, 1)
-        ratio = w * ratio + (1 - w) * d["albedo"][:V].to(images.device).float().clamp(0, 1)
-    parts = [col ** (1 / 2.2), a, ratio ** (1 / 2.2), E ** (1 / 2.2), normals.to(images.device).float()]
-    if d is not None:
-        parts += [d[k][:V].to(images.device).float() for k in PRIOR_PIXEL_CHANNELS]
-    return torch.cat(parts, -1)
-
-
-class PixelHead(nn.Module):
-    """Per-Gaussian residual on the MatDetokenizer's output from the Gaussian's own input pixel (our addition).
-
-    The MatDetokenizer is one linear layer from a patch token to p*p Gaussians; at this project's token widths it
-    cannot carry per-pixel detail (a 64 px view is only 8 x 8 tokens), so every Gaussian also sees its input pixel:
-    ``g + MLP([g, pixel])`` with ``pixel`` from :func:`pixel_map` (the no-idm variant gets no prior channels). The
-    last layer starts at zero (the paper's detokenizer at initialisation). With ``normal_index`` (the cosine decoder,
-    ``shading.decoder_cosine``) the pixel's normal (``pixel[:, normal_index:normal_index + 3]``) is added to output
-    channels 0:3, which the decoder reads as the shading normal, and the diffuse BRDF estimate c / E(n) (the
-    shading-normalised colour / pi, linear) to channels 3:6, the decoder's Lambertian base: at initialisation F-RNG
-    re-renders its input view under the input light and relights it as a Lambertian surface. With ``head='pbr'``
-    (the no-neural ablation) the same start in Cook-Torrance terms: albedo logit(pi c / E(n)), roughness ~0.9,
-    metallic ~0.02, the pixel's normal, so the ablation differs from the full model only in its appearance model.
-
-    ``specular_start`` (``frng.specular_start``; the neural head with the IDM's priors and the decoder's specular base,
-    features 6:10): the start also splits the pixel's colour by the IDM's metallic m and roughness r, as a metal
-    reflects rather than diffuses: diffuse c / E(n) (1 - m) in 3:6, the specular base's colour m pi c / E(n) in 6:9
-    (its ``linear`` k_s ~ f) and its roughness m logit(r) / 4 in 9 (``ggx``: roughness sigmoid(4 f_9) = r where m =
-    1). A non-metal (m = 0) starts exactly as without it.
-
-    forward(g (N, C_out), pixel (N, C_pix)) -> (N, C_out)."""
-
-    def __init__(
-        self,
-        out_channels: int,
-        pixel_channels: int,
-        hidden: int,
-        normal_index: int | None = None,
-        head: str = "neural",
-        specular_start: bool = False,
-    ):
-        super().__init__()
-        if head not in ("neural", "pbr"):
-            raise ValueError(f"PixelHead: head must be 'neural' or 'pbr', got {head!r}")
-        if specular_start and (head != "neural" or normal_index is None or pixel_channels <= PIXEL_IDM_METALLIC):
-            raise ValueError("PixelHead: specular_start needs the neural head's Lambertian start and the IDM's priors")
-        self.pixel_channels, self.normal_index, self.head = pixel_channels, normal_index, head
-        self.specular_start = specular_start
-        self.mlp = nn.Sequential(
-            nn.Linear(out_channels + pixel_channels, hidden),
-            nn.GELU(),
-            nn.Linear(hidden, hidden),
-            nn.GELU(),
-            nn.Linear(hidden, out_channels),
-        )
-        nn.init.zeros_(self.mlp[-1].weight)
-        nn.init.zeros_(self.mlp[-1].bias)
-
-    def forward(self, g: torch.Tensor, pixel: torch.Tensor) -> torch.Tensor:
-        assert g.shape[0] == pixel.shape[0] and pixel.shape[-1] == self.pixel_channels, (g.shape, pixel.shape)
-        out = g + self.mlp(torch.cat([g, pixel.to(g.dtype)], -1))
-        if self.normal_index is None:
-            return out
-        i = self.normal_index
-        normal = pixel[:, i : i + 3].to(out.dtype)
-        ratio = pixel[:, PIXEL_RATIO].float() ** 2.2  # shading-normalised colour (gamma) -> pi c / E(n), an albedo
-        if self.specular_start:  # neural head: a metal reflects: 3:6 diffuse, 6:9 k_s, 9 roughness
-            metal = pixel[:, PIXEL_IDM_METALLIC : PIXEL_IDM_METALLIC + 1].float().clamp(0, 1)
-            rough = pixel[:, PIXEL_IDM_ROUGHNESS : PIXEL_IDM_ROUGHNESS + 1].float().clamp(0.05, 0.95)
-            start = torch.cat([ratio / math.pi * (1 - metal), metal * ratio, metal * torch.logit(rough) / 4.0], -1)
-            return torch.cat([out[:, :3] + normal, out[:, 3:10] + start.to(out.dtype), out[:, 10:]], -1)
-        if self.head == "neural":  # decoder features: 0:3 normal, 3:6 diffuse BRDF c / E(n)
-            return torch.cat([out[:, :3] + normal, out[:, 3:6] + (ratio / math.pi).to(out.dtype), out[:, 6:]], -1)
-        # pbr (decode_pbr's raw layout): albedo logit 0:3, roughness 3, metallic 4, normal 5:8 -> a rough
-        # dielectric of albedo pi c / E(n): GGX's diffuse lobe, i.e. the same Lambertian relighting (the logit
-        # kept within +-3.9, where the sigmoid still has a gradient; decode_pbr's albedo is in [GGX_MIN_ALBEDO, 1])
-        albedo = torch.logit(((ratio - GGX_MIN_ALBEDO) / (1.0 - GGX_MIN_ALBEDO)).clamp(0.02, 0.98)).to(out.dtype)
-        rough_metal = out.new_tensor([PBR_INIT_ROUGHNESS_LOGIT, PBR_INIT_METALLIC_LOGIT])
-        return torch.cat([out[:, :3] + albedo, out[:, 3:5] + rough_metal, out[:, 5:8] + normal, out[:, 8:]], -1)
 
 
 class FRNG(nn.Module):
@@ -1059,4 +616,4 @@ class FRNG(nn.Module):
         return self.shade(self.rasterize(rec, c2w, intr, height, width), env, spp, generator, spp_grad)
 
 
-__all__ = ["FRNG", "FRNGConfig", "Reconstruction"]
+__all__ = ["FRNG", "Reconstruction"]

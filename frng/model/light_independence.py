@@ -6,7 +6,7 @@ T_mat_i and T_mat_i1 are MaterialFormer's output tokens for the same object and 
 and fine), computed from the backbone's appearance tokens under the input light and under an extra random light
 E1 (same T_geo, same T_prior, same salient-patch selection).
 
-Our model also carries material past T_mat: the pixel head (:class:`frng.model.composed.PixelHead`) gives every
+Our model also carries material past T_mat: the pixel head (:class:`frng.model.pixel_head.PixelHead`) gives every
 Gaussian its input pixel's colour divided by the input light's irradiance. At this project's token widths that
 per-pixel path carries most of the material, and it sees the photographs, not T_app; a loss on T_mat alone is then
 met almost for free (measured: ~1e-6 after 100 steps, and w/o L_ind scored the same as the full model). With

@@ -10,7 +10,7 @@ The head lets F-RNG change each kept Gaussian's opacity from what F-RNG already 
     opacity' = sigmoid(logit(opacity) + MLP([g, pixel]))
 
 with ``g`` (N, C_out) the Gaussian's MaterialDetokenizer output (its token's geometry, appearance and prior
-context) and ``pixel`` (N, C_pix) its input pixel (:func:`frng.model.composed.pixel_map`: colour, alpha, irradiance,
+context) and ``pixel`` (N, C_pix) its input pixel (:func:`frng.model.pixel_head.pixel_map`: colour, alpha, irradiance,
 normals, IDM priors), with ``frng.geometry_inputs`` also the backbone's own geometry at that pixel
 (:func:`geometry_inputs`: how far it moved the surface off the hull prior, its raw opacity logit). The last layer
 starts at zero: an untrained head keeps the backbone's opacities (clamped to [OPACITY_EPS, 1 - OPACITY_EPS]). It

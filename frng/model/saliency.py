@@ -50,7 +50,7 @@ LUMA = (0.2126, 0.7152, 0.0722)  # Rec. 709 on linear RGB
 @dataclass(frozen=True)
 class SaliencyConfig:
     """Saliency / patch-selection parameters: the config's ``frng.saliency`` section (each key declared on its field) plus two internal fields, ``margin`` (not a config key) and ``top_k`` (set from
-    ``frng.top_k_percent`` by :meth:`frng.model.composed.FRNGConfig.saliency_config`)."""
+    ``frng.top_k_percent`` by :meth:`frng.model.composed_config.FRNGConfig.saliency_config`)."""
 
     box_size: int = key(
         5,

@@ -93,7 +93,7 @@ NOT_DIGESTED: dict[str, str] = {
 
 RULES_WITHOUT_DIGEST = frozenset({"all", "config_digest", "curate_record"})
 """Rules that run no stage (``config_digest`` records the others' digests in the results folder, ``curate_record``
-each object's plan entry and maps' records: frng.plan.catalog.curate_record)."""
+each object's plan entry and maps' records: frng.plan.curate_jobs.curate_record)."""
 
 
 def stage_declaration(path: str | os.PathLike) -> tuple[str, ...] | None:

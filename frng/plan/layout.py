@@ -133,7 +133,7 @@ class Layout(_Folder):
 
     def curate_record(self, obj: str = "{obj}", digest: str = "{digest}") -> str:
         """``.digests/objects/{obj}-{digest}.json``: what object ``obj``'s curation renders -- its plan entry and
-        its maps' plan records (:func:`frng.plan.catalog.curate_record`), ``digest`` their digest; its curation job
+        its maps' plan records (:func:`frng.plan.curate_jobs.curate_record`), ``digest`` their digest; its curation job
         reads it, so a change of them (and only of them) reruns the job, wherever the folder goes."""
         return self._p(".digests", "objects", f"{obj}-{digest}.json")
 

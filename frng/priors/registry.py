@@ -54,7 +54,8 @@ def freeze(module: nn.Module) -> nn.Module:
 
 
 def _load_relitlrm(path: str | Path, device: torch.device | str = "cpu") -> nn.Module:
-    from frng.priors.backbone import BackboneConfig, RelitLRMBackbone
+    from frng.priors.backbone import RelitLRMBackbone
+    from frng.priors.backbone_config import BackboneConfig
 
     state = load_torch(path, "backbone model file", architecture_bounds())
     model = RelitLRMBackbone(BackboneConfig.from_saved(state["config"]))

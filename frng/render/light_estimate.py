@@ -8,7 +8,7 @@ the l >= 1 bands are damped towards 0 so the directions no photo sees stay dim. 
 ambiguous (a green object under white light or a white one under green light): ``colour='neutral'`` (the default)
 makes the fitted light grey on average (each channel scaled so its DC term has the DC luminance; grey world).
 Users: ``frng reconstruct`` (:func:`frng.apps.capture.estimate_light` expands it into a map) and F-RNG+'s pixel head
-(:func:`frng.model.composed.pixel_map`), at training and at test time alike.
+(:func:`frng.model.pixel_head.pixel_map`), at training and at test time alike.
 """
 
 from __future__ import annotations

@@ -111,7 +111,7 @@ class ShadingConfig:
         "the decoder reads a normal (features 0:3) and a diffuse BRDF value (features 3:6) and returns (diffuse + "
         "softplus(MLP)) x max(0, n.w_i); F-RNG's pixel head fills them with the best normal (IDM, else geometry) and "
         "the input colour divided by the input light's irradiance, so an untrained model already relights its input "
-        "views as a Lambertian surface (frng/render/shading.py, frng/model/composed.py). false = the decoder learns "
+        "views as a Lambertian surface (frng/render/shading.py, frng/model/pixel_head.py). false = the decoder learns "
         "reflectance x cosine from scratch",
         type="boolean",
     )

@@ -20,7 +20,7 @@ Every row names its ``source`` (``trained here`` / ``files``) and its ``views`` 
 take the target view's own photo: 1); ``n`` = images. F-RNG's row in a dataset group is over the images the group's
 baselines cover (the per-scene baselines run on ``baselines.objects_per_class`` objects per class), so every
 difference is paired: the row minus F-RNG over the same images, with its 95 % object-bootstrap interval
-(:func:`frng.report.paper_tables.diff_to`, :mod:`frng.report.stats`). Times: ``reconstruction_s`` = reconstruction seconds per
+(:func:`frng.report.runs.diff_to`, :mod:`frng.report.stats`). Times: ``reconstruction_s`` = reconstruction seconds per
 object (a per-scene fit; F-RNG's backbone + IDM + reconstruction), ``relight_ms_per_image``.
 
 ``baseline_findings``: what the three tables show, one row per comparison the paper draws, each a paired difference
@@ -44,7 +44,7 @@ from frng import metrics as M
 from frng.baselines import registry
 from frng.baselines.plan import FRNG_NVS_RUN, FRNG_RUN
 from frng.report import tables as T
-from frng.report.paper_tables import IMAGE_KEYS, diff_to, image_means
+from frng.report.runs import IMAGE_KEYS, diff_to, image_means
 
 FRNG, FRNG_NVS = FRNG_RUN, FRNG_NVS_RUN
 METHOD_LABELS = {

@@ -17,12 +17,12 @@ table            rows                                                reference r
 ``views``        the full model fed 2, 4, 6, 8, 10 input views       6 views (the rig)
 ``k``            K = 1, 2, 4, 8 %                                    the full model's K
 ``timing``       F-RNG and the backbone, mean over test objects      (speedup vs the backbone)
-``ladder``       the quality ladder (:data:`LADDER_STEPS`): the      ``vs`` column: e vs d, f and g vs e;
+``ladder``       the quality ladder (:mod:`.ladder`): the      ``vs`` column: e vs d, f and g vs e;
                  targets' noise floor (steps 0r, 0: ``noise_csv``),  rows ``s*``: the same method scored
                  oracle references, backbone, F-RNG, F-RNG +         against the right light
                  oracle priors, F-RNG's Lambertian base alone,
                  and the light-sensitivity rows ``s*``
-                 (:func:`sensitivity_rows`)
+                 (:func:`.ladder.sensitivity_rows`)
 ``lambertian``   per dataset: F-RNG and its Lambertian base alone    F-RNG, same dataset
                  (run ``full-base``)
 ``*_by_light``   ``vs_backbone``, ``ablation`` and ``ladder`` per     as in the table, within the family
@@ -47,7 +47,7 @@ the seeds of every trained row (``full``, ``full@s1``, ...) before anything else
 ``seed_spread_psnr`` (max - min over seeds of the row's mean PSNR) and ``seed_spread_dpsnr`` (max - min over seeds
 of the row's mean PSNR difference to its reference, seed by seed where the reference has that seed). Their
 intervals resample the training seeds as well as the objects (:func:`frng.report.stats.paired_bootstrap` with one
-frame per seed, :func:`seed_parts`), so they contain the spread between training runs. ``views``, ``k``,
+frame per seed, :func:`frng.report.runs.seed_parts`), so they contain the spread between training runs. ``views``, ``k``,
 ``ladder`` and ``lambertian`` use the models' own seed (the plain run names) only.
 """
 
@@ -73,12 +73,11 @@ from frng.plan.variants import (
     PLUS,
     PLUS_METHOD,
     RIG_VIEWS,
-    SEED_SEP,
     VARIANTS,
-    split_seed,
 )
-from frng.report import stats as S
 from frng.report import tables as T
+from frng.report.ladder import ladder_by_class, ladder_table, split_ladder
+from frng.report.runs import base_run, diff_to, image_means, plain_runs, seed_columns, seed_mean, seed_parts
 
 TABLES = tuple(T.TABLE_COLUMNS)
 VARIANT_LABELS = {name: v.label for name, v in VARIANTS.items()}
@@ -90,10 +89,6 @@ METHOD_LABELS = {
 # the rows of the vs-backbone tables: (run, timing key), the paper's F-RNG first; F-RNG+ where it was trained
 HEADLINE_RUNS = (("full", "F-RNG"), (PLUS, PLUS_METHOD))
 BASE_LABEL = "Lambertian base only"
-GROUND_TRUTH = "ground-truth"  # frng.apps.scoring.GROUND_TRUTH
-TARGETS_METHOD = "targets-vs-high-spp"  # frng.data.noise_floor.LADDER_METHODS["tier"]: the ladder's step 0
-REFERENCE_HALF_METHOD = "high-spp-reference-half"  # frng.data.noise_floor.LADDER_METHODS["reference-half"]: step 0r
-IMAGE_KEYS = ("object", "light", "view")
 DIFF_NOTE = (
     "Δ = the row minus its reference row over the same images, with a 95% paired bootstrap interval over "
     "test objects (2000 resamples; where a row has several training seeds, the seeds are resampled too); "
@@ -126,111 +121,14 @@ def _metrics(df: pd.DataFrame, by: list[str]) -> pd.DataFrame:
     return M.aggregate(df, by)
 
 
-# -- runs, seeds -------------------------------------------------------------------------------------------
-
-
-def base_run(run: str) -> str:
-    """The run a training-seed run repeats (``full@s1`` -> ``full``; others unchanged)."""
-    return split_seed(str(run))[0] if SEED_SEP in str(run) else str(run)
-
-
-def _plain(df: pd.DataFrame) -> pd.DataFrame:
-    """Rows of the runs trained with the models' own seed (no ``@s{seed}`` runs)."""
-    return df[~df["run"].astype(str).str.contains(SEED_SEP, regex=False)]
+# -- row selections ----------------------------------------------------------------------------------------
 
 
 def _idm_runs(df: pd.DataFrame) -> pd.DataFrame:
     """Rows of the paper's runs: the configured IDM's priors, the full decoder, the models' own seed (drops the
     ladder's oracle-prior and Lambertian-base runs and the other training seeds)."""
-    df = _plain(df)
+    df = plain_runs(df)
     return df[~df["run"].isin([ORACLE_RUN, BASE_RUN, KNOWN_LIGHT_RUN])]
-
-
-def seed_runs(df: pd.DataFrame, run: str) -> dict[str, pd.DataFrame]:
-    """{run name: its per-image rows} of ``run`` and its training-seed repeats (``run@s{seed}``)."""
-    runs = df["run"].astype(str)
-    return {r: df[runs == r] for r in dict.fromkeys(runs[runs.map(base_run) == run])}
-
-
-def seed_mean(df: pd.DataFrame, run: str) -> pd.DataFrame:
-    """Per-image rows of ``run`` averaged over its training seeds (one row per object, light and view; metric
-    columns, PSNR interior and the scale/brightness columns averaged; ``run`` = the plain name)."""
-    parts = seed_runs(df, run)
-    if not parts:
-        return df.iloc[:0]
-    sub = pd.concat(parts.values(), ignore_index=True)
-    num = [c for c in sub.columns if c in M.METRICS or c.startswith(("psnr_", "scale_", "brightness_"))]
-    first = sub.drop_duplicates(list(IMAGE_KEYS)).set_index(list(IMAGE_KEYS)).drop(columns=num)
-    mean = sub.groupby(list(IMAGE_KEYS), sort=False)[num].mean()
-    out = first.join(mean).reset_index()
-    out["run"] = run
-    if "variant" in out:
-        out["variant"] = out["variant"].astype(str).map(lambda v: split_seed(v)[0])
-    return out[[c for c in df.columns if c in out.columns]]
-
-
-def seed_parts(df: pd.DataFrame, run: str, select=lambda d: d) -> dict[str, pd.DataFrame]:
-    """{run name: per-image rows} of ``run`` and of each of its training-seed repeats, narrowed by ``select``, empty
-    ones left out: what :func:`seed_columns` spreads and :func:`diff_to` bootstraps over seeds as well as objects."""
-    parts = {r: select(d) for r, d in seed_runs(df, run).items()}
-    return {r: d for r, d in parts.items() if len(d)}
-
-
-def image_means(sub: pd.DataFrame) -> dict:
-    """``n`` (images) and the mean PSNR / PSNR interior / SSIM / LPIPS of per-image rows (PSNR interior and LPIPS NaN
-    where the rows have none): the metric cells every table row carries (each table shows its own)."""
-    return {
-        "n": len(sub),
-        "psnr": sub["psnr"].mean(),
-        "psnr_interior": sub["psnr_interior"].mean() if "psnr_interior" in sub else np.nan,
-        "ssim": sub["ssim"].mean(),
-        "lpips": sub["lpips"].mean() if "lpips" in sub else np.nan,
-    }
-
-
-def diff_to(rows, ref, metrics=T.DIFF_METRICS) -> dict:
-    """The paired-difference columns (:func:`frng.report.tables.diff_columns`) of ``metrics`` of ``rows`` minus
-    ``ref``, matched on object, light and view (:func:`frng.report.stats.paired`). Either may be a list of per-seed
-    frames (:func:`seed_parts`): the interval then also resamples the training seeds."""
-    out = {}
-    frames = [*(rows if isinstance(rows, list) else [rows]), *(ref if isinstance(ref, list) else [ref])]
-    for m in metrics:
-        if any(m not in f.columns for f in frames):  # per-image rows written before the metric existed
-            out |= {f"d{m}": np.nan, f"d{m}_lo": np.nan, f"d{m}_hi": np.nan}
-            continue
-        r = S.paired(rows, ref, m, IMAGE_KEYS)
-        out |= {f"d{m}": r.diff, f"d{m}_lo": r.lo, f"d{m}_hi": r.hi}
-        if m == "psnr":
-            out |= {"better": r.better, "objects": r.objects}
-    return out
-
-
-def seed_columns(df: pd.DataFrame, run: str, ref_run: str | None, select=lambda d: d) -> dict:
-    """``seeds``, ``seed_spread_psnr``, ``seed_spread_dpsnr`` of ``run`` (see the module docstring); ``select``
-    narrows each seed's rows (e.g. to one dataset)."""
-    parts = seed_parts(df, run, select)
-    if not parts:
-        return {"seeds": np.nan, "seed_spread_psnr": np.nan, "seed_spread_dpsnr": np.nan}
-    means = [d["psnr"].mean() for d in parts.values()]
-    out = {
-        "seeds": len(parts),
-        "seed_spread_psnr": float(np.ptp(means)) if len(parts) > 1 else np.nan,
-        "seed_spread_dpsnr": np.nan,
-    }
-    if ref_run is not None and len(parts) > 1:
-        refs = {r: select(d) for r, d in seed_runs(df, ref_run).items()}
-        diffs = []
-        for r, d in parts.items():
-            _, seed = split_seed(r) if SEED_SEP in r else (r, None)
-            ref = refs.get(ref_run if seed is None else f"{ref_run}{SEED_SEP}{seed}", refs.get(ref_run))
-            if ref is not None and len(ref):
-                diffs.append(S.paired(d, ref, "psnr", IMAGE_KEYS).diff)
-        if len(diffs) > 1:
-            out["seed_spread_dpsnr"] = float(np.ptp(diffs))
-    return out
-
-
-# -- row selections ----------------------------------------------------------------------------------------
 
 
 def ablation_rows(df: pd.DataFrame) -> pd.DataFrame:
@@ -417,136 +315,6 @@ def claims(df: pd.DataFrame, timings: list[dict]) -> pd.DataFrame:
     return pd.concat(out, ignore_index=True)
 
 
-LADDER_STEPS = (  # (step, what, source, task/run, method, reference step); source "prior" = backbone.csv
-    (
-        "0r",
-        "the reference's own noise: one of its two high-spp renders against the other (their mean: ~6 dB above)",
-        "prior",
-        "relight",
-        REFERENCE_HALF_METHOD,
-        None,
-    ),
-    (
-        "0",
-        "the targets' noise floor: curated as the tier curates, against a high-spp render of the same views",
-        "prior",
-        "relight",
-        TARGETS_METHOD,
-        None,
-    ),
-    (
-        "a",
-        "ground-truth depth (pixel-footprint surfels) + oracle colour",
-        "prior",
-        "relight",
-        "gt-depth+oracle-colour",
-        None,
-    ),
-    ("b", "backbone geometry + oracle colour", "prior", "relight", "backbone-geometry+oracle-colour", None),
-    ("c", "backbone novel views (input light, held-out views)", "prior", "nvs", "backbone", None),
-    ("d", "backbone relighting", "relight", BACKBONE, None, None),
-    ("e", "F-RNG relighting (the paper's form)", "relight", "full", None, "d"),
-    ("f", "F-RNG relighting with oracle (G-buffer) IDM priors", "relight", ORACLE_RUN, None, "e"),
-    ("e+", "F-RNG+ relighting (the project's additions on)", "relight", PLUS, None, "e"),
-    (
-        "g",
-        "F-RNG+'s Lambertian base alone (decoder residual, attenuation, specular base dropped)",
-        "relight",
-        BASE_RUN,
-        None,
-        "e+",
-    ),
-    ("h", "oracle: F-RNG+ told the input views' light (not the paper's task)", "relight", KNOWN_LIGHT_RUN, None, "e+"),
-    ("-", "trivial baseline: mean training image", "prior", "relight", "mean-image", None),
-)
-SENSITIVITY_STEPS = (  # (step, method label, run in the per-image / cross-light CSVs)
-    ("s1", "backbone", BACKBONE),
-    ("s2", "F-RNG", "full"),
-    ("s2+", "F-RNG+", PLUS),
-    ("s3", "ground truth", GROUND_TRUTH),
-)
-
-
-def sensitivity_rows(df: pd.DataFrame, cross: pd.DataFrame | None) -> list[dict]:
-    """Light sensitivity per method (:data:`SENSITIVITY_STEPS`): psnr/ssim/lpips of the method's render for one
-    test light scored against the ground truth of another test light (same object and view; ``cross``:
-    ``relight_cross_light.csv``), and the paired difference right light minus wrong light with its interval
-    (``d*``; ``better``: objects that score higher against the right light). The ground truth's right-light score
-    is the ground truth against itself (its ``scored_against == light`` rows): its SSIM and LPIPS differences are
-    finite, its PSNR difference is not (identical images; the metric's cap is not a measurement), so its ``dpsnr``
-    columns are left empty and its wrong-light PSNR is the number to read (how different the test lights are)."""
-    if cross is None or not len(cross):
-        return []
-    rows = []
-    for step, label, run in SENSITIVITY_STEPS:
-        c = cross[cross["run"] == run]
-        wrong = c[c["scored_against"] != c["light"]]
-        right = c[c["scored_against"] == c["light"]] if run == GROUND_TRUTH else df[df["run"] == run]
-        if not len(wrong) or not len(right):
-            continue
-        rows.append(
-            {
-                "step": step,
-                "what": f"light sensitivity: {label} (scored against another test light)",
-                "n": len(wrong),
-                "psnr": wrong["psnr"].mean(),
-                "ssim": wrong["ssim"].mean(),
-                "lpips": wrong["lpips"].mean(),
-                "vs": "right light",
-            }
-            | diff_to(right, wrong)
-        )
-        if run == GROUND_TRUTH:
-            rows[-1] |= {"dpsnr": np.nan, "dpsnr_lo": np.nan, "dpsnr_hi": np.nan}
-    return rows
-
-
-def ladder_table(df: pd.DataFrame, prior: pd.DataFrame, cross: pd.DataFrame | None = None) -> pd.DataFrame:
-    """The quality ladder (rows of :data:`LADDER_STEPS` present in the inputs): where the dB go, on the held-out
-    relighting images (row c: the held-out input-light views). ``psnr_interior``: the mean of the per-image
-    ``psnr_interior`` (:func:`frng.metrics.evaluate_pair`: the foreground without its silhouette rim; NaN for
-    inputs written before it was recorded); ``silhouette_iou``: the mean of the per-image
-    :func:`frng.metrics.silhouette_iou` (NaN likewise); ``depth_error``: the mean of the prior rows' per-object
-    :func:`frng.priors.evaluate.depth_error` (the relighting runs' rows: NaN); ``scale_log2``: :func:`frng.metrics.scale_log2`;
-    ``brightness_log2``: :func:`frng.metrics.brightness_log2` (relighting rows only).
-    LPIPS where the input has it (prior evaluations written before it was recorded leave it NaN). Relighting rows
-    with a reference step (``vs``) carry the paired difference to it; then the light-sensitivity rows
-    (:func:`sensitivity_rows`). The models' own seed only."""
-    df = _plain(df)
-    rows, subs = [], {}
-    for step, what, source, key, method, ref in LADDER_STEPS:
-        if source == "prior":
-            sub = prior[(prior["task"] == key) & (prior["method"] == method)]
-        else:
-            sub = df[df["run"] == key]
-        if not len(sub):
-            continue
-        subs[step] = sub
-        row = {
-            "step": step,
-            "what": what,
-            **image_means(sub),
-            "silhouette_iou": sub["silhouette_iou"].mean() if "silhouette_iou" in sub else np.nan,
-            "depth_error": sub["depth_error"].mean() if "depth_error" in sub else np.nan,
-            "scale_log2": M.scale_log2(sub),
-            "brightness_log2": M.brightness_log2(sub),
-        }
-        if ref is not None and ref in subs:
-            row |= {"vs": ref} | diff_to(sub, subs[ref])
-        rows.append(row)
-    rows += sensitivity_rows(df, cross)
-    out = pd.DataFrame(rows)
-    main = list(T.TABLE_COLUMNS["ladder"])
-    rest = [c for c in ["vs", *T.diff_columns()] if c in out.columns]
-    return out.reindex(columns=main + rest)
-
-
-def split_ladder(ladder: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """(the ladder's steps, its light-sensitivity rows ``s*``): written as the table and its unmarked footer."""
-    s = ladder["step"].astype(str).str.match(r"^s[0-9]+\+?$")
-    return ladder[~s].reset_index(drop=True), ladder[s].reset_index(drop=True)
-
-
 def lambertian_table(df: pd.DataFrame) -> pd.DataFrame:
     """Per material class (then ``all``): F-RNG+ (``plus``: the paper's form has no Lambertian base) and its
     Lambertian base alone (``plus-base``), with the base's paired difference to F-RNG+. The models' own seed."""
@@ -654,25 +422,6 @@ def ladder_by_light(df: pd.DataFrame, prior: pd.DataFrame, cross: pd.DataFrame |
             parts.append(t.assign(**{LIGHT_FAMILY: fam}))
     out = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=[LIGHT_FAMILY])
     main = list(T.TABLE_COLUMNS["ladder_by_light"])
-    rest = [c for c in ["vs", *T.diff_columns()] if c in out.columns]
-    return out.reindex(columns=main + rest).reset_index(drop=True)
-
-
-def ladder_by_class(df: pd.DataFrame, prior: pd.DataFrame, cross: pd.DataFrame | None = None) -> pd.DataFrame:
-    """:func:`ladder_table` for each material class (``dataset``: diffuse, fur, specular, ...; rows: class, then step;
-    the light-sensitivity rows ``s*`` included): where each class's dB go, and how far its geometry is from the
-    G-buffer (``silhouette_iou``, ``depth_error``). The prior rows carry no class: an object's class is the one its
-    relighting rows have."""
-    classes = df.groupby("object")["dataset"].first() if len(df) else pd.Series(dtype=object)
-    parts = []
-    for ds in sorted(set(classes)):
-        objs = set(classes.index[classes == ds])
-        pick = lambda d, objs=objs: None if d is None else d[d["object"].isin(objs)]  # noqa: E731
-        t = ladder_table(pick(df), pick(prior), pick(cross))
-        if len(t):
-            parts.append(t.assign(dataset=ds))
-    out = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=["dataset"])
-    main = list(T.TABLE_COLUMNS["ladder_by_class"])
     rest = [c for c in ["vs", *T.diff_columns()] if c in out.columns]
     return out.reindex(columns=main + rest).reset_index(drop=True)
 

@@ -41,7 +41,7 @@ import pandas as pd
 
 from frng.io import atomic_path
 
-# the quality ladder's columns (frng.report.paper_tables.ladder_table); its per-light-family table adds the family
+# the quality ladder's columns (frng.report.ladder.ladder_table); its per-light-family table adds the family
 LADDER_COLUMNS = (
     "step",
     "what",

@@ -19,7 +19,7 @@ from pathlib import Path
 from frng import io
 from frng.data.curate import CurationError, curate
 from frng.data.stopguard import StopGuard
-from frng.plan import catalog
+from frng.plan import catalog, dataset_config
 from frng.plan import config as frng_config
 from frng.plan.layout import Layout
 from frng.plan.sections import config_section
@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
             log=lambda m: print(m, flush=True),
             guard=guard,
         )
-    except (CurationError, catalog.CatalogError, envmap.EnvMapError, io.ImageError) as e:
+    except (CurationError, dataset_config.CatalogError, envmap.EnvMapError, io.ImageError) as e:
         print(f"frng curate: error: {e}", file=sys.stderr, flush=True)
         return 1
     print(f"[{args.object}] done: {final} in {time.perf_counter() - t0:.1f} s", flush=True)

@@ -14,7 +14,7 @@ from frng.baselines.curate import curate_baselines
 from frng.baselines.plan import baseline_objects, test_objects
 from frng.data.curate import CurationError
 from frng.data.stopguard import StopGuard
-from frng.plan import catalog
+from frng.plan import catalog, dataset_config
 from frng.plan import config as frng_config
 from frng.plan.layout import Layout
 from frng.plan.sections import config_section
@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
             log=lambda m: print(m, flush=True),
             guard=guard,
         )
-    except (CurationError, catalog.CatalogError, envmap.EnvMapError, io.ImageError) as e:
+    except (CurationError, dataset_config.CatalogError, envmap.EnvMapError, io.ImageError) as e:
         print(f"frng curate-baselines: error: {e}", file=sys.stderr, flush=True)
         return 1
     print(f"[{args.object}] done: {final} in {time.perf_counter() - t0:.1f} s", flush=True)

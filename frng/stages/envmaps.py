@@ -12,7 +12,7 @@ from pathlib import Path
 
 from frng import io
 from frng.data.envmaps import prepare
-from frng.plan import catalog
+from frng.plan import catalog, dataset_config
 from frng.plan import config as frng_config
 from frng.plan.layout import Layout
 from frng.render import envmap
@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
         records = prepare(
             config.envmaps, specs, config.render.threads, out, log=lambda m: print(m, flush=True), guard=guard
         )
-    except (envmap.EnvMapError, catalog.CatalogError, io.ImageError) as e:
+    except (envmap.EnvMapError, dataset_config.CatalogError, io.ImageError) as e:
         print(f"frng envmaps: error: {e}", file=sys.stderr)
         return 1
     n_test = sum(r["split"] == "test" for r in records)

@@ -23,7 +23,7 @@ from pathlib import Path
 from frng import io
 from frng.data import noise_floor as N
 from frng.metrics import EvalConfig  # registers the eval section's class (config_section builds it)
-from frng.plan import catalog
+from frng.plan import catalog, dataset_config
 from frng.plan import config as frng_config
 from frng.plan.layout import Layout
 from frng.plan.sections import config_section
@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
             False,
             log=lambda m: print(m, flush=True),
         )
-    except (FileNotFoundError, catalog.CatalogError) as e:
+    except (FileNotFoundError, dataset_config.CatalogError) as e:
         print(f"frng noise-floor: error: {e}", file=sys.stderr)
         return 1
     finally:

@@ -51,6 +51,7 @@ from frng.hashing import data_digest
 from frng.memo import TensorMemo
 from frng.plan.sections import FINITE, key, register
 from frng.priors import backbone as bb
+from frng.priors.backbone_config import BackboneSection, backbone_config
 from frng.priors.dataset import PriorObject, Views
 from frng.priors.diffusion import to_diffusion_space
 from frng.seeding import seed_everything
@@ -191,8 +192,8 @@ def _gamma(rgb: torch.Tensor) -> torch.Tensor:
 
 @register("backbone")
 @dataclass(frozen=True)
-class BackboneTrainingSection(bb.BackboneSection):
-    """The config's whole ``backbone`` section: what inference reads (:class:`frng.priors.backbone.BackboneSection`)
+class BackboneTrainingSection(BackboneSection):
+    """The config's whole ``backbone`` section: what inference reads (:class:`frng.priors.backbone_config.BackboneSection`)
     and the training (``backbone.train``; :class:`BackboneTrainConfig`)."""
 
     CONFIG_DOC = "the frozen RelitLRM-style backbone (frng/priors/backbone.py)"
@@ -349,7 +350,7 @@ def train(
     tr.check_training_split(objects, "backbone-train")
     tcfg = backbone.train
     total = steps or tcfg.steps
-    cfg = bb.backbone_config(backbone, patch_size)
+    cfg = backbone_config(backbone, patch_size)
     device = resolve_device(device)
     seed_everything(seed, device)
     model = bb.RelitLRMBackbone(cfg).to(device)
