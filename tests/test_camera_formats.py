@@ -380,7 +380,7 @@ def test_a_camera_file_for_other_images_names_the_file(tmp_path):
     other = _write_colmap_rig(tmp_path / "other", [f"x{i}" for i in range(3)], c2ws[:3], intrs[:3])
     with pytest.raises(CaptureError) as e:
         prepare(images, resolution=RES, distance=DIST, fov_deg=FOV, cameras=other)
-    _one_line(e, "images.txt", "no camera for image(s)", "other images")
+    _one_line(e, "images.txt", "3 cameras name none of the 4 photos", "other images")
     llff = write_llff(tmp_path / "poses_bounds.npy", c2ws[:3], intrs[:3])
     with pytest.raises(CaptureError) as e:
         prepare(images, resolution=RES, distance=DIST, fov_deg=FOV, cameras=llff)
@@ -397,6 +397,59 @@ def test_a_camera_file_for_other_images_names_the_file(tmp_path):
     with pytest.raises(CaptureError) as e:
         read_camera_set(tmp_path / "cams.npz")
     _one_line(e, "cams.npz", "world_mat_0")
+
+
+def _transforms(path: Path, names, c2ws, **top):
+    frames = [
+        {
+            **({"file_path": f"images/{n}.png"} if n is not None else {}),
+            "transform_matrix": camera.c2w_to_blender(c).tolist(),
+        }
+        for n, c in zip(names, c2ws)
+    ]
+    path.write_text(json.dumps({"camera_angle_x": math.radians(FOV), "w": RES, "h": RES, "frames": frames, **top}))
+    return path
+
+
+def test_a_json_camera_file_naming_other_images_is_refused_even_when_the_counts_agree(tmp_path):
+    """Names decide: a transforms.json / OpenCV file whose cameras name none of the photos (same count) is one line
+    naming the file, and so is one that names some of them; only a file that names no images is taken in order."""
+    names, c2ws, intrs = _rig_scene()
+    images = _disk_folder(tmp_path, names)
+    other = _transforms(tmp_path / "other.json", [f"r_{i}" for i in range(4)], c2ws)
+    with pytest.raises(CaptureError) as e:
+        prepare(images, resolution=RES, distance=DIST, fov_deg=FOV, cameras=other)
+    _one_line(e, "other.json", "4 cameras name none of the 4 photos", "'r_0'", "'v0'", "other images")
+    opencv = tmp_path / "opencv.json"
+    opencv.write_text(
+        json.dumps(
+            {
+                "cameras": [
+                    {"image": f"IMG_{i}.jpg", "c2w": c.tolist(), "intrinsics": k.tolist()}
+                    for i, (c, k) in enumerate(zip(c2ws, intrs))
+                ]
+            }
+        )
+    )
+    with pytest.raises(CaptureError) as e:
+        prepare(images, resolution=RES, distance=DIST, fov_deg=FOV, cameras=opencv)
+    _one_line(e, "opencv.json", "name none of the 4 photos", "'IMG_0'")
+    some = _transforms(tmp_path / "some.json", ["v0", "v1", "x2", "x3"], c2ws)
+    with pytest.raises(CaptureError) as e:
+        prepare(images, resolution=RES, distance=DIST, fov_deg=FOV, cameras=some)
+    _one_line(e, "some.json", "no camera for image(s) ['v2', 'v3']")
+    unnamed = _transforms(tmp_path / "unnamed.json", [None] * 4, c2ws)
+    cap = prepare(images, resolution=RES, distance=DIST, fov_deg=FOV, cameras=unnamed)
+    assert np.allclose(cap.c2w, np.stack(c2ws), atol=1e-6)
+    with pytest.raises(CaptureError) as e:
+        prepare(
+            images,
+            resolution=RES,
+            distance=DIST,
+            fov_deg=FOV,
+            cameras=_transforms(tmp_path / "u3.json", [None] * 3, c2ws[:3]),
+        )
+    _one_line(e, "u3.json", "3 cameras for 4 images", "name no images")
 
 
 def test_malformed_colmap_files_name_the_file(tmp_path):
@@ -446,6 +499,28 @@ def test_distortion_out_of_range_names_the_file_and_field(tmp_path, fields, part
     with pytest.raises(CaptureError) as e:
         prepare(images, resolution=RES, distance=DIST, fov_deg=FOV, cameras=path)
     _one_line(e, "transforms.json", *parts)
+
+
+@pytest.mark.parametrize(
+    "model,extra,parts",
+    [
+        ("SIMPLE_RADIAL", [-2.5], ["k1=-2.5", "folds back"]),
+        ("OPENCV", [0.0, 0.0, 0.0, 0.5], ["p2=0.5", "tangential"]),
+        ("OPENCV_FISHEYE", [-3.0, 0.0, 0.0, 0.0], ["k1=-3", "fisheye distortion out of range"]),
+    ],
+)
+def test_colmap_distortion_out_of_range_names_the_file_and_photo(tmp_path, model, extra, parts):
+    names, c2ws, intrs = _rig_scene()
+    images = _disk_folder(tmp_path, names)
+    if model == "SIMPLE_RADIAL":  # f, cx, cy, then k1
+        path = _write_colmap_rig(tmp_path / "m", names, c2ws, intrs, model="SIMPLE_PINHOLE", extra=extra)
+        text = (path / "cameras.txt").read_text().replace("SIMPLE_PINHOLE", "SIMPLE_RADIAL")
+        (path / "cameras.txt").write_text(text)
+    else:
+        path = _write_colmap_rig(tmp_path / "m", names, c2ws, intrs, model=model, extra=extra)
+    with pytest.raises(CaptureError) as e:
+        prepare(images, resolution=RES, distance=DIST, fov_deg=FOV, cameras=path)
+    _one_line(e, str(path), "camera of v0", *parts)
 
 
 def test_opencv_file_distortion_coefficients(tmp_path):

@@ -315,8 +315,9 @@ def test_maps_not_2to1_or_not_finite_name_the_file(tmp_path):
 # -- assets: render side ---------------------------------------------------------------------------------------
 
 
-def synthetic_asset(folder: Path, version_bump: bool = False) -> Path:
-    """A small neural asset: a ball of Gaussians with a cosine decoder (normal + diffuse in the features)."""
+def synthetic_asset(folder: Path, version_bump: bool = False, textured: bool = False) -> Path:
+    """A small neural asset: a ball of Gaussians with a cosine decoder (normal + diffuse in the features);
+    ``textured``: each Gaussian its own random albedo (else one colour)."""
     from frng.apps.asset import render_settings, save_asset
     from frng.gaussians import Gaussians
     from frng.render import RasterConfig
@@ -329,6 +330,8 @@ def synthetic_asset(folder: Path, version_bump: bool = False) -> Path:
     feats = torch.zeros(N, C)
     feats[:, :3] = d
     feats[:, 3:6] = torch.tensor([0.6, 0.3, 0.2]) / math.pi
+    if textured:
+        feats[:, 3:6] = (0.1 + 0.8 * torch.rand(N, 3, generator=g)) / math.pi
     gauss = Gaussians(
         0.8 * d, torch.tensor([[1.0, 0, 0, 0]]).repeat(N, 1), torch.full((N, 3), 0.12), torch.full((N,), 0.9), feats
     )
@@ -426,3 +429,28 @@ def test_reconstruct_bad_input_is_one_line_naming_the_file(tmp_path):
     assert r.returncode == 2 and "square.exr: equirect maps must be 2:1" in r.stdout
     r = _frng("reconstruct", "--images", d, "--out", tmp_path / "a", "--model", tmp_path / "m" / "full" / "model.pt")
     assert r.returncode == 2 and "config.yaml: no recorded config beside the model" in r.stdout
+
+
+def test_reconstruct_camera_file_for_other_images_bad_distortion_and_no_held_out_views_are_one_line(tmp_path):
+    """Through the command line, before any model is read: exit 2, one line naming the file (and the field), no
+    traceback, nothing written."""
+    d, _ = _curated_like(tmp_path)
+    entries = json.loads((tmp_path / "cameras.json").read_text())["cameras"]
+    other = [{**e, "name": f"IMG_{i:04d}.JPG"} for i, e in enumerate(entries)]
+    (tmp_path / "other.json").write_text(json.dumps({"cameras": other}))
+    (tmp_path / "dist.json").write_text(json.dumps({"cameras": [{**e, "dist": [0.0, 0.0, 0.5, 0.0]} for e in entries]}))
+    config = ROOT / "config" / "smoke.yaml"
+    cases = [
+        (["--cameras", tmp_path / "other.json"], ["other.json: its 4 cameras name none of the 4 photos", "IMG_0000"]),
+        (["--cameras", tmp_path / "dist.json"], ["dist.json: camera of v0", "p1=0.5", "tangential"]),
+        (["--measure-heldout"], [f"{d}: --measure-heldout", "--cameras or --sfm"]),
+        (
+            ["--cameras", tmp_path / "cameras.json", "--measure-heldout"],
+            [f"{d}: --measure-heldout: no photo is held out"],
+        ),
+    ]
+    for extra, words in cases:
+        r = _frng("reconstruct", "--images", d, "--out", tmp_path / "a", "--config", config, *extra)
+        assert r.returncode == 2 and "Traceback" not in r.stderr, r.stdout + r.stderr
+        assert len(r.stdout.strip().splitlines()) == 1 and all(w in r.stdout for w in words), (words, r.stdout)
+        assert not (tmp_path / "a").exists() and not any(p.name.startswith(".tmp") for p in tmp_path.iterdir())

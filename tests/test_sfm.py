@@ -134,15 +134,44 @@ def test_photos_from_one_place_make_no_reconstruction(tmp_path):
     _one_line(e, str(d), "made no reconstruction", "best pair")
 
 
-def test_a_photo_that_does_not_register_is_named(scene, tmp_path):
+@pytest.fixture(scope="module")
+def strays(scene, tmp_path_factory):
+    """The 12 photos plus two that cannot register: the same view of another scene (``stray.png``) and noise
+    (``noise.png``)."""
     images, _ = scene
-    d = tmp_path / "images"
+    d = tmp_path_factory.mktemp("strays") / "images"
     shutil.copytree(images, d)
     K = camera.intrinsics_from_fov(42.0, RES, RES)
     io.write_png(d / "stray.png", cs.render(camera.look_at(camera.spherical_to_cartesian(0, 30, DIST)), K, seed=7).rgb)
-    with pytest.raises(CaptureError) as e:
-        sfm.cameras_from_photos(sorted(d.glob("*.png")), d, progress=None)
-    _one_line(e, str(d), f"registered {N_VIEWS} of {N_VIEWS + 1} photos", "did not register: stray (")
+    io.write_png(d / "noise.png", np.random.default_rng(3).uniform(size=(RES, RES, 3)).astype(np.float32))
+    return d
+
+
+def test_photos_that_do_not_register_are_left_out_when_enough_do(strays, tmp_path):
+    lines = []
+    cset = sfm.cameras_from_photos(sorted(strays.glob("*.png")), strays, need=6, progress=lines.append)
+    assert [n for n, _ in cset.cams] == [f"v{i:02d}" for i in range(N_VIEWS)]
+    assert cset.notes["sfm"]["not_registered"] == ["noise.png", "stray.png"]
+    left = [ln for ln in lines if "left out" in ln]
+    assert len(left) == 1 and left[0].startswith("sfm: not registered, left out: noise.png, stray.png (")
+    assert f"{N_VIEWS} of {N_VIEWS + 2} photos registered" in left[0]
+    # through the capture: the two are neither views nor held out, and the record names them
+    cap = prepare(strays, resolution=64, distance=DIST, fov_deg=30.0, sfm=True, work=tmp_path, progress=lines.append)
+    assert cap.info["sfm"]["not_registered"] == ["noise.png", "stray.png"]
+    sel = cap.info["selection"]
+    assert len(sel["chosen"]) == 6 and len(sel["held_out"]) == N_VIEWS - 6
+    assert not {"noise", "stray"} & set(sel["chosen"] + sel["held_out"])
+    assert [c["name"] for c in cap.info["held_out_cameras"]] == sel["held_out"]
+
+
+def test_too_few_registered_photos_are_one_line_naming_them(strays):
+    files = sorted(strays.glob("*.png"))
+    with pytest.raises(CaptureError) as e:  # every photo must register
+        sfm.cameras_from_photos(files, strays, progress=None)
+    _one_line(e, str(strays), f"registered {N_VIEWS} of {N_VIEWS + 2} photos", "noise.png (", "stray.png (")
+    with pytest.raises(CaptureError) as e:  # more views wanted than registered
+        sfm.cameras_from_photos(files, strays, need=N_VIEWS + 1, progress=None)
+    _one_line(e, str(strays), f"fewer than the {N_VIEWS + 1} views the model takes", "did not register: noise.png (")
 
 
 def test_too_few_photos_and_bad_combinations(scene, tmp_path):

@@ -215,22 +215,32 @@ class CameraSet:
     # where the cameras come from a structure-from-motion run: per photo name, the pixel positions (K, 2) of its
     # keypoints that became sparse points and their rows in ``points`` (K,) (what seeds the masks, frng.apps.masks)
     observations: dict[str, tuple[np.ndarray, np.ndarray]] | None = None
+    # whether the cameras name their images (a JSON file's entries without ``file_path`` / ``image`` / ``name`` do
+    # not: their names are the placeholders frame_{k} / cam_{k}, and they are matched by order like ``by_order``)
+    named: bool = True
 
     def assign(self, names: list[str]) -> dict[str, FileCamera]:
-        """Photo name -> its camera: by name (COLMAP, JSON files), else, for files whose cameras carry no names (or
-        JSON files whose names do not match), by sorted order when the counts agree. A file made for other images
-        is an error naming it."""
+        """Photo name -> its camera: by name (COLMAP, JSON files), else, for files whose cameras carry no names
+        (LLFF, IDR, JSON entries without image names), by sorted order when the counts agree. A file made for other
+        images (a photo without a camera of its name, or no camera named after any photo) is an error naming it."""
         by = dict(self.cams)
-        if not self.by_order and all(n in by for n in names):
+        unnamed = self.by_order or not self.named
+        if not unnamed and all(n in by for n in names):
             return {n: by[n] for n in names}
-        if len(self.cams) == len(names) and (self.by_order or self.format == "json"):
+        if unnamed and len(self.cams) == len(names):
             return {n: c for n, (_, c) in zip(names, self.cams)}
-        if self.by_order:
+        if unnamed:
+            what = f"{self.format} cameras name no images" if self.by_order else "its cameras name no images"
             raise CaptureError(
-                f"{self.path}: {len(self.cams)} cameras for {len(names)} images; {self.format} cameras name no "
-                f"images, so the folder must hold exactly the images the file was made for (matched in sorted order)"
+                f"{self.path}: {len(self.cams)} cameras for {len(names)} images; {what}, so the folder must hold "
+                f"exactly the images the file was made for (matched in sorted order)"
             )
         missing = [n for n in names if n not in by]
+        if len(missing) == len(names):
+            raise CaptureError(
+                f"{self.path}: its {len(self.cams)} cameras name none of the {len(names)} photos (the file names "
+                f"{[n for n, _ in self.cams][:3]}, the photos are {names[:3]}): a camera file of other images?"
+            )
         raise CaptureError(
             f"{self.path}: no camera for image(s) {missing[:3]} ({len(self.cams)} cameras, {len(names)} images; "
             f"is this the camera file of other images?)"
@@ -272,7 +282,8 @@ def read_camera_set(path: str | Path, sizes: dict[str, tuple[int, int]] | None =
         if fallback is None:
             raise CaptureError(f"{path}: not a COLMAP model, poses_bounds.npy or cameras_sphere.npz")
         cams = [(n, FileCamera(c.c2w, c.intr, c.size)) for n, c in fallback(path, sizes)]
-        cs = CameraSet(path, "json", cams)
+        placeholders = all(n in (f"frame_{k}", f"cam_{k}") for k, (n, _) in enumerate(cams))  # no image names
+        cs = CameraSet(path, "json", cams, named=not placeholders)
         _json_extras(cs)
     _check_cams(path, cs.cams, strict=cs.format != "json")  # json: read_cameras' own checks
     return cs

@@ -40,7 +40,8 @@ Cameras (:func:`read_cameras`, :func:`rig_cameras`, :func:`normalise`)
       file (JSON or YAML): ``{"cameras": [{"image": NAME, "K": 3x3, "R": 3x3, "t": [3]}]}`` (world-to-camera, as
       ``cv2.solvePnP``), or entries with ``c2w`` (4x4 OpenCV camera-to-world) + ``intrinsics`` (fx, fy, cx, cy)
       as :mod:`frng.data.rig` and ``meta.json`` write them (``width``/``height``: the size K refers to). Cameras
-      are matched to photos by file stem, else by order when the counts agree.
+      are matched to photos by file stem; a file whose entries name no images (no ``file_path`` / ``image`` /
+      ``name``) by sorted order when the counts agree; one naming other images is an error naming the file.
       Also a COLMAP model (text or binary), LLFF ``poses_bounds.npy`` and IDR / NeuS ``cameras_sphere.npz``, and
       lens distortion (transforms.json ``k1 k2 p1 p2``, COLMAP's models), undistorted before anything else
       (:mod:`frng.apps.camera_formats`); the world is turned upright and centred on the object, the transform
@@ -55,7 +56,11 @@ Cameras (:func:`read_cameras`, :func:`rig_cameras`, :func:`normalise`)
     * ``--sfm``: no camera file; structure from motion on the CPU finds the cameras from the photos themselves
       (:mod:`frng.apps.sfm`, pycolmap) and they take the ``--cameras`` path from there: the same undistortion,
       upright and centred frame (the object's centre from the sparse points inside the masks) and choice of views,
-      and the same normalisation to the training rig.
+      and the same normalisation to the training rig. Photos that do not register are left out (one stderr line
+      naming them, ``info["sfm"]["not_registered"]``) when at least as many register as the model takes views
+      (``select``, else the training rig's :data:`frng.apps.capture_frame.RIG_VIEWS`); else an error naming them.
+    * held-out photos (``held_out=True``, ``frng reconstruct --measure-heldout``): the photos not chosen as views
+      are prepared as the views are (:attr:`Capture.held_out`) and scored by :mod:`frng.apps.capture_heldout`.
     * framing of rig photos (``framing``): ``keep`` -- each photo is centre-cropped to a square (along its long
       side, centred on the object) and resized: the object keeps its size in the frame (right for renders made
       with the training rig, e.g. the exported test views); ``object`` -- every photo is cropped around its
@@ -616,6 +621,9 @@ class Capture:
     c2w: np.ndarray  # (V, 4, 4) OpenCV
     intr: np.ndarray  # (V, 4)
     info: dict
+    # ``prepare(held_out=True)``: the held-out photos prepared the same way (V', R, R, ...), in the asset's frame;
+    # ``held_out.info["skipped"]``: photo name -> why it could not be
+    held_out: Capture | None = None
 
     def views(self):
         """:class:`frng.priors.dataset.Views` (torch, float32)."""
@@ -645,14 +653,16 @@ def prepare(
     sfm: bool = False,
     work: str | Path | None = None,
     progress=None,
+    held_out: bool = False,
 ) -> Capture:
     """Photos -> :class:`Capture` (module docstring). ``cameras`` (a file), ``sfm`` (structure from motion finds
     them: :mod:`frng.apps.sfm`, its scratch folder in ``work``, ``progress(line)`` per stage, default stderr) or
     ``rig`` (``"paper"``, the default). ``allow_outside=False``: photos and masks that are symlinks out of their
     folders are refused. With ``cameras`` (any format of :mod:`frng.apps.camera_formats`) or ``sfm`` the photos
     are undistorted and the world turned upright, and among more than :data:`MAX_VIEWS` photos (or with
-    ``select``) the views are chosen (:mod:`frng.apps.capture_frame`)."""
-    sfm_set, seeds = None, None
+    ``select``) the views are chosen (:mod:`frng.apps.capture_frame`). ``held_out``: also prepare the photos not
+    chosen, as the views are (:attr:`Capture.held_out`; what ``--measure-heldout`` scores the asset on)."""
+    sfm_set, seeds, left_out, held = None, None, set(), None
     if sfm:
         from frng.apps import sfm as structure_from_motion
         from frng.apps.masks import seeds_from_sfm
@@ -661,14 +671,17 @@ def prepare(
             raise CaptureError("--sfm finds the cameras from the photos: give it without --cameras or --rig")
         if grid is not None or Path(images).is_file():
             raise CaptureError(f"{images}: --sfm takes a folder of photos taken from different places (no --grid)")
+        files = image_files(Path(images), allow_outside=allow_outside)
         sfm_set = structure_from_motion.cameras_from_photos(
-            image_files(Path(images), allow_outside=allow_outside),
+            files,
             images,
             work=work,
             progress=progress or structure_from_motion.say,
             read=read_image,
+            need=select or capture_frame.RIG_VIEWS,  # the views the model takes: so many must register
         )
         cameras, seeds = sfm_set.path, seeds_from_sfm(sfm_set)
+        left_out = {Path(n).stem for n in sfm_set.notes["sfm"].get("not_registered", [])}
 
     def read_set(path, sizes):
         if sfm_set is not None:
@@ -677,10 +690,11 @@ def prepare(
 
     sel = None
     if cameras is not None and grid is None and not Path(images).is_file():
+        files = [f for f in image_files(Path(images), allow_outside=allow_outside) if f.stem not in left_out]
         sel = capture_frame.select_photos(
             images,
             cameras,
-            image_files(Path(images), allow_outside=allow_outside),
+            files,
             select=select,
             load=lambda f: make_masks([Photo(f.stem, f, *read_image(f))], masks, None, allow_outside, seeds)[0],
             read_set=read_set,
@@ -689,7 +703,7 @@ def prepare(
         )
     elif select is not None:
         raise CaptureError(f"--select {select}: views are chosen among a folder of photos with --cameras or --sfm")
-    only = None if sel is None else sel.chosen
+    only = sel.chosen if sel is not None else [f.stem for f in files] if left_out else None  # registered
     photos = make_masks(load_images(images, grid, allow_outside, only), masks, grid, allow_outside, seeds)
     res = int(resolution)
     names = [p.name for p in photos]
@@ -712,23 +726,30 @@ def prepare(
         centre = frame.object_centre(cams, photos, centre)
         dists = [np.linalg.norm(k.c2w[:3, 3] - centre) for k in cams]
         scale = distance / float(np.median(dists))
-        t = math.tan(math.radians(fov_deg) / 2)
         out_c2w, out_intr, wins = [], [], []
         for k in cams:
-            c2w = k.c2w.copy()
-            c2w[:3, 3] = (c2w[:3, 3] - centre) * scale
-            uv, _ = camera.project(_t(np.zeros((1, 3))), _t(c2w)[None], _t(k.intr)[None])
-            u, v = (float(x) for x in uv[0, 0])
-            fx, fy, cx, cy = k.intr
-            wc, hc = 2 * fx * t, 2 * fy * t
-            x0, y0 = u - wc / 2, v - hc / 2
+            c2w, intr, win, _ = _rig_window(k, centre, scale, fov_deg, res)
             out_c2w.append(c2w)
-            out_intr.append(np.array([fx * res / wc, fy * res / hc, (cx - x0) * res / wc, (cy - y0) * res / hc]))
-            wins.append({"x0": x0, "y0": y0, "w": wc, "h": hc})
+            out_intr.append(intr)
+            wins.append(win)
         info |= {"cameras": "sfm" if sfm_set else str(cameras), "centre": centre.tolist(), "scale": scale}
         if sfm_set is not None:
             info["sfm"] = sfm_set.notes["sfm"]
         info |= frame.record(centre, scale)
+        if held_out and sel is not None and sel.held_out:
+            kept = {f.stem: f for f in files}
+            held = _held_out_views(
+                [kept[n] for n in sel.held_out],
+                frame,
+                Path(cameras),
+                centre,
+                scale,
+                fov_deg,
+                res,
+                masks,
+                seeds,
+                allow_outside,
+            )
     else:
         if rig not in (None, "paper"):
             raise CaptureError(f"--rig {rig!r}: the only rig is 'paper'")
@@ -750,7 +771,63 @@ def prepare(
         _check_not_empty(a, f"{p.path} (after cropping to the object)")
     alpha = np.clip(rgba[..., 3:4], 0.0, 1.0)
     rgb = np.maximum(rgba[..., :3], 0.0)
-    return Capture(names, rgb, alpha, np.stack(out_c2w), np.stack(out_intr), info)
+    return Capture(names, rgb, alpha, np.stack(out_c2w), np.stack(out_intr), info, held)
+
+
+def _rig_window(k: Cam, centre: np.ndarray, scale: float, fov_deg: float, res: int):
+    """A camera ``k`` (upright frame, intrinsics in its photo's pixels) on the training rig: its c2w with the world
+    moved by -``centre`` and scaled by ``scale``, the intrinsics (4,) of the ``res`` x ``res`` view cropped to the
+    training field of view around the centre's projection, the crop window (x0, y0, w, h) in the photo's pixels,
+    and the centre's camera-frame depth (<= 0: behind the camera)."""
+    c2w = k.c2w.copy()
+    c2w[:3, 3] = (c2w[:3, 3] - centre) * scale
+    uv, z = camera.project(_t(np.zeros((1, 3))), _t(c2w)[None], _t(k.intr)[None])
+    u, v = (float(x) for x in uv[0, 0])
+    t = math.tan(math.radians(fov_deg) / 2)
+    fx, fy, cx, cy = k.intr
+    wc, hc = 2 * fx * t, 2 * fy * t
+    x0, y0 = u - wc / 2, v - hc / 2
+    intr = np.array([fx * res / wc, fy * res / hc, (cx - x0) * res / wc, (cy - y0) * res / hc])
+    return c2w, intr, {"x0": x0, "y0": y0, "w": wc, "h": hc}, float(z[0, 0])
+
+
+def _held_out_views(
+    files, frame, path: Path, centre, scale, fov_deg, res, masks, seeds, allow_outside: bool
+) -> Capture:
+    """The held-out photos prepared exactly as the views (masked, undistorted, cropped to the training field of
+    view around the object's centre and resampled to ``res``; cameras in the asset's frame), one photo in memory at
+    a time. A photo that cannot be (its mask refused or empty after the crop, the centre behind its camera) is
+    skipped: ``info["skipped"]`` names it with the reason."""
+    names, rgbs, alphas, c2ws, intrs, skipped = [], [], [], [], [], {}
+    assigned = dict(frame.assigned)  # undistortion replaces the entries; the frame's record keeps the file's
+    for f in files:
+        try:
+            p = make_masks([Photo(f.stem, f, *read_image(f))], masks, None, allow_outside, seeds)[0]
+            camera_formats.undistort_photos([p], assigned, path)
+            k = match_cameras([p], [(p.name, assigned[p.name])], path)[0]
+            c2w, intr, w, z = _rig_window(k, centre, scale, fov_deg, res)
+            if z <= 0:
+                raise CaptureError(f"{f}: the object's centre is behind this camera")
+            rgba = resample(np.concatenate([p.rgb, p.alpha[..., None]], -1), w["x0"], w["y0"], w["w"], w["h"], res)
+            _check_not_empty(rgba[..., 3], f"{f} (after cropping to the object)")
+        except CaptureError as e:
+            skipped[f.stem] = str(e)
+            continue
+        names.append(p.name)
+        rgbs.append(np.maximum(rgba[..., :3], 0.0))
+        alphas.append(np.clip(rgba[..., 3:4], 0.0, 1.0))
+        c2ws.append(c2w)
+        intrs.append(intr)
+    if not names:
+        return Capture(
+            [],
+            np.zeros((0, res, res, 3), np.float32),
+            np.zeros((0, res, res, 1), np.float32),
+            np.zeros((0, 4, 4)),
+            np.zeros((0, 4)),
+            {"skipped": skipped},
+        )
+    return Capture(names, np.stack(rgbs), np.stack(alphas), np.stack(c2ws), np.stack(intrs), {"skipped": skipped})
 
 
 def _t(a):

@@ -60,6 +60,7 @@ def reconstruct(
     allow_outside: bool = False,
     select: int | None = None,
     sfm: bool = False,
+    measure_heldout: bool = False,
 ) -> dict:
     """Photos -> an asset folder ``out`` (:mod:`frng.apps.asset`, plus ``input_light.exr`` and ``contact_sheet.png``).
 
@@ -74,7 +75,10 @@ def reconstruct(
     others; a failure leaves the previous ``out`` whole. ``allow_outside``: read photos and masks that are symlinks
     out of their folders. ``select``: how many views to choose among the photos (:func:`prepare`). ``sfm``: the
     cameras from structure from motion (:mod:`frng.apps.sfm`), its scratch folder where ``out``'s staging folder
-    goes (inside ``out`` when it exists, else beside it) and removed afterwards."""
+    goes (inside ``out`` when it exists, else beside it) and removed afterwards. ``measure_heldout``: score the asset
+    and a baseline on the held-out photos (:mod:`frng.apps.capture_heldout`; ``heldout.csv``, ``heldout.md`` and
+    ``heldout_sheet.png`` in ``out``; the record's ``heldout`` holds the summary line); needs held-out photos
+    (``cameras`` or ``sfm`` with the views chosen among more photos)."""
     import torch
 
     from frng.apps.asset import RIG_KEY, render_settings, save_asset
@@ -88,6 +92,11 @@ def reconstruct(
         confine.check_output(out, "reconstruct", force, recognise=is_asset_folder)
     except confine.OutputError as e:
         raise CaptureError(str(e)) from None
+    if measure_heldout and cameras is None and not sfm:
+        raise CaptureError(
+            f"{images}: --measure-heldout scores the photos held out of the views: give --cameras or --sfm and more "
+            f"photos than views (more than 10, or --select N)"
+        )
     if sfm:  # before minutes of structure from motion
         L0 = Layout(cfg.results)
         _check_models(Path(model) if model is not None else default_model(L0), Path(L0.backbone_model()))
@@ -105,7 +114,13 @@ def reconstruct(
         select=select,
         sfm=sfm,
         work=next((d for d in (Path(out), Path(out).parent) if d.is_dir()), None),
+        held_out=measure_heldout,
     )
+    if measure_heldout and cap.held_out is None:
+        raise CaptureError(
+            f"{images}: --measure-heldout: no photo is held out ({len(cap.names)} photos, all of them views); give "
+            f"more photos than views (more than 10, or --select N with N below the number of photos)"
+        )
     if float(np.max(cap.rgb, initial=0.0)) < 1.0 / 4096:  # an asset lit by an all-zero light, else
         import sys
 
@@ -210,6 +225,15 @@ def reconstruct(
                     "contact_sheet.png": lambda p: io.write_png(p, sheet),
                 },
             )
+            if measure_heldout:  # the asset as written, rendered from the staged folder
+                from frng.apps import capture_heldout
+                from frng.apps.asset import AssetRenderer
+
+                bg = tuple(cfg.eval.background)
+                result = capture_heldout.measure(
+                    AssetRenderer(stage, device=dev), cap.held_out, cap, env, seed=cfg.seed, background=bg, oid=oid
+                )
+                record["heldout"] = capture_heldout.write_report(stage, result, bg, shown=out)
     except confine.OutputError as e:
         raise CaptureError(str(e)) from None
     return record

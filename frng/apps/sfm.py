@@ -26,8 +26,11 @@ points and, per photo, the pixel positions of its keypoints that became sparse p
 What fails is one line naming the folder (:class:`frng.apps.capture_errors.CaptureError`): fewer than
 :data:`MIN_PHOTOS` photos; too few matches (no pair of photos with :data:`MIN_MATCHES` verified matches, or a
 photo with too few features: both named); no reconstruction (no pair to start from: the best pair named with its
-inlier count); photos that did not register in the model kept (named, with their verified matches; remove them or
-take photos between them). COLMAP's own log is silent unless ``frng --debug``.
+inlier count); photos that did not register in the model kept, when fewer than ``need`` did (named, with their
+verified matches; remove them or take photos between them). When at least ``need`` photos registered (``frng
+reconstruct``: the views the model takes, ``--select N`` or the training rig's 6), the others are left out instead:
+one progress line ``sfm: not registered, left out: a.jpg, b.jpg (...)`` and ``notes["sfm"]["not_registered"]``
+(recorded in the asset's ``capture.sfm``). COLMAP's own log is silent unless ``frng --debug``.
 """
 
 from __future__ import annotations
@@ -176,12 +179,16 @@ def cameras_from_photos(
     progress: Callable[[str], None] | None = say,
     single_camera: bool | None = None,
     read=None,
+    need: int | None = None,
 ) -> camera_formats.CameraSet:
     """Structure from motion over ``files`` (the photos of ``folder``, which errors name) -> their cameras
     (module docstring). ``work``: where the scratch folder goes (:func:`scratch`); ``progress``: called with one
     line per stage (None: silent); ``single_camera``: one camera for all photos (default: when their sizes agree);
     ``read(path)`` -> (linear RGB (H, W, 3), alpha or None): how a photo COLMAP cannot read is decoded
-    (:func:`frng.apps.capture.read_image`; default: EXR only)."""
+    (:func:`frng.apps.capture.read_image`; default: EXR only). ``need``: with at least this many photos
+    registered, the photos that did not register are left out (named in one progress line and in the returned
+    set's ``notes["sfm"]["not_registered"]``, their file names); with fewer, or with ``need`` None, they are an
+    error naming them."""
     import pycolmap
 
     say = progress or (lambda line: None)
@@ -288,14 +295,24 @@ def cameras_from_photos(
         rec = max(models.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()))
         registered = {im.name for im in rec.images.values()}
         lost = [n for n in names if n not in registered]
+        original = {n: f.name for n, f in zip(names, files)}  # COLMAP's name (a PNG copy's) -> the photo's file
         if lost:
             verified = {n: sum(1 for (a, b) in good if n in (a, b)) for n in lost}
-            detail = ", ".join(f"{Path(n).stem} ({verified[n]} verified pairs)" for n in lost[:8])
-            more = f" and {len(lost) - 8} more" if len(lost) > 8 else ""
             split = f"; the photos fell into {len(models)} separate models" if len(models) > 1 else ""
-            raise CaptureError(
-                f"{folder}: structure from motion registered {len(registered)} of {len(names)} photos; these did "
-                f"not register: {detail}{more}{split}; remove them from the folder or take photos between them"
+            enough = need is not None and len(registered) >= need
+            if not enough:
+                detail = ", ".join(f"{original[n]} ({verified[n]} verified pairs)" for n in lost[:8])
+                more = f" and {len(lost) - 8} more" if len(lost) > 8 else ""
+                short = f", fewer than the {need} views the model takes" if need is not None else ""
+                raise CaptureError(
+                    f"{folder}: structure from motion registered {len(registered)} of {len(names)} photos{short}; "
+                    f"these did not register: {detail}{more}{split}; remove them from the folder or take photos "
+                    f"between them"
+                )
+            stats["not_registered"] = [original[n] for n in lost]
+            say(
+                f"sfm: not registered, left out: {', '.join(original[n] for n in lost)} ({len(registered)} of "
+                f"{len(names)} photos registered, {need} needed{split})"
             )
         stats |= {
             "registered": len(registered),

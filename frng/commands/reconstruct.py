@@ -94,11 +94,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--views", type=int, default=6, help="with --export-object: how many input views")
     parser.add_argument(
+        "--measure-heldout",
+        action="store_true",
+        help="with --cameras or --sfm and more photos than views: render the asset at the held-out photos' cameras "
+        "under the input light and score it and a baseline (the nearest input view warped by the asset's depth) "
+        "against them; {out}/heldout.md, heldout.csv, heldout_sheet.png (frng.apps.capture_heldout)",
+    )
+    parser.add_argument(
         "--measure",
         metavar="OBJ",
         nargs="+",
         help="instead: score reconstruct + render-asset on curated test objects against `frng "
-        "relight` (frng.apps.capture_measure.measure); writes {out}/measure.csv and prints the means",
+        "relight` (frng.apps.capture_measure.measure); writes {out}/measure.csv and prints the means (your own "
+        "photos: --measure-heldout)",
     )
 
 
@@ -187,6 +195,7 @@ def run(args: argparse.Namespace) -> int:
             allow_outside=args.allow_outside,
             select=args.select,
             sfm=args.sfm,
+            measure_heldout=args.measure_heldout,
         )
     except (CaptureError, AssetError) as e:
         if cli.DEBUG:  # `frng --debug`: the traceback
@@ -205,5 +214,7 @@ def run(args: argparse.Namespace) -> int:
     )
     if "selection" in record:
         print(record["selection"]["summary"])
+    if "heldout" in record:
+        print(record["heldout"])
     print(json.dumps(record["timing_s"]))
     return 0
