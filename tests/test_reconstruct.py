@@ -49,10 +49,11 @@ def test_capture_of_a_test_object_reproduces_relight(smoke, tmp_path):
     print("\n" + df.groupby("setting")[["psnr", "ssim", "lpips"]].mean().to_string())
     assert np.isfinite(df[["psnr", "ssim", "lpips"]].to_numpy()).all()
     assert len(df) == 5 * len(df[df.setting == "relight"])
-    for setting in ("exr+cameras/known", "png+rig/known"):
-        assert abs(mean[setting] - mean["relight"]) < TOLERANCE_DB, (setting, mean.to_dict())
-    # the estimated light is measured, not bounded; it must at least give a usable render
+    # `frng relight` is the paper's task (the input light estimated from the photos), so reconstruct with the
+    # light estimated reproduces it; the known light is an oracle, measured, not bounded: a usable render
     for setting in ("exr+cameras/estimated", "png+rig/estimated"):
+        assert abs(mean[setting] - mean["relight"]) < TOLERANCE_DB, (setting, mean.to_dict())
+    for setting in ("exr+cameras/known", "png+rig/known"):
         assert mean[setting] > mean["relight"] - 6.0, mean.to_dict()
 
 

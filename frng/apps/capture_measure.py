@@ -56,7 +56,8 @@ def measure(config, oid: str, work: str | Path, views: int = 6, settings=None) -
     run: the same target lights, target views, light-sample seeds and metrics (``eval`` protocol).
 
     Settings (``settings``: a subset of the names): ``relight`` (the reference: ``{results}/relight/full/{oid}``),
-    ``exr+cameras/known`` (the first ``views`` input EXRs, cameras from meta.json, the input light given),
+    ``exr+cameras/known`` (the first ``views`` input EXRs, cameras from meta.json, the input light given: an oracle,
+    since ``frng relight`` estimates it, the paper's task),
     ``png+rig/known`` (the same views exported as 8-bit PNGs, ``--rig paper``, no camera file; the object's rig
     starts at azimuth a0, the paper rig at 0, so the given light, the target cameras and the target lights are
     rotated by -a0 about Z into the asset's frame), and both again with the light estimated (``.../estimated``).
