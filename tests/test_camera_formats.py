@@ -124,6 +124,10 @@ def write_idr(path: Path, c2ws, intrs, centre, radius, scales=None):
         world_mat = K @ np.linalg.inv(c2w) * (1.0 if scales is None else scales[i])
         arrays[f"world_mat_{i}"] = world_mat
         arrays[f"scale_mat_{i}"] = S
+        # NeuS's archives (DTU, BlendedMVS) hold these too: keys that start like world_mat_ but are not numbered
+        arrays[f"world_mat_inv_{i}"] = np.linalg.inv(world_mat)
+        arrays[f"scale_mat_inv_{i}"] = np.linalg.inv(S)
+        arrays[f"camera_mat_{i}"] = K
     np.savez(path, **arrays)
     return path
 

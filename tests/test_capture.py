@@ -141,6 +141,25 @@ def test_masks_that_do_not_match_the_images_name_the_mask(tmp_path):
         make_masks(load_images(d), masks)
 
 
+def test_masks_match_photos_by_number_as_in_neus_dtu(tmp_path):
+    """NeuS's DTU names photos image/000000.png and masks mask/000.png: matched by their number, photo by photo (as
+    the view selection loads them); a number two masks share is no match."""
+    d, masks = tmp_path / "image", tmp_path / "mask"
+    d.mkdir(), masks.mkdir()
+    for i in range(2):
+        _png(d / f"{i:06d}.png", np.full((RES, RES, 3), 0.2 + 0.3 * i, np.float32))
+        m = np.zeros((RES, RES, 3), np.float32)
+        m[4 + 8 * i : 20 + 8 * i, 8:24] = 1.0
+        _png(masks / f"{i:03d}.png", m)
+    photos = load_images(d)
+    for p in photos:
+        (one,) = make_masks([p], masks)
+        assert one.alpha.sum() == 16 * 16 and one.alpha[4 + 8 * int(p.name), 8] == 1.0, p.name
+    _png(masks / "0001.png", np.ones((RES, RES, 3), np.float32))
+    with pytest.raises(CaptureError, match=r"no mask named like photo\(s\) \['000001'\]"):
+        make_masks([photos[1]], masks)
+
+
 def test_empty_masks_name_the_file(tmp_path):
     d = _folder(tmp_path, n=2)
     masks = tmp_path / "masks"

@@ -607,7 +607,8 @@ def read_idr(path: Path) -> CameraSet:
         data = dict(np.load(path, allow_pickle=False))
     except (ValueError, OSError) as e:
         raise CaptureError(f"{path}: cannot read as a .npz archive ({str(e).splitlines()[0][:200]})") from None
-    ids = sorted(int(k.rsplit("_", 1)[1]) for k in data if k.startswith("world_mat_") and k.rsplit("_", 1)[1].isdigit())
+    # world_mat_{i} only: NeuS's archives also hold world_mat_inv_{i} (and camera_mat_{i}, scale_mat_inv_{i})
+    ids = sorted(int(k[len("world_mat_") :]) for k in data if k.startswith("world_mat_") and k[10:].isdigit())
     if not ids:
         raise CaptureError(f"{path}: no world_mat_0.. in the archive (keys {sorted(data)[:5]}); not IDR / NeuS cameras")
     if ids != list(range(len(ids))):

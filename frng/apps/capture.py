@@ -327,6 +327,18 @@ def key_background(photo: Photo) -> tuple[np.ndarray, np.ndarray] | None:
     return alpha.astype(np.float32), out.astype(np.float32)
 
 
+def _mask_file(name: str, by_stem: dict[str, Path]) -> Path | None:
+    """The mask file of the photo named ``name`` (its stem) among ``by_stem`` (stem -> file): the same stem, else
+    the one whose stem is the same number (NeuS's DTU: image/000000.png, mask/000.png); None when there is none or
+    the number is ambiguous."""
+    if name in by_stem:
+        return by_stem[name]
+    if not name.isdigit():
+        return None
+    same = [f for stem, f in by_stem.items() if stem.isdigit() and int(stem) == int(name)]
+    return same[0] if len(same) == 1 else None
+
+
 def make_masks(
     photos: list[Photo],
     masks: str | Path | None = None,
@@ -347,14 +359,15 @@ def make_masks(
             th, tw = m.shape[0] // grid[0], m.shape[1] // grid[1]
             tiles = [m[i * th : (i + 1) * th, j * tw : (j + 1) * tw] for i in range(grid[0]) for j in range(grid[1])]
             chosen = files * len(photos)
-        elif all(p.name in by_stem for p in photos):
-            chosen = [by_stem[p.name] for p in photos]
-        elif len(files) == len(photos):
+        elif all(_mask_file(p.name, by_stem) for p in photos):
+            chosen = [_mask_file(p.name, by_stem) for p in photos]
+        elif len(files) == len(photos) > 1:
             chosen = files
         else:
             raise CaptureError(
-                f"{masks}: {len(files)} mask file(s) for {len(photos)} images and their names do "
-                f"not match (missing: {[p.name for p in photos if p.name not in by_stem][:3]})"
+                f"{masks}: {len(files)} mask file(s) and no mask named like photo(s) "
+                f"{[p.name for p in photos if not _mask_file(p.name, by_stem)][:3]} (a mask takes its photo's name, "
+                "or its number: 000.png for 000000.png)"
             )
         for k, (p, f) in enumerate(zip(photos, chosen)):
             m = _read_mask(f) if tiles is None else tiles[k]

@@ -29,6 +29,10 @@ BENCHES: dict[str, tuple[str, str]] = {
         "frng.diagnostics.bench_backbone",
         "held-out relighting quality and light sensitivity of trained backbones under inference settings (paired CIs)",
     ),
+    "export": (
+        "frng.diagnostics.bench_export",
+        "how well degree-3 SH (frng export-asset) hold a results folder's relit assets: fit PSNR per asset",
+    ),
     "train": (
         "frng.diagnostics.bench_train",
         "seconds per training step of the backbone and F-RNG, per thread count, bf16 off/on",
