@@ -282,3 +282,22 @@ def test_selection_skips_photos_whose_object_is_cut_off(tmp_path):
     assert "p12" not in cap.names and "p12" in cap.info["selection"]["held_out"]
     assert cap.info["selection"]["scores"]["p12"]["cut"] is True
     assert math.isclose(cap.info["selection"]["scores"]["p00"]["penalty"], 0.0, abs_tol=1e-9)
+
+
+def test_photos_without_a_mask_are_left_out_when_enough_remain(tmp_path):
+    """A photo whose mask cannot be made (no alpha, a noisy background GrabCut refuses) is left out of the choice
+    and named, with its reason; when too few photos remain, one error says how many and why."""
+    names = [f"p{i:02d}" for i in range(12)]
+    images = _folder(tmp_path, names)
+    rng = np.random.default_rng(0)
+    for n in ("p03", "p07"):  # no alpha, texture everywhere: no mask to be had
+        io.write_png(images / f"{n}.png", rng.uniform(size=(RES, RES, 3)).astype(np.float32))
+    cams = _write_cams(tmp_path / "c.json", names, _ring(12))
+    cap = prepare(images, resolution=RES, distance=DIST, fov_deg=FOV, cameras=cams)
+    sel = cap.info["selection"]
+    assert sorted(sel["no_mask"]) == ["p03", "p07"] and "no mask for this view" in sel["no_mask"]["p03"]
+    assert not {"p03", "p07"} & set(sel["chosen"] + sel["held_out"]) and len(sel["chosen"]) == 6
+    assert sel["summary"].endswith("2 left out, no mask: p03, p07")
+    io.write_png(images / "p10.png", rng.uniform(size=(RES, RES, 3)).astype(np.float32))
+    with pytest.raises(CaptureError, match=r"3 of 12 photos have no mask, 9 left for 10 views; the first: .*p03"):
+        prepare(images, resolution=RES, distance=DIST, fov_deg=FOV, cameras=cams, select=10)

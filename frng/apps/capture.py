@@ -26,7 +26,8 @@ Masks (:func:`make_masks`), in this order of precedence
        structure from motion (``--sfm``), by the sparse points near the object's centre and on the table
        (:mod:`frng.apps.masks`; the source, ``grabcut:centre`` or ``grabcut:sfm-points``, is recorded).
     None of these (the segmentation refused: too small, no object, colours not told apart) -> an error naming the
-    photo. A mask with fewer than max(4, 0.1 % of the pixels) above 0.5 is
+    photo (among more photos than views: the photo is left out when enough remain, :mod:`frng.apps.capture_frame`;
+    a held-out photo is skipped). A mask with fewer than max(4, 0.1 % of the pixels) above 0.5 is
     "empty" -> an error naming the mask (or photo).
 
 Cameras (:func:`read_cameras`, :func:`rig_cameras`, :func:`normalise`)

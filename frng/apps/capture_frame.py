@@ -31,8 +31,10 @@ centre and the rig direction (radians) plus a quality penalty (:func:`quality_pe
 sharpness / the sharpest photo's) + :data:`W_MASK` x (1 - mask size / the median, clipped at 0) + :data:`W_CUT` when
 the mask touches the photo's border, i.e. the object is cut off); views beyond the rig's 6 are added farthest
 first. Sharpness: the variance of the Laplacian of the luminance over the eroded mask, over the squared mean
-luminance, at a common size (longest side :data:`QUALITY_SIDE`). The other photos are held out: their names and
-cameras (in the asset's frame, at their own size) are recorded, and one line says what was chosen.
+luminance, at a common size (longest side :data:`QUALITY_SIDE`). A photo whose mask cannot be made (no --masks, no
+alpha, a background that is neither plain nor segmented: :func:`frng.apps.capture.make_masks`) is left out and named
+in the line (the asset's ``selection.no_mask``, with the reason) when at least N photos remain; else one error. The
+other photos are held out: their names and cameras (in the asset's frame, at their own size) are recorded, and one line says what was chosen.
 """
 
 from __future__ import annotations
@@ -183,6 +185,7 @@ class Selection:
     cset: CameraSet
     scores: dict = field(default_factory=dict)
     cover: dict = field(default_factory=dict)
+    no_mask: dict[str, str] = field(default_factory=dict)  # photos left out: no mask could be made (name -> why)
 
 
 @dataclass
@@ -268,6 +271,7 @@ class Frame:
                 "summary": sel.summary,
                 "coverage": sel.cover,
                 "scores": sel.scores,
+                "no_mask": dict(sel.no_mask),
             }
             rec["held_out_cameras"] = held
         return rec
@@ -367,13 +371,23 @@ def select_photos(
         raise CaptureError(f"--select {n}: the model takes {min_views}-{max_views} views")
     if n > len(files):
         raise CaptureError(f"{images}: --select {n}, but the folder holds {len(files)} images")
-    qualities, sizes = [], {}
+    qualities, sizes, no_mask = [], {}, {}
     for f in files:
-        p = load(f)
+        try:
+            p = load(f)
+        except CaptureError as e:  # no mask for this photo (segmentation refused): left out when enough remain
+            no_mask[f.stem] = str(e)
+            continue
         sizes[p.name] = p.size
         qualities.append(photo_quality(p.rgb, p.alpha))
         del p
-    names = [f.stem for f in files]
+    names = [f.stem for f in files if f.stem not in no_mask]
+    if len(names) < n:
+        first = next(iter(no_mask.values()))
+        raise CaptureError(
+            f"{images}: {len(no_mask)} of {len(files)} photos have no mask, {len(names)} left for {n} views; "
+            f"the first: {first}"
+        )
     cset = read_set(Path(cameras), sizes)
     assigned = cset.assign(names)
     R = upright_rotation(camera_up(np.stack([c.c2w for _, c in cset.cams]), cset.up)[0])
@@ -388,12 +402,13 @@ def select_photos(
     summary = (
         f"{images}: {n} of {len(names)} photos chosen as views (the training rig's directions, worst "
         f"{cover['worst_deg']:.0f} deg off; sharpness; mask size): {', '.join(chosen)}; {len(held)} held out"
+        + (f"; {len(no_mask)} left out, no mask: {', '.join(no_mask)}" if no_mask else "")
     )
     scores = {
         nm: {**q, "penalty": round(float(pe), 4), "elevation_deg": round(math.degrees(math.asin(dz)), 1)}
         for nm, q, pe, dz in zip(names, qualities, pen, np.clip(dirs[:, 2], -1, 1))
     }
-    return Selection(names, chosen, held, sizes, summary, cset, scores, cover)
+    return Selection(names, chosen, held, sizes, summary, cset, scores, cover, no_mask)
 
 
 __all__ = [

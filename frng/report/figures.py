@@ -502,6 +502,7 @@ def loss_curves(
     (non-positive values are dropped from that panel; a panel with none left positive stays linear).
     """
     import pandas as pd
+    from matplotlib import colormaps
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -537,10 +538,20 @@ def loss_curves(
     n = len(columns)
     ncols = min(n, 3)
     nrows = math.ceil(n / ncols)
-    fig = Figure(figsize=(panel_size[0] * ncols, panel_size[1] * nrows + (0.4 if title else 0)), dpi=DPI)
+    spare = nrows * ncols > n  # an empty panel holds the legend; else it goes below the panels
+    legend_rows = 0 if spare or len(runs) < 2 else math.ceil(len(runs) / (2 * ncols))
+    height = panel_size[1] * nrows + (0.4 if title else 0) + 0.25 * legend_rows
+    fig = Figure(figsize=(panel_size[0] * ncols, height), dpi=DPI, layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(nrows, ncols, squeeze=False)
-    colours = [f"C{i % 10}" for i in range(len(runs))]
+    # one colour per run: tab10's, or past ten runs tab20's (its dark shades first): no two runs share one
+    palette = (
+        [f"C{i}" for i in range(10)]
+        if len(runs) <= 10
+        else [colormaps["tab20"](i) for i in [*range(0, 20, 2), *range(1, 20, 2)]]
+    )
+    colours = [palette[i % len(palette)] for i in range(len(runs))]
+    handles = {}
     for k, col in enumerate(columns):
         ax = axes[k // ncols][k % ncols]
         positive_any = False
@@ -553,19 +564,22 @@ def loss_curves(
                 ys = np.where(ys > 0, ys, np.nan)
                 positive_any |= bool(np.isfinite(ys).any())
             ax.plot(xs, ys, color=colour, alpha=0.25, linewidth=0.8)
-            ax.plot(xs, _ema(ys, smoothing), color=colour, linewidth=1.6, label=label)
+            (handles[label],) = ax.plot(xs, _ema(ys, smoothing), color=colour, linewidth=1.6, label=label)
         if logy and positive_any:
             ax.set_yscale("log")
         ax.set_title(col)
         ax.set_xlabel(x)
         ax.grid(True, which="both", alpha=0.3)
-        if len(runs) > 1:
-            ax.legend(fontsize=8)
     for k in range(n, nrows * ncols):
-        axes[k // ncols][k % ncols].set_visible(False)
+        axes[k // ncols][k % ncols].set_axis_off()
+    if len(runs) > 1:  # one legend for every panel, off the curves
+        labels = [label for label in runs if label in handles]
+        if spare:
+            axes[n // ncols][n % ncols].legend([handles[k] for k in labels], labels, loc="center", fontsize=8)
+        else:
+            fig.legend([handles[k] for k in labels], labels, loc="outside lower center", ncol=2 * ncols, fontsize=8)
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
     with atomic_path(out_png) as tmp:
         fig.savefig(tmp, dpi=DPI, format="png", facecolor="white")
     return Path(out_png)
