@@ -8,9 +8,9 @@ decoder's display colour at :data:`~frng.apps.export.FIT_DIRECTIONS` directions 
 by least squares) and the fit is scored on :data:`~frng.apps.export.HELDOUT_DIRECTIONS` other directions
 (opacity-weighted PSNR of the clamped SH colour against the decoder's). No file is exported.
 
-Writes into ``--out``: ``export.csv`` (model, object, light, Gaussians, fit PSNR, seconds) and ``summary.md`` (per
-model: assets, min / median / mean fit PSNR, the worst asset, seconds per asset). With ``--floor DB`` it exits 1
-when an asset's fit falls below it (the floor the export's documentation states).
+Writes into ``--out``: ``export.csv`` (model, object, light, Gaussians, fit PSNR, seconds; a row as each asset is
+measured) and ``summary.md`` (per model: assets, min / median / mean fit PSNR, the worst asset, seconds per asset).
+With ``--floor DB`` it exits 1 when an asset's fit falls below it (the floor the export's documentation states).
 """
 
 from __future__ import annotations
@@ -89,21 +89,21 @@ def run(args: argparse.Namespace) -> int:
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
-    for i, (model, obj, light, folder, map_path) in enumerate(jobs):
-        t0 = time.perf_counter()
-        renderer = AssetRenderer(folder)
-        baked = bake(renderer, envmap.read(map_path), args.exposure, light={"map": str(map_path)})
-        row = {
-            "model": model, "object": obj, "light": light, "gaussians": len(baked),
-            "fit_psnr_db": round(baked.fit_psnr_db, 3), "seconds": round(time.perf_counter() - t0, 1),
-        }  # fmt: skip
-        rows.append(row)
-        print(f"[{i + 1}/{len(jobs)}] {model} {obj} {light}: {row['gaussians']} Gaussians, fit {row['fit_psnr_db']:.2f} dB "
-              f"({row['seconds']:.0f} s)", flush=True)  # fmt: skip
-    with open(args.out / "export.csv", "w", newline="") as f:
+    with open(args.out / "export.csv", "w", newline="") as f:  # a row per asset as it is measured
         w = csv.DictWriter(f, COLUMNS)
         w.writeheader()
-        w.writerows(rows)
+        for i, (model, obj, light, folder, map_path) in enumerate(jobs):
+            t0 = time.perf_counter()
+            baked = bake(AssetRenderer(folder), envmap.read(map_path), args.exposure, light={"map": str(map_path)})
+            row = {
+                "model": model, "object": obj, "light": light, "gaussians": len(baked),
+                "fit_psnr_db": round(baked.fit_psnr_db, 3), "seconds": round(time.perf_counter() - t0, 1),
+            }  # fmt: skip
+            rows.append(row)
+            w.writerow(row)
+            f.flush()
+            print(f"[{i + 1}/{len(jobs)}] {model} {obj} {light}: {row['gaussians']} Gaussians, "
+                  f"fit {row['fit_psnr_db']:.2f} dB ({row['seconds']:.0f} s)", flush=True)  # fmt: skip
     table = summary(rows)
     (args.out / "summary.md").write_text(
         f"# frng bench export: SH fit of {args.results}'s assets ({args.exposure:+g} EV)\n\n{table}"
