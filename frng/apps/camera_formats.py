@@ -608,7 +608,9 @@ def read_idr(path: Path) -> CameraSet:
     except (ValueError, OSError) as e:
         raise CaptureError(f"{path}: cannot read as a .npz archive ({str(e).splitlines()[0][:200]})") from None
     # world_mat_{i} only: NeuS's archives also hold world_mat_inv_{i} (and camera_mat_{i}, scale_mat_inv_{i})
-    ids = sorted(int(k[len("world_mat_") :]) for k in data if k.startswith("world_mat_") and k[10:].isdigit())
+    ids = sorted(
+        int(n) for n in (k.removeprefix("world_mat_") for k in data if k.startswith("world_mat_")) if n.isdigit()
+    )
     if not ids:
         raise CaptureError(f"{path}: no world_mat_0.. in the archive (keys {sorted(data)[:5]}); not IDR / NeuS cameras")
     if ids != list(range(len(ids))):

@@ -360,14 +360,14 @@ def make_masks(
             th, tw = m.shape[0] // grid[0], m.shape[1] // grid[1]
             tiles = [m[i * th : (i + 1) * th, j * tw : (j + 1) * tw] for i in range(grid[0]) for j in range(grid[1])]
             chosen = files * len(photos)
-        elif all(_mask_file(p.name, by_stem) for p in photos):
-            chosen = [_mask_file(p.name, by_stem) for p in photos]
+        elif all(named := [_mask_file(p.name, by_stem) for p in photos]):
+            chosen = named
         elif len(files) == len(photos) > 1:
             chosen = files
         else:
             raise CaptureError(
                 f"{masks}: {len(files)} mask file(s) and no mask named like photo(s) "
-                f"{[p.name for p in photos if not _mask_file(p.name, by_stem)][:3]} (a mask takes its photo's name, "
+                f"{[p.name for p, f in zip(photos, named) if f is None][:3]} (a mask takes its photo's name, "
                 "or its number: 000.png for 000000.png)"
             )
         for k, (p, f) in enumerate(zip(photos, chosen)):

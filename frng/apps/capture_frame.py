@@ -34,7 +34,8 @@ first. Sharpness: the variance of the Laplacian of the luminance over the eroded
 luminance, at a common size (longest side :data:`QUALITY_SIDE`). A photo whose mask cannot be made (no --masks, no
 alpha, a background that is neither plain nor segmented: :func:`frng.apps.capture.make_masks`) is left out and named
 in the line (the asset's ``selection.no_mask``, with the reason) when at least N photos remain; else one error. The
-other photos are held out: their names and cameras (in the asset's frame, at their own size) are recorded, and one line says what was chosen.
+other photos are held out: their names and cameras (in the asset's frame, at their own size) are recorded, and one
+line says what was chosen.
 """
 
 from __future__ import annotations
